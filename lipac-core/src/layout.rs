@@ -1,0 +1,279 @@
+//! GPU buffer layouts shared by the CPU reference and every backend.
+//!
+//! Everything here is `#[repr(C)]` and [`bytemuck::Pod`], so a backend uploads
+//! these records byte for byte and its shaders declare the same structs
+//! (see `lipac-vk/shaders/lipac_layout.glsl`). The CPU reference algorithms in
+//! this crate read and write exactly these records, which is what makes
+//! "GPU output equals CPU reference" a meaningful test.
+//!
+//! | record | bytes | what |
+//! | --- | --- | --- |
+//! | [`TlasInstance`] | 64 | `VkAccelerationStructureInstanceKHR` |
+//! | [`InstanceRecord`] | 96 | per-instance state, indexed by GPU slot |
+//! | [`HitboxRecord`] | 12 | per-hitbox state (the paper's 12 bytes) |
+//! | hit counter | 4 | one `u32` per instance slot (the paper's 4 bytes) |
+
+use bytemuck::{Pod, Zeroable};
+
+/// Largest GPU slot index plus one: the TLAS custom index has 24 bits.
+pub const MAX_SLOTS: u32 = 1 << 24;
+
+/// One TLAS instance, laid out exactly as `VkAccelerationStructureInstanceKHR`
+/// (and D3D12's `D3D12_RAYTRACING_INSTANCE_DESC`).
+///
+/// Bit fields are packed little-endian as the C declaration does:
+/// `instanceCustomIndex:24, mask:8` share one `u32`, and so do
+/// `instanceShaderBindingTableRecordOffset:24, flags:8`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TlasInstance {
+    /// Row-major 3x4 object-to-world matrix (`VkTransformMatrixKHR`).
+    pub transform: [f32; 12],
+    /// Custom index in bits 0..24, visibility mask in bits 24..32.
+    pub custom_index_and_mask: u32,
+    /// SBT record offset in bits 0..24, `VkGeometryInstanceFlagsKHR` in bits 24..32.
+    pub sbt_offset_and_flags: u32,
+    /// Device address (or handle) of the BLAS; 0 marks an inactive record.
+    pub acceleration_structure_reference: u64,
+}
+
+impl TlasInstance {
+    /// Packs the record from its fields; `custom_index` and `sbt_offset` are
+    /// truncated to 24 bits.
+    pub fn new(
+        transform: [f32; 12],
+        custom_index: u32,
+        mask: u8,
+        sbt_offset: u32,
+        flags: u8,
+        blas: u64,
+    ) -> Self {
+        Self {
+            transform,
+            custom_index_and_mask: (custom_index & 0x00FF_FFFF) | (u32::from(mask) << 24),
+            sbt_offset_and_flags: (sbt_offset & 0x00FF_FFFF) | (u32::from(flags) << 24),
+            acceleration_structure_reference: blas,
+        }
+    }
+    /// The 24-bit custom index.
+    pub fn custom_index(&self) -> u32 {
+        self.custom_index_and_mask & 0x00FF_FFFF
+    }
+    /// The 8-bit visibility mask.
+    pub fn mask(&self) -> u8 {
+        (self.custom_index_and_mask >> 24) as u8
+    }
+    /// The 24-bit shader binding table record offset.
+    pub fn sbt_offset(&self) -> u32 {
+        self.sbt_offset_and_flags & 0x00FF_FFFF
+    }
+    /// The 8-bit `VkGeometryInstanceFlagsKHR`.
+    pub fn flags(&self) -> u8 {
+        (self.sbt_offset_and_flags >> 24) as u8
+    }
+}
+
+/// `VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR`.
+pub const VK_INSTANCE_CULL_DISABLE: u8 = 0x1;
+/// `VK_GEOMETRY_INSTANCE_TRIANGLE_FLIP_FACING_BIT_KHR`.
+pub const VK_INSTANCE_FLIP_FACING: u8 = 0x2;
+/// `VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_KHR`.
+pub const VK_INSTANCE_FORCE_OPAQUE: u8 = 0x4;
+/// `VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_KHR`.
+pub const VK_INSTANCE_FORCE_NO_OPAQUE: u8 = 0x8;
+
+/// State of one instance as the GPU sees it (two bits in
+/// [`InstanceRecord::packed`]). Names follow the paper: `added` = *active*,
+/// `removed` = *inactive*.
+#[repr(u8)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum InstanceState {
+    /// Only its hitbox represents it (paper: *inactive* / `removed`).
+    Inactive = 0,
+    /// Its AABB is a unit-cube counting box in the TLAS (paper: *omitted*).
+    Omitted = 1,
+    /// Its own BLAS is in the TLAS once built (paper: *active* / `added`).
+    Active = 2,
+}
+
+impl InstanceState {
+    /// Decodes the two state bits; the unused value 3 reads as `Inactive`.
+    pub fn from_bits(bits: u32) -> Self {
+        match bits & 0b11 {
+            1 => Self::Omitted,
+            2 => Self::Active,
+            _ => Self::Inactive,
+        }
+    }
+}
+
+/// Bits of [`InstanceRecord::packed`].
+pub mod instance_bits {
+    /// Bits 0..2: [`super::InstanceState`].
+    pub const STATE_MASK: u32 = 0b11;
+    /// Bit 2: the slot holds a live instance.
+    pub const ALIVE: u32 = 1 << 2;
+    /// Bit 3: the instance needs a unique BLAS (animated, deformed, terrain-adapted).
+    pub const UNIQUE_BLAS: u32 = 1 << 3;
+    /// Bit 4: vegetation (alpha tested; shadow rays may mask it out).
+    pub const VEGETATION: u32 = 1 << 4;
+    /// Bit 5: static (its shared BLAS may be compacted).
+    pub const STATIC: u32 = 1 << 5;
+    /// Bits 8..16: the engine's TLAS visibility mask for this instance.
+    pub const MASK_SHIFT: u32 = 8;
+    /// Bits 16..24: `VkGeometryInstanceFlagsKHR` for this instance.
+    pub const VK_FLAGS_SHIFT: u32 = 16;
+}
+
+/// Per-instance state, one per GPU slot (96 bytes, 16-byte aligned size).
+///
+/// Dead slots have [`instance_bits::ALIVE`] clear and are skipped by both
+/// algorithms.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct InstanceRecord {
+    /// Row-major 3x4 object-to-world matrix.
+    pub transform: [f32; 12],
+    /// World-space AABB minimum.
+    pub aabb_min: [f32; 3],
+    /// Index of the hitbox that holds the AABB centre.
+    pub hitbox: u32,
+    /// World-space AABB maximum.
+    pub aabb_max: [f32; 3],
+    /// State, flags, mask and instance flags; see [`instance_bits`].
+    pub packed: u32,
+    /// Device address of the instance's BLAS (shared or unique); 0 = none yet.
+    pub blas: u64,
+    /// SBT record offset (hit group) of the instance, 24 bits.
+    pub sbt_offset: u32,
+    /// Mesh LOD currently selected (informational for backends).
+    pub lod: u32,
+}
+
+impl InstanceRecord {
+    /// The instance's current state.
+    pub fn state(&self) -> InstanceState {
+        InstanceState::from_bits(self.packed)
+    }
+    /// Replaces the state bits.
+    pub fn set_state(&mut self, state: InstanceState) {
+        self.packed = (self.packed & !instance_bits::STATE_MASK) | state as u32;
+    }
+    /// Whether the slot holds a live instance.
+    pub fn is_alive(&self) -> bool {
+        self.packed & instance_bits::ALIVE != 0
+    }
+    /// Whether the instance needs a unique BLAS.
+    pub fn needs_unique_blas(&self) -> bool {
+        self.packed & instance_bits::UNIQUE_BLAS != 0
+    }
+    /// The engine's visibility mask.
+    pub fn mask(&self) -> u8 {
+        (self.packed >> instance_bits::MASK_SHIFT) as u8
+    }
+    /// The instance's `VkGeometryInstanceFlagsKHR`.
+    pub fn vk_flags(&self) -> u8 {
+        (self.packed >> instance_bits::VK_FLAGS_SHIFT) as u8
+    }
+}
+
+/// Bits of [`HitboxRecord::packed`].
+pub mod hitbox_bits {
+    /// Bit 0: the hitbox is active (its instances may be in the TLAS).
+    pub const ACTIVE: u32 = 1;
+    /// Bits 1..8: frames in a row the hitbox has been above θa (while
+    /// inactive) or below θd (while active).
+    pub const STREAK_SHIFT: u32 = 1;
+    /// Mask of the streak counter after shifting.
+    pub const STREAK_MAX: u32 = 0x7F;
+    /// Bits 8..32: this frame's hit count, saturating at [`HITS_MAX`].
+    pub const HITS_SHIFT: u32 = 8;
+    /// Largest hit count a hitbox holds.
+    pub const HITS_MAX: u32 = (1 << 24) - 1;
+}
+
+/// Per-hitbox state: 12 bytes, the paper's figure.
+///
+/// `min_y`/`max_y` are rebuilt every frame by TLAS assembly (Algorithm 1) from
+/// the inactive instances of the hitbox; the hit count is this frame's.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct HitboxRecord {
+    /// Lowest AABB minimum height of the hitbox's inactive instances.
+    pub min_y: f32,
+    /// Highest AABB maximum height of the hitbox's inactive instances.
+    pub max_y: f32,
+    /// Active bit, streak counter and saturating hit count; see [`hitbox_bits`].
+    pub packed: u32,
+}
+
+impl Default for HitboxRecord {
+    fn default() -> Self {
+        Self { min_y: f32::INFINITY, max_y: f32::NEG_INFINITY, packed: 0 }
+    }
+}
+
+impl HitboxRecord {
+    /// Whether the hitbox is active.
+    pub fn is_active(&self) -> bool {
+        self.packed & hitbox_bits::ACTIVE != 0
+    }
+    /// This frame's hit count.
+    pub fn hits(&self) -> u32 {
+        self.packed >> hitbox_bits::HITS_SHIFT
+    }
+    /// Frames in a row towards the next state change.
+    pub fn streak(&self) -> u32 {
+        (self.packed >> hitbox_bits::STREAK_SHIFT) & hitbox_bits::STREAK_MAX
+    }
+    /// Adds hits, saturating at [`hitbox_bits::HITS_MAX`].
+    pub fn add_hits(&mut self, hits: u32) {
+        let total = self.hits().saturating_add(hits).min(hitbox_bits::HITS_MAX);
+        self.packed = (self.packed & ((1 << hitbox_bits::HITS_SHIFT) - 1))
+            | (total << hitbox_bits::HITS_SHIFT);
+    }
+}
+
+const _: () = assert!(std::mem::size_of::<TlasInstance>() == 64);
+const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 96);
+const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 12);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tlas_instance_bitfields_round_trip() {
+        let t = TlasInstance::new([0.0; 12], 0x12_3456, 0xAB, 0x65_4321, 0x05, 42);
+        assert_eq!(t.custom_index(), 0x12_3456);
+        assert_eq!(t.mask(), 0xAB);
+        assert_eq!(t.sbt_offset(), 0x65_4321);
+        assert_eq!(t.flags(), 0x05);
+        let bytes = bytemuck::bytes_of(&t);
+        // VkAccelerationStructureInstanceKHR: custom index in the low 24 bits of byte 48..52.
+        assert_eq!(&bytes[48..52], &[0x56, 0x34, 0x12, 0xAB]);
+        assert_eq!(&bytes[52..56], &[0x21, 0x43, 0x65, 0x05]);
+        assert_eq!(&bytes[56..64], &42u64.to_le_bytes());
+    }
+
+    #[test]
+    fn hitbox_hits_saturate() {
+        let mut h = HitboxRecord { packed: hitbox_bits::ACTIVE | (3 << 1), ..Default::default() };
+        h.add_hits(hitbox_bits::HITS_MAX - 1);
+        h.add_hits(10);
+        assert_eq!(h.hits(), hitbox_bits::HITS_MAX);
+        assert!(h.is_active());
+        assert_eq!(h.streak(), 3);
+    }
+
+    #[test]
+    fn instance_state_bits() {
+        let mut r = InstanceRecord { packed: instance_bits::ALIVE | (0x81 << 8), ..Default::default() };
+        r.set_state(InstanceState::Omitted);
+        assert_eq!(r.state(), InstanceState::Omitted);
+        assert!(r.is_alive());
+        assert_eq!(r.mask(), 0x81);
+        r.set_state(InstanceState::Active);
+        assert_eq!(r.state(), InstanceState::Active);
+    }
+}
