@@ -18,7 +18,7 @@
 //! ```
 //!
 //! * **slot** (bits 0..24): the instance's GPU slot, below
-//!   [`MAX_SLOTS`](crate::layout::MAX_SLOTS) = 2^24 (the TLAS custom index
+//!   [`MAX_SLOTS`] = 2^24 (the TLAS custom index
 //!   width).
 //! * **kind** (bit 24): [`CommandKind`]. All 32 bits are in use; a future
 //!   third kind would take bit 25 and shrink the priority to 6 bits
@@ -29,12 +29,9 @@
 //!   transition, so the CPU can order work by hits without another buffer.
 //!   Four steps per doubling; 24-bit hitbox counts reach at most 96.
 //!
-//! On the GPU the quantisation is `min(127u, uint(floor(4.0 * log2(float(hits) + 1.0))))`
-//! evaluated in f32; [`priority_from_hits`] computes the exact integer value
-//! (`floor(log2(x^4))` via integer arithmetic), which can differ from a
-//! shader's f32 result by one step right at a power-of-two boundary; compare
-//! priorities with that tolerance or use the same integer routine in the
-//! shader (`findMSB` on the 4th power, see the function's docs).
+//! The quantisation is integer-exact (no `log2` in floating point), so a
+//! shader following [`priority_from_hits`] produces the same words as this
+//! reference.
 
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, HashMap};
@@ -106,12 +103,18 @@ impl fmt::Display for CommandError {
 
 impl std::error::Error for CommandError {}
 
+/// `ceil(2^31 · 2^(j/4))` for j = 1, 2, 3: a mantissa normalised to
+/// `[2^31, 2^32)` at or above `QUARTER_STEPS[j - 1]` has `log2` fraction ≥ j/4.
+const QUARTER_STEPS: [u32; 3] = [2_553_802_834, 3_037_000_500, 3_611_622_603];
+
 /// Quantises a hit count to a 7-bit priority: `min(127, floor(4·log2(hits + 1)))`.
 ///
-/// Computed exactly in integers: `floor(4·log2(x)) = floor(log2(x^4))`, the
-/// index of the highest set bit of `x^4` (x = hits + 1 ≤ 2^32, x^4 in u128).
-/// A shader can do the same with 64-bit integers for x < 2^16 and
-/// `4·findMSB(x) + (top bits)` otherwise; the reference is this function.
+/// Exact integer arithmetic, written so a shader can do the same with 32-bit
+/// integers and get identical words: with `x = hits + 1`, `k = findMSB(x)`
+/// and the mantissa `mn = x << (31 - k)`, the result is
+/// `4k + (mn >= 2553802834) + (mn >= 3037000500) + (mn >= 3611622603)`
+/// (the constants are `ceil(2^31 · 2^(j/4))`), clamped to 127; `hits =
+/// 0xFFFFFFFF` (where `x` overflows) gives 127.
 ///
 /// ```
 /// use lipac_core::command::priority_from_hits;
@@ -121,12 +124,13 @@ impl std::error::Error for CommandError {}
 /// assert_eq!(priority_from_hits(u32::MAX), 127); // 4·32 = 128, clamped
 /// ```
 pub fn priority_from_hits(hits: u32) -> u8 {
-    let x = u128::from(hits) + 1;
-    // x^4 overflows u128 only for x = 2^32, whose priority (128) clamps anyway.
-    match x.checked_mul(x).and_then(|x2| x2.checked_mul(x2)) {
-        Some(x4) => (127 - x4.leading_zeros()).min(u32::from(PRIORITY_MAX)) as u8,
-        None => PRIORITY_MAX,
-    }
+    let Some(x) = hits.checked_add(1) else {
+        return PRIORITY_MAX;
+    };
+    let k = 31 - x.leading_zeros();
+    let mn = x << (31 - k);
+    let q = QUARTER_STEPS.iter().filter(|&&t| mn >= t).count() as u32;
+    (4 * k + q).min(u32::from(PRIORITY_MAX)) as u8
 }
 
 impl Command {
@@ -440,6 +444,15 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// `min(127, floor(log2(x^4)))` in u128, x = hits + 1.
+    fn oracle(hits: u32) -> u8 {
+        let x = u128::from(hits) + 1;
+        match x.checked_mul(x).and_then(|x2| x2.checked_mul(x2)) {
+            Some(x4) => (127 - x4.leading_zeros()).min(127) as u8,
+            None => 127,
+        }
+    }
+
     fn cmd(slot: u32, kind: CommandKind, priority: u8) -> Command {
         Command::new(slot, kind, priority).unwrap()
     }
@@ -461,6 +474,18 @@ mod tests {
                 }
                 Err(CommandError::SlotOutOfRange { slot, .. }) => prop_assert!(slot >= limit.min(MAX_SLOTS)),
                 Err(e) => prop_assert!(false, "unexpected {e}"),
+            }
+        }
+
+        #[test]
+        fn priority_matches_exact_oracle(hits in 0u32..=u32::MAX, near_pow in 0u32..32, delta in 0u32..8) {
+            prop_assert_eq!(priority_from_hits(hits), oracle(hits));
+            // Also right at the quarter-power boundaries of every octave.
+            for t in QUARTER_STEPS {
+                let b = ((u64::from(t) << near_pow) >> 31).saturating_sub(1 + u64::from(delta)) as u32;
+                for h in b.saturating_sub(2)..=b.saturating_add(2) {
+                    prop_assert_eq!(priority_from_hits(h), oracle(h), "hits {}", h);
+                }
             }
         }
 
