@@ -11,6 +11,11 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod assembly;
+pub mod command;
+pub mod feedback;
 pub mod hitbox_index;
 pub mod layout;
 pub mod math;
+pub mod state;
+pub mod thresholds;

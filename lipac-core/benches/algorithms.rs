@@ -1,0 +1,242 @@
+//! Algorithms 1 and 2 (CPU reference) against a memory-bandwidth baseline.
+//!
+//! Synthetic scene: `n` instance slots, ~16 instances per hitbox on a square
+//! grid of 16 m cells, a quarter of the hitboxes active, a mix of states
+//! (including a few percent of instances that change state this frame) and
+//! 1% dead slots. The baseline streams the same instance records and hit
+//! counters once (read + write, `copy_from_slice`), i.e. the bytes both
+//! algorithms have to touch at least once.
+//!
+//! `cargo bench -p lipac-core --bench algorithms`
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use glam::{Vec2, Vec3};
+use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
+use lipac_core::command::CommandBuffer;
+use lipac_core::feedback::process_feedback;
+use lipac_core::hitbox_index::HitboxIndex;
+use lipac_core::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+use lipac_core::thresholds::Thresholds;
+
+const CELL: f32 = 16.0;
+
+/// Square grid of `w * w` cells.
+struct Grid {
+    w: u32,
+}
+
+impl HitboxIndex for Grid {
+    fn len(&self) -> u32 {
+        self.w * self.w
+    }
+    fn hitbox_at(&self, p: Vec3) -> Option<u32> {
+        let (x, z) = ((p.x / CELL).floor(), (p.z / CELL).floor());
+        let w = self.w as f32;
+        (x >= 0.0 && z >= 0.0 && x < w && z < w).then(|| z as u32 * self.w + x as u32)
+    }
+    fn xz_bounds(&self, i: u32) -> Option<(Vec2, Vec2)> {
+        (i < self.len()).then(|| {
+            let lo = Vec2::new((i % self.w) as f32, (i / self.w) as f32) * CELL;
+            (lo, lo + Vec2::splat(CELL))
+        })
+    }
+}
+
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 32) as u32
+    }
+    /// True with probability `p`.
+    fn chance(&mut self, p: f32) -> bool {
+        (self.next() as f32) < p * u32::MAX as f32
+    }
+    fn unit(&mut self) -> f32 {
+        self.next() as f32 / u32::MAX as f32
+    }
+}
+
+struct Scene {
+    grid: Grid,
+    instances: Vec<InstanceRecord>,
+    hits: Vec<u32>,
+    hitboxes: Vec<HitboxRecord>,
+}
+
+fn scene(n: usize) -> Scene {
+    let w = ((n as f64 / 16.0).sqrt().ceil() as u32).max(1);
+    let grid = Grid { w };
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ n as u64);
+    let hitboxes: Vec<HitboxRecord> = (0..grid.len())
+        .map(|_| {
+            let mut h = HitboxRecord::default();
+            if rng.chance(0.25) {
+                h.packed = hitbox_bits::ACTIVE;
+            }
+            h
+        })
+        .collect();
+    let mut instances = Vec::with_capacity(n);
+    let mut hits = Vec::with_capacity(n);
+    for slot in 0..n {
+        // Mostly spatially coherent slots (allocation order), some scattered.
+        let hb = if rng.chance(0.9) {
+            (slot / 16) as u32 % grid.len()
+        } else {
+            rng.next() % grid.len()
+        };
+        let (lo, _) = grid.xz_bounds(hb).unwrap();
+        let p = Vec3::new(lo.x + rng.unit() * 14.0, 0.0, lo.y + rng.unit() * 14.0);
+        let size = Vec3::new(1.0 + rng.unit(), 2.0 + 8.0 * rng.unit(), 1.0 + rng.unit());
+        let unique = rng.chance(0.15);
+        let active_hb = hitboxes[hb as usize].is_active();
+        let r = rng.unit();
+        let state = match (active_hb, unique) {
+            (true, false) if r < 0.95 => InstanceState::Active,
+            (true, true) if r < 0.6 => InstanceState::Omitted,
+            (true, true) if r < 0.95 => InstanceState::Active,
+            (false, _) if r < 0.01 => InstanceState::Active, // will be removed
+            _ => InstanceState::Inactive,
+        };
+        let mut packed = instance_bits::ALIVE | (0xFF << instance_bits::MASK_SHIFT);
+        if unique {
+            packed |= instance_bits::UNIQUE_BLAS;
+        }
+        if rng.chance(0.01) {
+            packed &= !instance_bits::ALIVE;
+        }
+        let mut m = InstanceRecord {
+            transform: [1.0, 0.0, 0.0, p.x, 0.0, 1.0, 0.0, p.y, 0.0, 0.0, 1.0, p.z],
+            aabb_min: p.to_array(),
+            aabb_max: (p + size).to_array(),
+            hitbox: hb,
+            packed,
+            blas: if rng.chance(0.98) {
+                0x1000 + slot as u64 * 256
+            } else {
+                0
+            },
+            sbt_offset: 0,
+            lod: 0,
+        };
+        m.set_state(state);
+        instances.push(m);
+        // Most instances get a few hits, one in twenty a lot.
+        hits.push(match state {
+            InstanceState::Inactive => 0,
+            _ if rng.chance(0.05) => rng.next() % 2000,
+            _ => rng.next() % 64,
+        });
+    }
+    Scene {
+        grid,
+        instances,
+        hits,
+        hitboxes,
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let mut group = c.benchmark_group("algorithms");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2));
+    let cfg = AssemblyConfig::new(0xC0BE);
+    let th = Thresholds::paper();
+    for n in [10_000usize, 100_000, 1_000_000] {
+        let s = scene(n);
+        group.throughput(Throughput::Elements(n as u64));
+
+        // Baseline: stream the instance records and hit counters once.
+        let mut dst_i = s.instances.clone();
+        let mut dst_h = s.hits.clone();
+        group.bench_function(BenchmarkId::new("baseline_copy", n), |b| {
+            b.iter(|| {
+                dst_i.copy_from_slice(black_box(&s.instances));
+                dst_h.copy_from_slice(black_box(&s.hits));
+                black_box((&dst_i, &dst_h));
+            })
+        });
+
+        let mut hitboxes = s.hitboxes.clone();
+        let mut out = Vec::with_capacity(n);
+        group.bench_function(BenchmarkId::new("assemble_tlas", n), |b| {
+            b.iter(|| {
+                let st = assemble_tlas(
+                    black_box(&s.instances),
+                    &mut hitboxes,
+                    &s.grid,
+                    &cfg,
+                    &mut out,
+                )
+                .unwrap();
+                black_box((st, out.len()))
+            })
+        });
+
+        // Counting-box hits of the frame, on top of the reset hitboxes.
+        let mut start_hitboxes = s.hitboxes.clone();
+        for (i, h) in start_hitboxes.iter_mut().enumerate() {
+            // A few inactive hitboxes get enough box hits to activate at once,
+            // others start or extend a streak.
+            let x = (i as u32).wrapping_mul(2_654_435_761) >> 20; // 0..4096
+            h.add_hits(if h.is_active() {
+                0
+            } else if x < 40 {
+                2500
+            } else {
+                x % 1100
+            });
+        }
+        let mut instances = s.instances.clone();
+        let mut hitboxes = start_hitboxes.clone();
+        let mut commands = CommandBuffer::new(n as u32);
+        group.bench_function(BenchmarkId::new("process_feedback", n), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    // Restore the frame's input state (not timed).
+                    instances.copy_from_slice(&s.instances);
+                    hitboxes.copy_from_slice(&start_hitboxes);
+                    commands.clear();
+                    let t = Instant::now();
+                    let st = process_feedback(
+                        &mut instances,
+                        black_box(&s.hits),
+                        &mut hitboxes,
+                        &th,
+                        &mut commands,
+                    )
+                    .unwrap();
+                    total += t.elapsed();
+                    black_box(st);
+                }
+                total
+            })
+        });
+
+        // Report what the synthetic frame does (once, outside timing).
+        let mut i2 = s.instances.clone();
+        let mut h2 = start_hitboxes.clone();
+        let mut c2 = CommandBuffer::new(n as u32);
+        let fs = process_feedback(&mut i2, &s.hits, &mut h2, &th, &mut c2).unwrap();
+        let mut h3 = s.hitboxes.clone();
+        let as_ = assemble_tlas(&s.instances, &mut h3, &s.grid, &cfg, &mut Vec::new()).unwrap();
+        eprintln!(
+            "n = {n}: {as_:?}\n         {fs:?}, commands {}",
+            c2.stored()
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,627 @@
+//! Commands from hit feedback processing (Algorithm 2) to the CPU.
+//!
+//! On the GPU, Algorithm 2 appends one `u32` per state change that needs CPU
+//! work (lines 17, 25, 31, 34) to a bounded readback buffer through an atomic
+//! counter. [`CommandBuffer`] is the CPU mirror of that buffer, and
+//! [`CommandQueue`] is what the CPU does with it after read-back: keep at most
+//! one pending command per slot and hand them out by priority under a
+//! per-frame budget.
+//!
+//! # Word layout
+//!
+//! ```text
+//!  31            25 24 23                                             0
+//! +----------------+--+-----------------------------------------------+
+//! | priority (7 b) |K |                 slot (24 b)                   |
+//! +----------------+--+-----------------------------------------------+
+//! K = kind: 0 = add (build / ensure a BLAS), 1 = remove (free resources)
+//! ```
+//!
+//! * **slot** (bits 0..24): the instance's GPU slot, below
+//!   [`MAX_SLOTS`] = 2^24 (the TLAS custom index
+//!   width).
+//! * **kind** (bit 24): [`CommandKind`]. All 32 bits are in use; a future
+//!   third kind would take bit 25 and shrink the priority to 6 bits
+//!   (`floor(2·log2(hits + 1))` still fits), which is why decoding goes through
+//!   [`Command::decode`] and never by hand.
+//! * **priority** (bits 25..32): [`priority_from_hits`]`(hits)` =
+//!   `min(127, floor(4·log2(hits + 1)))` of the hit count behind the
+//!   transition, so the CPU can order work by hits without another buffer.
+//!   Four steps per doubling; 24-bit hitbox counts reach at most 96.
+//!
+//! The quantisation is integer-exact (no `log2` in floating point), so a
+//! shader following [`priority_from_hits`] produces the same words as this
+//! reference.
+
+use std::cmp::Reverse;
+use std::collections::{BTreeSet, HashMap};
+use std::fmt;
+
+use crate::layout::MAX_SLOTS;
+
+const SLOT_MASK: u32 = MAX_SLOTS - 1;
+const KIND_SHIFT: u32 = 24;
+const PRIORITY_SHIFT: u32 = 25;
+/// Largest priority a command word holds (7 bits).
+pub const PRIORITY_MAX: u8 = 127;
+
+/// What the CPU has to do for an instance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum CommandKind {
+    /// The instance became active: make sure it has a BLAS (lines 25, 31).
+    Add,
+    /// The instance left the active state: its BLAS may be freed (lines 17, 34).
+    Remove,
+}
+
+/// One decoded command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Command {
+    /// GPU slot of the instance (below [`MAX_SLOTS`]).
+    pub slot: u32,
+    /// Add or remove.
+    pub kind: CommandKind,
+    /// Quantised hit count, see [`priority_from_hits`] (0..=127).
+    pub priority: u8,
+}
+
+/// A command word that does not describe a valid command.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum CommandError {
+    /// The slot is at or above the limit (the queue's slot count or
+    /// [`MAX_SLOTS`]).
+    SlotOutOfRange {
+        /// The decoded slot.
+        slot: u32,
+        /// The exclusive limit it was checked against.
+        limit: u32,
+    },
+    /// A command was built with a slot that does not fit 24 bits or a
+    /// priority above 127.
+    FieldOutOfRange {
+        /// The slot given.
+        slot: u32,
+        /// The priority given.
+        priority: u8,
+    },
+}
+
+impl fmt::Display for CommandError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::SlotOutOfRange { slot, limit } => {
+                write!(f, "command slot {slot} out of range (limit {limit})")
+            }
+            Self::FieldOutOfRange { slot, priority } => write!(
+                f,
+                "command fields out of range: slot {slot} (max {}), priority {priority} (max {PRIORITY_MAX})",
+                MAX_SLOTS - 1
+            ),
+        }
+    }
+}
+
+impl std::error::Error for CommandError {}
+
+/// `ceil(2^31 · 2^(j/4))` for j = 1, 2, 3: a mantissa normalised to
+/// `[2^31, 2^32)` at or above `QUARTER_STEPS[j - 1]` has `log2` fraction ≥ j/4.
+const QUARTER_STEPS: [u32; 3] = [2_553_802_834, 3_037_000_500, 3_611_622_603];
+
+/// Quantises a hit count to a 7-bit priority: `min(127, floor(4·log2(hits + 1)))`.
+///
+/// Exact integer arithmetic, written so a shader can do the same with 32-bit
+/// integers and get identical words: with `x = hits + 1`, `k = findMSB(x)`
+/// and the mantissa `mn = x << (31 - k)`, the result is
+/// `4k + (mn >= 2553802834) + (mn >= 3037000500) + (mn >= 3611622603)`
+/// (the constants are `ceil(2^31 · 2^(j/4))`), clamped to 127; `hits =
+/// 0xFFFFFFFF` (where `x` overflows) gives 127.
+///
+/// ```
+/// use lipac_core::command::priority_from_hits;
+/// assert_eq!(priority_from_hits(0), 0);
+/// assert_eq!(priority_from_hits(1), 4); // 4·log2(2)
+/// assert_eq!(priority_from_hits(15), 16); // 4·log2(16)
+/// assert_eq!(priority_from_hits(u32::MAX), 127); // 4·32 = 128, clamped
+/// ```
+pub fn priority_from_hits(hits: u32) -> u8 {
+    let Some(x) = hits.checked_add(1) else {
+        return PRIORITY_MAX;
+    };
+    let k = 31 - x.leading_zeros();
+    let mn = x << (31 - k);
+    let q = QUARTER_STEPS.iter().filter(|&&t| mn >= t).count() as u32;
+    (4 * k + q).min(u32::from(PRIORITY_MAX)) as u8
+}
+
+impl Command {
+    /// A command, checking that `slot` fits 24 bits and `priority` 7 bits.
+    pub fn new(slot: u32, kind: CommandKind, priority: u8) -> Result<Self, CommandError> {
+        if slot >= MAX_SLOTS || priority > PRIORITY_MAX {
+            return Err(CommandError::FieldOutOfRange { slot, priority });
+        }
+        Ok(Self {
+            slot,
+            kind,
+            priority,
+        })
+    }
+
+    /// Packs the command into its word (see the [module docs](self)). Fields
+    /// out of range (only possible by building the struct by hand) are
+    /// truncated to their widths.
+    pub fn encode(self) -> u32 {
+        let kind = match self.kind {
+            CommandKind::Add => 0,
+            CommandKind::Remove => 1,
+        };
+        (self.slot & SLOT_MASK)
+            | (kind << KIND_SHIFT)
+            | (u32::from(self.priority.min(PRIORITY_MAX)) << PRIORITY_SHIFT)
+    }
+
+    /// Unpacks a word. Every 32-bit word has a decoding; `slot_limit` (the
+    /// number of GPU slots in use, at most [`MAX_SLOTS`]) rejects words naming
+    /// slots that cannot hold an instance, which is how a corrupt or stale
+    /// readback shows up.
+    ///
+    /// ```
+    /// use lipac_core::command::{Command, CommandKind};
+    /// let c = Command::new(42, CommandKind::Remove, 9).unwrap();
+    /// assert_eq!(Command::decode(c.encode(), 100), Ok(c));
+    /// assert!(Command::decode(c.encode(), 42).is_err());
+    /// ```
+    pub fn decode(word: u32, slot_limit: u32) -> Result<Self, CommandError> {
+        let slot = word & SLOT_MASK;
+        let limit = slot_limit.min(MAX_SLOTS);
+        if slot >= limit {
+            return Err(CommandError::SlotOutOfRange { slot, limit });
+        }
+        let kind = if (word >> KIND_SHIFT) & 1 == 0 {
+            CommandKind::Add
+        } else {
+            CommandKind::Remove
+        };
+        Ok(Self {
+            slot,
+            kind,
+            priority: (word >> PRIORITY_SHIFT) as u8,
+        })
+    }
+}
+
+/// CPU mirror of the GPU's bounded command buffer and its atomic counter.
+///
+/// The GPU does `i = atomicAdd(counter, 1); if (i < capacity) words[i] = cmd;`
+/// so the counter may run past the capacity. [`CommandBuffer::requested`] is
+/// that counter (saturating instead of wrapping), [`CommandBuffer::stored`]
+/// the number of words actually written. A push that does not fit returns
+/// `false`, and Algorithm 2 then leaves the instance's state unchanged so the
+/// transition is retried next frame.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CommandBuffer {
+    words: Vec<u32>,
+    capacity: u32,
+    requested: u32,
+}
+
+impl CommandBuffer {
+    /// An empty buffer holding at most `capacity` commands.
+    pub fn new(capacity: u32) -> Self {
+        Self {
+            words: Vec::with_capacity(capacity as usize),
+            capacity,
+            requested: 0,
+        }
+    }
+
+    /// Appends a command if there is room; returns whether it was stored.
+    /// The request is counted either way.
+    ///
+    /// ```
+    /// use lipac_core::command::{Command, CommandBuffer, CommandKind};
+    /// let mut b = CommandBuffer::new(1);
+    /// let c = Command::new(3, CommandKind::Add, 0).unwrap();
+    /// assert!(b.push(c));
+    /// assert!(!b.push(c));
+    /// assert_eq!((b.stored(), b.requested(), b.overflowed()), (1, 2, 1));
+    /// ```
+    pub fn push(&mut self, command: Command) -> bool {
+        self.requested = self.requested.saturating_add(1);
+        if self.words.len() < self.capacity as usize {
+            self.words.push(command.encode());
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Whether no further command fits.
+    pub fn is_full(&self) -> bool {
+        self.words.len() >= self.capacity as usize
+    }
+
+    /// Maximum number of stored commands.
+    pub fn capacity(&self) -> u32 {
+        self.capacity
+    }
+
+    /// The counter: commands requested this frame, stored or not.
+    pub fn requested(&self) -> u32 {
+        self.requested
+    }
+
+    /// Commands stored (`min(requested, capacity)`).
+    pub fn stored(&self) -> u32 {
+        self.words.len() as u32
+    }
+
+    /// Requests that did not fit.
+    pub fn overflowed(&self) -> u32 {
+        self.requested - self.stored()
+    }
+
+    /// The stored words, in append order.
+    pub fn words(&self) -> &[u32] {
+        &self.words
+    }
+
+    /// Resets the counter for the next frame (the GPU clears its counter).
+    pub fn clear(&mut self) {
+        self.words.clear();
+        self.requested = 0;
+    }
+}
+
+/// What [`CommandQueue::ingest`] did with one read-back buffer.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IngestStats {
+    /// Words decoded and applied.
+    pub accepted: u32,
+    /// Words rejected by [`Command::decode`] (slot out of range).
+    pub rejected: u32,
+    /// Pending commands of the opposite kind cancelled (and the new one
+    /// dropped with them).
+    pub cancelled: u32,
+    /// Pending commands of the same kind replaced by the newer one.
+    pub superseded: u32,
+    /// Requests the GPU counted but could not store (`counter - stored`);
+    /// their instances kept their state and will ask again.
+    pub overflowed: u32,
+}
+
+/// The CPU's pending commands: at most one per slot, drained by priority.
+///
+/// Rules for a new command for a slot that already has one pending:
+///
+/// * same kind: the new one **supersedes** the old (its priority wins);
+/// * opposite kind: both **cancel**. A pending add was never executed, so a
+///   following remove has nothing to undo; a pending remove was never
+///   executed, so the BLAS still exists when the add arrives.
+///
+/// ```
+/// use lipac_core::command::{Command, CommandKind, CommandQueue};
+/// let mut q = CommandQueue::new(1000);
+/// let add = |slot, p| Command::new(slot, CommandKind::Add, p).unwrap().encode();
+/// let stats = q.ingest(3, &[add(7, 5), add(8, 20), add(9, 20)]);
+/// assert_eq!(stats.accepted, 3);
+/// let first: Vec<u32> = q.drain(2).iter().map(|c| c.slot).collect();
+/// assert_eq!(first, [8, 9]); // priority 20 first, ties by slot
+/// assert_eq!(q.len(), 1); // slot 7 waits for the next frame
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct CommandQueue {
+    slot_limit: u32,
+    by_slot: HashMap<u32, (CommandKind, u8)>,
+    order: BTreeSet<(Reverse<u8>, u32)>,
+}
+
+impl CommandQueue {
+    /// An empty queue accepting slots below `slot_limit` (clamped to
+    /// [`MAX_SLOTS`]); pass the number of GPU slots the registry uses.
+    pub fn new(slot_limit: u32) -> Self {
+        Self {
+            slot_limit: slot_limit.min(MAX_SLOTS),
+            ..Self::default()
+        }
+    }
+
+    /// Changes the accepted slot range (when the registry grows its slot
+    /// buffer). Pending commands at or above the new limit are dropped.
+    pub fn set_slot_limit(&mut self, slot_limit: u32) {
+        self.slot_limit = slot_limit.min(MAX_SLOTS);
+        let limit = self.slot_limit;
+        let stale: Vec<u32> = self
+            .by_slot
+            .keys()
+            .copied()
+            .filter(|&s| s >= limit)
+            .collect();
+        for s in stale {
+            self.cancel_slot(s);
+        }
+    }
+
+    /// Ingests one read-back: `counter` is the GPU's atomic counter value and
+    /// `words` the buffer's stored words (`words.len()` = its capacity or
+    /// fewer). Words beyond `counter` are ignored; malformed words are counted
+    /// and skipped, never a panic.
+    pub fn ingest(&mut self, counter: u32, words: &[u32]) -> IngestStats {
+        let stored = (counter as usize).min(words.len());
+        let mut stats = IngestStats {
+            overflowed: counter.saturating_sub(stored as u32),
+            ..IngestStats::default()
+        };
+        for &w in &words[..stored] {
+            match Command::decode(w, self.slot_limit) {
+                Ok(c) => {
+                    stats.accepted += 1;
+                    self.push(c, &mut stats);
+                }
+                Err(_) => stats.rejected += 1,
+            }
+        }
+        stats
+    }
+
+    /// Ingests a [`CommandBuffer`] (the CPU reference's read-back).
+    pub fn ingest_buffer(&mut self, buffer: &CommandBuffer) -> IngestStats {
+        self.ingest(buffer.requested(), buffer.words())
+    }
+
+    fn push(&mut self, c: Command, stats: &mut IngestStats) {
+        match self.by_slot.get(&c.slot).copied() {
+            Some((kind, prio)) => {
+                self.order.remove(&(Reverse(prio), c.slot));
+                if kind == c.kind {
+                    stats.superseded += 1;
+                    self.by_slot.insert(c.slot, (c.kind, c.priority));
+                    self.order.insert((Reverse(c.priority), c.slot));
+                } else {
+                    stats.cancelled += 1;
+                    self.by_slot.remove(&c.slot);
+                }
+            }
+            None => {
+                self.by_slot.insert(c.slot, (c.kind, c.priority));
+                self.order.insert((Reverse(c.priority), c.slot));
+            }
+        }
+    }
+
+    /// Removes and returns up to `budget` commands, highest priority first,
+    /// ties by ascending slot. The rest stay pending for later frames.
+    pub fn drain(&mut self, budget: usize) -> Vec<Command> {
+        let mut out = Vec::with_capacity(budget.min(self.order.len()));
+        while out.len() < budget {
+            let Some((Reverse(priority), slot)) = self.order.pop_first() else {
+                break;
+            };
+            if let Some((kind, _)) = self.by_slot.remove(&slot) {
+                out.push(Command {
+                    slot,
+                    kind,
+                    priority,
+                });
+            }
+        }
+        out
+    }
+
+    /// Drops the pending command for `slot` (e.g. the instance was removed
+    /// from the registry and its slot will be reused); returns it.
+    pub fn cancel_slot(&mut self, slot: u32) -> Option<Command> {
+        let (kind, priority) = self.by_slot.remove(&slot)?;
+        self.order.remove(&(Reverse(priority), slot));
+        Some(Command {
+            slot,
+            kind,
+            priority,
+        })
+    }
+
+    /// The pending command for `slot`, if any.
+    pub fn pending(&self, slot: u32) -> Option<Command> {
+        self.by_slot.get(&slot).map(|&(kind, priority)| Command {
+            slot,
+            kind,
+            priority,
+        })
+    }
+
+    /// Number of pending commands.
+    pub fn len(&self) -> usize {
+        self.by_slot.len()
+    }
+
+    /// Whether nothing is pending.
+    pub fn is_empty(&self) -> bool {
+        self.by_slot.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// `min(127, floor(log2(x^4)))` in u128, x = hits + 1.
+    fn oracle(hits: u32) -> u8 {
+        let x = u128::from(hits) + 1;
+        match x.checked_mul(x).and_then(|x2| x2.checked_mul(x2)) {
+            Some(x4) => (127 - x4.leading_zeros()).min(127) as u8,
+            None => 127,
+        }
+    }
+
+    fn cmd(slot: u32, kind: CommandKind, priority: u8) -> Command {
+        Command::new(slot, kind, priority).unwrap()
+    }
+
+    proptest! {
+        #[test]
+        fn encode_decode_round_trip(slot in 0..MAX_SLOTS, remove: bool, priority in 0u8..=PRIORITY_MAX) {
+            let kind = if remove { CommandKind::Remove } else { CommandKind::Add };
+            let c = cmd(slot, kind, priority);
+            prop_assert_eq!(Command::decode(c.encode(), MAX_SLOTS), Ok(c));
+        }
+
+        #[test]
+        fn every_word_decodes_or_errors_without_panic(word: u32, limit: u32) {
+            match Command::decode(word, limit) {
+                Ok(c) => {
+                    prop_assert!(c.slot < limit);
+                    prop_assert_eq!(c.encode(), word);
+                }
+                Err(CommandError::SlotOutOfRange { slot, .. }) => prop_assert!(slot >= limit.min(MAX_SLOTS)),
+                Err(e) => prop_assert!(false, "unexpected {e}"),
+            }
+        }
+
+        #[test]
+        fn priority_matches_exact_oracle(hits in 0u32..=u32::MAX, near_pow in 0u32..32, delta in 0u32..8) {
+            prop_assert_eq!(priority_from_hits(hits), oracle(hits));
+            // Also right at the quarter-power boundaries of every octave.
+            for t in QUARTER_STEPS {
+                let b = ((u64::from(t) << near_pow) >> 31).saturating_sub(1 + u64::from(delta)) as u32;
+                for h in b.saturating_sub(2)..=b.saturating_add(2) {
+                    prop_assert_eq!(priority_from_hits(h), oracle(h), "hits {}", h);
+                }
+            }
+        }
+
+        #[test]
+        fn priority_is_monotonic_and_matches_float(hits in 0u32..=u32::MAX) {
+            let p = priority_from_hits(hits);
+            prop_assert!(priority_from_hits(hits.saturating_add(1)) >= p);
+            let f = (4.0 * (f64::from(hits) + 1.0).log2()).floor().min(127.0) as u8;
+            // f64 log2 may be off by one step exactly at a boundary.
+            prop_assert!(p.abs_diff(f) <= 1, "hits {} exact {} float {}", hits, p, f);
+        }
+    }
+
+    #[test]
+    fn priority_exact_values() {
+        // floor(4·log2(x)): x = 2 -> 4, x = 3 -> floor(6.34) = 6, x = 4 -> 8.
+        assert_eq!(priority_from_hits(1), 4);
+        assert_eq!(priority_from_hits(2), 6);
+        assert_eq!(priority_from_hits(3), 8);
+        // 2^24 hits (a saturated hitbox) -> 96.
+        assert_eq!(priority_from_hits((1 << 24) - 1), 96);
+        // x = hits + 1 = 2^k gives exactly 4k; one less falls just below it.
+        assert_eq!(priority_from_hits((1 << 31) - 1), 124);
+        assert_eq!(priority_from_hits((1 << 31) - 2), 123);
+    }
+
+    #[test]
+    fn new_rejects_wide_fields() {
+        assert!(Command::new(MAX_SLOTS, CommandKind::Add, 0).is_err());
+        assert!(Command::new(0, CommandKind::Add, 128).is_err());
+    }
+
+    #[test]
+    fn buffer_counts_past_capacity() {
+        let mut b = CommandBuffer::new(2);
+        for s in 0..5 {
+            let fitted = b.push(cmd(s, CommandKind::Add, 0));
+            assert_eq!(fitted, s < 2);
+        }
+        assert_eq!((b.stored(), b.requested(), b.overflowed()), (2, 5, 3));
+        assert!(b.is_full());
+        b.clear();
+        assert_eq!((b.stored(), b.requested()), (0, 0));
+        assert!(b.push(cmd(9, CommandKind::Remove, 3)));
+    }
+
+    #[test]
+    fn queue_supersedes_same_kind_and_cancels_opposite() {
+        let mut q = CommandQueue::new(100);
+        let s = q.ingest(
+            2,
+            &[
+                cmd(1, CommandKind::Add, 3).encode(),
+                cmd(1, CommandKind::Add, 9).encode(),
+            ],
+        );
+        assert_eq!((s.accepted, s.superseded, s.cancelled), (2, 1, 0));
+        assert_eq!(q.len(), 1);
+        assert_eq!(q.pending(1), Some(cmd(1, CommandKind::Add, 9)));
+
+        // Add then remove: nothing left to do.
+        let s = q.ingest(1, &[cmd(1, CommandKind::Remove, 0).encode()]);
+        assert_eq!(s.cancelled, 1);
+        assert!(q.is_empty());
+        assert!(q.drain(10).is_empty());
+
+        // Remove then add (the BLAS was never freed): cancels as well.
+        q.ingest(1, &[cmd(2, CommandKind::Remove, 1).encode()]);
+        q.ingest(1, &[cmd(2, CommandKind::Add, 5).encode()]);
+        assert!(q.is_empty());
+
+        // Add, remove, add in one read-back: one add pending, never two.
+        let w = [
+            cmd(3, CommandKind::Add, 1).encode(),
+            cmd(3, CommandKind::Remove, 1).encode(),
+            cmd(3, CommandKind::Add, 2).encode(),
+        ];
+        q.ingest(3, &w);
+        assert_eq!(q.drain(10), vec![cmd(3, CommandKind::Add, 2)]);
+    }
+
+    #[test]
+    fn queue_drains_by_priority_then_slot_and_keeps_the_rest() {
+        let mut q = CommandQueue::new(100);
+        let words: Vec<u32> = [(5, 1), (6, 50), (7, 50), (2, 10), (9, 0)]
+            .iter()
+            .map(|&(s, p)| cmd(s, CommandKind::Add, p).encode())
+            .collect();
+        q.ingest(words.len() as u32, &words);
+        let slots = |v: Vec<Command>| v.iter().map(|c| c.slot).collect::<Vec<_>>();
+        assert_eq!(slots(q.drain(3)), [6, 7, 2]);
+        assert_eq!(q.len(), 2);
+        // Undrained ones stay; a new higher-priority one goes first next frame.
+        q.ingest(1, &[cmd(40, CommandKind::Remove, 3).encode()]);
+        assert_eq!(slots(q.drain(2)), [40, 5]);
+        assert_eq!(slots(q.drain(2)), [9]);
+        assert!(q.is_empty());
+    }
+
+    #[test]
+    fn queue_rejects_bad_words_and_honours_counter() {
+        let mut q = CommandQueue::new(10);
+        let words = [
+            cmd(3, CommandKind::Add, 0).encode(),
+            cmd(10, CommandKind::Add, 0).encode(),
+            0xFFFF_FFFF,
+        ];
+        let s = q.ingest(7, &words);
+        assert_eq!((s.accepted, s.rejected, s.overflowed), (1, 2, 4));
+        // Counter below the word count: the tail is stale and ignored.
+        let mut q = CommandQueue::new(10);
+        let s = q.ingest(
+            1,
+            &[
+                cmd(1, CommandKind::Add, 0).encode(),
+                cmd(2, CommandKind::Add, 0).encode(),
+            ],
+        );
+        assert_eq!(s.accepted, 1);
+        assert!(q.pending(2).is_none());
+    }
+
+    #[test]
+    fn cancel_slot_and_shrinking_limit_drop_pending() {
+        let mut q = CommandQueue::new(100);
+        q.ingest(
+            2,
+            &[
+                cmd(4, CommandKind::Add, 7).encode(),
+                cmd(60, CommandKind::Remove, 1).encode(),
+            ],
+        );
+        assert_eq!(q.cancel_slot(4), Some(cmd(4, CommandKind::Add, 7)));
+        assert_eq!(q.cancel_slot(4), None);
+        q.set_slot_limit(50);
+        assert!(q.is_empty());
+        assert!(q.drain(5).is_empty());
+    }
+}
