@@ -11,6 +11,11 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod layout;
+pub mod dirty;
+pub mod error;
+pub mod grid;
 pub mod hitbox_index;
+pub mod instance;
+pub mod layout;
 pub mod math;
+pub mod registry;
