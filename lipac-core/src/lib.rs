@@ -16,6 +16,7 @@ pub mod error;
 pub mod grid;
 pub mod hitbox_index;
 pub mod instance;
+pub mod latency;
 pub mod layout;
 pub mod math;
 pub mod registry;
