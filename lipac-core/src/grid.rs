@@ -86,6 +86,8 @@ impl Default for GridConfig {
 pub struct HitboxGrid {
     min: [f64; 2],
     cell_size: f64,
+    /// `1 / cell_size`, for the first estimate only (fixed up exactly).
+    inv_cell: f64,
     dims: [u32; 2],
 }
 
@@ -131,6 +133,7 @@ impl HitboxGrid {
         Ok(Self {
             min,
             cell_size,
+            inv_cell: cell_size.recip(),
             dims,
         })
     }
@@ -198,8 +201,8 @@ impl HitboxGrid {
         if !v.is_finite() || v < self.border(axis, 0) || v > self.border(axis, n) {
             return None;
         }
-        let estimate = ((v - self.min[axis]) / self.cell_size).floor();
-        // The division may round across a border; fix up against the exact
+        let estimate = ((v - self.min[axis]) * self.inv_cell).floor();
+        // The estimate may round across a border; fix up against the exact
         // borders so that border(k) <= v < border(k + 1) holds, using the same
         // `border` function as `bounds_f64`.
         let mut k = (estimate.max(0.0) as u32).min(n - 1);

@@ -12,7 +12,7 @@ use std::ops::{BitAnd, BitOr, BitOrAssign, Not};
 pub struct MeshId(pub u32);
 
 /// Per-instance flags. The bit values are those of
-/// [`instance_bits`](crate::layout::instance_bits), so they are stored in
+/// [`instance_bits`], so they are stored in
 /// [`InstanceRecord::packed`](crate::layout::InstanceRecord::packed) as they
 /// are.
 #[derive(Clone, Copy, Default, PartialEq, Eq, Hash)]
