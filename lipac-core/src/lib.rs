@@ -13,9 +13,15 @@
 
 pub mod assembly;
 pub mod command;
+pub mod dirty;
+pub mod error;
 pub mod feedback;
+pub mod grid;
 pub mod hitbox_index;
+pub mod instance;
+pub mod latency;
 pub mod layout;
 pub mod math;
+pub mod registry;
 pub mod state;
 pub mod thresholds;

@@ -1,0 +1,118 @@
+//! Tracking which records of a GPU buffer mirror changed since the last
+//! upload.
+
+use std::ops::Range;
+
+/// A set of dirty record indices, taken as sorted, coalesced ranges.
+///
+/// Marking is O(1) and idempotent; taking is O(d log d) in the number of
+/// dirty indices, independent of the buffer size.
+///
+/// ```
+/// use lipac_core::dirty::DirtySet;
+///
+/// let mut d = DirtySet::default();
+/// for i in [7, 3, 4, 5, 9, 4] {
+///     d.mark(i);
+/// }
+/// assert_eq!(d.take(), vec![3..6, 7..8, 9..10]);
+/// assert!(d.is_empty());
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct DirtySet {
+    bits: Vec<u64>,
+    list: Vec<u32>,
+}
+
+impl DirtySet {
+    /// Marks index `i` dirty. `u32::MAX` cannot end a half-open `u32` range
+    /// and is ignored (GPU slots stay below [`crate::layout::MAX_SLOTS`]).
+    pub fn mark(&mut self, i: u32) {
+        if i == u32::MAX {
+            return;
+        }
+        let word = (i / 64) as usize;
+        if word >= self.bits.len() {
+            self.bits.resize(word + 1, 0);
+        }
+        let bit = 1u64 << (i % 64);
+        if self.bits[word] & bit == 0 {
+            self.bits[word] |= bit;
+            self.list.push(i);
+        }
+    }
+
+    /// Whether index `i` is dirty.
+    pub fn contains(&self, i: u32) -> bool {
+        self.bits
+            .get((i / 64) as usize)
+            .is_some_and(|w| w & (1u64 << (i % 64)) != 0)
+    }
+
+    /// Number of dirty indices.
+    pub fn len(&self) -> usize {
+        self.list.len()
+    }
+
+    /// Whether nothing is dirty.
+    pub fn is_empty(&self) -> bool {
+        self.list.is_empty()
+    }
+
+    /// Takes the dirty indices as sorted, disjoint ranges, merging adjacent
+    /// ones, and clears the set.
+    pub fn take(&mut self) -> Vec<Range<u32>> {
+        self.take_merged(0)
+    }
+
+    /// Like [`DirtySet::take`], but also merges ranges separated by at most
+    /// `max_gap` clean indices (fewer, larger copy regions; the clean records
+    /// in the gaps are uploaded unchanged).
+    pub fn take_merged(&mut self, max_gap: u32) -> Vec<Range<u32>> {
+        let mut list = std::mem::take(&mut self.list);
+        for &i in &list {
+            self.bits[(i / 64) as usize] &= !(1u64 << (i % 64));
+        }
+        list.sort_unstable();
+        let mut out: Vec<Range<u32>> = Vec::new();
+        for i in list.drain(..) {
+            match out.last_mut() {
+                Some(r) if u64::from(i) <= u64::from(r.end) + u64::from(max_gap) => r.end = i + 1,
+                _ => out.push(i..i + 1),
+            }
+        }
+        // Keep the allocation for the next frame.
+        self.list = list;
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coalesces_adjacent_and_merges_small_gaps() {
+        let mut d = DirtySet::default();
+        for i in [100, 0, 1, 2, 64, 63, 65, 103, 1] {
+            d.mark(i);
+        }
+        assert_eq!(d.len(), 8);
+        assert!(d.contains(63) && !d.contains(62) && !d.contains(10_000));
+        let mut again = d.clone();
+        assert_eq!(d.take(), vec![0..3, 63..66, 100..101, 103..104]);
+        assert!(d.is_empty() && !d.contains(63));
+        // Gaps of up to 2 clean records merge: 100..101 and 103..104 (gap 2).
+        assert_eq!(again.take_merged(2), vec![0..3, 63..66, 100..104]);
+        // Marking after a take starts afresh.
+        d.mark(5);
+        assert_eq!(d.take(), vec![5..6]);
+    }
+
+    #[test]
+    fn ignores_the_unrepresentable_index() {
+        let mut d = DirtySet::default();
+        d.mark(u32::MAX);
+        assert!(d.is_empty());
+    }
+}

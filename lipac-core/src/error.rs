@@ -1,0 +1,165 @@
+//! The crate-wide error type.
+//!
+//! Every fallible operation of `lipac-core` returns [`CoreError`]. Errors name
+//! the offending value so that a log line alone tells what was wrong, and an
+//! operation that fails leaves the state it was called on unchanged.
+
+use glam::Vec3;
+use std::fmt;
+
+/// Errors of `lipac-core`.
+///
+/// The enum is `#[non_exhaustive]`: other modules add variants as they grow,
+/// so match with a wildcard arm.
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum CoreError {
+    /// A handle whose object was removed (or that belongs to another
+    /// container).
+    StaleHandle {
+        /// What the handle refers to, e.g. `"instance"`.
+        kind: &'static str,
+        /// The handle's raw key (`slotmap::KeyData::as_ffi`: version in the
+        /// high 32 bits, index in the low 32 bits).
+        key: u64,
+    },
+    /// A GPU slot that holds no live instance (never used, removed, or
+    /// quarantined).
+    NoInstanceAtSlot {
+        /// The slot asked for.
+        slot: u32,
+    },
+    /// A transform with a NaN or infinite element.
+    NonFiniteTransform {
+        /// Index of the first non-finite element in the row-major 3x4 matrix.
+        element: usize,
+        /// Its value.
+        value: f32,
+    },
+    /// An axis-aligned box that is non-finite, inverted or absurdly large.
+    InvalidAabb {
+        /// The box's minimum corner as given.
+        min: Vec3,
+        /// The box's maximum corner as given.
+        max: Vec3,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A position (an instance's AABB centre) outside the region the hitbox
+    /// index covers.
+    OutsideWorld {
+        /// The offending position.
+        center: Vec3,
+    },
+    /// Every GPU slot is in use or waiting in quarantine.
+    TooManyInstances {
+        /// The slot limit (at most [`crate::layout::MAX_SLOTS`]).
+        limit: u32,
+        /// Slots that are free again once their quarantine ends.
+        quarantined: u32,
+    },
+    /// A value that does not fit its GPU bit field.
+    FieldOutOfRange {
+        /// The field, e.g. `"sbt_offset"`.
+        field: &'static str,
+        /// The value given.
+        value: u64,
+        /// The largest value the field holds.
+        max: u64,
+    },
+    /// A non-finite input other than a transform (camera position,
+    /// view-projection matrix, ...).
+    NonFinite {
+        /// What was not finite.
+        what: &'static str,
+    },
+    /// Frame numbers must not go backwards.
+    FrameOrder {
+        /// The frame the container is at.
+        current: u64,
+        /// The earlier frame that was passed.
+        given: u64,
+    },
+    /// A configuration that cannot work.
+    InvalidConfig {
+        /// What is wrong, naming the offending value.
+        what: String,
+    },
+}
+
+impl fmt::Display for CoreError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::StaleHandle { kind, key } => write!(
+                f,
+                "stale {kind} handle (index {}, version {}): it was removed or never belonged here",
+                key & 0xFFFF_FFFF,
+                key >> 32
+            ),
+            Self::NoInstanceAtSlot { slot } => {
+                write!(f, "GPU slot {slot} holds no live instance")
+            }
+            Self::NonFiniteTransform { element, value } => write!(
+                f,
+                "transform element {element} (row {}, column {}) is {value}; transforms must be finite",
+                element / 4,
+                element % 4
+            ),
+            Self::InvalidAabb { min, max, reason } => {
+                write!(f, "invalid AABB (min {min}, max {max}): {reason}")
+            }
+            Self::OutsideWorld { center } => write!(
+                f,
+                "position {center} lies outside the region covered by the hitbox index"
+            ),
+            Self::TooManyInstances { limit, quarantined } => write!(
+                f,
+                "too many instances: all {limit} GPU slots are in use ({quarantined} of them \
+                 still quarantined after removal)"
+            ),
+            Self::FieldOutOfRange { field, value, max } => {
+                write!(f, "{field} = {value} does not fit its GPU field (max {max})")
+            }
+            Self::NonFinite { what } => write!(f, "{what} is not finite (NaN or infinity)"),
+            Self::FrameOrder { current, given } => write!(
+                f,
+                "frame {given} is before the current frame {current}; frames must not go backwards"
+            ),
+            Self::InvalidConfig { what } => write!(f, "invalid configuration: {what}"),
+        }
+    }
+}
+
+impl std::error::Error for CoreError {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_name_the_offending_value() {
+        let e = CoreError::NonFiniteTransform {
+            element: 7,
+            value: f32::NAN,
+        };
+        let s = e.to_string();
+        assert!(s.contains("element 7") && s.contains("row 1") && s.contains("column 3"));
+        assert!(s.contains("NaN"));
+
+        let key = (3u64 << 32) | 42;
+        let s = CoreError::StaleHandle {
+            kind: "instance",
+            key,
+        }
+        .to_string();
+        assert!(s.contains("index 42") && s.contains("version 3"), "{s}");
+
+        let s = CoreError::FieldOutOfRange {
+            field: "sbt_offset",
+            value: 1 << 24,
+            max: (1 << 24) - 1,
+        }
+        .to_string();
+        assert!(s.contains("16777216") && s.contains("16777215"), "{s}");
+    }
+}

@@ -1,0 +1,664 @@
+//! The instance registry: handles, dense GPU slots and the CPU mirror of the
+//! GPU instance buffer.
+//!
+//! Engines address instances by [`InstanceHandle`] (a `slotmap` key that goes
+//! stale on removal); the GPU addresses them by *slot*, a dense `u32` index
+//! into the instance buffer ([`InstanceRecord`] per slot) and the hit
+//! feedback buffer. A slot is stable while its instance lives.
+//!
+//! # Slot reuse and quarantine
+//!
+//! Commands written by the GPU name slots and reach the CPU frames later
+//! (readback latency). A removed instance's slot therefore stays *quarantined*
+//! for [`RegistryConfig::quarantine_frames`] frames: it is reused only from
+//! [`InstanceRegistry::begin_frame`]`(removal frame + quarantine_frames)` on,
+//! so a late command for the old instance finds a dead slot
+//! ([`InstanceRegistry::handle_at`] is `None`) instead of a new instance.
+//! Choose it at least as large as the readback latency in frames. Free slots
+//! are reused lowest first, which keeps the live slots (and the dispatch
+//! range `0..slot_count()`) compact.
+//!
+//! # Uploads
+//!
+//! Every change marks its slot dirty; [`InstanceRegistry::take_dirty`]
+//! returns the slot ranges whose records must be uploaded. Dead slots hold a
+//! zeroed record ([`instance_bits::ALIVE`] clear, no BLAS).
+//!
+//! Note that the GPU's Algorithm 2 also writes the state bits of its copy of a
+//! record; the mirror here follows them through
+//! [`InstanceRegistry::set_state`] as commands are processed.
+
+use crate::dirty::DirtySet;
+use crate::error::CoreError;
+use crate::grid::HitboxGrid;
+use crate::hitbox_index::HitboxIndex;
+use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
+use crate::layout::{instance_bits, InstanceRecord, InstanceState, MAX_SLOTS};
+use crate::math::{affine_to_rows, Aabb};
+use glam::Affine3A;
+use slotmap::{Key, SlotMap};
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, VecDeque};
+use std::ops::Range;
+
+slotmap::new_key_type! {
+    /// Handle of a registered instance. It goes stale when the instance is
+    /// removed; every use of a stale handle is a [`CoreError::StaleHandle`].
+    pub struct InstanceHandle;
+}
+
+/// Largest SBT record offset (24 bits in a TLAS instance).
+pub const MAX_SBT_OFFSET: u32 = (1 << 24) - 1;
+
+/// Settings of an [`InstanceRegistry`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegistryConfig {
+    /// Frames a removed instance's slot waits before reuse. Must be at least
+    /// the readback latency in frames. Default 4.
+    pub quarantine_frames: u32,
+    /// Largest AABB extent (metres, per axis) accepted; larger boxes are
+    /// rejected as corrupt input. Default 1e6 (1000 km).
+    pub max_aabb_extent: f32,
+    /// Number of GPU slots available, at most [`MAX_SLOTS`] (the 24-bit TLAS
+    /// custom index). Default [`MAX_SLOTS`].
+    pub max_slots: u32,
+}
+
+impl Default for RegistryConfig {
+    fn default() -> Self {
+        Self {
+            quarantine_frames: 4,
+            max_aabb_extent: 1.0e6,
+            max_slots: MAX_SLOTS,
+        }
+    }
+}
+
+/// What [`InstanceRegistry::remove`] hands back: everything the caller must
+/// release (its BLAS reference, by mesh/LOD or unique).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RemovedInstance {
+    /// The slot it occupied (now quarantined).
+    pub slot: u32,
+    /// Its last description (mesh, LOD, flags, ...).
+    pub desc: InstanceDesc,
+    /// The BLAS address its record held (0 = none).
+    pub blas: u64,
+    /// Its state at removal.
+    pub state: InstanceState,
+    /// The hitbox it belonged to.
+    pub hitbox: u32,
+}
+
+#[derive(Clone, Debug)]
+struct Entry {
+    desc: InstanceDesc,
+    slot: u32,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct SlotOccupant {
+    handle: Option<InstanceHandle>,
+    /// Registration serial of the current (or last) occupant.
+    serial: u64,
+}
+
+/// All instances of a scene with their GPU slots and records.
+///
+/// `H` is the hitbox structure (the paper's [`HitboxGrid`] by default); the
+/// registry stores each instance's hitbox (the one holding its AABB centre)
+/// in its record.
+///
+/// ```
+/// use glam::{Affine3A, Vec3};
+/// use lipac_core::error::CoreError;
+/// use lipac_core::grid::{GridConfig, HitboxGrid};
+/// use lipac_core::instance::{InstanceDesc, MeshId};
+/// use lipac_core::layout::InstanceState;
+/// use lipac_core::math::Aabb;
+/// use lipac_core::registry::{InstanceRegistry, RegistryConfig};
+///
+/// let grid = HitboxGrid::new(GridConfig::default())?; // 8 x 8 km, 16 m cells
+/// let mut reg = InstanceRegistry::new(grid, RegistryConfig::default())?;
+///
+/// let at = |x: f32| {
+///     let aabb = Aabb::new(Vec3::new(x - 1.0, 0.0, -1.0), Vec3::new(x + 1.0, 3.0, 1.0));
+///     InstanceDesc::new(MeshId(7), Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)), aabb)
+/// };
+/// let a = reg.register(at(20.0))?;
+/// let b = reg.register(at(40.0))?;
+/// assert_eq!((reg.slot(a)?, reg.slot(b)?), (0, 1));
+/// assert_eq!(reg.record(a)?.state(), InstanceState::Inactive);
+/// assert!(reg.record(a)?.is_alive());
+/// assert_eq!(reg.take_dirty(), vec![0..2]); // upload slots 0 and 1
+///
+/// // The command loop gives the instance a BLAS and activates it.
+/// reg.set_blas(a, 0xB1A5)?;
+/// reg.set_state(0, InstanceState::Active)?;
+///
+/// let removed = reg.remove(a)?; // release removed.blas
+/// assert_eq!((removed.slot, removed.blas), (0, 0xB1A5));
+/// assert!(matches!(reg.slot(a), Err(CoreError::StaleHandle { .. })));
+///
+/// // Slot 0 is quarantined for 4 frames: a new instance gets slot 2 ...
+/// let c = reg.register(at(60.0))?;
+/// assert_eq!(reg.slot(c)?, 2);
+/// // ... and slot 0 is reused from frame 4 on.
+/// reg.begin_frame(4)?;
+/// let d = reg.register(at(80.0))?;
+/// assert_eq!(reg.slot(d)?, 0);
+/// # Ok::<(), CoreError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
+    config: RegistryConfig,
+    index: H,
+    instances: SlotMap<InstanceHandle, Entry>,
+    records: Vec<InstanceRecord>,
+    occupants: Vec<SlotOccupant>,
+    free: BinaryHeap<Reverse<u32>>,
+    /// `(frame from which the slot may be reused, slot)`, in frame order.
+    quarantine: VecDeque<(u64, u32)>,
+    frame: u64,
+    registrations: u64,
+    dirty: DirtySet,
+}
+
+fn stale(h: InstanceHandle) -> CoreError {
+    CoreError::StaleHandle {
+        kind: "instance",
+        key: h.data().as_ffi(),
+    }
+}
+
+fn validate_transform(t: &Affine3A) -> Result<[f32; 12], CoreError> {
+    let rows = affine_to_rows(t);
+    match rows.iter().position(|v| !v.is_finite()) {
+        Some(element) => Err(CoreError::NonFiniteTransform {
+            element,
+            value: rows[element],
+        }),
+        None => Ok(rows),
+    }
+}
+
+fn validate_aabb(aabb: &Aabb, max_extent: f32) -> Result<(), CoreError> {
+    let fail = |reason: String| {
+        Err(CoreError::InvalidAabb {
+            min: aabb.min,
+            max: aabb.max,
+            reason,
+        })
+    };
+    if !aabb.min.is_finite() || !aabb.max.is_finite() {
+        return fail("corners must be finite".into());
+    }
+    let (lo, hi) = (aabb.min.to_array(), aabb.max.to_array());
+    for (axis, name) in ["x", "y", "z"].into_iter().enumerate() {
+        if lo[axis] > hi[axis] {
+            return fail(format!(
+                "min.{name} = {} > max.{name} = {}",
+                lo[axis], hi[axis]
+            ));
+        }
+        let extent = hi[axis] - lo[axis];
+        if extent.is_nan() || extent > max_extent {
+            return fail(format!(
+                "extent along {name} is {extent} m, more than the maximum {max_extent} m"
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn pack(desc: &InstanceDesc, state: InstanceState) -> u32 {
+    state as u32
+        | instance_bits::ALIVE
+        | desc.flags.bits()
+        | (u32::from(desc.mask) << instance_bits::MASK_SHIFT)
+        | (u32::from(desc.vk_flags) << instance_bits::VK_FLAGS_SHIFT)
+}
+
+fn build_record(
+    desc: &InstanceDesc,
+    rows: [f32; 12],
+    hitbox: u32,
+    state: InstanceState,
+    blas: u64,
+) -> InstanceRecord {
+    InstanceRecord {
+        transform: rows,
+        aabb_min: desc.aabb.min.to_array(),
+        hitbox,
+        aabb_max: desc.aabb.max.to_array(),
+        packed: pack(desc, state),
+        blas,
+        sbt_offset: desc.sbt_offset,
+        lod: desc.lod,
+    }
+}
+
+impl<H: HitboxIndex> InstanceRegistry<H> {
+    /// An empty registry over the hitbox structure `index`, at frame 0.
+    ///
+    /// Rejects `max_slots` of 0 or above [`MAX_SLOTS`] and a non-positive or
+    /// NaN `max_aabb_extent`.
+    pub fn new(index: H, config: RegistryConfig) -> Result<Self, CoreError> {
+        if config.max_slots == 0 || config.max_slots > MAX_SLOTS {
+            return Err(CoreError::InvalidConfig {
+                what: format!(
+                    "max_slots = {} must be in 1..={MAX_SLOTS}",
+                    config.max_slots
+                ),
+            });
+        }
+        if config.max_aabb_extent.is_nan() || config.max_aabb_extent <= 0.0 {
+            return Err(CoreError::InvalidConfig {
+                what: format!("max_aabb_extent = {} must be > 0", config.max_aabb_extent),
+            });
+        }
+        Ok(Self {
+            config,
+            index,
+            instances: SlotMap::with_key(),
+            records: Vec::new(),
+            occupants: Vec::new(),
+            free: BinaryHeap::new(),
+            quarantine: VecDeque::new(),
+            frame: 0,
+            registrations: 0,
+            dirty: DirtySet::default(),
+        })
+    }
+
+    /// The settings it was created with.
+    pub fn config(&self) -> &RegistryConfig {
+        &self.config
+    }
+
+    /// The hitbox structure.
+    pub fn hitbox_index(&self) -> &H {
+        &self.index
+    }
+
+    /// Replaces the hitbox structure, recomputing every instance's hitbox,
+    /// and returns the old one. If any live instance's centre lies outside
+    /// the new structure, fails with [`CoreError::OutsideWorld`] and changes
+    /// nothing.
+    pub fn set_hitbox_index(&mut self, index: H) -> Result<H, CoreError> {
+        let mut hitboxes = Vec::with_capacity(self.instances.len());
+        for entry in self.instances.values() {
+            let center = entry.desc.aabb.center();
+            let hitbox = index
+                .hitbox_at(center)
+                .ok_or(CoreError::OutsideWorld { center })?;
+            hitboxes.push((entry.slot, hitbox));
+        }
+        for (slot, hitbox) in hitboxes {
+            let record = &mut self.records[slot as usize];
+            if record.hitbox != hitbox {
+                record.hitbox = hitbox;
+                self.dirty.mark(slot);
+            }
+        }
+        Ok(std::mem::replace(&mut self.index, index))
+    }
+
+    /// Checks `desc` and finds its hitbox; returns the transform rows and the
+    /// hitbox. Touches nothing.
+    fn check(&self, desc: &InstanceDesc) -> Result<([f32; 12], u32), CoreError> {
+        let rows = validate_transform(&desc.transform)?;
+        validate_aabb(&desc.aabb, self.config.max_aabb_extent)?;
+        if desc.sbt_offset > MAX_SBT_OFFSET {
+            return Err(CoreError::FieldOutOfRange {
+                field: "sbt_offset",
+                value: desc.sbt_offset.into(),
+                max: MAX_SBT_OFFSET.into(),
+            });
+        }
+        let center = desc.aabb.center();
+        let hitbox = self
+            .index
+            .hitbox_at(center)
+            .ok_or(CoreError::OutsideWorld { center })?;
+        Ok((rows, hitbox))
+    }
+
+    /// Registers an instance. It starts [`InstanceState::Inactive`] with no
+    /// BLAS, in the lowest free slot (or a new slot at the end).
+    ///
+    /// Errors: non-finite transform, invalid AABB, SBT offset over 24 bits,
+    /// AABB centre outside the hitbox structure, no slot left. On error
+    /// nothing changes.
+    pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
+        let (rows, hitbox) = self.check(&desc)?;
+        let slot = match self.free.peek() {
+            Some(&Reverse(slot)) => slot,
+            None if self.records.len() < self.config.max_slots as usize => {
+                self.records.len() as u32
+            }
+            None => {
+                return Err(CoreError::TooManyInstances {
+                    limit: self.config.max_slots,
+                    quarantined: self.quarantine.len() as u32,
+                })
+            }
+        };
+        // Nothing below fails.
+        if self.free.peek().is_some() {
+            self.free.pop();
+        } else {
+            self.records.push(InstanceRecord::default());
+            self.occupants.push(SlotOccupant::default());
+        }
+        let handle = self.instances.insert(Entry { desc, slot });
+        self.records[slot as usize] = build_record(&desc, rows, hitbox, InstanceState::Inactive, 0);
+        self.occupants[slot as usize] = SlotOccupant {
+            handle: Some(handle),
+            serial: self.registrations,
+        };
+        self.registrations += 1;
+        self.dirty.mark(slot);
+        Ok(handle)
+    }
+
+    /// Replaces an instance's description and returns the previous one. Its
+    /// slot, state and BLAS stay; if the mesh, LOD or
+    /// [`InstanceFlags::UNIQUE_BLAS`] changed, the caller acquires the new
+    /// BLAS, calls [`InstanceRegistry::set_blas`] and releases the old one.
+    /// On error nothing changes.
+    pub fn update(
+        &mut self,
+        handle: InstanceHandle,
+        desc: InstanceDesc,
+    ) -> Result<InstanceDesc, CoreError> {
+        let slot = self.slot(handle)?;
+        let (rows, hitbox) = self.check(&desc)?;
+        let record = &mut self.records[slot as usize];
+        *record = build_record(&desc, rows, hitbox, record.state(), record.blas);
+        self.dirty.mark(slot);
+        let entry = &mut self.instances[handle];
+        Ok(std::mem::replace(&mut entry.desc, desc))
+    }
+
+    /// Moves an instance: new transform and world-space AABB (its hitbox
+    /// follows the AABB centre). On error nothing changes.
+    pub fn set_transform(
+        &mut self,
+        handle: InstanceHandle,
+        transform: Affine3A,
+        aabb: Aabb,
+    ) -> Result<(), CoreError> {
+        let desc = InstanceDesc {
+            transform,
+            aabb,
+            ..*self.desc(handle)?
+        };
+        self.update(handle, desc).map(|_| ())
+    }
+
+    /// Selects another LOD and returns the previous one (see
+    /// [`InstanceRegistry::update`] for the BLAS).
+    pub fn set_lod(&mut self, handle: InstanceHandle, lod: u32) -> Result<u32, CoreError> {
+        let desc = InstanceDesc {
+            lod,
+            ..*self.desc(handle)?
+        };
+        self.update(handle, desc).map(|old| old.lod)
+    }
+
+    /// Replaces the instance flags and returns the previous ones.
+    pub fn set_flags(
+        &mut self,
+        handle: InstanceHandle,
+        flags: InstanceFlags,
+    ) -> Result<InstanceFlags, CoreError> {
+        let desc = InstanceDesc {
+            flags,
+            ..*self.desc(handle)?
+        };
+        self.update(handle, desc).map(|old| old.flags)
+    }
+
+    /// Removes an instance. Its slot is zeroed (dead), marked dirty and
+    /// quarantined; the returned [`RemovedInstance`] says what to release.
+    pub fn remove(&mut self, handle: InstanceHandle) -> Result<RemovedInstance, CoreError> {
+        let entry = self.instances.remove(handle).ok_or_else(|| stale(handle))?;
+        let slot = entry.slot;
+        let record = std::mem::take(&mut self.records[slot as usize]);
+        self.occupants[slot as usize].handle = None;
+        self.dirty.mark(slot);
+        if self.config.quarantine_frames == 0 {
+            self.free.push(Reverse(slot));
+        } else {
+            let release = self
+                .frame
+                .saturating_add(self.config.quarantine_frames.into());
+            self.quarantine.push_back((release, slot));
+        }
+        Ok(RemovedInstance {
+            slot,
+            desc: entry.desc,
+            blas: record.blas,
+            state: record.state(),
+            hitbox: record.hitbox,
+        })
+    }
+
+    /// Starts frame `frame` and releases the slots whose quarantine has
+    /// ended; returns how many. Frames must not go backwards
+    /// ([`CoreError::FrameOrder`]); repeating the current frame is allowed.
+    pub fn begin_frame(&mut self, frame: u64) -> Result<u32, CoreError> {
+        if frame < self.frame {
+            return Err(CoreError::FrameOrder {
+                current: self.frame,
+                given: frame,
+            });
+        }
+        self.frame = frame;
+        let mut released = 0;
+        while let Some(&(release, slot)) = self.quarantine.front() {
+            if release > frame {
+                break;
+            }
+            self.quarantine.pop_front();
+            self.free.push(Reverse(slot));
+            released += 1;
+        }
+        Ok(released)
+    }
+
+    /// The current frame (last [`InstanceRegistry::begin_frame`]).
+    pub fn frame(&self) -> u64 {
+        self.frame
+    }
+
+    /// Number of live instances.
+    pub fn len(&self) -> usize {
+        self.instances.len()
+    }
+
+    /// Whether there are no live instances.
+    pub fn is_empty(&self) -> bool {
+        self.instances.is_empty()
+    }
+
+    /// Whether `handle` refers to a live instance.
+    pub fn contains(&self, handle: InstanceHandle) -> bool {
+        self.instances.contains_key(handle)
+    }
+
+    /// Number of slots in use, dead ones included: the length of the GPU
+    /// instance and hit feedback buffers and of the dispatch range.
+    pub fn slot_count(&self) -> u32 {
+        self.records.len() as u32
+    }
+
+    /// Slots waiting in quarantine.
+    pub fn quarantined_slots(&self) -> u32 {
+        self.quarantine.len() as u32
+    }
+
+    /// Dead slots free for reuse right now.
+    pub fn free_slots(&self) -> u32 {
+        self.free.len() as u32
+    }
+
+    /// The GPU slot of an instance.
+    pub fn slot(&self, handle: InstanceHandle) -> Result<u32, CoreError> {
+        self.instances
+            .get(handle)
+            .map(|e| e.slot)
+            .ok_or_else(|| stale(handle))
+    }
+
+    /// The live instance in `slot`, or `None` for a dead, quarantined or
+    /// out-of-range slot (e.g. a late command for a removed instance).
+    pub fn handle_at(&self, slot: u32) -> Option<InstanceHandle> {
+        self.occupants.get(slot as usize)?.handle
+    }
+
+    /// The GPU record of an instance.
+    pub fn record(&self, handle: InstanceHandle) -> Result<&InstanceRecord, CoreError> {
+        Ok(&self.records[self.slot(handle)? as usize])
+    }
+
+    /// The record in `slot`, dead or alive, or `None` past
+    /// [`InstanceRegistry::slot_count`].
+    pub fn record_at(&self, slot: u32) -> Option<&InstanceRecord> {
+        self.records.get(slot as usize)
+    }
+
+    /// The CPU mirror of the GPU instance buffer, one record per slot.
+    pub fn records(&self) -> &[InstanceRecord] {
+        &self.records
+    }
+
+    /// An instance's description.
+    pub fn desc(&self, handle: InstanceHandle) -> Result<&InstanceDesc, CoreError> {
+        self.instances
+            .get(handle)
+            .map(|e| &e.desc)
+            .ok_or_else(|| stale(handle))
+    }
+
+    /// An instance's mesh.
+    pub fn mesh(&self, handle: InstanceHandle) -> Result<MeshId, CoreError> {
+        self.desc(handle).map(|d| d.mesh)
+    }
+
+    /// An instance's LOD.
+    pub fn lod(&self, handle: InstanceHandle) -> Result<u32, CoreError> {
+        self.desc(handle).map(|d| d.lod)
+    }
+
+    /// An instance's flags.
+    pub fn flags(&self, handle: InstanceHandle) -> Result<InstanceFlags, CoreError> {
+        self.desc(handle).map(|d| d.flags)
+    }
+
+    /// An instance's state (as the CPU mirror knows it).
+    pub fn state(&self, handle: InstanceHandle) -> Result<InstanceState, CoreError> {
+        self.record(handle).map(InstanceRecord::state)
+    }
+
+    /// Sets the BLAS address of an instance (0 = none) and returns the
+    /// previous one.
+    pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
+        let slot = self.slot(handle)?;
+        Ok(self.write_blas(slot, address))
+    }
+
+    /// [`InstanceRegistry::set_blas`] by slot; a dead slot is
+    /// [`CoreError::NoInstanceAtSlot`].
+    pub fn set_blas_at(&mut self, slot: u32, address: u64) -> Result<u64, CoreError> {
+        self.live_slot(slot)?;
+        Ok(self.write_blas(slot, address))
+    }
+
+    /// Sets the state of the instance in `slot` (as the command loop does)
+    /// and returns the previous state; a dead slot is
+    /// [`CoreError::NoInstanceAtSlot`].
+    pub fn set_state(
+        &mut self,
+        slot: u32,
+        state: InstanceState,
+    ) -> Result<InstanceState, CoreError> {
+        self.live_slot(slot)?;
+        let record = &mut self.records[slot as usize];
+        let old = record.state();
+        if old != state {
+            record.set_state(state);
+            self.dirty.mark(slot);
+        }
+        Ok(old)
+    }
+
+    /// [`InstanceRegistry::set_state`] by handle.
+    pub fn set_state_of(
+        &mut self,
+        handle: InstanceHandle,
+        state: InstanceState,
+    ) -> Result<InstanceState, CoreError> {
+        let slot = self.slot(handle)?;
+        self.set_state(slot, state)
+    }
+
+    fn live_slot(&self, slot: u32) -> Result<(), CoreError> {
+        match self.handle_at(slot) {
+            Some(_) => Ok(()),
+            None => Err(CoreError::NoInstanceAtSlot { slot }),
+        }
+    }
+
+    fn write_blas(&mut self, slot: u32, address: u64) -> u64 {
+        let record = &mut self.records[slot as usize];
+        let old = record.blas;
+        if old != address {
+            record.blas = address;
+            self.dirty.mark(slot);
+        }
+        old
+    }
+
+    /// Live instances as `(handle, slot)`, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = (InstanceHandle, u32)> + '_ {
+        self.instances.iter().map(|(h, e)| (h, e.slot))
+    }
+
+    /// Takes the slot ranges changed since the last call (sorted, disjoint,
+    /// adjacent ranges coalesced): upload `records()[range]` for each.
+    pub fn take_dirty(&mut self) -> Vec<Range<u32>> {
+        self.dirty.take()
+    }
+
+    /// Like [`InstanceRegistry::take_dirty`], also merging ranges separated
+    /// by at most `max_gap` clean slots.
+    pub fn take_dirty_merged(&mut self, max_gap: u32) -> Vec<Range<u32>> {
+        self.dirty.take_merged(max_gap)
+    }
+
+    /// Whether any slot changed since the last take.
+    pub fn has_dirty(&self) -> bool {
+        !self.dirty.is_empty()
+    }
+
+    /// Number of [`InstanceRegistry::register`] calls that succeeded so far.
+    /// Registrations are numbered `0, 1, ...` in order (their *serial*).
+    pub fn registration_count(&self) -> u64 {
+        self.registrations
+    }
+
+    /// Serial of the live instance in `slot` (see
+    /// [`InstanceRegistry::registration_count`]), or `None` for a dead slot.
+    /// A slot that was reused has a larger serial than before, which is how
+    /// per-slot caches (e.g. [`crate::latency::LatencyMitigation`]) notice
+    /// that it holds another instance.
+    pub fn serial_at(&self, slot: u32) -> Option<u64> {
+        let o = self.occupants.get(slot as usize)?;
+        o.handle.map(|_| o.serial)
+    }
+}
+
+#[cfg(test)]
+mod tests;
