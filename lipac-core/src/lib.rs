@@ -11,6 +11,9 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod layout;
+pub mod blas_cache;
+pub mod blas_ids;
+pub mod build_plan;
 pub mod hitbox_index;
+pub mod layout;
 pub mod math;
