@@ -984,3 +984,7 @@ impl BlasCache {
         self.pending_frees.push((safe, free));
     }
 }
+
+#[cfg(test)]
+#[path = "blas_cache_tests.rs"]
+mod tests;
