@@ -94,7 +94,11 @@ fn referenced_and_in_flight_entries_are_never_evicted() {
     assert!(!c.try_reserve_build(d, 200, 0, BuildId(3)).unwrap());
     assert_eq!(c.get(d).unwrap().state, BlasState::Requested);
     assert!(c.get(a).is_some() && c.get(b).is_some());
-    assert_eq!(c.stats().evictions, 0, "a refused reservation evicts nothing");
+    assert_eq!(
+        c.stats().evictions,
+        0,
+        "a refused reservation evicts nothing"
+    );
     // Once built, the unreferenced entry becomes evictable.
     c.ack_built(BuildId(2), 300, 0xB0).unwrap();
     assert!(c.try_reserve_build(d, 200, 0, BuildId(3)).unwrap());

@@ -765,9 +765,13 @@ impl BuildScheduler {
                 && e.result_bytes <= budgets.max_result_bytes
                 && e.build_scratch_bytes <= budgets.max_scratch_bytes
         };
+        let mut full = false;
         for (_, _, id, e) in candidates {
             if !empty_fits(&e) {
                 plan.oversized.push(id);
+                continue;
+            }
+            if full {
                 continue;
             }
             let fits = builds < budgets.max_builds
@@ -775,7 +779,10 @@ impl BuildScheduler {
                 && result.saturating_add(e.result_bytes) <= budgets.max_result_bytes
                 && packer.slot(e.build_scratch_bytes).is_some();
             if !fits {
-                break;
+                // Stop filling (but keep reporting oversized requests): the
+                // head of the queue gets the next frame's budget first.
+                full = true;
+                continue;
             }
             let op = BuildId(self.next_op);
             if !self
@@ -1106,3 +1113,7 @@ impl BuildScheduler {
         Ok(())
     }
 }
+
+#[cfg(test)]
+#[path = "build_plan_tests.rs"]
+mod tests;
