@@ -7,7 +7,7 @@
 //! releasing everything and advancing the frames in flight leaves zero bytes
 //! and no entries.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeSet, HashMap};
 
 use lipac_core::blas_cache::CacheConfig;
 use lipac_core::blas_ids::{BuildId, InstanceKey, Lod, MeshId};
@@ -163,7 +163,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         acks: Vec::new(),
         compaction_sizes: HashMap::new(),
     };
-    let mut active: BTreeMap<u32, ()> = BTreeMap::new();
+    let mut active: BTreeSet<u32> = BTreeSet::new();
     let fif64 = u64::from(fif);
     for f in 1..=frames {
         s.begin_frame(f).unwrap();
@@ -173,7 +173,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
             let inst = InstanceKey(k);
             let (g, mesh) = geometry(k);
             let lod = rng.below(3) as u8;
-            if active.contains_key(&k) {
+            if active.contains(&k) {
                 match rng.below(4) {
                     0 => {
                         s.deactivate(inst).unwrap();
@@ -193,7 +193,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
                     in_frustum: rng.below(2) == 0,
                 };
                 s.activate(inst, r).unwrap();
-                active.insert(k, ());
+                active.insert(k);
             }
         }
         let budgets = BuildBudgets {
@@ -212,7 +212,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
             "budget broken at frame {f}"
         );
         // TLAS assembly for this frame.
-        for &k in active.keys() {
+        for &k in &active {
             if let Some(addr) = s.blas_address(InstanceKey(k)) {
                 assert!(be.live.contains_key(&addr), "TLAS would use a dead BLAS");
                 be.last_used.insert(addr, f);
@@ -226,7 +226,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
 
     // Release everything, let all acknowledgements arrive.
     let mut f = frames;
-    for &k in active.keys() {
+    for &k in &active {
         s.deactivate(InstanceKey(k)).unwrap();
     }
     while !be.acks.is_empty() || s.stats().in_flight > 0 {
