@@ -77,7 +77,7 @@ impl Backend {
         }
     }
 
-    fn execute(&mut self, s: &BuildScheduler, plan: &FramePlan, fif: u64, rng: &mut Rng) {
+    fn execute(&mut self, plan: &FramePlan, fif: u64, rng: &mut Rng) {
         let f = plan.frame;
         for free in &plan.frees {
             assert_eq!(
@@ -109,7 +109,6 @@ impl Backend {
             self.acks
                 .push((f + rng.below(3), Ack::Compacted(c.id, c.compacted_bytes)));
         }
-        let _ = s;
     }
 }
 
@@ -205,7 +204,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
             max_compactions: 2,
         };
         let plan = s.plan(&budgets).unwrap();
-        be.execute(&s, &plan, fif64, &mut rng);
+        be.execute(&plan, fif64, &mut rng);
         be.deliver(&mut s, f, &mut rng, false);
         assert!(
             s.cache().live_bytes() <= budget,
@@ -234,7 +233,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         s.begin_frame(f).unwrap();
         be.deliver(&mut s, f + 10, &mut rng, true);
         let plan = s.plan(&BuildBudgets::default()).unwrap();
-        be.execute(&s, &plan, fif64, &mut rng);
+        be.execute(&plan, fif64, &mut rng);
         assert!(f < frames + 100, "operations never settle");
     }
     s.trim_cache();
@@ -243,7 +242,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         s.begin_frame(f).unwrap();
         let plan = s.plan(&BuildBudgets::default()).unwrap();
         assert!(plan.batches.is_empty() && plan.compactions.is_empty());
-        be.execute(&s, &plan, fif64, &mut rng);
+        be.execute(&plan, fif64, &mut rng);
     }
     let st = s.stats();
     assert_eq!(st.cache.live_bytes(), 0);
