@@ -12,6 +12,9 @@
 #![warn(missing_docs)]
 
 pub mod assembly;
+pub mod blas_cache;
+pub mod blas_ids;
+pub mod build_plan;
 pub mod command;
 pub mod dirty;
 pub mod error;

@@ -1,0 +1,276 @@
+//! Soak test of the BLAS cache and build scheduler against a simulated
+//! backend: random activation / deactivation / LOD / feedback churn with
+//! acknowledgements arriving 0–3 frames late. Invariants checked every frame:
+//! the memory budget holds, every address handed to the TLAS, to an update or
+//! to a compaction is a live acceleration structure, and every free names a
+//! live structure not used by any frame still in flight. At the end,
+//! releasing everything and advancing the frames in flight leaves zero bytes
+//! and no entries.
+
+use std::collections::{BTreeSet, HashMap};
+
+use lipac_core::blas_cache::CacheConfig;
+use lipac_core::blas_ids::{BuildId, InstanceKey, Lod, MeshId};
+use lipac_core::build_plan::*;
+use proptest::prelude::*;
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        // xorshift64*
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+}
+
+enum Ack {
+    Built(BuildId, u64, bool),
+    Size(BuildId, u64),
+    Compacted(BuildId, u64),
+}
+
+struct Backend {
+    next_addr: u64,
+    /// address -> bytes of every acceleration structure that exists.
+    live: HashMap<u64, u64>,
+    /// address -> last frame whose TLAS used it.
+    last_used: HashMap<u64, u64>,
+    /// acknowledgements and the frame they arrive in.
+    acks: Vec<(u64, Ack)>,
+    /// sizes of compactions handed out.
+    compaction_sizes: HashMap<BuildId, u64>,
+}
+
+impl Backend {
+    fn alloc(&mut self, bytes: u64) -> u64 {
+        self.next_addr += 0x100;
+        self.live.insert(self.next_addr, bytes);
+        self.next_addr
+    }
+
+    fn deliver(&mut self, s: &mut BuildScheduler, frame: u64, rng: &mut Rng, all: bool) {
+        let (due, rest): (Vec<_>, Vec<_>) = std::mem::take(&mut self.acks)
+            .into_iter()
+            .partition(|(f, _)| *f <= frame && (all || rng.below(4) != 0));
+        self.acks = rest;
+        for (_, ack) in due {
+            match ack {
+                Ack::Built(id, bytes, compactable) => {
+                    let addr = self.alloc(bytes);
+                    s.ack_built(id, bytes, addr).unwrap();
+                    if compactable {
+                        let at = frame + 1 + rng.below(3);
+                        self.acks.push((at, Ack::Size(id, bytes / 2 + 1)));
+                    }
+                }
+                Ack::Size(id, bytes) => s.ack_compacted_size(id, bytes).unwrap(),
+                Ack::Compacted(id, bytes) => {
+                    let addr = self.alloc(bytes);
+                    s.ack_compacted(id, addr).unwrap();
+                }
+            }
+        }
+    }
+
+    fn execute(&mut self, plan: &FramePlan, fif: u64, rng: &mut Rng) {
+        let f = plan.frame;
+        for free in &plan.frees {
+            assert_eq!(
+                self.live.remove(&free.address),
+                Some(free.bytes),
+                "free of a dead or mis-sized structure"
+            );
+            if let Some(&used) = self.last_used.get(&free.address) {
+                assert!(
+                    used + fif <= f,
+                    "freed at {f}, used at {used}, {fif} in flight"
+                );
+            }
+        }
+        for b in &plan.batches {
+            for u in &b.updates {
+                assert!(self.live.contains_key(&u.address), "update of a dead BLAS");
+            }
+            for x in &b.builds {
+                let bytes = x.result_bytes - rng.below(x.result_bytes / 4 + 1);
+                let at = f + rng.below(4);
+                self.acks
+                    .push((at, Ack::Built(x.id, bytes.max(1), x.allow_compaction)));
+            }
+        }
+        for c in &plan.compactions {
+            assert!(self.live.contains_key(&c.src_address));
+            self.compaction_sizes.insert(c.id, c.compacted_bytes);
+            self.acks
+                .push((f + rng.below(3), Ack::Compacted(c.id, c.compacted_bytes)));
+        }
+    }
+}
+
+fn estimate(mesh: u32, lod: u8) -> BuildEstimate {
+    let result = (1000 + u64::from(mesh) * 137) >> lod;
+    BuildEstimate {
+        primitives: result / 10,
+        result_bytes: result.max(1),
+        build_scratch_bytes: result / 2,
+        update_scratch_bytes: result / 8,
+    }
+}
+
+fn geometry(key: u32) -> (BlasGeometry, u32) {
+    let mesh = key % 7;
+    if key % 5 == 0 {
+        (BlasGeometry::Unique { mesh: MeshId(mesh) }, mesh)
+    } else {
+        (
+            BlasGeometry::Shared {
+                mesh: MeshId(mesh),
+                variant: key % 2,
+                compactable: mesh % 2 == 0,
+            },
+            mesh,
+        )
+    }
+}
+
+/// Runs the soak; returns the statistics before the final release and the
+/// number of compactions handed out.
+fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
+    let mut rng = Rng(seed | 1);
+    let budget = 12_000;
+    let mut s = BuildScheduler::new(SchedulerConfig {
+        cache: CacheConfig {
+            memory_budget: budget,
+            frames_in_flight: fif,
+            max_unused_frames: 20,
+        },
+        scratch_alignment: 64,
+        unique_rebuild_interval: 4,
+        lod_hysteresis_frames: 3,
+        priority: PriorityConfig::default(),
+    })
+    .unwrap();
+    let mut be = Backend {
+        next_addr: 0,
+        live: HashMap::new(),
+        last_used: HashMap::new(),
+        acks: Vec::new(),
+        compaction_sizes: HashMap::new(),
+    };
+    let mut active: BTreeSet<u32> = BTreeSet::new();
+    let fif64 = u64::from(fif);
+    for f in 1..=frames {
+        s.begin_frame(f).unwrap();
+        be.deliver(&mut s, f, &mut rng, false);
+        for _ in 0..rng.below(6) {
+            let k = rng.below(40) as u32;
+            let inst = InstanceKey(k);
+            let (g, mesh) = geometry(k);
+            let lod = rng.below(3) as u8;
+            if active.contains(&k) {
+                match rng.below(4) {
+                    0 => {
+                        s.deactivate(inst).unwrap();
+                        active.remove(&k);
+                    }
+                    1 => s
+                        .set_feedback(inst, rng.below(2000) as u32, rng.below(2) == 0)
+                        .unwrap(),
+                    _ => s.request_lod(inst, Lod(lod), estimate(mesh, lod)).unwrap(),
+                }
+            } else {
+                let r = InstanceBlasRequest {
+                    geometry: g,
+                    lod: Lod(lod),
+                    estimate: estimate(mesh, lod),
+                    hits: rng.below(500) as u32,
+                    in_frustum: rng.below(2) == 0,
+                };
+                s.activate(inst, r).unwrap();
+                active.insert(k);
+            }
+        }
+        let budgets = BuildBudgets {
+            max_builds: 1 + rng.below(6) as u32,
+            max_primitives: 400,
+            max_result_bytes: 6000,
+            max_scratch_bytes: 1500,
+            max_batches: 1 + rng.below(2) as u32,
+            max_compactions: 2,
+        };
+        let plan = s.plan(&budgets).unwrap();
+        be.execute(&plan, fif64, &mut rng);
+        be.deliver(&mut s, f, &mut rng, false);
+        assert!(
+            s.cache().live_bytes() <= budget,
+            "budget broken at frame {f}"
+        );
+        // TLAS assembly for this frame.
+        for &k in &active {
+            if let Some(addr) = s.blas_address(InstanceKey(k)) {
+                assert!(be.live.contains_key(&addr), "TLAS would use a dead BLAS");
+                be.last_used.insert(addr, f);
+            }
+        }
+        s.take_address_changes();
+    }
+
+    let churn = s.stats();
+    let compactions = be.compaction_sizes.len();
+
+    // Release everything, let all acknowledgements arrive.
+    let mut f = frames;
+    for &k in &active {
+        s.deactivate(InstanceKey(k)).unwrap();
+    }
+    while !be.acks.is_empty() || s.stats().in_flight > 0 {
+        f += 1;
+        s.begin_frame(f).unwrap();
+        be.deliver(&mut s, f + 10, &mut rng, true);
+        let plan = s.plan(&BuildBudgets::default()).unwrap();
+        be.execute(&plan, fif64, &mut rng);
+        assert!(f < frames + 100, "operations never settle");
+    }
+    s.trim_cache();
+    for _ in 0..=fif {
+        f += 1;
+        s.begin_frame(f).unwrap();
+        let plan = s.plan(&BuildBudgets::default()).unwrap();
+        assert!(plan.batches.is_empty() && plan.compactions.is_empty());
+        be.execute(&plan, fif64, &mut rng);
+    }
+    let st = s.stats();
+    assert_eq!(st.cache.live_bytes(), 0);
+    assert_eq!(st.cache.scratch_in_use, 0);
+    assert_eq!(st.cache.entries, 0, "entries leaked");
+    assert_eq!(st.cache.pending_frees, 0);
+    assert_eq!(st.cache.pending_free_bytes, 0);
+    assert_eq!((st.queued_builds, st.in_flight, st.instances), (0, 0, 0));
+    assert!(be.live.is_empty(), "structures never freed: {:?}", be.live);
+    (churn, compactions)
+}
+
+#[test]
+fn soak_fixed_seeds() {
+    for (seed, fif) in [(1, 2), (7, 0), (42, 3), (1234, 1)] {
+        let (st, compactions) = soak(seed, 400, fif);
+        // The churn exercised every path.
+        assert!(st.cache.hits > 0 && st.cache.misses > 0, "{st:?}");
+        assert!(st.cache.evictions > 0, "{st:?}");
+        assert!(st.instant_switches > 0 && st.built_switches > 0, "{st:?}");
+        assert!(compactions > 0);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+    #[test]
+    fn soak_random(seed in any::<u64>(), fif in 0u32..4) {
+        soak(seed, 150, fif);
+    }
+}
