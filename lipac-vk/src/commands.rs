@@ -39,8 +39,9 @@ impl<'a> Recorder<'a> {
         self.ctx
     }
 
-    /// Records one global memory barrier.
-    pub fn memory_barrier(
+    /// Records one global memory barrier (lipac's own, with flags valid
+    /// for the features lipac requires).
+    pub(crate) fn memory_barrier(
         &mut self,
         src_stage: vk::PipelineStageFlags2,
         src_access: vk::AccessFlags2,
@@ -66,15 +67,8 @@ impl<'a> Recorder<'a> {
 /// use lipac_vk::{HeadlessContext, OneShot, Validation};
 /// let headless = HeadlessContext::new(Validation::Off)?;
 /// let mut one_shot = OneShot::new(headless.context())?;
-/// one_shot.run(|rec| {
-///     rec.memory_barrier(
-///         ash::vk::PipelineStageFlags2::ALL_COMMANDS,
-///         ash::vk::AccessFlags2::MEMORY_WRITE,
-///         ash::vk::PipelineStageFlags2::HOST,
-///         ash::vk::AccessFlags2::HOST_READ,
-///     );
-///     Ok(())
-/// })?;
+/// let cmd = one_shot.run(|rec| Ok(rec.raw()))?;
+/// assert_ne!(cmd, ash::vk::CommandBuffer::null());
 /// # Ok::<(), lipac_vk::VkError>(())
 /// ```
 #[derive(Debug)]
