@@ -504,7 +504,18 @@ impl HeadlessContext {
             .enabled_layer_names(&layer_ptrs)
             .enabled_extension_names(&ext_ptrs);
         // SAFETY: the create info points at live, NUL-terminated names.
-        let instance = unsafe { entry.create_instance(&create, None) }.ctx("vkCreateInstance")?;
+        let instance = match unsafe { entry.create_instance(&create, None) } {
+            Ok(i) => i,
+            // The loader found no driver at all.
+            Err(vk::Result::ERROR_INCOMPATIBLE_DRIVER) => {
+                return Err(VkError::NoRayQueryDevice {
+                    rejected: vec![
+                        "no Vulkan 1.3 driver (vkCreateInstance: ERROR_INCOMPATIBLE_DRIVER)".into(),
+                    ],
+                })
+            }
+            Err(e) => return Err(VkError::vk("vkCreateInstance", e)),
+        };
 
         let log: Arc<Mutex<Vec<String>>> = Arc::new(Mutex::new(Vec::new()));
         let mut messenger = None;
