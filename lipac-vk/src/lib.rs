@@ -5,8 +5,53 @@
 //! assembly (Algorithm 1) and hit-feedback processing (Algorithm 2), and the
 //! readback ring that returns commands to the core.
 //!
-//! This crate is being built up; see the project's issues.
+//! What exists so far (the foundation):
+//!
+//! * [`DeviceContext`]: lipac's binding to an engine's instance, device and
+//!   queues; [`HeadlessContext`]: a device of its own for tests and examples.
+//! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`].
+//! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
+//!   compaction ([`CompactionQuery`], [`record_compactions`]); [`Tlas`]:
+//!   builds from [`lipac_core::layout::TlasInstance`] records with geometric growth.
+//! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
+//!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
+//!   from a buffer with it.
+//!
+//! Objects free their Vulkan resources when dropped; keep each alive until
+//! the GPU has finished the work that uses it. See `docs/VULKAN.md`.
 #![warn(missing_docs)]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![warn(clippy::undocumented_unsafe_blocks)]
+
+mod accel;
+mod blas;
+mod commands;
+mod context;
+mod counting;
+mod error;
+mod memory;
+pub mod shaders;
+mod tlas;
+mod trace;
+
+pub use accel::{AccelerationStructure, AsSizes};
+pub use blas::{
+    record_compactions, Blas, BlasBatch, BlasBatchOutput, CompactionQuery, IndexFormat,
+    TriangleGeometry,
+};
+pub use commands::{OneShot, Recorder};
+pub use context::{
+    preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
+    HeadlessContext, Validation, REQUIRED_DEVICE_EXTENSIONS,
+};
+pub use counting::{
+    counting_box_instance, CountingBoxKind, CountingConfig, UnitCube, UNIT_CUBE_INDICES,
+    UNIT_CUBE_VERTICES,
+};
+pub use error::{Result, VkError};
+pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
+pub use tlas::{Tlas, TlasBuildOutput};
+pub use trace::{GpuHit, GpuRay, TraceBindings, TraceBuffers, TracePipeline};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.
 pub const TLAS_INSTANCE_BYTES: usize = std::mem::size_of::<lipac_core::layout::TlasInstance>();

@@ -1,0 +1,181 @@
+//! Command recording: [`Recorder`] wraps a command buffer in the recording
+//! state; [`OneShot`] records, submits and waits (for tests, examples and
+//! setup work).
+
+use crate::context::DeviceContext;
+use crate::error::{Result, VkContext};
+use ash::vk;
+
+/// A command buffer in the recording state on a [`DeviceContext`]'s device.
+///
+/// lipac's `record_*` functions take a `Recorder`. Everything a recording
+/// references (buffers, acceleration structures, scratch) must stay alive
+/// until the GPU has finished executing it.
+#[derive(Debug)]
+pub struct Recorder<'a> {
+    ctx: &'a DeviceContext,
+    cmd: vk::CommandBuffer,
+}
+
+impl<'a> Recorder<'a> {
+    /// Wraps an engine's command buffer.
+    ///
+    /// # Safety
+    ///
+    /// `cmd` must be a command buffer of `ctx`'s device in the recording state,
+    /// from a pool whose queue family supports compute, outside a render pass,
+    /// and must stay in the recording state while the `Recorder` is used.
+    pub unsafe fn from_raw(ctx: &'a DeviceContext, cmd: vk::CommandBuffer) -> Self {
+        Self { ctx, cmd }
+    }
+
+    /// The command buffer.
+    pub fn raw(&self) -> vk::CommandBuffer {
+        self.cmd
+    }
+
+    /// The context.
+    pub fn context(&self) -> &'a DeviceContext {
+        self.ctx
+    }
+
+    /// Records one global memory barrier (lipac's own, with flags valid
+    /// for the features lipac requires).
+    pub(crate) fn memory_barrier(
+        &mut self,
+        src_stage: vk::PipelineStageFlags2,
+        src_access: vk::AccessFlags2,
+        dst_stage: vk::PipelineStageFlags2,
+        dst_access: vk::AccessFlags2,
+    ) {
+        let barrier = [vk::MemoryBarrier2::default()
+            .src_stage_mask(src_stage)
+            .src_access_mask(src_access)
+            .dst_stage_mask(dst_stage)
+            .dst_access_mask(dst_access)];
+        let dep = vk::DependencyInfo::default().memory_barriers(&barrier);
+        // SAFETY: `cmd` is recording on this device (constructor contract);
+        // synchronization2 is enabled (context contract).
+        unsafe { self.ctx.device().cmd_pipeline_barrier2(self.cmd, &dep) };
+    }
+}
+
+/// A command pool, one command buffer and a fence: records a closure,
+/// submits it to the context's queue and waits.
+///
+/// ```no_run
+/// use lipac_vk::{HeadlessContext, OneShot, Validation};
+/// let headless = HeadlessContext::new(Validation::Off)?;
+/// let mut one_shot = OneShot::new(headless.context())?;
+/// let cmd = one_shot.run(|rec| Ok(rec.raw()))?;
+/// assert_ne!(cmd, ash::vk::CommandBuffer::null());
+/// # Ok::<(), lipac_vk::VkError>(())
+/// ```
+#[derive(Debug)]
+pub struct OneShot {
+    ctx: DeviceContext,
+    pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    fence: vk::Fence,
+}
+
+impl OneShot {
+    /// Creates the pool, command buffer and fence on the context's queue family.
+    ///
+    /// # Errors
+    ///
+    /// [`crate::VkError::Vulkan`] when a creation call fails.
+    pub fn new(ctx: &DeviceContext) -> Result<Self> {
+        let device = ctx.device();
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(ctx.queue_family_index())
+            .flags(vk::CommandPoolCreateFlags::TRANSIENT);
+        // SAFETY: valid device and create info.
+        let pool =
+            unsafe { device.create_command_pool(&pool_info, None) }.ctx("vkCreateCommandPool")?;
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: `pool` was just created on this device.
+        let cmd = match unsafe { device.allocate_command_buffers(&alloc) } {
+            Ok(v) if !v.is_empty() => v[0],
+            Ok(_) | Err(_) => {
+                // SAFETY: the pool is unused.
+                unsafe { device.destroy_command_pool(pool, None) };
+                return Err(crate::VkError::vk(
+                    "vkAllocateCommandBuffers",
+                    vk::Result::ERROR_OUT_OF_HOST_MEMORY,
+                ));
+            }
+        };
+        // SAFETY: valid device.
+        let fence = match unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) } {
+            Ok(f) => f,
+            Err(e) => {
+                // SAFETY: the pool and its buffer are unused.
+                unsafe { device.destroy_command_pool(pool, None) };
+                return Err(crate::VkError::vk("vkCreateFence", e));
+            }
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            pool,
+            cmd,
+            fence,
+        })
+    }
+
+    /// Records `f` into the command buffer, submits it and waits for it to
+    /// finish. Returns what `f` returned; an error from `f` submits nothing.
+    ///
+    /// # Errors
+    ///
+    /// The error of `f`, or [`crate::VkError::Vulkan`] when recording,
+    /// submission or the wait fails.
+    pub fn run<T>(&mut self, f: impl FnOnce(&mut Recorder<'_>) -> Result<T>) -> Result<T> {
+        let device = self.ctx.device();
+        // SAFETY: the pool's only command buffer is not pending (every run waits
+        // for its fence before returning).
+        unsafe { device.reset_command_pool(self.pool, vk::CommandPoolResetFlags::empty()) }
+            .ctx("vkResetCommandPool")?;
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the command buffer is in the initial state after the reset.
+        unsafe { device.begin_command_buffer(self.cmd, &begin) }.ctx("vkBeginCommandBuffer")?;
+        let mut rec = Recorder {
+            ctx: &self.ctx,
+            cmd: self.cmd,
+        };
+        let value = f(&mut rec)?;
+        // SAFETY: the command buffer is recording.
+        unsafe { device.end_command_buffer(self.cmd) }.ctx("vkEndCommandBuffer")?;
+        let cmd_info = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
+        let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_info)];
+        {
+            let _queue = self.ctx.lock_queue();
+            // SAFETY: the command buffer is executable, the fence unsignalled, and
+            // lipac holds the queue lock (engines keep off the queue meanwhile,
+            // per the context contract).
+            unsafe { device.queue_submit2(self.ctx.queue(), &submit, self.fence) }
+                .ctx("vkQueueSubmit2")?;
+        }
+        // SAFETY: the fence belongs to this device.
+        unsafe { device.wait_for_fences(&[self.fence], true, u64::MAX) }.ctx("vkWaitForFences")?;
+        // SAFETY: the fence is signalled and no longer used by a submission.
+        unsafe { device.reset_fences(&[self.fence]) }.ctx("vkResetFences")?;
+        Ok(value)
+    }
+}
+
+impl Drop for OneShot {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: `run` waits for its submission, so nothing is pending; the
+        // objects belong to this device.
+        unsafe {
+            device.destroy_fence(self.fence, None);
+            device.destroy_command_pool(self.pool, None);
+        }
+    }
+}

@@ -1,0 +1,354 @@
+//! The `trace_test.comp` pipeline: traces rays from a buffer against a TLAS
+//! with counting-box pass-through and writes each ray's closest real hit.
+//! Tests and examples use it; engines trace in their own shaders with
+//! `lipac_counting.glsl`.
+
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::context::DeviceContext;
+use crate::counting::CountingConfig;
+use crate::error::{Result, VkContext, VkError};
+use crate::memory::Buffer;
+use crate::shaders::{spirv_words, TRACE_TEST_SPV};
+use crate::tlas::Tlas;
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+
+/// One ray as `trace_test.comp` reads it (32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuRay {
+    /// Origin.
+    pub origin: [f32; 3],
+    /// Smallest hit distance.
+    pub t_min: f32,
+    /// Direction (need not be normalised; `t` is in its units).
+    pub direction: [f32; 3],
+    /// Largest hit distance.
+    pub t_max: f32,
+}
+
+/// One ray's result as `trace_test.comp` writes it (16 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuHit {
+    /// Custom index of the hit instance; `u32::MAX` on a miss.
+    pub custom_index: u32,
+    /// SBT record offset of the hit instance; `u32::MAX` on a miss.
+    pub sbt_offset: u32,
+    /// Hit distance; -1 on a miss.
+    pub t: f32,
+    /// [`GpuHit::HIT`] | [`GpuHit::COUNTED_BOX`].
+    pub flags: u32,
+}
+
+impl GpuHit {
+    /// Flag: the ray hit real geometry.
+    pub const HIT: u32 = 1;
+    /// Flag: the ray counted a counting box.
+    pub const COUNTED_BOX: u32 = 2;
+    /// Whether the ray hit real geometry.
+    pub fn is_hit(&self) -> bool {
+        self.flags & Self::HIT != 0
+    }
+    /// Whether the ray counted a box.
+    pub fn counted_box(&self) -> bool {
+        self.flags & Self::COUNTED_BOX != 0
+    }
+}
+
+const LOCAL_SIZE: u32 = 64;
+const BINDINGS: u32 = 5;
+
+/// The compiled `trace_test.comp` compute pipeline for one [`CountingConfig`].
+#[derive(Debug)]
+pub struct TracePipeline {
+    ctx: DeviceContext,
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    pipeline: vk::Pipeline,
+}
+
+/// Buffers a trace reads and writes.
+#[derive(Clone, Copy, Debug)]
+pub struct TraceBuffers<'a> {
+    /// The TLAS (built, with the build barrier recorded before the trace).
+    pub tlas: &'a Tlas,
+    /// [`GpuRay`]s (storage buffer).
+    pub rays: &'a Buffer,
+    /// [`GpuHit`]s, one per ray (storage buffer).
+    pub results: &'a Buffer,
+    /// `u32` hit counters indexed by instance slot (storage buffer).
+    pub instance_hits: &'a Buffer,
+    /// `u32` hit counters indexed by hitbox (storage buffer).
+    pub hitbox_hits: &'a Buffer,
+}
+
+/// A descriptor set bound to one [`TraceBuffers`]; keep it (and the buffers)
+/// alive until traces recorded with it have executed.
+#[derive(Debug)]
+pub struct TraceBindings {
+    ctx: DeviceContext,
+    pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+    max_rays: u64,
+}
+
+impl TracePipeline {
+    /// Creates the pipeline with `config` as specialization constants.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    pub fn new(ctx: &DeviceContext, config: &CountingConfig) -> Result<Self> {
+        config.validate()?;
+        let device = ctx.device();
+        let mut bindings = vec![vk::DescriptorSetLayoutBinding::default()
+            .binding(0)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)];
+        for b in 1..BINDINGS {
+            bindings.push(
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE),
+            );
+        }
+        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+        // SAFETY: valid device and create info.
+        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
+            .ctx("vkCreateDescriptorSetLayout")?;
+        let mut this = Self {
+            ctx: ctx.clone(),
+            set_layout,
+            layout: vk::PipelineLayout::null(),
+            pipeline: vk::Pipeline::null(),
+        };
+        let set_layouts = [set_layout];
+        let push = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .offset(0)
+            .size(12)];
+        let info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&set_layouts)
+            .push_constant_ranges(&push);
+        // SAFETY: valid device; the set layout was created above.
+        this.layout =
+            unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
+        let words = spirv_words(TRACE_TEST_SPV)?;
+        let info = vk::ShaderModuleCreateInfo::default().code(&words);
+        // SAFETY: valid device; `words` is the embedded, validated SPIR-V.
+        let module =
+            unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
+        let spec_data: [u32; 3] = [
+            config.omitted_box_sbt_offset,
+            config.hitbox_box_sbt_offset,
+            u32::from(config.counting_mask),
+        ];
+        let entries: Vec<_> = (0..3u32)
+            .map(|i| {
+                vk::SpecializationMapEntry::default()
+                    .constant_id(i)
+                    .offset(4 * i)
+                    .size(4)
+            })
+            .collect();
+        let spec = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(bytemuck::cast_slice(&spec_data));
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(c"main")
+            .specialization_info(&spec);
+        let info = [vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(this.layout)];
+        // SAFETY: valid device, module and layout matching the shader's interface.
+        let created =
+            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
+        // SAFETY: the module is no longer needed once pipeline creation returned.
+        unsafe { device.destroy_shader_module(module, None) };
+        let pipelines = created.map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?;
+        this.pipeline = pipelines.first().copied().ok_or(VkError::vk(
+            "vkCreateComputePipelines",
+            vk::Result::ERROR_UNKNOWN,
+        ))?;
+        Ok(this)
+    }
+
+    /// Creates a descriptor set for `buffers`.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::MissingUsage`] when a buffer lacks `STORAGE_BUFFER`,
+    /// [`VkError::WrongContext`], [`VkError::Vulkan`].
+    pub fn bind(&self, buffers: &TraceBuffers<'_>) -> Result<TraceBindings> {
+        let storage = [
+            buffers.rays,
+            buffers.results,
+            buffers.instance_hits,
+            buffers.hitbox_hits,
+        ];
+        for b in storage {
+            same_context(&self.ctx, b.context())?;
+            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
+                return Err(VkError::MissingUsage("STORAGE_BUFFER for a trace buffer"));
+            }
+        }
+        same_context(&self.ctx, buffers.tlas.accel().context())?;
+        let device = self.ctx.device();
+        let sizes = [
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+                .descriptor_count(1),
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(BINDINGS - 1),
+        ];
+        let info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(1)
+            .pool_sizes(&sizes);
+        // SAFETY: valid device and create info.
+        let pool =
+            unsafe { device.create_descriptor_pool(&info, None) }.ctx("vkCreateDescriptorPool")?;
+        let layouts = [self.set_layout];
+        let alloc = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(pool)
+            .set_layouts(&layouts);
+        // SAFETY: the pool has room for one set of this layout.
+        let set = match unsafe { device.allocate_descriptor_sets(&alloc) } {
+            Ok(s) if !s.is_empty() => s[0],
+            other => {
+                // SAFETY: the pool is unused.
+                unsafe { device.destroy_descriptor_pool(pool, None) };
+                let e = other.err().unwrap_or(vk::Result::ERROR_OUT_OF_POOL_MEMORY);
+                return Err(VkError::vk("vkAllocateDescriptorSets", e));
+            }
+        };
+        let accels = [buffers.tlas.accel().raw()];
+        let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
+            .acceleration_structures(&accels);
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = storage
+            .iter()
+            .map(|b| {
+                [vk::DescriptorBufferInfo::default()
+                    .buffer(b.raw())
+                    .offset(0)
+                    .range(vk::WHOLE_SIZE)]
+            })
+            .collect();
+        let mut writes = vec![vk::WriteDescriptorSet::default()
+            .dst_set(set)
+            .dst_binding(0)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .descriptor_count(1)
+            .push_next(&mut as_write)];
+        for (i, info) in infos.iter().enumerate() {
+            writes.push(
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(i as u32 + 1)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .buffer_info(info),
+            );
+        }
+        // SAFETY: the set is fresh and unused; every write matches the layout.
+        unsafe { device.update_descriptor_sets(&writes, &[]) };
+        let max_rays = (buffers.rays.size() / std::mem::size_of::<GpuRay>() as u64)
+            .min(buffers.results.size() / std::mem::size_of::<GpuHit>() as u64);
+        Ok(TraceBindings {
+            ctx: self.ctx.clone(),
+            pool,
+            set,
+            max_rays,
+        })
+    }
+
+    /// Records a trace of the first `ray_count` rays with cull mask
+    /// `cull_mask` and GLSL ray flags `ray_flags`, then a barrier making the
+    /// results and counters visible to the host.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] when the buffers hold fewer rays or
+    /// results than `ray_count` or the dispatch is too large;
+    /// [`VkError::WrongContext`].
+    pub fn record(
+        &self,
+        rec: &mut Recorder<'_>,
+        bindings: &TraceBindings,
+        ray_count: u32,
+        cull_mask: u8,
+        ray_flags: u32,
+    ) -> Result<()> {
+        same_context(rec.context(), &self.ctx)?;
+        same_context(rec.context(), &bindings.ctx)?;
+        if u64::from(ray_count) > bindings.max_rays {
+            return Err(VkError::InvalidArgument(format!(
+                "{ray_count} rays but the buffers hold {}",
+                bindings.max_rays
+            )));
+        }
+        let groups = ray_count.div_ceil(LOCAL_SIZE);
+        if groups > 65_535 {
+            return Err(VkError::InvalidArgument(format!(
+                "{ray_count} rays in one dispatch"
+            )));
+        }
+        let device = self.ctx.device();
+        let push: [u32; 3] = [ray_count, u32::from(cull_mask), ray_flags];
+        // SAFETY: recording on this device (Recorder contract); pipeline, layout
+        // and set are live and compatible; the push range is 12 bytes.
+        unsafe {
+            device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            device.cmd_bind_descriptor_sets(
+                rec.raw(),
+                vk::PipelineBindPoint::COMPUTE,
+                self.layout,
+                0,
+                &[bindings.set],
+                &[],
+            );
+            device.cmd_push_constants(
+                rec.raw(),
+                self.layout,
+                vk::ShaderStageFlags::COMPUTE,
+                0,
+                bytemuck::cast_slice(&push),
+            );
+            device.cmd_dispatch(rec.raw(), groups, 1, 1);
+        }
+        rec.memory_barrier(
+            vk::PipelineStageFlags2::COMPUTE_SHADER,
+            vk::AccessFlags2::SHADER_STORAGE_WRITE,
+            vk::PipelineStageFlags2::HOST,
+            vk::AccessFlags2::HOST_READ,
+        );
+        Ok(())
+    }
+}
+
+impl Drop for TracePipeline {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: created on this device (null handles are ignored by Vulkan);
+        // not in use by the GPU per the crate's drop contract.
+        unsafe {
+            device.destroy_pipeline(self.pipeline, None);
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+impl Drop for TraceBindings {
+    fn drop(&mut self) {
+        // SAFETY: created on this device; frees the set with the pool; not in
+        // use by the GPU per the crate's drop contract.
+        unsafe { self.ctx.device().destroy_descriptor_pool(self.pool, None) };
+    }
+}

@@ -1,0 +1,363 @@
+//! Shared helpers of lipac-vk's device tests.
+#![allow(dead_code)]
+
+use ash::vk;
+use glam::{Affine3A, Vec3};
+use lipac_core::layout::TlasInstance;
+use lipac_core::math::affine_to_rows;
+use lipac_vk::{
+    Blas, BlasBatch, Buffer, GpuHit, GpuRay, HeadlessContext, MemoryLocation, OneShot,
+    ScratchBuffer, Tlas, TraceBuffers, TracePipeline, TriangleGeometry, Validation,
+};
+
+/// Whether the environment demands a Vulkan ray-query device (CI sets it).
+pub fn vulkan_required() -> bool {
+    std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1")
+}
+
+/// A headless context, or `None` (with a printed reason) when this machine
+/// has no Vulkan ray-query device and LIPAC_REQUIRE_VULKAN is not 1.
+pub fn headless(test: &str) -> Option<HeadlessContext> {
+    let validation = if vulkan_required() {
+        Validation::Required
+    } else {
+        Validation::IfAvailable
+    };
+    match HeadlessContext::new(validation) {
+        Ok(h) => Some(h),
+        Err(e) if e.is_unsupported_machine() && !vulkan_required() => {
+            eprintln!(
+                "SKIPPED {test}: {e} (install mesa-vulkan-drivers >= 23 for lavapipe; \
+                 set LIPAC_REQUIRE_VULKAN=1 to fail instead of skipping)"
+            );
+            None
+        }
+        Err(e) => panic!("{test}: no Vulkan context: {e}"),
+    }
+}
+
+/// Asserts that the validation layer (and any other messenger source)
+/// reported no errors.
+pub fn assert_no_validation_errors(h: &HeadlessContext) {
+    let errors = h.validation_errors();
+    assert!(
+        errors.is_empty(),
+        "validation errors:\n{}",
+        errors.join("\n")
+    );
+}
+
+pub const BUILD_INPUT: vk::BufferUsageFlags =
+    vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
+
+/// A CPU-side triangle mesh.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub vertices: Vec<[f32; 3]>,
+    pub indices: Vec<u32>,
+}
+
+impl Mesh {
+    /// The square [-1,1]^2 in the z = 0 plane (2 triangles).
+    pub fn quad() -> Self {
+        Self {
+            vertices: vec![
+                [-1.0, -1.0, 0.0],
+                [1.0, -1.0, 0.0],
+                [-1.0, 1.0, 0.0],
+                [1.0, 1.0, 0.0],
+            ],
+            indices: vec![0, 1, 2, 1, 3, 2],
+        }
+    }
+
+    /// An n x n grid over [-1,1]^2 with a bumpy z (2 n^2 triangles).
+    pub fn bumpy_grid(n: u32) -> Self {
+        let mut vertices = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let x = -1.0 + 2.0 * i as f32 / n as f32;
+                let y = -1.0 + 2.0 * j as f32 / n as f32;
+                vertices.push([x, y, 0.1 * (3.0 * x).sin() * (2.0 * y).cos()]);
+            }
+        }
+        let mut indices = Vec::new();
+        let v = |i: u32, j: u32| j * (n + 1) + i;
+        for j in 0..n {
+            for i in 0..n {
+                indices.extend([v(i, j), v(i + 1, j), v(i, j + 1)]);
+                indices.extend([v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)]);
+            }
+        }
+        Self { vertices, indices }
+    }
+
+    pub fn triangle_count(&self) -> u32 {
+        (self.indices.len() / 3) as u32
+    }
+}
+
+/// A mesh uploaded as build input.
+pub struct GpuMesh {
+    pub mesh: Mesh,
+    pub vertices: Buffer,
+    pub indices: Buffer,
+}
+
+impl GpuMesh {
+    pub fn new(h: &HeadlessContext, mesh: Mesh) -> Self {
+        let ctx = h.context();
+        let vertices =
+            Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, &mesh.vertices).unwrap();
+        let indices =
+            Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, &mesh.indices).unwrap();
+        Self {
+            mesh,
+            vertices,
+            indices,
+        }
+    }
+
+    pub fn geometry(&self) -> TriangleGeometry {
+        TriangleGeometry::indexed(
+            &self.vertices,
+            0,
+            12,
+            self.mesh.vertices.len() as u32,
+            &self.indices,
+            0,
+            lipac_vk::IndexFormat::U32,
+            self.mesh.triangle_count(),
+        )
+        .unwrap()
+    }
+}
+
+/// Builds one BLAS per mesh in one batch.
+pub fn build_blases(
+    h: &HeadlessContext,
+    meshes: &[&GpuMesh],
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+) -> Vec<Blas> {
+    let ctx = h.context();
+    let mut batch = BlasBatch::new();
+    for m in meshes {
+        batch.push(&[m.geometry()], flags).unwrap();
+    }
+    let mut scratch = ScratchBuffer::new(ctx);
+    let out = OneShot::new(ctx)
+        .unwrap()
+        .run(|rec| batch.record(rec, &mut scratch))
+        .unwrap();
+    out.blases
+}
+
+/// One instance of the CPU reference scene.
+#[derive(Clone, Debug)]
+pub struct SceneInstance {
+    pub mesh: Mesh,
+    pub transform: Affine3A,
+    pub custom_index: u32,
+    pub sbt_offset: u32,
+    pub active: bool,
+}
+
+/// The CPU reference's closest hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CpuHit {
+    pub custom_index: u32,
+    pub t: f64,
+    /// Whether another hit (or a triangle edge) is so close that a GPU
+    /// traversal may legitimately report something else.
+    pub ambiguous: bool,
+}
+
+fn intersect(o: [f64; 3], d: [f64; 3], a: Vec3, b: Vec3, c: Vec3) -> Option<(f64, f64)> {
+    let v = |p: Vec3| [p.x as f64, p.y as f64, p.z as f64];
+    let (a, b, c) = (v(a), v(b), v(c));
+    let sub = |p: [f64; 3], q: [f64; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+    let cross = |p: [f64; 3], q: [f64; 3]| {
+        [
+            p[1] * q[2] - p[2] * q[1],
+            p[2] * q[0] - p[0] * q[2],
+            p[0] * q[1] - p[1] * q[0],
+        ]
+    };
+    let dot = |p: [f64; 3], q: [f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let e1 = sub(b, a);
+    let e2 = sub(c, a);
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    let s = sub(o, a);
+    let u = dot(s, p) / det;
+    let q = cross(s, e1);
+    let w = dot(d, q) / det;
+    let t = dot(e2, q) / det;
+    let margin = u.min(w).min(1.0 - u - w);
+    (margin >= -1e-9).then_some((t, margin))
+}
+
+/// Closest hit of a ray among active instances within [t_min, t_max].
+pub fn cpu_trace(scene: &[SceneInstance], ray: &GpuRay) -> Option<CpuHit> {
+    let o = ray.origin.map(f64::from);
+    let d = ray.direction.map(f64::from);
+    let mut hits: Vec<(f64, u32, f64)> = Vec::new();
+    for inst in scene.iter().filter(|i| i.active) {
+        let w: Vec<Vec3> = inst
+            .mesh
+            .vertices
+            .iter()
+            .map(|p| inst.transform.transform_point3((*p).into()))
+            .collect();
+        for t in inst.mesh.indices.chunks(3) {
+            let (a, b, c) = (w[t[0] as usize], w[t[1] as usize], w[t[2] as usize]);
+            if let Some((t, margin)) = intersect(o, d, a, b, c) {
+                if t >= f64::from(ray.t_min) && t <= f64::from(ray.t_max) {
+                    hits.push((t, inst.custom_index, margin));
+                }
+            }
+        }
+    }
+    hits.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (t, custom_index, margin) = *hits.first()?;
+    let close_other = hits
+        .iter()
+        .skip(1)
+        .any(|h| h.0 - t < 1e-3 && h.1 != custom_index);
+    Some(CpuHit {
+        custom_index,
+        t,
+        ambiguous: margin < 1e-4 || close_other,
+    })
+}
+
+/// A TLAS record for a scene instance.
+pub fn tlas_record(inst: &SceneInstance, blas: &Blas, mask: u8) -> TlasInstance {
+    TlasInstance::new(
+        affine_to_rows(&inst.transform),
+        inst.custom_index,
+        mask,
+        inst.sbt_offset,
+        lipac_core::layout::VK_INSTANCE_CULL_DISABLE,
+        if inst.active {
+            blas.device_address()
+        } else {
+            0
+        },
+    )
+}
+
+/// Result of one trace: per-ray hits and the two counter arrays.
+pub struct TraceOutcome {
+    pub hits: Vec<GpuHit>,
+    pub instance_hits: Vec<u32>,
+    pub hitbox_hits: Vec<u32>,
+}
+
+/// Uploads `records`, builds a TLAS (starting at `initial_capacity`) and
+/// traces `rays` with `cull_mask`.
+pub fn trace(
+    h: &HeadlessContext,
+    pipeline: &TracePipeline,
+    records: &[TlasInstance],
+    initial_capacity: u32,
+    rays: &[GpuRay],
+    cull_mask: u8,
+    counters: usize,
+) -> (Tlas, TraceOutcome) {
+    let ctx = h.context();
+    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let instances = Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, records).unwrap();
+    let ray_buf = Buffer::with_data(ctx, storage, MemoryLocation::CpuToGpu, rays).unwrap();
+    let results = Buffer::new(
+        ctx,
+        (rays.len() * 16) as u64,
+        storage,
+        MemoryLocation::GpuToCpu,
+    )
+    .unwrap();
+    let zeros = vec![0u32; counters];
+    let instance_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
+    let hitbox_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
+    let mut tlas = Tlas::new(
+        ctx,
+        initial_capacity,
+        vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
+    )
+    .unwrap();
+    let mut scratch = ScratchBuffer::new(ctx);
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let _retired = one_shot
+        .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
+        .unwrap();
+    let bindings = pipeline
+        .bind(&TraceBuffers {
+            tlas: &tlas,
+            rays: &ray_buf,
+            results: &results,
+            instance_hits: &instance_hits,
+            hitbox_hits: &hitbox_hits,
+        })
+        .unwrap();
+    one_shot
+        .run(|rec| pipeline.record(rec, &bindings, rays.len() as u32, cull_mask, 0))
+        .unwrap();
+    let outcome = TraceOutcome {
+        hits: results.read(0, rays.len()).unwrap(),
+        instance_hits: instance_hits.read(0, counters).unwrap(),
+        hitbox_hits: hitbox_hits.read(0, counters).unwrap(),
+    };
+    (tlas, outcome)
+}
+
+/// Deterministic pseudo-random numbers in [0, 1).
+pub struct Lcg(pub u64);
+impl Lcg {
+    pub fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+/// Compares GPU hits with the CPU reference; returns how many rays were
+/// compared and how many of them hit.
+pub fn compare_with_cpu(
+    scene: &[SceneInstance],
+    rays: &[GpuRay],
+    hits: &[GpuHit],
+) -> (usize, usize) {
+    let mut compared = 0;
+    let mut hit_count = 0;
+    for (i, (ray, gpu)) in rays.iter().zip(hits).enumerate() {
+        let cpu = cpu_trace(scene, ray);
+        if cpu.is_some_and(|c| c.ambiguous) {
+            continue;
+        }
+        compared += 1;
+        match cpu {
+            None => assert!(!gpu.is_hit(), "ray {i} {ray:?}: CPU miss, GPU hit {gpu:?}"),
+            Some(c) => {
+                hit_count += 1;
+                assert!(gpu.is_hit(), "ray {i} {ray:?}: CPU hit {c:?}, GPU miss");
+                assert_eq!(
+                    gpu.custom_index, c.custom_index,
+                    "ray {i} {ray:?}: {c:?} vs {gpu:?}"
+                );
+                let tol = 1e-4 * c.t.max(1.0);
+                assert!(
+                    (f64::from(gpu.t) - c.t).abs() <= tol,
+                    "ray {i} {ray:?}: t {} vs CPU {}",
+                    gpu.t,
+                    c.t
+                );
+            }
+        }
+    }
+    (compared, hit_count)
+}
