@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod layout;
+pub mod allocator;
 pub mod hitbox_index;
+pub mod layout;
 pub mod math;
