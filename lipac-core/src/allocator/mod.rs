@@ -56,7 +56,10 @@
 //! block at its head: a freed block goes to the front if it is at least as
 //! large as the current head, else to the back (O(1) with a tail pointer).
 //! With all blocks of one size, every block in that size's bin fits, so the
-//! between-bins case reaches full utilisation.
+//! between-bins case reaches full utilisation. Like every good-fit TLSF, the
+//! search does not look behind a bin's head: a request can still fail while
+//! a block deeper in its own bin would fit; the growth request is then
+//! conservative, never wrong.
 //!
 //! **Alignment.** [`TlsfAllocator::allocate_aligned`] takes a power-of-two
 //! alignment and places the range at the first aligned offset of the chosen

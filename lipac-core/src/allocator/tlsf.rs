@@ -58,8 +58,7 @@ pub struct AllocatorStats {
     pub used_bytes: u64,
     /// Bytes in free blocks (including alignment padding).
     pub free_bytes: u64,
-    /// Size of the largest free block: the largest request (alignment 1)
-    /// that succeeds without growing.
+    /// Size of the largest free block.
     pub largest_free_block: u64,
     /// Number of live allocations.
     pub allocation_count: usize,
@@ -117,8 +116,8 @@ pub struct TlsfAllocator {
     vacant: Vec<u32>,
     fl_bitmap: u64,
     sl_bitmaps: [u32; FL_COUNT],
-    heads: Vec<u32>,
-    tails: Vec<u32>,
+    /// One free list per bin.
+    bins: Vec<BinList>,
     /// Physically first / last block (`NIL` iff capacity is 0).
     pub(super) first: u32,
     pub(super) last: u32,
@@ -127,6 +126,24 @@ pub struct TlsfAllocator {
     free_blocks: usize,
     peak_used: u64,
     high_water: u64,
+}
+
+/// A bin's free list: head, tail, and the head's size cached so that the
+/// exact-bin check and the front/back insertion choice need not touch the
+/// head node.
+#[derive(Clone, Copy, Debug)]
+struct BinList {
+    head_size: u64,
+    head: u32,
+    tail: u32,
+}
+
+impl BinList {
+    const EMPTY: BinList = BinList {
+        head_size: 0,
+        head: NIL,
+        tail: NIL,
+    };
 }
 
 #[inline]
@@ -145,8 +162,7 @@ impl TlsfAllocator {
             vacant: Vec::new(),
             fl_bitmap: 0,
             sl_bitmaps: [0; FL_COUNT],
-            heads: vec![NIL; BIN_COUNT],
-            tails: vec![NIL; BIN_COUNT],
+            bins: vec![BinList::EMPTY; BIN_COUNT],
             first: NIL,
             last: NIL,
             used_bytes: 0,
@@ -410,7 +426,7 @@ impl TlsfAllocator {
         }
         let fl = (63 - self.fl_bitmap.leading_zeros()) as usize;
         let sl = (31 - self.sl_bitmaps[fl].leading_zeros()) as usize;
-        let mut cur = self.heads[Bin { fl, sl }.flat()];
+        let mut cur = self.bins[Bin { fl, sl }.flat()].head;
         let mut best = 0;
         while cur != NIL {
             let n = &self.nodes[cur as usize];
@@ -538,26 +554,32 @@ impl TlsfAllocator {
     fn insert_free(&mut self, i: u32) {
         let size = self.nodes[i as usize].size;
         let bin = bin_floor_of(size);
-        let b = bin.flat();
-        let head = self.heads[b];
+        let list = &mut self.bins[bin.flat()];
+        let (head, tail) = (list.head, list.tail);
         if head == NIL {
-            self.nodes[i as usize].prev_free = NIL;
-            self.nodes[i as usize].next_free = NIL;
-            self.heads[b] = i;
-            self.tails[b] = i;
+            *list = BinList {
+                head_size: size,
+                head: i,
+                tail: i,
+            };
             self.fl_bitmap |= 1 << bin.fl;
             self.sl_bitmaps[bin.fl] |= 1 << bin.sl;
-        } else if size >= self.nodes[head as usize].size {
-            self.nodes[i as usize].prev_free = NIL;
-            self.nodes[i as usize].next_free = head;
+            let n = &mut self.nodes[i as usize];
+            n.prev_free = NIL;
+            n.next_free = NIL;
+        } else if size >= list.head_size {
+            list.head = i;
+            list.head_size = size;
+            let n = &mut self.nodes[i as usize];
+            n.prev_free = NIL;
+            n.next_free = head;
             self.nodes[head as usize].prev_free = i;
-            self.heads[b] = i;
         } else {
-            let tail = self.tails[b];
-            self.nodes[i as usize].prev_free = tail;
-            self.nodes[i as usize].next_free = NIL;
+            list.tail = i;
+            let n = &mut self.nodes[i as usize];
+            n.prev_free = tail;
+            n.next_free = NIL;
             self.nodes[tail as usize].next_free = i;
-            self.tails[b] = i;
         }
         self.free_blocks += 1;
     }
@@ -573,16 +595,19 @@ impl TlsfAllocator {
         let bin = bin_floor_of(size);
         let b = bin.flat();
         if prev_free == NIL {
-            self.heads[b] = next_free;
+            self.bins[b].head = next_free;
+            if next_free != NIL {
+                self.bins[b].head_size = self.nodes[next_free as usize].size;
+            }
         } else {
             self.nodes[prev_free as usize].next_free = next_free;
         }
         if next_free == NIL {
-            self.tails[b] = prev_free;
+            self.bins[b].tail = prev_free;
         } else {
             self.nodes[next_free as usize].prev_free = prev_free;
         }
-        if self.heads[b] == NIL {
+        if self.bins[b].head == NIL {
             self.sl_bitmaps[bin.fl] &= !(1 << bin.sl);
             if self.sl_bitmaps[bin.fl] == 0 {
                 self.fl_bitmap &= !(1 << bin.fl);
@@ -627,16 +652,18 @@ impl TlsfAllocator {
 
     /// The constant-step search described in the module docs.
     pub(super) fn find_block(&self, size: u64, align: u64) -> Option<(u32, u64)> {
-        // 1. Head of the exact (rounded-down) bin.
-        let head = self.heads[bin_floor_of(size).flat()];
-        if head != NIL {
+        // 1. Head of the exact (rounded-down) bin; without alignment its
+        //    cached size decides without touching the node.
+        let exact = &self.bins[bin_floor_of(size).flat()];
+        let head = exact.head;
+        if head != NIL && exact.head_size >= size {
             if let Some(start) = self.fit(head, size, align) {
                 return Some((head, start));
             }
         }
         // 2. First non-empty bin whose blocks are all >= size.
         if let Some(bin) = bin_ceil_of(size).and_then(|c| self.first_nonempty_from(c)) {
-            let h = self.heads[bin.flat()];
+            let h = self.bins[bin.flat()].head;
             if let Some(start) = self.fit(h, size, align) {
                 return Some((h, start));
             }
@@ -648,7 +675,7 @@ impl TlsfAllocator {
                 .and_then(bin_ceil_of)
                 .and_then(|c| self.first_nonempty_from(c))
             {
-                let h = self.heads[bin.flat()];
+                let h = self.bins[bin.flat()].head;
                 if let Some(start) = self.fit(h, size, align) {
                     return Some((h, start));
                 }
@@ -841,7 +868,7 @@ impl TlsfAllocator {
                     free_blocks += 1;
                     // On the right bin list.
                     let b = bin_floor_of(n.size).flat();
-                    let mut c = self.heads[b];
+                    let mut c = self.bins[b].head;
                     let mut found = false;
                     while c != NIL {
                         found |= c == cur;
@@ -864,10 +891,12 @@ impl TlsfAllocator {
         for fl in 0..FL_COUNT {
             for sl in 0..super::bins::SL_COUNT {
                 let b = Bin { fl, sl };
-                let nonempty = self.heads[b.flat()] != NIL;
+                let list = self.bins[b.flat()];
+                let nonempty = list.head != NIL;
                 assert_eq!(nonempty, self.sl_bitmaps[fl] & (1 << sl) != 0);
                 if nonempty {
-                    assert_eq!(self.nodes[self.tails[b.flat()] as usize].next_free, NIL);
+                    assert_eq!(self.nodes[list.tail as usize].next_free, NIL);
+                    assert_eq!(self.nodes[list.head as usize].size, list.head_size);
                 }
             }
             assert_eq!(self.sl_bitmaps[fl] != 0, self.fl_bitmap & (1 << fl) != 0);
