@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod allocator;
 pub mod assembly;
 pub mod blas_cache;
 pub mod blas_ids;

@@ -1,0 +1,153 @@
+//! Size-class (bin) index math of the two-level segregated fit.
+//!
+//! A size `s` maps to a first-level index `fl` and a second-level index `sl`:
+//!
+//! * `s < SL_COUNT` (small sizes): `fl = 0`, `sl = s` — one exact bin per size.
+//! * otherwise, with `m = floor(log2 s)` (`m >= SL_BITS`):
+//!   `fl = m - SL_BITS + 1` and `sl = (s >> (m - SL_BITS)) - SL_COUNT`, i.e. the
+//!   octave `[2^m, 2^(m+1))` is cut into `SL_COUNT` equal bins of width
+//!   `2^(m - SL_BITS)`.
+//!
+//! Bin `(fl, sl)` holds free blocks whose size lies in
+//! `[bin_floor(fl, sl), bin_floor of the next bin)`.
+
+/// log2 of the number of second-level bins per first-level class.
+pub(crate) const SL_BITS: u32 = 5;
+/// Number of second-level bins per first-level class (fits a `u32` bitmap).
+pub(crate) const SL_COUNT: usize = 1 << SL_BITS;
+/// Number of first-level classes: `fl = 0` for small sizes, then one per
+/// octave `2^SL_BITS ..= 2^63` (fits a `u64` bitmap).
+pub(crate) const FL_COUNT: usize = 64 - SL_BITS as usize + 1;
+/// Total number of bins.
+pub(crate) const BIN_COUNT: usize = FL_COUNT * SL_COUNT;
+
+/// A bin, as its first- and second-level index.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Bin {
+    pub fl: usize,
+    pub sl: usize,
+}
+
+impl Bin {
+    /// Flat index into the per-bin list heads.
+    #[inline]
+    pub fn flat(self) -> usize {
+        self.fl * SL_COUNT + self.sl
+    }
+}
+
+/// The bin a free block of `size` (> 0) is filed under (rounds down).
+#[inline]
+pub(crate) fn bin_floor_of(size: u64) -> Bin {
+    debug_assert!(size > 0);
+    if size < SL_COUNT as u64 {
+        Bin {
+            fl: 0,
+            sl: size as usize,
+        }
+    } else {
+        let m = 63 - size.leading_zeros();
+        Bin {
+            fl: (m - SL_BITS + 1) as usize,
+            sl: ((size >> (m - SL_BITS)) as usize) - SL_COUNT,
+        }
+    }
+}
+
+/// The smallest bin all of whose blocks are at least `size` bytes (rounds
+/// up); `None` when no bin guarantees that (sizes near `u64::MAX`).
+#[inline]
+pub(crate) fn bin_ceil_of(size: u64) -> Option<Bin> {
+    debug_assert!(size > 0);
+    if size < SL_COUNT as u64 {
+        return Some(bin_floor_of(size));
+    }
+    let m = 63 - size.leading_zeros();
+    let step = 1u64 << (m - SL_BITS);
+    let rounded = size.checked_add(step - 1)?;
+    Some(bin_floor_of(rounded))
+}
+
+/// The smallest size filed under `bin`.
+#[inline]
+pub(crate) fn bin_min_size(bin: Bin) -> u64 {
+    if bin.fl == 0 {
+        bin.sl as u64
+    } else {
+        ((SL_COUNT + bin.sl) as u64) << (bin.fl - 1)
+    }
+}
+
+/// Whether `size` is exactly the lower bound of its bin, i.e. a request of
+/// `size` is served from its own bin without rounding up.
+#[cfg(test)]
+pub(crate) fn is_bin_boundary(size: u64) -> bool {
+    size > 0 && bin_min_size(bin_floor_of(size)) == size
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn small_sizes_are_exact_bins() {
+        for s in 1..SL_COUNT as u64 {
+            assert_eq!(
+                bin_floor_of(s),
+                Bin {
+                    fl: 0,
+                    sl: s as usize
+                }
+            );
+            assert!(is_bin_boundary(s));
+            assert_eq!(bin_ceil_of(s), Some(bin_floor_of(s)));
+        }
+    }
+
+    #[test]
+    fn floor_bin_contains_size_and_ceil_bin_guarantees_fit() {
+        let mut sizes: Vec<u64> = (1..5000).collect();
+        for shift in 5..63 {
+            let p = 1u64 << shift;
+            sizes.extend([p - 1, p, p + 1, p + p / 3, p + p / 2 + 7]);
+        }
+        sizes.push(u64::MAX);
+        for s in sizes {
+            let b = bin_floor_of(s);
+            assert!(b.fl < FL_COUNT && b.sl < SL_COUNT, "{s}: {b:?}");
+            let lo = bin_min_size(b);
+            assert!(lo <= s, "{s}: floor bin starts at {lo}");
+            // The next bin starts above s.
+            let next = if b.sl + 1 < SL_COUNT {
+                Bin {
+                    fl: b.fl,
+                    sl: b.sl + 1,
+                }
+            } else {
+                Bin {
+                    fl: b.fl + 1,
+                    sl: 0,
+                }
+            };
+            if next.fl < FL_COUNT {
+                assert!(bin_min_size(next) > s, "{s}");
+            }
+            match bin_ceil_of(s) {
+                Some(c) => {
+                    assert!(bin_min_size(c) >= s, "{s}");
+                    assert!(c.flat() == b.flat() || c.flat() == b.flat() + 1);
+                    assert_eq!(c == b, is_bin_boundary(s));
+                }
+                None => assert!(s > u64::MAX - (1 << 58)),
+            }
+        }
+    }
+
+    #[test]
+    fn bin_width_is_a_32nd_of_the_octave() {
+        // Between 1024 and 2048 bins are 32 bytes wide.
+        assert!(is_bin_boundary(1024 + 32 * 5));
+        assert!(!is_bin_boundary(1024 + 32 * 5 + 1));
+        assert_eq!(bin_min_size(bin_floor_of(1100)), 1088);
+    }
+}
