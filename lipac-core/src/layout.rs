@@ -209,7 +209,11 @@ pub struct HitboxRecord {
 
 impl Default for HitboxRecord {
     fn default() -> Self {
-        Self { min_y: f32::INFINITY, max_y: f32::NEG_INFINITY, packed: 0 }
+        Self {
+            min_y: f32::INFINITY,
+            max_y: f32::NEG_INFINITY,
+            packed: 0,
+        }
     }
 }
 
@@ -258,7 +262,10 @@ mod tests {
 
     #[test]
     fn hitbox_hits_saturate() {
-        let mut h = HitboxRecord { packed: hitbox_bits::ACTIVE | (3 << 1), ..Default::default() };
+        let mut h = HitboxRecord {
+            packed: hitbox_bits::ACTIVE | (3 << 1),
+            ..Default::default()
+        };
         h.add_hits(hitbox_bits::HITS_MAX - 1);
         h.add_hits(10);
         assert_eq!(h.hits(), hitbox_bits::HITS_MAX);
@@ -268,7 +275,10 @@ mod tests {
 
     #[test]
     fn instance_state_bits() {
-        let mut r = InstanceRecord { packed: instance_bits::ALIVE | (0x81 << 8), ..Default::default() };
+        let mut r = InstanceRecord {
+            packed: instance_bits::ALIVE | (0x81 << 8),
+            ..Default::default()
+        };
         r.set_state(InstanceState::Omitted);
         assert_eq!(r.state(), InstanceState::Omitted);
         assert!(r.is_alive());

@@ -11,6 +11,6 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod layout;
 pub mod hitbox_index;
+pub mod layout;
 pub mod math;

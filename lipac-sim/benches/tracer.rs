@@ -1,0 +1,2 @@
+//! Tracer benchmark (placeholder until written).
+fn main() {}
