@@ -74,10 +74,13 @@ impl BlasId {
 /// Build quality presets (mapped onto `obvhs::BvhBuildParams`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BuildQuality {
-    /// Fastest build (TLAS every frame, animated BLASes).
+    /// Fastest build (animated BLASes).
     Fast,
     /// Better trees for static shared geometry.
     Good,
+    /// TLAS: good tree, one instance per leaf (instances are expensive to
+    /// enter, so leaves should not group them).
+    Tlas,
 }
 
 impl BuildQuality {
@@ -85,6 +88,10 @@ impl BuildQuality {
         match self {
             Self::Fast => BvhBuildParams::very_fast_build(),
             Self::Good => BvhBuildParams::fast_build(),
+            Self::Tlas => BvhBuildParams {
+                max_prims_per_leaf: 1,
+                ..BvhBuildParams::fast_build()
+            },
         }
     }
 }

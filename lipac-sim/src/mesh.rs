@@ -789,8 +789,9 @@ const CROWN_RADII: Vec3 = Vec3::new(2.6, 3.0, 2.6);
 /// The procedural alpha function of vegetation, evaluated at an
 /// object-space point on a leaf quad: `true` where the leaf is opaque.
 ///
-/// Opaque texels are 0.35 m cells inside an ellipsoidal crown, about half
-/// of them (hash of the cell), so rays pass through holes.
+/// Opaque texels are 0.35 m cells (centred on the planes of the leaf quads)
+/// inside an ellipsoidal crown, about half of them (hash of the cell), so
+/// rays pass through holes.
 ///
 /// ```
 /// use lipac_sim::mesh::leaf_opaque;
@@ -803,7 +804,9 @@ pub fn leaf_opaque(p: Vec3) -> bool {
     if q.length_squared() > 1.0 {
         return false;
     }
-    let c = (p * (1.0 / 0.35)).floor();
+    // Cell centres (not boundaries) on the quads' planes x = 0 and z = 0, so
+    // rounding of the hit point cannot flip the cell.
+    let c = (p * (1.0 / 0.35) + 0.5).floor();
     let h = crate::rng::pcg_hash(
         (c.x as i32 as u32).wrapping_mul(73_856_093)
             ^ (c.y as i32 as u32).wrapping_mul(19_349_663)

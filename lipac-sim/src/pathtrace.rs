@@ -33,7 +33,7 @@ use crate::error::SimError;
 use crate::mesh::material as material_of;
 use crate::rng::sample;
 use crate::tlas::{masks, Tlas};
-use crate::trace::{occluded, trace, Counters, Ray, SlotSet, TraceResult};
+use crate::trace::{occluded_by, trace, Counters, Ray, SlotSet, TraceResult};
 
 /// Settings of [`render`].
 #[derive(Clone, Debug, PartialEq)]
@@ -242,28 +242,28 @@ impl Worker<'_> {
         let fs = self.fs;
         self.rays.shadow += 1;
         let ray = Ray::unchecked(p, self.sun, 0.0, f32::INFINITY, self.cfg.shadow_mask);
-        let r = trace(fs.traced, fs.store, &ray, None);
-        self.count(&r, false);
-        if r.hit.is_some() {
-            return false;
-        }
-        self.rays.raster_shadow += 1;
-        let raster = ray.with_mask(masks::ALL & !masks::COUNTING);
-        if occluded(fs.full, fs.store, &raster, Some(fs.traced_slots)) {
-            return false;
-        }
-        if self.cfg.shadow_mask & masks::VEGETATION == 0 {
-            self.rays.raster_shadow += 1;
-            if occluded(
-                fs.full,
-                fs.store,
-                &raster.with_mask(masks::VEGETATION),
-                None,
-            ) {
+        if fs.traced.box_count() == 0 || ray.mask & masks::COUNTING == 0 {
+            // Nothing to count: a cheaper any-hit query gives the same answer.
+            let mask = ray.mask;
+            if occluded_by(fs.traced, fs.store, &ray, |_, m| m & mask != 0) {
+                return false;
+            }
+        } else {
+            let r = trace(fs.traced, fs.store, &ray, None);
+            self.count(&r, false);
+            if r.hit.is_some() {
                 return false;
             }
         }
-        true
+        // Rasterized shadows: culled instances of any kind, plus vegetation
+        // when shadow rays mask it out (one any-hit query over both sets).
+        self.rays.raster_shadow += 1;
+        let slots = fs.traced_slots;
+        let veg = self.cfg.shadow_mask & masks::VEGETATION == 0;
+        let geometry = masks::ALL & !masks::COUNTING;
+        !occluded_by(fs.full, fs.store, &ray, |custom, m| {
+            (m & geometry != 0 && !slots.contains(custom)) || (veg && m & masks::VEGETATION != 0)
+        })
     }
 
     /// Direct sun light reflected by a diffuse surface.

@@ -185,7 +185,7 @@ impl Tlas {
                 opacity,
             });
         }
-        let (bvh, _) = build_cwbvh(&aabbs, BuildQuality::Fast);
+        let (bvh, _) = build_cwbvh(&aabbs, BuildQuality::Tlas);
         self.entries
             .extend(bvh.primitive_indices.iter().map(|&p| entries[p as usize]));
         self.bvh = bvh;

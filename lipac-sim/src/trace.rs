@@ -31,11 +31,12 @@
 //! meet before any occluder with the same rule; [`TraceResult::hit`] tells
 //! whether the light is blocked. Whether real hits of shadow rays count is
 //! the caller's choice (the path tracer does not count them, as a shadow ray
-//! with `SkipClosestHitShader` would not). [`occluded`] is a cheaper any-hit
-//! query that ignores boxes entirely, for tests that must not count (the
-//! rasterized-shadow fallback).
+//! with `SkipClosestHitShader` would not). [`occluded`] and [`occluded_by`]
+//! are cheaper any-hit queries that ignore boxes entirely, for tests that
+//! must not count (the rasterized-shadow fallback, or a TLAS without boxes).
 
 use glam::{UVec2, Vec3, Vec3A};
+use obvhs::cwbvh::Traversal;
 use obvhs::ray::Ray as BvhRay;
 use obvhs::traverse;
 
@@ -235,11 +236,19 @@ impl SlotSet {
 /// Closest hit in one BLAS; alpha-tested triangles are skipped where
 /// [`leaf_opaque`] says transparent (the any-hit test), unless `force_opaque`.
 #[inline]
-fn blas_closest(blas: &Blas, ray: &BvhRay, force_opaque: bool) -> Option<(f32, usize)> {
+fn blas_closest(
+    blas: &Blas,
+    ray: &BvhRay,
+    force_opaque: bool,
+    state: &mut Traversal,
+) -> Option<(f32, usize)> {
     let mut r = *ray;
     let mut best = None;
+    if blas.bvh.nodes.is_empty() {
+        return None;
+    }
     let alpha = blas.any_alpha && !force_opaque;
-    let mut state = blas.bvh.new_traversal(r.direction);
+    state.reinit(r.direction);
     let mut node;
     traverse!(
         blas.bvh,
@@ -262,9 +271,12 @@ fn blas_closest(blas: &Blas, ray: &BvhRay, force_opaque: bool) -> Option<(f32, u
 
 /// Whether anything opaque lies in one BLAS along the ray.
 #[inline]
-fn blas_any(blas: &Blas, r: &BvhRay, force_opaque: bool) -> bool {
+fn blas_any(blas: &Blas, r: &BvhRay, force_opaque: bool, state: &mut Traversal) -> bool {
+    if blas.bvh.nodes.is_empty() {
+        return false;
+    }
     let alpha = blas.any_alpha && !force_opaque;
-    let mut state = blas.bvh.new_traversal(r.direction);
+    state.reinit(r.direction);
     let mut node;
     let mut found = false;
     'outer: {
@@ -313,6 +325,7 @@ pub fn trace(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) 
     let mut tray = BvhRay::new(o, d, ray.tmin, ray.tmax);
     let mut best: Option<(usize, usize)> = None;
     let mut best_box: Option<(usize, f32)> = None;
+    let mut blas_state = Traversal::default();
     let mut state = tlas.bvh.new_traversal(d);
     let mut node;
     traverse!(
@@ -332,7 +345,9 @@ pub fn trace(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) 
                         tray.tmax,
                     );
                     if e.kind == EntryKind::Geometry {
-                        if let Some((t, p)) = blas_closest(blas, &lray, e.opacity == 1) {
+                        if let Some((t, p)) =
+                            blas_closest(blas, &lray, e.opacity == 1, &mut blas_state)
+                        {
                             if t < tray.tmax {
                                 tray.tmax = t;
                                 best = Some((ei, p));
@@ -382,8 +397,23 @@ pub fn trace(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) 
 /// Any-hit occlusion: whether real geometry (not boxes) blocks the segment.
 /// Counts nothing.
 pub fn occluded(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) -> bool {
+    let mask = ray.mask;
+    occluded_by(tlas, store, ray, |custom, m| {
+        m & mask != 0 && skip.is_none_or(|s| !s.contains(custom))
+    })
+}
+
+/// Any-hit occlusion over the real-geometry entries that `keep(custom
+/// index, mask)` accepts (the ray's own mask is not applied).
+pub fn occluded_by(
+    tlas: &Tlas,
+    store: &BlasStore,
+    ray: &Ray,
+    keep: impl Fn(u32, u8) -> bool,
+) -> bool {
     let (o, d) = (ray.origin, ray.direction);
     let tray = BvhRay::new(o, d, ray.tmin, ray.tmax);
+    let mut blas_state = Traversal::default();
     let mut state = tlas.bvh.new_traversal(d);
     let mut node;
     let mut found = false;
@@ -395,10 +425,7 @@ pub fn occluded(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
             node.intersect_ray(&tray, state.oct_inv4),
             {
                 let e = &tlas.entries[state.primitive_id as usize];
-                if e.kind == EntryKind::Geometry
-                    && e.mask & ray.mask != 0
-                    && skip.is_none_or(|s| !s.contains(e.custom_index))
-                {
+                if e.kind == EntryKind::Geometry && keep(e.custom_index, e.mask) {
                     if let Some(blas) = store.slot(e.blas) {
                         let lray = BvhRay::new(
                             e.world_to_object.transform_point3a(o),
@@ -406,7 +433,7 @@ pub fn occluded(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
                             tray.tmin,
                             tray.tmax,
                         );
-                        if blas_any(blas, &lray, e.opacity == 1) {
+                        if blas_any(blas, &lray, e.opacity == 1, &mut blas_state) {
                             found = true;
                             break 'outer;
                         }
