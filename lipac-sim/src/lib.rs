@@ -4,3 +4,16 @@
 //! producing real hit feedback, ground truth and culling strategies compared.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+
+pub mod blas;
+pub mod camera;
+pub mod error;
+pub mod mesh;
+pub mod pathtrace;
+pub mod rng;
+pub mod scene;
+pub mod scene_blas;
+pub mod tlas;
+pub mod trace;
+
+pub use error::SimError;

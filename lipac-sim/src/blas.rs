@@ -1,0 +1,535 @@
+//! Bottom-level acceleration structures on `obvhs`: one compressed wide BVH
+//! (CWBVH) per triangle set, a store that hands out generation-checked
+//! handles, and the one static unit-cube BLAS that counting boxes use.
+//!
+//! A [`BlasId`] maps to the `acceleration_structure_reference` of a
+//! [`lipac_core::layout::TlasInstance`] as `((generation << 32) | index) + 1`
+//! ([`BlasId::reference`]); reference 0 marks an inactive record.
+//!
+//! BLASes built with `refittable = true` keep their binary BVH so that
+//! [`BlasStore::refit`] can update node bounds for moved vertices (same
+//! topology, cheap, quality degrades with large motion) instead of a full
+//! [`BlasStore::rebuild`]. Both are counted in [`BuildStats`].
+
+use glam::{Vec3, Vec3A};
+use lipac_core::math::Aabb;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::bvh2::Bvh2;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
+use obvhs::cwbvh::CwBvh;
+use obvhs::ploc::PlocBuilder;
+use obvhs::rt_triangle::RtTriangle;
+use obvhs::BvhBuildParams;
+
+use crate::error::SimError;
+use crate::mesh::MeshLod;
+
+/// The unit cube that counting boxes are made of: `[0, 1]^3` in object space.
+/// A box instance's transform maps it onto the box it stands for
+/// (see [`box_transform`]).
+pub const UNIT_CUBE: Aabb = Aabb::new(Vec3::ZERO, Vec3::ONE);
+
+/// Row-major 3x4 transform mapping [`UNIT_CUBE`] onto `aabb`
+/// (scale by the size, translate to the minimum corner).
+///
+/// ```
+/// use lipac_sim::blas::box_transform;
+/// use lipac_core::math::Aabb;
+/// use glam::Vec3;
+/// let t = box_transform(&Aabb::new(Vec3::new(1.0, 2.0, 3.0), Vec3::new(3.0, 6.0, 4.0)));
+/// assert_eq!(t, [2.0, 0.0, 0.0, 1.0, 0.0, 4.0, 0.0, 2.0, 0.0, 0.0, 1.0, 3.0]);
+/// ```
+pub fn box_transform(aabb: &Aabb) -> [f32; 12] {
+    let s = aabb.size();
+    let m = aabb.min;
+    [s.x, 0.0, 0.0, m.x, 0.0, s.y, 0.0, m.y, 0.0, 0.0, s.z, m.z]
+}
+
+/// Handle of a BLAS in a [`BlasStore`]; stale handles are rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BlasId {
+    index: u32,
+    generation: u32,
+}
+
+impl BlasId {
+    /// The TLAS `acceleration_structure_reference` naming this BLAS (never 0).
+    pub fn reference(self) -> u64 {
+        ((u64::from(self.generation) << 32) | u64::from(self.index)) + 1
+    }
+    /// The handle a reference names; `None` for 0 (inactive record).
+    pub fn from_reference(reference: u64) -> Option<Self> {
+        let r = reference.checked_sub(1)?;
+        Some(Self {
+            index: r as u32,
+            generation: (r >> 32) as u32,
+        })
+    }
+    /// Slot index in the store.
+    pub fn index(self) -> u32 {
+        self.index
+    }
+}
+
+/// Build quality presets (mapped onto `obvhs::BvhBuildParams`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BuildQuality {
+    /// Fastest build (animated BLASes).
+    Fast,
+    /// Better trees for static shared geometry.
+    Good,
+    /// TLAS: good tree, one instance per leaf (instances are expensive to
+    /// enter, so leaves should not group them).
+    Tlas,
+}
+
+impl BuildQuality {
+    fn params(self) -> BvhBuildParams {
+        match self {
+            Self::Fast => BvhBuildParams::very_fast_build(),
+            Self::Good => BvhBuildParams::fast_build(),
+            Self::Tlas => BvhBuildParams {
+                max_prims_per_leaf: 1,
+                ..BvhBuildParams::fast_build()
+            },
+        }
+    }
+}
+
+/// Builds an `obvhs` CWBVH over primitives with bounds (and keeps the
+/// binary BVH it was converted from).
+pub(crate) fn build_cwbvh<T: obvhs::Boundable>(
+    prims: &[T],
+    quality: BuildQuality,
+) -> (CwBvh, Bvh2) {
+    if prims.is_empty() {
+        return (CwBvh::default(), Bvh2::default());
+    }
+    let p = quality.params();
+    let mut bvh2 = PlocBuilder::with_capacity(prims.len()).build(
+        p.ploc_search_distance,
+        prims,
+        (0..prims.len() as u32).collect(),
+        p.sort_precision,
+        p.search_depth_threshold,
+    );
+    if p.reinsertion_batch_ratio > 0.0 && prims.len() > 8 {
+        ReinsertionOptimizer::default().run(&mut bvh2, p.reinsertion_batch_ratio, None);
+    }
+    let cw = bvh2_to_cwbvh(&bvh2, p.max_prims_per_leaf.clamp(1, 3), true, false);
+    (cw, bvh2)
+}
+
+/// What a BLAS holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlasKind {
+    /// Triangles.
+    Triangles,
+    /// The unit cube of counting boxes (no triangles; intersected as a box).
+    UnitCube,
+}
+
+/// One BLAS: a CWBVH and its triangles in BVH order.
+#[derive(Clone)]
+pub struct Blas {
+    pub(crate) kind: BlasKind,
+    pub(crate) bvh: CwBvh,
+    /// Triangles in BVH primitive order.
+    pub(crate) tris: Vec<RtTriangle>,
+    /// Original triangle index per BVH primitive.
+    pub(crate) prim: Vec<u32>,
+    /// Material byte per BVH primitive.
+    pub(crate) material: Vec<u8>,
+    /// Alpha-tested flag per BVH primitive.
+    pub(crate) alpha: Vec<bool>,
+    pub(crate) any_alpha: bool,
+    pub(crate) bounds: Aabb,
+    bvh2: Option<Bvh2>,
+}
+
+impl std::fmt::Debug for Blas {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Blas")
+            .field("kind", &self.kind)
+            .field("triangles", &self.tris.len())
+            .field("nodes", &self.bvh.nodes.len())
+            .field("bounds", &self.bounds)
+            .field("refittable", &self.bvh2.is_some())
+            .finish()
+    }
+}
+
+impl Blas {
+    /// What it holds.
+    pub fn kind(&self) -> BlasKind {
+        self.kind
+    }
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+    /// Object-space bounds.
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+    /// Whether [`BlasStore::refit`] works on it.
+    pub fn is_refittable(&self) -> bool {
+        self.bvh2.is_some()
+    }
+    /// Approximate memory held, bytes (nodes, triangles, attributes).
+    pub fn memory_bytes(&self) -> usize {
+        self.bvh.nodes.len() * 80
+            + self.bvh.primitive_indices.len() * 4
+            + self.tris.len() * (std::mem::size_of::<RtTriangle>() + 4 + 2)
+            + self
+                .bvh2
+                .as_ref()
+                .map_or(0, |b| b.nodes.len() * 48 + b.primitive_indices.len() * 8)
+    }
+
+    fn unit_cube() -> Self {
+        Self {
+            kind: BlasKind::UnitCube,
+            bvh: CwBvh::default(),
+            tris: Vec::new(),
+            prim: Vec::new(),
+            material: Vec::new(),
+            alpha: Vec::new(),
+            any_alpha: false,
+            bounds: UNIT_CUBE,
+            bvh2: None,
+        }
+    }
+
+    fn from_geometry(
+        geom: &MeshLod,
+        quality: BuildQuality,
+        refittable: bool,
+    ) -> Result<Self, SimError> {
+        check_geometry(geom)?;
+        let (bvh, bvh2) = build_cwbvh(&geom.triangles, quality);
+        let mut b = Self {
+            kind: BlasKind::Triangles,
+            bvh,
+            tris: Vec::new(),
+            prim: Vec::new(),
+            material: Vec::new(),
+            alpha: Vec::new(),
+            any_alpha: false,
+            bounds: geom.bounds(),
+            bvh2: refittable.then_some(bvh2),
+        };
+        b.reorder(geom);
+        Ok(b)
+    }
+
+    /// Lays triangles and attributes out in BVH primitive order.
+    fn reorder(&mut self, geom: &MeshLod) {
+        let order = &self.bvh.primitive_indices;
+        self.prim.clear();
+        self.prim.extend_from_slice(order);
+        self.tris.clear();
+        self.tris.extend(
+            order
+                .iter()
+                .map(|&i| RtTriangle::from(&geom.triangles[i as usize])),
+        );
+        self.material.clear();
+        self.material.extend(
+            order
+                .iter()
+                .map(|&i| geom.materials.get(i as usize).copied().unwrap_or(0)),
+        );
+        self.alpha.clear();
+        self.alpha.extend(
+            order
+                .iter()
+                .map(|&i| geom.alpha_tested.get(i as usize).copied().unwrap_or(false)),
+        );
+        self.any_alpha = self.alpha.iter().any(|&a| a);
+        self.bounds = geom.bounds();
+    }
+}
+
+fn check_geometry(geom: &MeshLod) -> Result<(), SimError> {
+    let finite = geom
+        .triangles
+        .iter()
+        .all(|t| Vec3A::is_finite(t.v0) && Vec3A::is_finite(t.v1) && Vec3A::is_finite(t.v2));
+    if finite {
+        Ok(())
+    } else {
+        Err(SimError::NonFinite("triangle vertices"))
+    }
+}
+
+/// Counts of BLAS work done, for cost models.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BuildStats {
+    /// Full builds (including rebuilds).
+    pub builds: u64,
+    /// Refits.
+    pub refits: u64,
+    /// Triangles processed by builds.
+    pub primitives_built: u64,
+    /// Triangles processed by refits.
+    pub primitives_refit: u64,
+}
+
+/// Owns every BLAS; hands out generation-checked [`BlasId`]s.
+///
+/// ```
+/// use lipac_sim::blas::{BlasStore, BuildQuality, BlasId};
+/// use lipac_sim::mesh;
+/// let mut store = BlasStore::new();
+/// let tree = mesh::tree();
+/// let id = store.build(&tree.lods[0], BuildQuality::Good, false).unwrap();
+/// assert_eq!(BlasId::from_reference(id.reference()), Some(id));
+/// assert_eq!(store.get(id).unwrap().triangle_count(), tree.lods[0].len());
+/// store.remove(id).unwrap();
+/// assert!(store.get(id).is_err());
+/// ```
+#[derive(Clone, Debug)]
+pub struct BlasStore {
+    slots: Vec<(u32, Option<Blas>)>,
+    free: Vec<u32>,
+    stats: BuildStats,
+}
+
+impl Default for BlasStore {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl BlasStore {
+    /// A store holding only the unit cube (at [`BlasStore::unit_cube`]).
+    pub fn new() -> Self {
+        Self {
+            slots: vec![(0, Some(Blas::unit_cube()))],
+            free: Vec::new(),
+            stats: BuildStats::default(),
+        }
+    }
+    /// The static unit-cube BLAS of counting boxes.
+    pub fn unit_cube(&self) -> BlasId {
+        BlasId {
+            index: 0,
+            generation: 0,
+        }
+    }
+    /// Builds a BLAS over `geom` (triangles, materials, alpha flags).
+    /// `refittable` keeps the binary BVH so that [`Self::refit`] works.
+    pub fn build(
+        &mut self,
+        geom: &MeshLod,
+        quality: BuildQuality,
+        refittable: bool,
+    ) -> Result<BlasId, SimError> {
+        let blas = Blas::from_geometry(geom, quality, refittable)?;
+        self.stats.builds += 1;
+        self.stats.primitives_built += geom.len() as u64;
+        Ok(self.insert(blas))
+    }
+    fn insert(&mut self, blas: Blas) -> BlasId {
+        if let Some(index) = self.free.pop() {
+            let slot = &mut self.slots[index as usize];
+            slot.0 = (slot.0 + 1) & 0x7FFF_FFFF;
+            slot.1 = Some(blas);
+            BlasId {
+                index,
+                generation: slot.0,
+            }
+        } else {
+            self.slots.push((0, Some(blas)));
+            BlasId {
+                index: (self.slots.len() - 1) as u32,
+                generation: 0,
+            }
+        }
+    }
+    /// The BLAS `id`.
+    pub fn get(&self, id: BlasId) -> Result<&Blas, SimError> {
+        match self.slots.get(id.index as usize) {
+            Some((g, Some(b))) if *g == id.generation => Ok(b),
+            _ => Err(SimError::StaleBlas),
+        }
+    }
+    fn get_mut(&mut self, id: BlasId) -> Result<&mut Blas, SimError> {
+        match self.slots.get_mut(id.index as usize) {
+            Some((g, Some(b))) if *g == id.generation => Ok(b),
+            _ => Err(SimError::StaleBlas),
+        }
+    }
+    /// Resolves a TLAS reference (0 and stale references give `None`).
+    pub(crate) fn resolve(&self, reference: u64) -> Option<(u32, &Blas)> {
+        let id = BlasId::from_reference(reference)?;
+        self.get(id).ok().map(|b| (id.index, b))
+    }
+    /// The BLAS in slot `index` (used by traversal after a TLAS build has
+    /// validated the handles).
+    pub(crate) fn slot(&self, index: u32) -> Option<&Blas> {
+        self.slots.get(index as usize).and_then(|s| s.1.as_ref())
+    }
+    /// Rebuilds `id` from new geometry (any triangle count).
+    pub fn rebuild(
+        &mut self,
+        id: BlasId,
+        geom: &MeshLod,
+        quality: BuildQuality,
+    ) -> Result<(), SimError> {
+        let refittable = self.get(id)?.is_refittable();
+        if self.get(id)?.kind == BlasKind::UnitCube {
+            return Err(SimError::BadConfig("the unit cube BLAS is static"));
+        }
+        let blas = Blas::from_geometry(geom, quality, refittable)?;
+        *self.get_mut(id)? = blas;
+        self.stats.builds += 1;
+        self.stats.primitives_built += geom.len() as u64;
+        Ok(())
+    }
+    /// Refits `id` to moved vertices: same triangle count and order as the
+    /// build; node bounds are recomputed, the tree topology is kept.
+    pub fn refit(&mut self, id: BlasId, geom: &MeshLod) -> Result<(), SimError> {
+        check_geometry(geom)?;
+        let blas = self.get_mut(id)?;
+        let expected = blas.tris.len();
+        let Some(bvh2) = blas.bvh2.as_mut() else {
+            return Err(SimError::BadConfig("BLAS was not built refittable"));
+        };
+        if geom.len() != expected {
+            return Err(SimError::RefitCountMismatch {
+                expected,
+                got: geom.len(),
+            });
+        }
+        if expected > 0 {
+            bvh2.init_primitives_to_nodes_if_uninit();
+            for (i, t) in geom.triangles.iter().enumerate() {
+                let node = bvh2.primitives_to_nodes[i] as usize;
+                bvh2.nodes[node].set_aabb(t.aabb());
+            }
+            bvh2.refit_all();
+            blas.bvh = bvh2_to_cwbvh(bvh2, 3, true, false);
+        }
+        blas.reorder(geom);
+        self.stats.refits += 1;
+        self.stats.primitives_refit += geom.len() as u64;
+        Ok(())
+    }
+    /// Frees `id`; the handle becomes stale. The unit cube cannot be removed.
+    pub fn remove(&mut self, id: BlasId) -> Result<(), SimError> {
+        if id == self.unit_cube() {
+            return Err(SimError::BadConfig("the unit cube BLAS is static"));
+        }
+        self.get(id)?;
+        self.slots[id.index as usize].1 = None;
+        self.free.push(id.index);
+        Ok(())
+    }
+    /// Number of live BLASes (including the unit cube).
+    pub fn len(&self) -> usize {
+        self.slots.iter().filter(|s| s.1.is_some()).count()
+    }
+    /// Whether no BLAS is live (never true: the unit cube is static).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Approximate memory of all live BLASes, bytes.
+    pub fn memory_bytes(&self) -> usize {
+        self.slots
+            .iter()
+            .filter_map(|s| s.1.as_ref())
+            .map(Blas::memory_bytes)
+            .sum()
+    }
+    /// Work counted since creation or the last [`Self::reset_stats`].
+    pub fn stats(&self) -> BuildStats {
+        self.stats
+    }
+    /// Zeroes the work counters.
+    pub fn reset_stats(&mut self) {
+        self.stats = BuildStats::default();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh;
+    use obvhs::triangle::Triangle;
+
+    #[test]
+    fn references_round_trip_and_zero_is_inactive() {
+        assert_eq!(BlasId::from_reference(0), None);
+        let id = BlasId {
+            index: 5,
+            generation: 3,
+        };
+        assert_eq!(BlasId::from_reference(id.reference()), Some(id));
+        assert_ne!(id.reference(), 0);
+    }
+
+    #[test]
+    fn stale_handles_are_errors_after_reuse() {
+        let mut s = BlasStore::new();
+        let g = mesh::unit().lods[2].clone();
+        let a = s.build(&g, BuildQuality::Fast, false).unwrap();
+        s.remove(a).unwrap();
+        let b = s.build(&g, BuildQuality::Fast, false).unwrap();
+        assert_eq!(a.index(), b.index());
+        assert_eq!(s.get(a).unwrap_err(), SimError::StaleBlas);
+        assert!(s.get(b).is_ok());
+        assert!(s.remove(s.unit_cube()).is_err());
+        assert_eq!(s.stats().builds, 2);
+        assert_eq!(s.stats().primitives_built, 24);
+    }
+
+    #[test]
+    fn refit_checks_counts_and_tracks_moved_vertices() {
+        let mut s = BlasStore::new();
+        let rest = mesh::unit().lods[0].clone();
+        let id = s.build(&rest, BuildQuality::Fast, true).unwrap();
+        let mut moved = rest.clone();
+        for t in &mut moved.triangles {
+            t.v0 += Vec3A::new(0.0, 5.0, 0.0);
+            t.v1 += Vec3A::new(0.0, 5.0, 0.0);
+            t.v2 += Vec3A::new(0.0, 5.0, 0.0);
+        }
+        s.refit(id, &moved).unwrap();
+        let b = s.get(id).unwrap().bounds();
+        assert!((b.min.y - 5.0).abs() < 1e-5);
+        // Root node bounds of the CWBVH follow too.
+        assert!(s.get(id).unwrap().bvh.nodes[0].p.y >= 4.99);
+        assert_eq!(s.stats().refits, 1);
+        assert_eq!(s.stats().primitives_refit, rest.len() as u64);
+        let mut fewer = moved.clone();
+        fewer.triangles.pop();
+        assert_eq!(
+            s.refit(id, &fewer).unwrap_err(),
+            SimError::RefitCountMismatch {
+                expected: rest.len(),
+                got: rest.len() - 1
+            }
+        );
+        let shared = s.build(&rest, BuildQuality::Fast, false).unwrap();
+        assert!(s.refit(shared, &moved).is_err());
+    }
+
+    #[test]
+    fn non_finite_geometry_is_rejected() {
+        let mut g = MeshLod::default();
+        g.triangles.push(Triangle {
+            v0: Vec3A::ZERO,
+            v1: Vec3A::X,
+            v2: Vec3A::new(f32::NAN, 0.0, 0.0),
+        });
+        g.materials.push(0);
+        g.alpha_tested.push(false);
+        let mut s = BlasStore::new();
+        assert_eq!(
+            s.build(&g, BuildQuality::Fast, false).unwrap_err(),
+            SimError::NonFinite("triangle vertices")
+        );
+    }
+}

@@ -1,0 +1,422 @@
+//! Cameras and camera paths: the paper's fly-through, a camera jump (cold
+//! start) and static views. A camera generates primary rays and a
+//! view-projection matrix for frustum tests.
+
+use glam::{Mat4, Vec3, Vec4};
+use lipac_core::math::Aabb;
+
+use crate::error::SimError;
+use crate::scene::{Scene, FPS};
+
+/// A pinhole camera. `yaw` 0 looks along +z, positive yaw turns towards +x;
+/// `pitch` is up from the horizon (radians).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Eye position.
+    pub position: Vec3,
+    /// Heading, radians.
+    pub yaw: f32,
+    /// Elevation, radians.
+    pub pitch: f32,
+    /// Vertical field of view, radians.
+    pub vfov: f32,
+    /// Width / height.
+    pub aspect: f32,
+}
+
+/// Near plane of [`Camera::view_proj`].
+pub const NEAR: f32 = 0.1;
+/// Far plane of [`Camera::view_proj`].
+pub const FAR: f32 = 20_000.0;
+
+impl Camera {
+    /// A validated camera (finite values, `0 < vfov < pi`, `aspect > 0`).
+    pub fn new(
+        position: Vec3,
+        yaw: f32,
+        pitch: f32,
+        vfov: f32,
+        aspect: f32,
+    ) -> Result<Self, SimError> {
+        if !position.is_finite() || ![yaw, pitch, vfov, aspect].iter().all(|v| v.is_finite()) {
+            return Err(SimError::NonFinite("camera parameters"));
+        }
+        if !(vfov > 0.0 && vfov < std::f32::consts::PI) || aspect <= 0.0 {
+            return Err(SimError::BadConfig(
+                "camera needs 0 < vfov < pi and aspect > 0",
+            ));
+        }
+        Ok(Self {
+            position,
+            yaw,
+            pitch,
+            vfov,
+            aspect,
+        })
+    }
+    /// A camera at `position` looking at `target`.
+    pub fn look_at(position: Vec3, target: Vec3, vfov: f32, aspect: f32) -> Result<Self, SimError> {
+        let d = target - position;
+        if !d.is_finite() || d.length_squared() == 0.0 {
+            return Err(SimError::BadConfig("look_at needs distinct finite points"));
+        }
+        let yaw = d.x.atan2(d.z);
+        let pitch = (d.y / d.length()).clamp(-1.0, 1.0).asin();
+        Self::new(position, yaw, pitch, vfov, aspect)
+    }
+    /// Unit view direction.
+    pub fn forward(&self) -> Vec3 {
+        let (sy, cy) = self.yaw.sin_cos();
+        let (sp, cp) = self.pitch.sin_cos();
+        Vec3::new(cp * sy, sp, cp * cy)
+    }
+    /// Unit right and up vectors of the image plane.
+    pub fn basis(&self) -> (Vec3, Vec3) {
+        let f = self.forward();
+        let right = f.cross(Vec3::Y).try_normalize().unwrap_or(Vec3::X);
+        let up = right.cross(f);
+        (right, up)
+    }
+    /// Unit direction of the primary ray through pixel `(px, py)` of a
+    /// `width` x `height` image (row 0 at the top), through the pixel centre
+    /// offset by `jitter` (each in `[-0.5, 0.5]`).
+    pub fn ray_direction(
+        &self,
+        px: u32,
+        py: u32,
+        width: u32,
+        height: u32,
+        jitter: (f32, f32),
+    ) -> Vec3 {
+        let (right, up) = self.basis();
+        let th = (0.5 * self.vfov).tan();
+        let sx =
+            ((px as f32 + 0.5 + jitter.0) / width.max(1) as f32 * 2.0 - 1.0) * th * self.aspect;
+        let sy = (1.0 - (py as f32 + 0.5 + jitter.1) / height.max(1) as f32 * 2.0) * th;
+        (self.forward() + right * sx + up * sy).normalize()
+    }
+    /// View-projection matrix for Vulkan: right-handed view, NDC depth
+    /// `0..1` ([`NEAR`]..[`FAR`]) and NDC y pointing down (row 0 of the
+    /// image at y = -1).
+    pub fn view_proj(&self) -> Mat4 {
+        let view = glam::camera::rh::view::look_to_mat4(self.position, self.forward(), Vec3::Y);
+        glam::camera::rh::proj::vulkan::perspective(self.vfov, self.aspect, NEAR, FAR) * view
+    }
+    /// The view frustum of [`Self::view_proj`].
+    pub fn frustum(&self) -> Frustum {
+        Frustum::from_view_proj(&self.view_proj())
+    }
+}
+
+/// Six planes of a view frustum (`a*x + b*y + c*z + d >= 0` inside).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frustum {
+    planes: [Vec4; 6],
+}
+
+impl Frustum {
+    /// Extracts the planes of a view-projection matrix with depth `0..1`.
+    pub fn from_view_proj(m: &Mat4) -> Self {
+        let r = [m.row(0), m.row(1), m.row(2), m.row(3)];
+        Self {
+            planes: [
+                r[3] + r[0],
+                r[3] - r[0],
+                r[3] + r[1],
+                r[3] - r[1],
+                r[2],
+                r[3] - r[2],
+            ],
+        }
+    }
+    /// Whether `aabb` may intersect the frustum (conservative).
+    ///
+    /// ```
+    /// use lipac_sim::camera::Camera;
+    /// use lipac_core::math::Aabb;
+    /// use glam::Vec3;
+    /// let cam = Camera::new(Vec3::ZERO, 0.0, 0.0, 1.0, 1.0).unwrap();
+    /// let ahead = Aabb::new(Vec3::new(-1.0, -1.0, 9.0), Vec3::new(1.0, 1.0, 11.0));
+    /// let behind = Aabb::new(Vec3::new(-1.0, -1.0, -11.0), Vec3::new(1.0, 1.0, -9.0));
+    /// assert!(cam.frustum().intersects_aabb(&ahead));
+    /// assert!(!cam.frustum().intersects_aabb(&behind));
+    /// ```
+    pub fn intersects_aabb(&self, aabb: &Aabb) -> bool {
+        self.planes.iter().all(|p| {
+            let n = p.truncate();
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), aabb.max, aabb.min);
+            n.dot(v) + p.w >= 0.0
+        })
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Key {
+    frame: f32,
+    position: Vec3,
+    yaw: f32,
+    pitch: f32,
+}
+
+/// A camera path over a number of frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraPath {
+    segments: Vec<Vec<Key>>,
+    /// First frame of each segment after the first (jumps).
+    cuts: Vec<u32>,
+    frames: u32,
+    vfov: f32,
+    aspect: f32,
+}
+
+fn catmull_rom(p0: f32, p1: f32, p2: f32, p3: f32, t: f32) -> f32 {
+    let t2 = t * t;
+    0.5 * (2.0 * p1
+        + (p2 - p0) * t
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t2 * t)
+}
+
+fn interpolate(keys: &[Key], frame: f32) -> Key {
+    if keys.len() == 1 || frame <= keys[0].frame {
+        return keys[0];
+    }
+    let last = keys.len() - 1;
+    if frame >= keys[last].frame {
+        return keys[last];
+    }
+    let i = keys
+        .windows(2)
+        .position(|w| frame < w[1].frame)
+        .unwrap_or(last - 1);
+    let (k0, k1, k2, k3) = (
+        keys[i.saturating_sub(1)],
+        keys[i],
+        keys[i + 1],
+        keys[(i + 2).min(last)],
+    );
+    let t = (frame - k1.frame) / (k2.frame - k1.frame);
+    // Smoothstep the parameter so each key is a rest point (no velocity jumps).
+    let s = t * t * (3.0 - 2.0 * t);
+    let c = |f: fn(&Key) -> f32| catmull_rom(f(&k0), f(&k1), f(&k2), f(&k3), s);
+    Key {
+        frame,
+        position: Vec3::new(
+            c(|k| k.position.x),
+            c(|k| k.position.y),
+            c(|k| k.position.z),
+        ),
+        yaw: c(|k| k.yaw),
+        pitch: c(|k| k.pitch),
+    }
+}
+
+impl CameraPath {
+    /// Number of frames.
+    pub fn frames(&self) -> u32 {
+        self.frames
+    }
+    /// Frames at which the camera jumps (cold starts).
+    pub fn cuts(&self) -> &[u32] {
+        &self.cuts
+    }
+    /// The camera at `frame` (clamped to the path).
+    pub fn camera_at(&self, frame: u32) -> Camera {
+        let seg = self.cuts.iter().filter(|&&c| frame >= c).count();
+        let k = interpolate(&self.segments[seg], frame as f32);
+        Camera {
+            position: k.position,
+            yaw: k.yaw,
+            pitch: k.pitch,
+            vfov: self.vfov,
+            aspect: self.aspect,
+        }
+    }
+
+    /// A camera standing still for `frames` frames.
+    pub fn fixed(camera: Camera, frames: u32) -> Self {
+        let k = Key {
+            frame: 0.0,
+            position: camera.position,
+            yaw: camera.yaw,
+            pitch: camera.pitch,
+        };
+        Self {
+            segments: vec![vec![k]],
+            cuts: Vec::new(),
+            frames,
+            vfov: camera.vfov,
+            aspect: camera.aspect,
+        }
+    }
+
+    /// `a` for `at` frames, then `b` until `frames` (a camera jump).
+    pub fn jump(a: Camera, b: Camera, at: u32, frames: u32) -> Self {
+        let ka = Key {
+            frame: 0.0,
+            position: a.position,
+            yaw: a.yaw,
+            pitch: a.pitch,
+        };
+        let kb = Key {
+            frame: at as f32,
+            position: b.position,
+            yaw: b.yaw,
+            pitch: b.pitch,
+        };
+        Self {
+            segments: vec![vec![ka], vec![kb]],
+            cuts: vec![at],
+            frames,
+            vfov: a.vfov,
+            aspect: a.aspect,
+        }
+    }
+
+    /// The paper's fly-through (9 s at 30 fps = 270 frames): high above the
+    /// city looking down, down to the busy street, along it at street level,
+    /// then a tilt up to the horizon.
+    pub fn flythrough(scene: &Scene, aspect: f32) -> Self {
+        let ext = scene.config().extent;
+        let (axis, line) = scene.busy_street();
+        // Work in (along, across) street coordinates, then map to x/z.
+        let at = |along: f32, across_off: f32, height: f32| {
+            let (x, z) = if axis == 0 {
+                (along, line + across_off)
+            } else {
+                (line + across_off, along)
+            };
+            Vec3::new(x, scene.height(x, z) + height, z)
+        };
+        let heading = if axis == 0 {
+            std::f32::consts::FRAC_PI_2
+        } else {
+            0.0
+        };
+        let mid = 0.5 * ext;
+        let s = (ext / 2048.0).clamp(0.1, 1.0);
+        let f = |sec: f32| sec * FPS;
+        let keys = vec![
+            Key {
+                frame: f(0.0),
+                position: at(mid - 700.0 * s, -400.0 * s, 650.0 * s),
+                yaw: heading + 0.5,
+                pitch: -0.75,
+            },
+            Key {
+                frame: f(3.0),
+                position: at(mid - 160.0 * s, 0.0, 40.0 * s.max(0.5)),
+                yaw: heading,
+                pitch: -0.3,
+            },
+            Key {
+                frame: f(4.0),
+                position: at(mid - 100.0 * s, 0.0, 6.0),
+                yaw: heading,
+                pitch: -0.15,
+            },
+            Key {
+                frame: f(7.0),
+                position: at(mid + 40.0 * s, 0.0, 6.0),
+                yaw: heading,
+                pitch: -0.15,
+            },
+            Key {
+                frame: f(9.0),
+                position: at(mid + 70.0 * s, 0.0, 6.0),
+                yaw: heading,
+                pitch: 0.02,
+            },
+        ];
+        Self {
+            segments: vec![keys],
+            cuts: Vec::new(),
+            frames: f(9.0) as u32,
+            vfov: 60f32.to_radians(),
+            aspect,
+        }
+    }
+
+    /// A cold-start jump: 2 s over the busy street, then a jump to a street
+    /// view on the far side of the city for another 2 s.
+    pub fn city_jump(scene: &Scene, aspect: f32) -> Self {
+        let ext = scene.config().extent;
+        let (axis, line) = scene.busy_street();
+        let p = |x: f32, z: f32, h: f32| Vec3::new(x, scene.height(x, z) + h, z);
+        let vfov = 60f32.to_radians();
+        let (a_pos, b_pos) = if axis == 0 {
+            (p(0.45 * ext, line, 8.0), p(0.2 * ext, 0.8 * ext, 8.0))
+        } else {
+            (p(line, 0.45 * ext, 8.0), p(0.8 * ext, 0.2 * ext, 8.0))
+        };
+        let a = Camera {
+            position: a_pos,
+            yaw: if axis == 0 { 1.57 } else { 0.0 },
+            pitch: -0.1,
+            vfov,
+            aspect,
+        };
+        let b = Camera {
+            position: b_pos,
+            yaw: 2.4,
+            pitch: -0.05,
+            vfov,
+            aspect,
+        };
+        Self::jump(a, b, (2.0 * FPS) as u32, (4.0 * FPS) as u32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneConfig;
+
+    #[test]
+    fn rays_match_the_view_projection() {
+        let cam = Camera::new(Vec3::new(1.0, 2.0, 3.0), 0.7, -0.2, 1.0, 16.0 / 9.0).unwrap();
+        let vp = cam.view_proj();
+        for &(px, py) in &[(0u32, 0u32), (159, 89), (80, 45), (10, 70)] {
+            let d = cam.ray_direction(px, py, 160, 90, (0.0, 0.0));
+            let p = cam.position + d * 50.0;
+            let c = vp * p.extend(1.0);
+            let ndc = c.truncate() / c.w;
+            let sx = (px as f32 + 0.5) / 160.0 * 2.0 - 1.0;
+            let sy = (py as f32 + 0.5) / 90.0 * 2.0 - 1.0; // Vulkan: y down
+            assert!(
+                (ndc.x - sx).abs() < 1e-3 && (ndc.y - sy).abs() < 1e-3,
+                "{ndc} vs {sx},{sy}"
+            );
+            assert!((0.0..=1.0).contains(&ndc.z));
+        }
+    }
+
+    #[test]
+    fn flythrough_is_smooth_and_descends() {
+        let scene = Scene::generate(&SceneConfig::small()).unwrap();
+        let path = CameraPath::flythrough(&scene, 16.0 / 9.0);
+        assert!(path.frames() < 300);
+        let first = path.camera_at(0);
+        let last = path.camera_at(path.frames() - 1);
+        assert!(first.position.y > last.position.y + 50.0);
+        assert!(last.pitch.abs() < 0.05 && first.pitch < -0.5);
+        let mut max_step: f32 = 0.0;
+        for f in 1..path.frames() {
+            let step = (path.camera_at(f).position - path.camera_at(f - 1).position).length();
+            max_step = max_step.max(step);
+        }
+        // Continuous motion: no frame-to-frame jump larger than a few metres.
+        assert!(max_step < 15.0, "{max_step}");
+    }
+
+    #[test]
+    fn jump_cuts_once() {
+        let scene = Scene::generate(&SceneConfig::small()).unwrap();
+        let path = CameraPath::city_jump(&scene, 1.5);
+        let c = path.cuts()[0];
+        assert_eq!(path.camera_at(c - 1), path.camera_at(0));
+        assert!((path.camera_at(c).position - path.camera_at(c - 1).position).length() > 50.0);
+        assert!(Camera::new(Vec3::ZERO, 0.0, 0.0, 4.0, 1.0).is_err());
+        assert!(Camera::new(Vec3::NAN, 0.0, 0.0, 1.0, 1.0).is_err());
+    }
+}

@@ -1,0 +1,201 @@
+//! The BLASes of a [`Scene`]: one shared BLAS per (mesh, LOD), built on
+//! demand and cached, and one unique BLAS per unique instance (terrain
+//! tiles, terrain-adapted buildings, animated units), updated by refit or
+//! rebuild on request. Also builds the full-scene TLAS records that stand in
+//! for rasterization and ground truth.
+
+use std::collections::HashMap;
+
+use glam::Vec3;
+use lipac_core::layout::TlasInstance;
+use lipac_core::math::affine_to_rows;
+
+use crate::blas::{BlasId, BlasStore, BuildQuality};
+use crate::error::SimError;
+use crate::mesh::{MeshId, MeshLibrary, MeshLod, LOD_COUNT};
+use crate::scene::{LodPolicy, Scene, SceneInstance};
+use crate::tlas::masks;
+
+/// How an existing unique BLAS of an animated instance follows a new frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UniqueUpdate {
+    /// Keep it as built (stale pose).
+    Keep,
+    /// Re-deform and refit (same topology).
+    Refit,
+    /// Re-deform and rebuild.
+    Rebuild,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct UniqueBlas {
+    id: BlasId,
+    lod: usize,
+    frame: u32,
+}
+
+/// The BLASes of one scene in a [`BlasStore`].
+#[derive(Clone, Debug, Default)]
+pub struct SceneBlases {
+    shared: HashMap<MeshId, [Option<BlasId>; LOD_COUNT]>,
+    unique: HashMap<u32, UniqueBlas>,
+    scratch: MeshLod,
+}
+
+impl SceneBlases {
+    /// Nothing built yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The shared BLAS of (`mesh`, `lod`), built on first use.
+    pub fn shared(
+        &mut self,
+        store: &mut BlasStore,
+        library: &MeshLibrary,
+        mesh: MeshId,
+        lod: usize,
+    ) -> Result<BlasId, SimError> {
+        let geom = library.lod(mesh, lod)?;
+        let entry = self.shared.entry(mesh).or_insert([None; LOD_COUNT]);
+        if let Some(id) = entry[lod] {
+            if store.get(id).is_ok() {
+                return Ok(id);
+            }
+        }
+        let id = store.build(geom, BuildQuality::Good, false)?;
+        entry[lod] = Some(id);
+        Ok(id)
+    }
+
+    /// The unique BLAS of instance `slot` at `lod` for `frame`: built if
+    /// missing or at another LOD; for animated instances at another frame,
+    /// updated as `update` says (static unique geometry never changes).
+    pub fn unique(
+        &mut self,
+        store: &mut BlasStore,
+        scene: &Scene,
+        slot: u32,
+        lod: usize,
+        frame: u32,
+        update: UniqueUpdate,
+    ) -> Result<BlasId, SimError> {
+        let inst = *scene.instance(slot)?;
+        if !inst.is_unique() {
+            return Err(SimError::NotUnique(slot));
+        }
+        if lod >= LOD_COUNT {
+            return Err(SimError::BadLod(lod));
+        }
+        let animated = inst.is_animated();
+        if let Some(u) = self.unique.get(&slot).copied() {
+            if store.get(u.id).is_ok() {
+                if u.lod == lod && (!animated || u.frame == frame || update == UniqueUpdate::Keep) {
+                    return Ok(u.id);
+                }
+                scene.unique_geometry(slot, lod, frame, &mut self.scratch)?;
+                if u.lod == lod && update == UniqueUpdate::Refit {
+                    store.refit(u.id, &self.scratch)?;
+                } else {
+                    store.rebuild(u.id, &self.scratch, BuildQuality::Fast)?;
+                }
+                self.unique.insert(
+                    slot,
+                    UniqueBlas {
+                        id: u.id,
+                        lod,
+                        frame,
+                    },
+                );
+                return Ok(u.id);
+            }
+        }
+        scene.unique_geometry(slot, lod, frame, &mut self.scratch)?;
+        let quality = if animated {
+            BuildQuality::Fast
+        } else {
+            BuildQuality::Good
+        };
+        let id = store.build(&self.scratch, quality, animated)?;
+        self.unique.insert(slot, UniqueBlas { id, lod, frame });
+        Ok(id)
+    }
+
+    /// The BLAS for instance `slot` (shared or unique, see [`Self::unique`]).
+    pub fn blas_for(
+        &mut self,
+        store: &mut BlasStore,
+        scene: &Scene,
+        slot: u32,
+        lod: usize,
+        frame: u32,
+        update: UniqueUpdate,
+    ) -> Result<BlasId, SimError> {
+        let inst = scene.instance(slot)?;
+        if inst.is_unique() {
+            self.unique(store, scene, slot, lod, frame, update)
+        } else {
+            self.shared(store, scene.library(), inst.mesh, lod)
+        }
+    }
+
+    /// Frees the unique BLAS of `slot`; `Ok(false)` if it had none.
+    pub fn release_unique(&mut self, store: &mut BlasStore, slot: u32) -> Result<bool, SimError> {
+        match self.unique.remove(&slot) {
+            Some(u) => store.remove(u.id).map(|_| true),
+            None => Ok(false),
+        }
+    }
+
+    /// Number of unique BLASes held.
+    pub fn unique_count(&self) -> usize {
+        self.unique.len()
+    }
+}
+
+/// The TLAS mask of a scene instance: vegetation or opaque geometry.
+pub fn instance_mask(inst: &SceneInstance) -> u8 {
+    if inst.is_vegetation() {
+        masks::VEGETATION
+    } else {
+        masks::GEOMETRY
+    }
+}
+
+/// The TLAS record of instance `slot` as real geometry with BLAS `blas`
+/// (custom index = slot, SBT offset 0).
+pub fn geometry_record(inst: &SceneInstance, slot: u32, blas: BlasId) -> TlasInstance {
+    TlasInstance::new(
+        affine_to_rows(&inst.transform),
+        slot,
+        instance_mask(inst),
+        0,
+        0,
+        blas.reference(),
+    )
+}
+
+/// Records of the full scene at `frame` (every instance as real geometry,
+/// LOD chosen by `policy` from `eye`), building BLASes as needed. This is
+/// the unculled TLAS: the rasterization stand-in and the ground truth.
+#[allow(clippy::too_many_arguments)]
+pub fn full_scene_records(
+    scene: &Scene,
+    blases: &mut SceneBlases,
+    store: &mut BlasStore,
+    eye: Vec3,
+    policy: &LodPolicy,
+    frame: u32,
+    update: UniqueUpdate,
+    out: &mut Vec<TlasInstance>,
+) -> Result<(), SimError> {
+    out.clear();
+    out.reserve(scene.instances().len());
+    for (slot, inst) in scene.instances().iter().enumerate() {
+        let slot = slot as u32;
+        let lod = policy.lod(eye, &inst.aabb);
+        let id = blases.blas_for(store, scene, slot, lod, frame, update)?;
+        out.push(geometry_record(inst, slot, id));
+    }
+    Ok(())
+}
