@@ -5,13 +5,20 @@
 use crate::context::DeviceContext;
 use crate::error::{Result, VkContext};
 use ash::vk;
+use std::sync::Arc;
 
 /// A `VkSemaphore` of type `TIMELINE` (Vulkan 1.2 core; the
 /// `timelineSemaphore` feature is part of lipac's device contract).
-/// Dropping destroys it: keep it alive until no submission waits on or
-/// signals it.
-#[derive(Debug)]
+///
+/// Cheap to clone (reference counted); the last clone dropped destroys it:
+/// keep one alive until no submission waits on or signals it.
+#[derive(Clone, Debug)]
 pub struct TimelineSemaphore {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
     ctx: DeviceContext,
     raw: vk::Semaphore,
 }
@@ -30,19 +37,21 @@ impl TimelineSemaphore {
         // SAFETY: valid device; timelineSemaphore is enabled (context contract).
         let raw = unsafe { ctx.device().create_semaphore(&info, None) }.ctx("vkCreateSemaphore")?;
         Ok(Self {
-            ctx: ctx.clone(),
-            raw,
+            inner: Arc::new(Inner {
+                ctx: ctx.clone(),
+                raw,
+            }),
         })
     }
 
     /// The `VkSemaphore`, for an engine's own `VkSemaphoreSubmitInfo`.
     pub fn raw(&self) -> vk::Semaphore {
-        self.raw
+        self.inner.raw
     }
 
     /// The context it belongs to.
     pub fn context(&self) -> &DeviceContext {
-        &self.ctx
+        &self.inner.ctx
     }
 
     /// The current counter value (`vkGetSemaphoreCounterValue`); never waits.
@@ -52,8 +61,12 @@ impl TimelineSemaphore {
     /// [`crate::VkError::Vulkan`] (e.g. device lost).
     pub fn value(&self) -> Result<u64> {
         // SAFETY: a timeline semaphore of this device.
-        unsafe { self.ctx.device().get_semaphore_counter_value(self.raw) }
-            .ctx("vkGetSemaphoreCounterValue")
+        unsafe {
+            self.context()
+                .device()
+                .get_semaphore_counter_value(self.raw())
+        }
+        .ctx("vkGetSemaphoreCounterValue")
     }
 
     /// Signals `value` from the host (`vkSignalSemaphore`); it must be
@@ -71,18 +84,18 @@ impl TimelineSemaphore {
             )));
         }
         let info = vk::SemaphoreSignalInfo::default()
-            .semaphore(self.raw)
+            .semaphore(self.raw())
             .value(value);
         // SAFETY: a timeline semaphore of this device; the value is above the
         // current one (checked; pending GPU signals are the caller's contract).
-        unsafe { self.ctx.device().signal_semaphore(&info) }.ctx("vkSignalSemaphore")
+        unsafe { self.context().device().signal_semaphore(&info) }.ctx("vkSignalSemaphore")
     }
 }
 
-impl Drop for TimelineSemaphore {
+impl Drop for Inner {
     fn drop(&mut self) {
-        // SAFETY: created on this device; not used by pending submissions per
-        // the type's contract.
+        // SAFETY: created on this device; the last clone is gone and, per the
+        // type's contract, no pending submission uses it.
         unsafe { self.ctx.device().destroy_semaphore(self.raw, None) };
     }
 }
