@@ -835,7 +835,7 @@ fn readback_ring_waits_for_the_gpu_wraps_and_never_blocks() {
     ));
     gate.signal(1).unwrap();
     let start = std::time::Instant::now();
-    let mut got = vec![None, None, None];
+    let mut got = [None, None, None];
     while got.iter().any(Option::is_none) {
         for (i, t) in tickets.iter().enumerate() {
             if got[i].is_none() {
