@@ -1023,3 +1023,145 @@ fn command_priorities_match_at_every_boundary() {
     assert_eq!(missing, [1, 2, 3, 5, 7], "priorities never emitted");
     assert_no_validation_errors(&h);
 }
+
+/// The GPU-assembled buffer is a valid TLAS build input in the same command
+/// buffer (assembly's final barrier covers the build), and rays count the
+/// boxes it made: the omitted instance's box into its slot, the inactive
+/// hitbox's box into the hitbox, while the active instance is hit.
+#[test]
+fn assembled_tlas_builds_and_counts_boxes() {
+    let Some(h) = headless("assembled_tlas_builds_and_counts_boxes") else {
+        return;
+    };
+    use lipac_core::layout::{InstanceState, VK_INSTANCE_CULL_DISABLE};
+    use lipac_vk::{
+        BlasBatch, CountingConfig, GpuRay, ScratchBuffer, Tlas, TraceBuffers, TracePipeline,
+        UnitCube,
+    };
+    let ctx = h.context();
+    let quad = GpuMesh::new(&h, Mesh::quad());
+    let cube = UnitCube::new(ctx).unwrap();
+    let mut batch = BlasBatch::new();
+    let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
+    batch.push(&[quad.geometry()], flags).unwrap();
+    batch.push(&[cube.geometry()], flags).unwrap();
+    let mut scratch = ScratchBuffer::new(ctx);
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let built = one_shot.run(|rec| batch.record(rec, &mut scratch)).unwrap();
+    let (quad_blas, cube_blas) = (&built.blases[0], &built.blases[1]);
+
+    // Cells of 10 m along x: 0 and 1 active, 2 inactive (3 has no bounds).
+    let index = Grid {
+        nx: 4,
+        nz: 1,
+        origin: Vec2::new(-5.0, -5.0),
+        size: 10.0,
+    };
+    let record = |state, hitbox, min: [f32; 3], max: [f32; 3]| {
+        let mut r = InstanceRecord {
+            transform: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 5.0],
+            aabb_min: min,
+            aabb_max: max,
+            hitbox,
+            packed: instance_bits::ALIVE
+                | (0x01 << instance_bits::MASK_SHIFT)
+                | (u32::from(VK_INSTANCE_CULL_DISABLE) << instance_bits::VK_FLAGS_SHIFT),
+            blas: quad_blas.device_address(),
+            sbt_offset: 0,
+            lod: 0,
+        };
+        r.set_state(state);
+        r
+    };
+    let mut dead = record(InstanceState::Active, 0, [0.0; 3], [1.0; 3]);
+    dead.packed &= !instance_bits::ALIVE;
+    let instances = [
+        record(InstanceState::Active, 0, [-1.0, -1.0, 5.0], [1.0, 1.0, 5.0]),
+        record(
+            InstanceState::Omitted,
+            1,
+            [9.5, -0.5, 2.0],
+            [10.5, 0.5, 3.0],
+        ),
+        record(
+            InstanceState::Inactive,
+            2,
+            [19.0, 0.0, -1.0],
+            [21.0, 4.0, 1.0],
+        ),
+        dead,
+    ];
+    let active = HitboxRecord {
+        packed: hitbox_bits::ACTIVE,
+        ..Default::default()
+    };
+    let hitboxes = [active, active, HitboxRecord::default(), active];
+    let counting = CountingConfig::default();
+    let cfg = AssemblyConfig {
+        unit_cube_blas: cube_blas.device_address(),
+        counting_mask: counting.counting_mask,
+        omitted_box_sbt_offset: counting.omitted_box_sbt_offset,
+        hitbox_sbt_offset: counting.hitbox_box_sbt_offset,
+        min_box_extent: 1e-3,
+    };
+    let scene = Scene::new(ctx, &instances, &[0; 4], &hitboxes, &index, 1);
+    let assembly = AssemblyPipeline::new(ctx).unwrap();
+    let ab = scene.assembly_bindings(&assembly);
+    let mut tlas = Tlas::new(ctx, 2, flags).unwrap();
+    let _retired = one_shot
+        .run(|rec| {
+            assembly.record(rec, &ab, &cfg, 4)?;
+            tlas.record_build(rec, &scene.tlas_out, 0, ab.tlas_capacity(), &mut scratch)
+        })
+        .unwrap();
+    let (counter, _) = scene.read_tlas(ab.tlas_capacity() as usize);
+    assert_eq!(counter, 3, "quad, omitted box, hitbox box");
+
+    let rays = [
+        GpuRay {
+            origin: [0.0, 0.0, -10.0],
+            t_min: 0.0,
+            direction: [0.0, 0.0, 1.0],
+            t_max: 100.0,
+        },
+        GpuRay {
+            origin: [10.0, 0.0, -10.0],
+            t_min: 0.0,
+            direction: [0.0, 0.0, 1.0],
+            t_max: 100.0,
+        },
+        GpuRay {
+            origin: [20.0, 10.0, 0.0],
+            t_min: 0.0,
+            direction: [0.0, -1.0, 0.0],
+            t_max: 100.0,
+        },
+    ];
+    let pipeline = TracePipeline::new(ctx, &counting).unwrap();
+    let host = MemoryLocation::GpuToCpu;
+    let ray_buf = Buffer::with_data(ctx, STORAGE, host, &rays).unwrap();
+    let results = Buffer::new(ctx, 16 * 3, STORAGE, host).unwrap();
+    let instance_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
+    let hitbox_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
+    let tb = pipeline
+        .bind(&TraceBuffers {
+            tlas: &tlas,
+            rays: &ray_buf,
+            results: &results,
+            instance_hits: &instance_hits,
+            hitbox_hits: &hitbox_hits,
+        })
+        .unwrap();
+    one_shot
+        .run(|rec| pipeline.record(rec, &tb, 3, 0xFF, 0))
+        .unwrap();
+    let hits: Vec<lipac_vk::GpuHit> = results.read(0, 3).unwrap();
+    assert!(hits[0].is_hit() && hits[0].custom_index == 0);
+    assert!((hits[0].t - 15.0).abs() < 1e-4);
+    assert!(!hits[1].is_hit() && hits[1].counted_box());
+    assert!(!hits[2].is_hit() && hits[2].counted_box());
+    // The committed quad hit counts for slot 0 (trace_test counts real hits).
+    assert_eq!(instance_hits.read::<u32>(0, 4).unwrap(), [1, 1, 0, 0]);
+    assert_eq!(hitbox_hits.read::<u32>(0, 4).unwrap(), [0, 0, 1, 0]);
+    assert_no_validation_errors(&h);
+}
