@@ -127,7 +127,26 @@ impl AssemblyBindings {
     }
 }
 
-/// The three compute pipelines of GPU Algorithm 1; see the [module docs](self).
+/// GPU Algorithm 1 (TLAS assembly): [`AssemblyPipeline`] records the three
+/// compute passes that turn the instance and hitbox records into this frame's
+/// TLAS instance buffer, matching [`lipac_core::assembly::assemble_tlas`]
+/// record for record (as a multiset: the GPU appends in arbitrary order).
+///
+/// Passes, in one recording ([`AssemblyPipeline::record`]):
+///
+/// 1. zero the TLAS instance buffer and its counter (`vkCmdFillBuffer`);
+///    `hitbox_reset.comp` = [`lipac_core::assembly::begin_frame`];
+/// 2. `assemble_instances.comp`: one thread per slot (active → own record,
+///    omitted → counting box, inactive → `atomicMin`/`atomicMax` of its y
+///    range into its hitbox on order-preserving keys);
+/// 3. `assemble_hitboxes.comp`: one thread per hitbox (keys back to f32, a
+///    counting box for each inactive hitbox with an inactive instance).
+///
+/// Records past the counter stay zero, i.e. inactive (reference 0), so the
+/// TLAS can be built over a fixed count (e.g. [`AssemblyBindings::tlas_capacity`])
+/// without reading the counter back.
+///
+/// See also `docs/VULKAN.md`.
 #[derive(Debug)]
 pub struct AssemblyPipeline {
     kernels: ComputeKernels,

@@ -101,7 +101,30 @@ impl FeedbackBindings {
     }
 }
 
-/// The three compute pipelines of GPU Algorithm 2; see the [module docs](self).
+/// GPU Algorithm 2 (hit feedback): [`FeedbackPipeline`] records the three
+/// compute passes that turn this frame's hit counts into hitbox and instance
+/// transitions and commands, matching
+/// [`lipac_core::feedback::process_feedback`].
+///
+/// Passes, in one recording ([`FeedbackPipeline::record`]):
+///
+/// 1. zero the command counter; `feedback_accumulate.comp` (lines 1–6): each
+///    live active/omitted instance's hits are added to its hitbox,
+///    saturating at 2^24 − 1 (an `atomicCompSwap` loop);
+/// 2. `feedback_hitboxes.comp` (lines 7–13): hitbox activation/deactivation
+///    with the streak rules;
+/// 3. `feedback_instances.comp` (lines 14–38): instance transitions; a
+///    transition that emits a command reserves a slot with `atomicAdd` on
+///    the counter and takes effect only if the slot is below the capacity
+///    (the overflow rule).
+///
+/// The counter counts every request, so `counter > capacity` tells the host
+/// that commands were left out; those instances kept their state and ask
+/// again next frame. Which requests got a slot depends on GPU thread order,
+/// so under overflow the stored commands are a subset of the CPU's, not
+/// necessarily the same subset.
+///
+/// See also `docs/VULKAN.md`.
 #[derive(Debug)]
 pub struct FeedbackPipeline {
     kernels: ComputeKernels,

@@ -82,8 +82,25 @@ struct Slot {
     pending: Option<u64>,
 }
 
-/// A ring of host-visible readback slots guarded by one timeline semaphore;
-/// see the [module docs](self).
+/// The readback ring: Algorithm 2's commands travel back to the host a few
+/// frames late, without the host ever waiting on the GPU.
+///
+/// Each of the ring's slots is a host-visible buffer of `1 + capacity` words
+/// (the command counter, then the command words). At the end of a frame,
+/// [`ReadbackRing::record_copy`] records copies of the counter and the
+/// command buffer into the next slot and returns a [`ReadbackTicket`]: the
+/// submission holding that recording must signal [`ReadbackRing::semaphore`]
+/// with the ticket's value. [`ReadbackRing::try_read`] then returns the slot's
+/// [`Readback`] once the semaphore's counter has reached that value
+/// (`vkGetSemaphoreCounterValue`; it never waits), and frees the slot.
+///
+/// A slot is never overwritten before it was read: `record_copy` into a slot
+/// still holding an unread frame is refused ([`VkError::ReadbackSlotBusy`]),
+/// so commands are never lost. A full command buffer (`counter > capacity`)
+/// is reported by [`Readback::overflowed`]; the core's overflow rule makes it
+/// harmless (those instances kept their state and ask again).
+///
+/// See also `docs/VULKAN.md`.
 #[derive(Debug)]
 pub struct ReadbackRing {
     semaphore: TimelineSemaphore,
