@@ -177,7 +177,10 @@ impl ReadbackRing {
     /// then a barrier making them visible to the host. Record it after
     /// [`crate::FeedbackPipeline::record`] (whose final barrier covers the
     /// copy) and signal [`ReadbackRing::semaphore`] with the returned value
-    /// in the submission that holds it. Timeline values grow by one per call.
+    /// in the submission that holds it. Timeline values grow by one per call;
+    /// submit the recordings in that order. A recording that is never
+    /// submitted leaves its slot pending, and once a later value is signalled
+    /// that slot reads back whatever the buffer held: do not drop one.
     ///
     /// # Errors
     ///
