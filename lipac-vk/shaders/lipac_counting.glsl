@@ -16,7 +16,13 @@
 //   LIPAC_SBT_HITBOX_BOX    uint: SBT record offset of hitbox boxes
 //   LIPAC_COUNT_INSTANCE(i) statement counting one hit for instance slot i
 //                           (typically atomicAdd(instanceHits[i], 1u))
-//   LIPAC_COUNT_HITBOX(i)   statement counting one hit for hitbox i
+//   LIPAC_COUNT_HITBOX(i)   statement counting one hit for hitbox i; or instead
+//                           LIPAC_HITBOX_RECORDS: the name of a buffer array of
+//                           LipacHitboxRecord (lipac_layout.glsl, included for
+//                           you then), and the hook becomes a saturating add of
+//                           one hit to the record's 24-bit count
+//                           (LIPAC_HITBOX_ADD_HITS, an atomicCompSwap loop),
+//                           which is what lipac's Algorithm 2 expects
 // Optional:
 //   LIPAC_COUNTING_MASK     uint cull-mask bits that only counting boxes carry
 //                           (default 0x80u); cleared when the ray is continued
@@ -46,6 +52,17 @@
 #endif
 #ifndef LIPAC_SBT_HITBOX_BOX
 #error "lipac_counting.glsl: define LIPAC_SBT_HITBOX_BOX before including"
+#endif
+#if !defined(LIPAC_COUNT_HITBOX) && defined(LIPAC_HITBOX_RECORDS)
+#include "lipac_layout.glsl"
+#define LIPAC_COUNT_HITBOX(i) \
+    if ((i) < uint(LIPAC_HITBOX_RECORDS.length())) LIPAC_HITBOX_ADD_HITS(LIPAC_HITBOX_RECORDS[(i)].packed, 1u)
+#endif
+#ifndef LIPAC_COUNT_HITBOX
+#error "lipac_counting.glsl: define LIPAC_COUNT_HITBOX(i) or LIPAC_HITBOX_RECORDS before including"
+#endif
+#ifndef LIPAC_COUNT_INSTANCE
+#error "lipac_counting.glsl: define LIPAC_COUNT_INSTANCE(i) before including"
 #endif
 #ifndef LIPAC_COUNTING_MASK
 #define LIPAC_COUNTING_MASK 0x80u

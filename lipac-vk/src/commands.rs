@@ -179,3 +179,180 @@ impl Drop for OneShot {
         }
     }
 }
+
+/// Submits recordings without waiting for them: a ring of `depth` command
+/// buffers with fences, each submission optionally waiting on and signalling
+/// timeline semaphores. The host blocks only when it reuses a command buffer
+/// whose submission (`depth` submissions ago) has not finished.
+///
+/// Dropping waits for every submission still in flight: signal whatever
+/// they wait on first.
+#[derive(Debug)]
+pub struct FrameSubmitter {
+    ctx: DeviceContext,
+    pool: vk::CommandPool,
+    cmds: Vec<vk::CommandBuffer>,
+    fences: Vec<vk::Fence>,
+    in_flight: Vec<bool>,
+    next: usize,
+}
+
+impl FrameSubmitter {
+    /// A submitter with `depth` command buffers (1..=16).
+    ///
+    /// # Errors
+    ///
+    /// [`crate::VkError::InvalidArgument`] for a depth outside 1..=16;
+    /// [`crate::VkError::Vulkan`] when a creation call fails.
+    pub fn new(ctx: &DeviceContext, depth: usize) -> Result<Self> {
+        if !(1..=16).contains(&depth) {
+            return Err(crate::VkError::InvalidArgument(format!(
+                "submitter depth {depth} outside 1..=16"
+            )));
+        }
+        let device = ctx.device();
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(ctx.queue_family_index())
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+        // SAFETY: valid device and create info.
+        let pool =
+            unsafe { device.create_command_pool(&pool_info, None) }.ctx("vkCreateCommandPool")?;
+        // Drop frees what exists from here on.
+        let mut this = Self {
+            ctx: ctx.clone(),
+            pool,
+            cmds: Vec::new(),
+            fences: Vec::new(),
+            in_flight: vec![false; depth],
+            next: 0,
+        };
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(depth as u32);
+        // SAFETY: `pool` was just created on this device.
+        this.cmds =
+            unsafe { device.allocate_command_buffers(&alloc) }.ctx("vkAllocateCommandBuffers")?;
+        for _ in 0..depth {
+            // SAFETY: valid device.
+            let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
+                .ctx("vkCreateFence")?;
+            this.fences.push(fence);
+        }
+        Ok(this)
+    }
+
+    /// Records `f` into the next command buffer and submits it to the
+    /// context's queue, waiting (on the GPU) for each `(semaphore, value)` in
+    /// `waits` and signalling each in `signals` when done. Returns without
+    /// waiting for the GPU. An error from `f` submits nothing.
+    ///
+    /// # Errors
+    ///
+    /// The error of `f`; [`crate::VkError::WrongContext`] for a semaphore of
+    /// another context; [`crate::VkError::Vulkan`].
+    pub fn submit<T>(
+        &mut self,
+        waits: &[(&crate::TimelineSemaphore, u64)],
+        signals: &[(&crate::TimelineSemaphore, u64)],
+        f: impl FnOnce(&mut Recorder<'_>) -> Result<T>,
+    ) -> Result<T> {
+        for (s, _) in waits.iter().chain(signals) {
+            crate::accel::same_context(&self.ctx, s.context())?;
+        }
+        let i = self.next;
+        self.wait_slot(i)?;
+        let device = self.ctx.device();
+        let cmd = self.cmds[i];
+        // SAFETY: the command buffer is not pending (its fence was waited for),
+        // and the pool allows individual resets.
+        unsafe { device.reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty()) }
+            .ctx("vkResetCommandBuffer")?;
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the command buffer is in the initial state after the reset.
+        unsafe { device.begin_command_buffer(cmd, &begin) }.ctx("vkBeginCommandBuffer")?;
+        let mut rec = Recorder {
+            ctx: &self.ctx,
+            cmd,
+        };
+        let value = f(&mut rec)?;
+        // SAFETY: the command buffer is recording.
+        unsafe { device.end_command_buffer(cmd) }.ctx("vkEndCommandBuffer")?;
+        let wait_infos: Vec<_> = waits
+            .iter()
+            .map(|(s, v)| {
+                vk::SemaphoreSubmitInfo::default()
+                    .semaphore(s.raw())
+                    .value(*v)
+                    .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+            })
+            .collect();
+        let signal_infos: Vec<_> = signals
+            .iter()
+            .map(|(s, v)| {
+                vk::SemaphoreSubmitInfo::default()
+                    .semaphore(s.raw())
+                    .value(*v)
+                    .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+            })
+            .collect();
+        let cmd_info = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+        let submit = [vk::SubmitInfo2::default()
+            .wait_semaphore_infos(&wait_infos)
+            .command_buffer_infos(&cmd_info)
+            .signal_semaphore_infos(&signal_infos)];
+        {
+            let _queue = self.ctx.lock_queue();
+            // SAFETY: the command buffer is executable, its fence unsignalled
+            // (reset after the last wait), the semaphores are timeline
+            // semaphores of this device, and lipac holds the queue lock.
+            unsafe { device.queue_submit2(self.ctx.queue(), &submit, self.fences[i]) }
+                .ctx("vkQueueSubmit2")?;
+        }
+        self.in_flight[i] = true;
+        self.next = (i + 1) % self.cmds.len();
+        Ok(value)
+    }
+
+    fn wait_slot(&mut self, i: usize) -> Result<()> {
+        if !self.in_flight[i] {
+            return Ok(());
+        }
+        let device = self.ctx.device();
+        // SAFETY: the fence belongs to this device and was submitted.
+        unsafe { device.wait_for_fences(&[self.fences[i]], true, u64::MAX) }
+            .ctx("vkWaitForFences")?;
+        // SAFETY: the fence is signalled and no longer used by a submission.
+        unsafe { device.reset_fences(&[self.fences[i]]) }.ctx("vkResetFences")?;
+        self.in_flight[i] = false;
+        Ok(())
+    }
+
+    /// Waits until every submission has finished.
+    ///
+    /// # Errors
+    ///
+    /// [`crate::VkError::Vulkan`] when a wait fails.
+    pub fn wait_idle(&mut self) -> Result<()> {
+        for i in 0..self.in_flight.len() {
+            self.wait_slot(i)?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for FrameSubmitter {
+    fn drop(&mut self) {
+        let _ = self.wait_idle();
+        let device = self.ctx.device();
+        // SAFETY: nothing is pending after the wait (a failed wait means a lost
+        // device, where destruction is still allowed); objects of this device.
+        unsafe {
+            for &f in &self.fences {
+                device.destroy_fence(f, None);
+            }
+            device.destroy_command_pool(self.pool, None);
+        }
+    }
+}

@@ -57,6 +57,14 @@ pub enum VkError {
     QueryNotReady,
     /// An object from another device context was passed.
     WrongContext,
+    /// A readback slot still holds an unread frame; read it
+    /// ([`crate::ReadbackRing::try_read`]) before reusing it.
+    ReadbackSlotBusy {
+        /// The slot.
+        slot: usize,
+        /// Timeline value of the unread frame.
+        value: u64,
+    },
 }
 
 impl VkError {
@@ -110,6 +118,10 @@ impl fmt::Display for VkError {
             Self::MissingUsage(s) => write!(f, "buffer usage missing: {s}"),
             Self::QueryNotReady => write!(f, "the compaction query has not been written yet"),
             Self::WrongContext => write!(f, "object belongs to another device context"),
+            Self::ReadbackSlotBusy { slot, value } => write!(
+                f,
+                "readback slot {slot} still holds unread frame {value}; read it first"
+            ),
         }
     }
 }

@@ -5,7 +5,7 @@
 //! assembly (Algorithm 1) and hit-feedback processing (Algorithm 2), and the
 //! readback ring that returns commands to the core.
 //!
-//! What exists so far (the foundation):
+//! Contents:
 //!
 //! * [`DeviceContext`]: lipac's binding to an engine's instance, device and
 //!   queues; [`HeadlessContext`]: a device of its own for tests and examples.
@@ -16,6 +16,12 @@
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
 //!   from a buffer with it.
+//! * GPU Algorithm 1: [`AssemblyPipeline`] (TLAS instance assembly, equal to
+//!   [`lipac_core::assembly::assemble_tlas`]); GPU Algorithm 2:
+//!   [`FeedbackPipeline`] (hit feedback, equal to
+//!   [`lipac_core::feedback::process_feedback`]).
+//! * [`ReadbackRing`]: commands back to the host via a [`TimelineSemaphore`],
+//!   never waiting; [`FrameSubmitter`] submits without waiting.
 //!
 //! Objects free their Vulkan resources when dropped; keep each alive until
 //! the GPU has finished the work that uses it. See `docs/VULKAN.md`.
@@ -24,22 +30,30 @@
 #![warn(clippy::undocumented_unsafe_blocks)]
 
 mod accel;
+mod assembly;
 mod blas;
 mod commands;
+mod compute;
 mod context;
 mod counting;
 mod error;
+mod feedback;
 mod memory;
+mod readback;
 pub mod shaders;
+mod timeline;
 mod tlas;
 mod trace;
 
 pub use accel::{AccelerationStructure, AsSizes};
+pub use assembly::{
+    hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
+};
 pub use blas::{
     record_compactions, Blas, BlasBatch, BlasBatchOutput, CompactionQuery, IndexFormat,
     TriangleGeometry,
 };
-pub use commands::{OneShot, Recorder};
+pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
     HeadlessContext, Validation, REQUIRED_DEVICE_EXTENSIONS,
@@ -49,7 +63,10 @@ pub use counting::{
     UNIT_CUBE_VERTICES,
 };
 pub use error::{Result, VkError};
+pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
+pub use readback::{Readback, ReadbackRing, ReadbackTicket};
+pub use timeline::TimelineSemaphore;
 pub use tlas::{Tlas, TlasBuildOutput};
 pub use trace::{GpuHit, GpuRay, TraceBindings, TraceBuffers, TracePipeline};
 

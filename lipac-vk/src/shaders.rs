@@ -8,6 +8,39 @@ use crate::error::{Result, VkError};
 /// counting-box pass-through (see [`crate::TracePipeline`]).
 pub const TRACE_TEST_SPV: &[u8] = include_bytes!("../shaders/spv/trace_test.spv");
 
+/// SPIR-V of `hitbox_reset.comp` (Algorithm 1 pass 0, [`crate::AssemblyPipeline`]).
+pub const HITBOX_RESET_SPV: &[u8] = include_bytes!("../shaders/spv/hitbox_reset.spv");
+/// SPIR-V of `assemble_instances.comp` (Algorithm 1 pass 1).
+pub const ASSEMBLE_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/assemble_instances.spv");
+/// SPIR-V of `assemble_hitboxes.comp` (Algorithm 1 pass 2).
+pub const ASSEMBLE_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/assemble_hitboxes.spv");
+/// SPIR-V of `feedback_accumulate.comp` (Algorithm 2 lines 1–6,
+/// [`crate::FeedbackPipeline`]).
+pub const FEEDBACK_ACCUMULATE_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_accumulate.spv");
+/// SPIR-V of `feedback_hitboxes.comp` (Algorithm 2 lines 7–13).
+pub const FEEDBACK_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_hitboxes.spv");
+/// SPIR-V of `feedback_instances.comp` (Algorithm 2 lines 14–38).
+pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_instances.spv");
+
+/// Every embedded SPIR-V module with the name of its `.comp` source (without
+/// extension), for tooling and the freshness test.
+pub const ALL_SPV: [(&str, &[u8]); 7] = [
+    ("trace_test", TRACE_TEST_SPV),
+    ("hitbox_reset", HITBOX_RESET_SPV),
+    ("assemble_instances", ASSEMBLE_INSTANCES_SPV),
+    ("assemble_hitboxes", ASSEMBLE_HITBOXES_SPV),
+    ("feedback_accumulate", FEEDBACK_ACCUMULATE_SPV),
+    ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
+    ("feedback_instances", FEEDBACK_INSTANCES_SPV),
+];
+
+/// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,
+/// `LipacHitboxRecord`, `LipacTlasInstance`) and bit constants as std430
+/// GLSL, and `LIPAC_HITBOX_ADD_HITS` (saturating hitbox hit count). Needed
+/// next to `lipac_counting.glsl` when an engine defines
+/// `LIPAC_HITBOX_RECORDS`.
+pub const LIPAC_LAYOUT_GLSL: &str = include_str!("../shaders/lipac_layout.glsl");
+
 /// GLSL source of `trace_test.comp`.
 pub const TRACE_TEST_GLSL: &str = include_str!("../shaders/trace_test.comp");
 
@@ -33,8 +66,10 @@ mod tests {
 
     #[test]
     fn embedded_spirv_is_spirv() {
-        let words = spirv_words(TRACE_TEST_SPV).unwrap();
-        assert_eq!(words[0], 0x0723_0203);
+        for (name, spv) in ALL_SPV {
+            let words = spirv_words(spv).unwrap();
+            assert_eq!(words[0], 0x0723_0203, "{name}");
+        }
         assert!(spirv_words(&[1, 2, 3]).is_err());
         assert!(spirv_words(&[0; 8]).is_err());
     }

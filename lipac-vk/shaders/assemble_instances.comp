@@ -1,0 +1,52 @@
+#version 460
+// assemble_instances.comp -- Algorithm 1 pass 1, one thread per slot
+// (lipac_core::assembly::assemble_tlas, first loop):
+//   active with a BLAS -> its own TLAS record (appended via the counter);
+//   omitted            -> a unit-cube counting box over its AABB;
+//   inactive           -> min/max-reduces its AABB's y range into its hitbox
+//                         (atomicMin/atomicMax on ordered keys; NaN ignored
+//                         like f32::min/max).
+// Dead slots, hitbox indices out of range and non-finite omitted AABBs are
+// skipped, as on the CPU.
+#extension GL_GOOGLE_include_directive : require
+#include "lipac_assembly.glsl"
+
+void main() {
+    LIPAC_FOR_EACH(slot, pc.instanceCount) {
+        LipacInstanceRecord m = instances[slot];
+        if ((m.packed & LIPAC_INSTANCE_ALIVE) == 0u) {
+            continue;
+        }
+        uint state = lipacInstanceState(m.packed);
+        if (state == LIPAC_STATE_ACTIVE) {
+            if (m.blas == uvec2(0u)) {
+                continue;  // not built yet
+            }
+            uint at = atomicAdd(tlasCounter, 1u);
+            if (at < pc.tlasCapacity) {
+                LipacTlasInstance r;
+                r.transform = m.transform;
+                r.customIndexAndMask = (slot & 0xFFFFFFu) | (((m.packed >> LIPAC_INSTANCE_MASK_SHIFT) & 0xFFu) << 24);
+                r.sbtOffsetAndFlags = (m.sbtOffset & 0xFFFFFFu) | (((m.packed >> LIPAC_INSTANCE_VK_FLAGS_SHIFT) & 0xFFu) << 24);
+                r.reference = m.blas;
+                tlasOut[at] = r;
+            }
+        } else if (state == LIPAC_STATE_OMITTED) {
+            lipacAppendCountingBox(vec3(m.aabbMin[0], m.aabbMin[1], m.aabbMin[2]),
+                                   vec3(m.aabbMax[0], m.aabbMax[1], m.aabbMax[2]),
+                                   slot, pc.omittedSbt);
+        } else {
+            if (m.hitbox >= pc.hitboxCount) {
+                continue;
+            }
+            uint lo = floatBitsToUint(m.aabbMin[1]);
+            uint hi = floatBitsToUint(m.aabbMax[1]);
+            if (!lipacIsNanBits(lo)) {
+                atomicMin(hitboxes[m.hitbox].minY, lipacOrderedKey(lo));
+            }
+            if (!lipacIsNanBits(hi)) {
+                atomicMax(hitboxes[m.hitbox].maxY, lipacOrderedKey(hi));
+            }
+        }
+    }
+}

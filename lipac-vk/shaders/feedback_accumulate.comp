@@ -1,0 +1,22 @@
+#version 460
+// feedback_accumulate.comp -- Algorithm 2 lines 1-6, one thread per slot:
+// the hits of every live active or omitted instance are added to its hitbox,
+// saturating the 24-bit count (LIPAC_HITBOX_ADD_HITS, an atomicCompSwap loop).
+#extension GL_GOOGLE_include_directive : require
+#include "lipac_feedback.glsl"
+
+void main() {
+    LIPAC_FOR_EACH(slot, pc.instanceCount) {
+        uint packed = instances[slot].packed;
+        uint key = packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_STATE_MASK);
+        if (key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_OMITTED) &&
+            key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_ACTIVE)) {
+            continue;
+        }
+        uint h = instances[slot].hitbox;
+        uint n = instanceHits[slot];
+        if (h < pc.hitboxCount && n != 0u) {
+            LIPAC_HITBOX_ADD_HITS(hitboxes[h].packed, n);
+        }
+    }
+}

@@ -1,0 +1,71 @@
+#version 460
+// feedback_instances.comp -- Algorithm 2 lines 14-38, one thread per slot
+// (lipac_core::feedback::process_feedback, last loop), with the overflow
+// rule: a transition that emits a command takes effect only if the command
+// got a slot below the capacity; otherwise the instance keeps the state it
+// had before that transition and the thread stops (retried next frame).
+#extension GL_GOOGLE_include_directive : require
+#include "lipac_feedback.glsl"
+
+void main() {
+    LIPAC_FOR_EACH(slot, pc.instanceCount) {
+        uint packed = instances[slot].packed;
+        if ((packed & LIPAC_INSTANCE_ALIVE) == 0u) {
+            continue;
+        }
+        uint hb = instances[slot].hitbox;
+        if (hb >= pc.hitboxCount) {
+            continue;
+        }
+        uint hitboxPacked = hitboxes[hb].packed;
+        bool hActive = (hitboxPacked & LIPAC_HITBOX_ACTIVE) != 0u;
+        uint hHits = hitboxPacked >> LIPAC_HITBOX_HITS_SHIFT;
+        bool unique = (packed & LIPAC_INSTANCE_UNIQUE_BLAS) != 0u;
+        uint old = lipacInstanceState(packed);
+        uint state = old;
+        bool overflow = false;
+
+        if (state == LIPAC_STATE_ACTIVE && !hActive) {
+            // Lines 17/18.
+            if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_REMOVE, hHits))) {
+                state = LIPAC_STATE_INACTIVE;
+            } else {
+                overflow = true;
+            }
+        } else if (state == LIPAC_STATE_OMITTED && !hActive) {
+            // Lines 19/20.
+            state = LIPAC_STATE_INACTIVE;
+        } else if (state == LIPAC_STATE_INACTIVE && hActive) {
+            if (unique) {
+                // Line 23.
+                state = LIPAC_STATE_OMITTED;
+            } else if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_ADD, hHits))) {
+                // Lines 25/26.
+                state = LIPAC_STATE_ACTIVE;
+            } else {
+                overflow = true;
+            }
+        }
+
+        // Lines 29-37 (M needs a unique BLAS).
+        if (unique && !overflow) {
+            uint hits = instanceHits[slot];
+            if (state == LIPAC_STATE_OMITTED && hits > pc.sigmaA) {
+                // Lines 31/32.
+                if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_ADD, hits))) {
+                    state = LIPAC_STATE_ACTIVE;
+                }
+            } else if (state == LIPAC_STATE_ACTIVE && instances[slot].blas != uvec2(0u) &&
+                       hits < pc.sigmaO) {
+                // Lines 34/35, only once the BLAS exists.
+                if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_REMOVE, hits))) {
+                    state = LIPAC_STATE_OMITTED;
+                }
+            }
+        }
+
+        if (state != old) {
+            instances[slot].packed = (packed & ~LIPAC_INSTANCE_STATE_MASK) | state;
+        }
+    }
+}

@@ -1,0 +1,106 @@
+// lipac_layout.glsl -- lipac's GPU records, declared exactly as
+// lipac-core/src/layout.rs (std430; byte offsets in the comments).
+//
+// 64-bit device addresses are uvec2 (x = low word, y = high word), so no
+// shaderInt64 is needed. Include from any shader that reads or writes lipac's
+// buffers; the helpers below are what lipac's own passes use.
+#ifndef LIPAC_LAYOUT_GLSL
+#define LIPAC_LAYOUT_GLSL
+
+// VkAccelerationStructureInstanceKHR (64 B).
+struct LipacTlasInstance {
+    float transform[12];        //  0: row-major 3x4
+    uint customIndexAndMask;    // 48: custom index bits 0..24, mask bits 24..32
+    uint sbtOffsetAndFlags;     // 52: SBT offset bits 0..24, instance flags bits 24..32
+    uvec2 reference;            // 56: BLAS address; 0 = inactive record
+};
+
+// lipac_core::layout::InstanceRecord (96 B), one per GPU slot.
+struct LipacInstanceRecord {
+    float transform[12];        //  0
+    float aabbMin[3];           // 48
+    uint hitbox;                // 60
+    float aabbMax[3];           // 64
+    uint packed;                // 76: see LIPAC_INSTANCE_*
+    uvec2 blas;                 // 80: 0 = no BLAS yet
+    uint sbtOffset;             // 88
+    uint lod;                   // 92
+};
+
+// lipac_core::layout::HitboxRecord (12 B). minY/maxY hold f32 bits (see
+// lipacOrderedKey for the form they take inside TLAS assembly).
+struct LipacHitboxRecord {
+    uint minY;                  // 0
+    uint maxY;                  // 4
+    uint packed;                // 8: see LIPAC_HITBOX_*
+};
+
+// instance_bits
+#define LIPAC_INSTANCE_STATE_MASK 3u
+#define LIPAC_STATE_INACTIVE 0u
+#define LIPAC_STATE_OMITTED 1u
+#define LIPAC_STATE_ACTIVE 2u
+#define LIPAC_INSTANCE_ALIVE 4u
+#define LIPAC_INSTANCE_UNIQUE_BLAS 8u
+#define LIPAC_INSTANCE_MASK_SHIFT 8u
+#define LIPAC_INSTANCE_VK_FLAGS_SHIFT 16u
+
+// hitbox_bits
+#define LIPAC_HITBOX_ACTIVE 1u
+#define LIPAC_HITBOX_STREAK_SHIFT 1u
+#define LIPAC_HITBOX_STREAK_MAX 0x7Fu
+#define LIPAC_HITBOX_HITS_SHIFT 8u
+#define LIPAC_HITBOX_HITS_MAX 0xFFFFFFu
+
+// Command words (lipac_core::command).
+#define LIPAC_COMMAND_ADD 0u
+#define LIPAC_COMMAND_REMOVE 1u
+
+// State of an instance's packed word (the unused value 3 reads as inactive).
+uint lipacInstanceState(uint packed) {
+    uint s = packed & LIPAC_INSTANCE_STATE_MASK;
+    return s == 3u ? LIPAC_STATE_INACTIVE : s;
+}
+
+// Adds `n` hits to the 24-bit hit field of a HitboxRecord.packed word in a
+// buffer, saturating at LIPAC_HITBOX_HITS_MAX and leaving the low 8 bits
+// (active bit, streak) alone. `word` must be an lvalue in a buffer (or shared
+// memory), e.g. LIPAC_HITBOX_ADD_HITS(hitboxes[i].packed, 1u). An
+// atomicCompSwap loop: a plain atomicAdd of n << 8 would wrap instead.
+#define LIPAC_HITBOX_ADD_HITS(word, n)                                                  \
+    {                                                                                 \
+        uint lipacSeen_ = (word);                                                      \
+        for (;;) {                                                                    \
+            uint lipacHits_ = lipacSeen_ >> LIPAC_HITBOX_HITS_SHIFT;                   \
+            uint lipacSum_ = lipacHits_ + min(uint(n), LIPAC_HITBOX_HITS_MAX);         \
+            lipacSum_ = min(lipacSum_, LIPAC_HITBOX_HITS_MAX);                         \
+            if (lipacSum_ == lipacHits_) {                                            \
+                break;                                                                \
+            }                                                                         \
+            uint lipacNew_ = (lipacSeen_ & 0xFFu) | (lipacSum_ << LIPAC_HITBOX_HITS_SHIFT); \
+            uint lipacWas_ = atomicCompSwap((word), lipacSeen_, lipacNew_);            \
+            if (lipacWas_ == lipacSeen_) {                                            \
+                break;                                                                \
+            }                                                                         \
+            lipacSeen_ = lipacWas_;                                                   \
+        }                                                                             \
+    }
+
+// Order-preserving map of f32 bits to uint: for non-NaN a, b,
+// a < b (as floats, -0 < +0) iff key(a) < key(b) (as uints), so atomicMin /
+// atomicMax on keys reduce floats. lipacFromOrderedKey inverts it.
+uint lipacOrderedKey(uint bits) {
+    return (bits & 0x80000000u) != 0u ? ~bits : (bits | 0x80000000u);
+}
+uint lipacFromOrderedKey(uint key) {
+    return (key & 0x80000000u) != 0u ? (key & 0x7FFFFFFFu) : ~key;
+}
+
+bool lipacIsFiniteBits(uint bits) {
+    return (bits & 0x7F800000u) != 0x7F800000u;
+}
+bool lipacIsNanBits(uint bits) {
+    return (bits & 0x7F800000u) == 0x7F800000u && (bits & 0x007FFFFFu) != 0u;
+}
+
+#endif // LIPAC_LAYOUT_GLSL

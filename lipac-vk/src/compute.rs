@@ -1,0 +1,299 @@
+//! Compute kernels over storage buffers: one descriptor set layout (only
+//! storage buffers), one push-constant block and several pipelines sharing
+//! them. The Algorithm 1 and 2 passes are built on this.
+
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::context::DeviceContext;
+use crate::error::{Result, VkContext, VkError};
+use crate::memory::Buffer;
+use crate::shaders::spirv_words;
+use ash::vk;
+
+/// Work-group size of every lipac compute shader (`local_size_x`).
+pub(crate) const LOCAL_SIZE: u32 = 64;
+/// Work groups per dispatch at most; the shaders stride over larger counts.
+const MAX_GROUPS: u32 = 65_535;
+
+/// Pipelines sharing one layout of `bindings` storage buffers and a
+/// `push_size`-byte push-constant block.
+#[derive(Debug)]
+pub(crate) struct ComputeKernels {
+    ctx: DeviceContext,
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    pipelines: Vec<vk::Pipeline>,
+    bindings: u32,
+}
+
+/// A descriptor set of storage buffers (with its own pool) for
+/// [`ComputeKernels`]; keep it alive until dispatches using it have executed.
+#[derive(Debug)]
+pub(crate) struct StorageSet {
+    ctx: DeviceContext,
+    pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+}
+
+impl ComputeKernels {
+    /// Creates the layout and one pipeline per SPIR-V module (entry `main`).
+    pub(crate) fn new(
+        ctx: &DeviceContext,
+        bindings: u32,
+        push_size: u32,
+        shaders: &[&[u8]],
+    ) -> Result<Self> {
+        let device = ctx.device();
+        let binding_info: Vec<_> = (0..bindings)
+            .map(|b| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding_info);
+        // SAFETY: valid device and create info.
+        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
+            .ctx("vkCreateDescriptorSetLayout")?;
+        // From here on, Drop frees whatever was created (null handles are ignored).
+        let mut this = Self {
+            ctx: ctx.clone(),
+            set_layout,
+            layout: vk::PipelineLayout::null(),
+            pipelines: Vec::with_capacity(shaders.len()),
+            bindings,
+        };
+        let set_layouts = [set_layout];
+        let push = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .offset(0)
+            .size(push_size)];
+        let info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&set_layouts)
+            .push_constant_ranges(&push);
+        // SAFETY: valid device; the set layout was created above.
+        this.layout =
+            unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
+        for spv in shaders {
+            let words = spirv_words(spv)?;
+            let info = vk::ShaderModuleCreateInfo::default().code(&words);
+            // SAFETY: valid device; `words` is embedded SPIR-V checked by spirv-val.
+            let module =
+                unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
+            let stage = vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::COMPUTE)
+                .module(module)
+                .name(c"main");
+            let info = [vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(this.layout)];
+            // SAFETY: valid device, module and a layout matching the shader's
+            // interface (storage buffers at 0..bindings, push block of push_size).
+            let created =
+                unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
+            // SAFETY: the module is no longer needed once pipeline creation returned.
+            unsafe { device.destroy_shader_module(module, None) };
+            let pipeline = created
+                .map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?
+                .first()
+                .copied()
+                .ok_or(VkError::vk(
+                    "vkCreateComputePipelines",
+                    vk::Result::ERROR_UNKNOWN,
+                ))?;
+            this.pipelines.push(pipeline);
+        }
+        Ok(this)
+    }
+
+    pub(crate) fn context(&self) -> &DeviceContext {
+        &self.ctx
+    }
+
+    /// A descriptor set with `buffers[i]` (whole) at binding `i`. Checks the
+    /// context and `STORAGE_BUFFER` usage; `what` names the buffers in errors.
+    pub(crate) fn bind(&self, buffers: &[&Buffer], what: &'static str) -> Result<StorageSet> {
+        if buffers.len() != self.bindings as usize {
+            return Err(VkError::InvalidArgument(format!(
+                "{} buffers for {} bindings",
+                buffers.len(),
+                self.bindings
+            )));
+        }
+        for b in buffers {
+            same_context(&self.ctx, b.context())?;
+            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
+                return Err(VkError::MissingUsage(what));
+            }
+        }
+        let device = self.ctx.device();
+        let sizes = [vk::DescriptorPoolSize::default()
+            .ty(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(self.bindings)];
+        let info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(1)
+            .pool_sizes(&sizes);
+        // SAFETY: valid device and create info.
+        let pool =
+            unsafe { device.create_descriptor_pool(&info, None) }.ctx("vkCreateDescriptorPool")?;
+        let layouts = [self.set_layout];
+        let alloc = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(pool)
+            .set_layouts(&layouts);
+        // SAFETY: the pool has room for one set of this layout.
+        let set = match unsafe { device.allocate_descriptor_sets(&alloc) } {
+            Ok(s) if !s.is_empty() => s[0],
+            other => {
+                // SAFETY: the pool is unused.
+                unsafe { device.destroy_descriptor_pool(pool, None) };
+                let e = other.err().unwrap_or(vk::Result::ERROR_OUT_OF_POOL_MEMORY);
+                return Err(VkError::vk("vkAllocateDescriptorSets", e));
+            }
+        };
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+            .iter()
+            .map(|b| {
+                [vk::DescriptorBufferInfo::default()
+                    .buffer(b.raw())
+                    .offset(0)
+                    .range(vk::WHOLE_SIZE)]
+            })
+            .collect();
+        let writes: Vec<_> = infos
+            .iter()
+            .enumerate()
+            .map(|(i, info)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(i as u32)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .buffer_info(info)
+            })
+            .collect();
+        // SAFETY: the set is fresh and unused; every write matches the layout.
+        unsafe { device.update_descriptor_sets(&writes, &[]) };
+        Ok(StorageSet {
+            ctx: self.ctx.clone(),
+            pool,
+            set,
+        })
+    }
+
+    /// Records a dispatch of pipeline `kernel` over `items` items (nothing
+    /// for 0), with `push` as push constants.
+    pub(crate) fn dispatch(
+        &self,
+        rec: &mut Recorder<'_>,
+        set: &StorageSet,
+        kernel: usize,
+        push: &[u8],
+        items: u32,
+    ) -> Result<()> {
+        same_context(rec.context(), &self.ctx)?;
+        same_context(&set.ctx, &self.ctx)?;
+        let pipeline = *self
+            .pipelines
+            .get(kernel)
+            .ok_or_else(|| VkError::InvalidArgument(format!("no compute kernel {kernel}")))?;
+        if items == 0 {
+            return Ok(());
+        }
+        let groups = items.div_ceil(LOCAL_SIZE).min(MAX_GROUPS);
+        let device = self.ctx.device();
+        // SAFETY: recording on this device (Recorder contract); pipeline, layout
+        // and set are live and compatible; `push` fits the layout's push range
+        // (callers pass their fixed-size push struct).
+        unsafe {
+            device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, pipeline);
+            device.cmd_bind_descriptor_sets(
+                rec.raw(),
+                vk::PipelineBindPoint::COMPUTE,
+                self.layout,
+                0,
+                &[set.set],
+                &[],
+            );
+            device.cmd_push_constants(
+                rec.raw(),
+                self.layout,
+                vk::ShaderStageFlags::COMPUTE,
+                0,
+                push,
+            );
+            device.cmd_dispatch(rec.raw(), groups, 1, 1);
+        }
+        Ok(())
+    }
+}
+
+impl Drop for ComputeKernels {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: created on this device (null handles are ignored by Vulkan);
+        // not in use by the GPU per the crate's drop contract.
+        unsafe {
+            for &p in &self.pipelines {
+                device.destroy_pipeline(p, None);
+            }
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+impl Drop for StorageSet {
+    fn drop(&mut self) {
+        // SAFETY: created on this device; frees the set with the pool; not in
+        // use by the GPU per the crate's drop contract.
+        unsafe { self.ctx.device().destroy_descriptor_pool(self.pool, None) };
+    }
+}
+
+/// Records `vkCmdFillBuffer(buffer, offset, size, 0)`; the buffer needs
+/// `TRANSFER_DST` usage (checked by the callers' `bind`).
+pub(crate) fn record_zero(rec: &mut Recorder<'_>, buffer: vk::Buffer, offset: u64, size: u64) {
+    // SAFETY: recording on this device (Recorder contract); callers pass a
+    // live buffer of this device (held by their bindings) with TRANSFER_DST
+    // usage, and offset/size multiples of 4 inside it (or WHOLE_SIZE).
+    unsafe {
+        rec.context()
+            .device()
+            .cmd_fill_buffer(rec.raw(), buffer, offset, size, 0)
+    };
+}
+
+/// Barrier between two of lipac's compute passes (and the fills before).
+pub(crate) fn compute_to_compute(rec: &mut Recorder<'_>, after_fill: bool) {
+    let (stage, access) = if after_fill {
+        (
+            vk::PipelineStageFlags2::COMPUTE_SHADER | vk::PipelineStageFlags2::TRANSFER,
+            vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::TRANSFER_WRITE,
+        )
+    } else {
+        (
+            vk::PipelineStageFlags2::COMPUTE_SHADER,
+            vk::AccessFlags2::SHADER_STORAGE_WRITE,
+        )
+    };
+    rec.memory_barrier(
+        stage,
+        access,
+        vk::PipelineStageFlags2::COMPUTE_SHADER,
+        vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+    );
+}
+
+/// Barrier after lipac's last compute pass: its writes are visible to every
+/// later command (TLAS builds, traces in any stage, copies) and the host.
+pub(crate) fn compute_to_everything(rec: &mut Recorder<'_>) {
+    rec.memory_barrier(
+        vk::PipelineStageFlags2::COMPUTE_SHADER,
+        vk::AccessFlags2::SHADER_STORAGE_WRITE,
+        vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST,
+        vk::AccessFlags2::MEMORY_READ
+            | vk::AccessFlags2::MEMORY_WRITE
+            | vk::AccessFlags2::HOST_READ,
+    );
+}
