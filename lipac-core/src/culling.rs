@@ -59,12 +59,14 @@
 //! This is why no command is lost: every transition of Algorithm 2 that
 //! changes whether an instance should hold a BLAS (into or out of *active*)
 //! appends a command (or does not happen: the overflow rule), and processing
-//! the last command of a slot makes BLAS and state agree. For that, the queue
-//! must never drop the newest command of a slot, so [`Culling`] keeps the
-//! **newest** command when one of the opposite kind is pending (counted in
-//! [`IngestSummary::replaced`]) instead of cancelling both as
-//! [`CommandQueue::ingest`] does: with latency mitigation in between, a
-//! cancelled pair could leave an instance holding a BLAS while inactive.
+//! the last command of a slot makes BLAS and state agree. [`Culling`] keeps
+//! the **newest** command when one of the opposite kind is pending (counted
+//! in [`IngestSummary::replaced`]) instead of cancelling both as
+//! [`CommandQueue::ingest`] does. Under reconciliation the kind no longer
+//! matters, and keeping the newest makes the invariant "a slot whose BLAS
+//! disagrees with its state has a command pending or in flight" hold by
+//! construction, whatever happened in between (latency mitigation,
+//! [`Culling::set_blas`]), without a case analysis of which pairs may cancel.
 //! Slots whose BLAS changes outside a command ([`Culling::set_blas`] on an
 //! instance that is no longer active) get a synthetic command, so they are
 //! reconciled by the same path.

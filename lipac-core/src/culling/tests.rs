@@ -394,6 +394,17 @@ fn stale_commands_reconcile_with_the_current_state() {
     let st = c.process_commands(usize::MAX, &mut blas.handler(true));
     assert_eq!(st.released, 1);
     assert_eq!(blas.released, vec![0xAB]);
+    // A build still running when the instance went inactive is cancelled.
+    c.registry.set_state(slot, InstanceState::Active).unwrap();
+    c.ingest_readback(1, &[add]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert_eq!(st.requested, 1);
+    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
+    c.ingest_readback(1, &[remove]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert_eq!((st.builds_cancelled, st.released), (1, 0));
+    assert_eq!(blas.cancelled, vec![slot]);
+    assert!(!c.awaiting_blas(a).unwrap());
     // A build finishing after the instance went inactive is handed back.
     c.registry.set_state(slot, InstanceState::Active).unwrap();
     c.ingest_readback(1, &[add]);
