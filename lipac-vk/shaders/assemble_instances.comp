@@ -6,6 +6,9 @@
 //   inactive           -> min/max-reduces its AABB's y range into its hitbox
 //                         (atomicMin/atomicMax on ordered keys; NaN ignored
 //                         like f32::min/max).
+// An active or omitted instance whose hitbox is inactive counts as inactive
+// (its remove command may still be waiting for room in the command buffer).
+// Pass 1 never writes the hitbox's packed word, so reading it here is safe.
 // Dead slots, hitbox indices out of range and non-finite omitted AABBs are
 // skipped, as on the CPU.
 #extension GL_GOOGLE_include_directive : require
@@ -18,6 +21,10 @@ void main() {
             continue;
         }
         uint state = lipacInstanceState(m.packed);
+        if (state != LIPAC_STATE_INACTIVE && m.hitbox < pc.hitboxCount
+                && (hitboxes[m.hitbox].packed & LIPAC_HITBOX_ACTIVE) == 0u) {
+            state = LIPAC_STATE_INACTIVE;
+        }
         if (state == LIPAC_STATE_ACTIVE) {
             if (m.blas == uvec2(0u)) {
                 continue;  // not built yet
