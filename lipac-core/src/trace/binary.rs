@@ -35,7 +35,7 @@ const MIN_EVENT_BYTES: u64 = 1 + 8; // remove
 const HIT_BYTES: u64 = 8 + 4;
 const POSE_BYTES: usize = 48 + 24;
 /// Frame payload before the event list: number, camera, event count.
-const FRAME_FIXED_BYTES: u64 = 8 + 40 + 4;
+const FRAME_FIXED_BYTES: u64 = 8 + 36 + 4;
 /// Bytes read from the source per step, so that a length field never makes
 /// the reader allocate more than the input actually holds (plus this much).
 const READ_CHUNK: usize = 64 * 1024;
