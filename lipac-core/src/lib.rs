@@ -30,3 +30,4 @@ pub mod math;
 pub mod registry;
 pub mod state;
 pub mod thresholds;
+pub mod trace;

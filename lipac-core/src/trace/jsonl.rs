@@ -1,0 +1,882 @@
+//! The JSON-lines trace format: [`JsonlWriter`] and the streaming
+//! [`JsonlReader`]. Schema: `docs/trace-format.md`.
+//!
+//! Floats are written so that parsing gives back the identical `f32` bits:
+//! the shortest decimal that round-trips, or, in the rare case where a
+//! correctly rounded parse through `f64` would land on a neighbouring
+//! `f32`, the exact decimal of the value widened to `f64`.
+
+use super::error::{TraceError, TraceErrorKind, TraceLocation};
+use super::model::{
+    check_header, AddInstance, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo,
+    MeshInfo, MeshTable, Pose, TraceHeader, TraceLimits, UpdateInstance, WorldInfo,
+};
+use super::validate::{FrameFault, TraceValidator};
+use super::TRACE_VERSION;
+use crate::instance::{InstanceFlags, MeshId};
+use crate::math::Aabb;
+use glam::{Quat, Vec3};
+use serde::{Deserialize, Serialize};
+use std::io::{self, BufRead, BufReader, Read, Write};
+
+/// The `"format"` value of a JSON-lines trace header.
+pub const JSONL_FORMAT_NAME: &str = "lipac-trace";
+
+// ---------------------------------------------------------------------------
+// Schema (private: the public model is in `model.rs`)
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HeaderDto {
+    format: String,
+    version: u64,
+    scene: String,
+    world: WorldDto,
+    meshes: Vec<MeshDto>,
+}
+
+#[derive(Deserialize)]
+struct HeaderProbe {
+    format: Option<String>,
+    version: Option<u64>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WorldDto {
+    min: [f64; 2],
+    max: [f64; 2],
+    cell_size: f64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AabbDto {
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeshDto {
+    id: u32,
+    bounds: AabbDto,
+    lods: Vec<LodDto>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LodDto {
+    triangles: u32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    geometry: Option<GeometryDto>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GeometryDto {
+    positions: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+}
+
+#[derive(Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct LineDto {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    frame: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    camera: Option<CameraDto>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    events: Option<Vec<EventDto>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    hits: Option<Vec<HitDto>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    end: Option<EndDto>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EndDto {
+    frames: u64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraDto {
+    position: [f32; 3],
+    orientation: [f32; 4],
+    vertical_fov: f32,
+    aspect: f32,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+enum EventDto {
+    Add(AddDto),
+    Update(UpdateDto),
+    Remove(RemoveDto),
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy)]
+#[serde(rename_all = "snake_case")]
+enum FlagName {
+    UniqueBlas,
+    Vegetation,
+    Static,
+}
+
+const FLAG_NAMES: [(FlagName, InstanceFlags); 3] = [
+    (FlagName::UniqueBlas, InstanceFlags::UNIQUE_BLAS),
+    (FlagName::Vegetation, InstanceFlags::VEGETATION),
+    (FlagName::Static, InstanceFlags::STATIC),
+];
+
+fn flags_to_names(f: InstanceFlags) -> Vec<FlagName> {
+    FLAG_NAMES
+        .iter()
+        .filter(|(_, bit)| f.contains(*bit))
+        .map(|(n, _)| *n)
+        .collect()
+}
+
+fn names_to_flags(names: &[FlagName]) -> InstanceFlags {
+    let mut f = InstanceFlags::empty();
+    for n in names {
+        for (name, bit) in FLAG_NAMES {
+            if name as u8 == *n as u8 {
+                f.insert(bit);
+            }
+        }
+    }
+    f
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AddDto {
+    id: u64,
+    mesh: u32,
+    lod: u32,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    flags: Vec<FlagName>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mask: Option<u8>,
+    transform: [f32; 12],
+    aabb: AabbDto,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct UpdateDto {
+    id: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    transform: Option<[f32; 12]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    aabb: Option<AabbDto>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    lod: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    flags: Option<Vec<FlagName>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mask: Option<u8>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RemoveDto {
+    id: u64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HitDto {
+    id: u64,
+    hits: u32,
+}
+
+fn aabb_dto(a: &Aabb) -> AabbDto {
+    AabbDto {
+        min: a.min.to_array(),
+        max: a.max.to_array(),
+    }
+}
+
+fn aabb_of(a: &AabbDto) -> Aabb {
+    Aabb::new(Vec3::from_array(a.min), Vec3::from_array(a.max))
+}
+
+fn header_dto(h: &TraceHeader) -> HeaderDto {
+    HeaderDto {
+        format: JSONL_FORMAT_NAME.into(),
+        version: TRACE_VERSION.into(),
+        scene: h.scene_name.clone(),
+        world: WorldDto {
+            min: h.world.min,
+            max: h.world.max,
+            cell_size: h.world.cell_size,
+        },
+        meshes: h
+            .meshes
+            .iter()
+            .map(|m| MeshDto {
+                id: m.id.0,
+                bounds: aabb_dto(&m.bounds),
+                lods: m
+                    .lods
+                    .iter()
+                    .map(|l| LodDto {
+                        triangles: l.triangles,
+                        geometry: l.geometry.as_ref().map(|g| GeometryDto {
+                            positions: g.positions.clone(),
+                            indices: g.indices.clone(),
+                        }),
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
+}
+
+fn header_of(d: HeaderDto) -> TraceHeader {
+    TraceHeader {
+        scene_name: d.scene,
+        world: WorldInfo {
+            min: d.world.min,
+            max: d.world.max,
+            cell_size: d.world.cell_size,
+        },
+        meshes: d
+            .meshes
+            .into_iter()
+            .map(|m| MeshInfo {
+                id: MeshId(m.id),
+                bounds: aabb_of(&m.bounds),
+                lods: m
+                    .lods
+                    .into_iter()
+                    .map(|l| LodInfo {
+                        triangles: l.triangles,
+                        geometry: l.geometry.map(|g| LodGeometry {
+                            positions: g.positions,
+                            indices: g.indices,
+                        }),
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
+}
+
+fn frame_dto(f: &Frame) -> LineDto {
+    let c = &f.camera;
+    LineDto {
+        frame: Some(f.number),
+        camera: Some(CameraDto {
+            position: c.position.to_array(),
+            orientation: c.orientation.to_array(),
+            vertical_fov: c.vertical_fov,
+            aspect: c.aspect,
+        }),
+        events: Some(
+            f.events
+                .iter()
+                .map(|e| match e {
+                    InstanceEvent::Add(a) => EventDto::Add(AddDto {
+                        id: a.id,
+                        mesh: a.mesh.0,
+                        lod: a.lod,
+                        flags: flags_to_names(a.flags),
+                        mask: a.mask,
+                        transform: a.pose.transform,
+                        aabb: aabb_dto(&a.pose.aabb),
+                    }),
+                    InstanceEvent::Update(u) => EventDto::Update(UpdateDto {
+                        id: u.id,
+                        transform: u.pose.map(|p| p.transform),
+                        aabb: u.pose.map(|p| aabb_dto(&p.aabb)),
+                        lod: u.lod,
+                        flags: u.flags.map(flags_to_names),
+                        mask: u.mask,
+                    }),
+                    InstanceEvent::Remove { id } => EventDto::Remove(RemoveDto { id: *id }),
+                })
+                .collect(),
+        ),
+        hits: f.hits.as_ref().map(|hs| {
+            hs.iter()
+                .map(|h| HitDto {
+                    id: h.id,
+                    hits: h.hits,
+                })
+                .collect()
+        }),
+        end: None,
+    }
+}
+
+/// A frame line's content, or the fault (event index, kind) that keeps it
+/// from being one.
+fn frame_of(
+    number: u64,
+    camera: CameraDto,
+    events: Vec<EventDto>,
+    hits: Option<Vec<HitDto>>,
+) -> Result<Frame, FrameFault> {
+    let mut out = Vec::with_capacity(events.len());
+    for (i, e) in events.into_iter().enumerate() {
+        out.push(match e {
+            EventDto::Add(a) => InstanceEvent::Add(AddInstance {
+                id: a.id,
+                mesh: MeshId(a.mesh),
+                lod: a.lod,
+                flags: names_to_flags(&a.flags),
+                mask: a.mask,
+                pose: Pose {
+                    transform: a.transform,
+                    aabb: aabb_of(&a.aabb),
+                },
+            }),
+            EventDto::Update(u) => {
+                let pose = match (u.transform, u.aabb) {
+                    (Some(transform), Some(aabb)) => Some(Pose {
+                        transform,
+                        aabb: aabb_of(&aabb),
+                    }),
+                    (None, None) => None,
+                    _ => {
+                        return Err(FrameFault {
+                            event: Some(i as u32),
+                            kind: TraceErrorKind::InvalidValue {
+                                what: "update".into(),
+                                reason: "\"transform\" and \"aabb\" must be given together".into(),
+                            },
+                        })
+                    }
+                };
+                InstanceEvent::Update(UpdateInstance {
+                    id: u.id,
+                    pose,
+                    lod: u.lod,
+                    flags: u.flags.as_deref().map(names_to_flags),
+                    mask: u.mask,
+                })
+            }
+            EventDto::Remove(r) => InstanceEvent::Remove { id: r.id },
+        });
+    }
+    Ok(Frame {
+        number,
+        camera: Camera {
+            position: Vec3::from_array(camera.position),
+            orientation: Quat::from_array(camera.orientation),
+            vertical_fov: camera.vertical_fov,
+            aspect: camera.aspect,
+        },
+        events: out,
+        hits: hits.map(|hs| {
+            hs.into_iter()
+                .map(|h| InstanceHits {
+                    id: h.id,
+                    hits: h.hits,
+                })
+                .collect()
+        }),
+    })
+}
+
+// ---------------------------------------------------------------------------
+// Float formatting
+
+/// Compact JSON whose `f32`s parse back bit-exactly.
+struct ExactFloats;
+
+impl serde_json::ser::Formatter for ExactFloats {
+    fn write_f32<W: ?Sized + Write>(&mut self, w: &mut W, v: f32) -> io::Result<()> {
+        w.write_all(format_f32(v).as_bytes())
+    }
+}
+
+/// The text written for `v`: parsing it as a correctly rounded `f64` and
+/// narrowing to `f32` gives `v`'s exact bits (for finite `v`).
+pub(crate) fn format_f32(v: f32) -> String {
+    // `{:?}` is the shortest decimal that round-trips through a direct f32
+    // parse, with an exponent for very large or small values ("1e-7").
+    let s = format!("{v:?}");
+    match s.parse::<f64>() {
+        Ok(d) if (d as f32).to_bits() == v.to_bits() => s,
+        // Double rounding (decimal -> f64 -> f32) would land elsewhere: write
+        // the exact value instead (every f32 is exactly an f64).
+        _ => format!("{:?}", f64::from(v)),
+    }
+}
+
+fn to_line<T: Serialize>(v: &T, out: &mut Vec<u8>) -> io::Result<()> {
+    let mut ser = serde_json::Serializer::with_formatter(&mut *out, ExactFloats);
+    v.serialize(&mut ser).map_err(io::Error::other)?;
+    out.push(b'\n');
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------
+// Writer
+
+/// Writes a JSON-lines trace frame by frame, checking everything exactly as
+/// [`TraceWriter`](super::TraceWriter) does.
+///
+/// ```
+/// use glam::Vec3;
+/// use lipac_core::instance::MeshId;
+/// use lipac_core::math::Aabb;
+/// use lipac_core::trace::*;
+///
+/// let header = TraceHeader {
+///     scene_name: "doc".into(),
+///     world: WorldInfo { min: [-64.0, -64.0], max: [64.0, 64.0], cell_size: 16.0 },
+///     meshes: vec![MeshInfo {
+///         id: MeshId(1),
+///         bounds: Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0)),
+///         lods: vec![LodInfo { triangles: 12, geometry: None }],
+///     }],
+/// };
+/// let camera = Camera::look_to(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y, 1.0, 1.5);
+/// let mut w = JsonlWriter::new(Vec::new(), &header)?;
+/// w.write_frame(&Frame { number: 3, camera, events: vec![], hits: None })?;
+/// let text = String::from_utf8(w.finish()?).unwrap();
+/// assert_eq!(text.lines().count(), 3); // header, frame, end
+/// assert!(text.lines().last().unwrap() == r#"{"end":{"frames":1}}"#);
+///
+/// let mut r = JsonlReader::new(text.as_bytes())?;
+/// assert_eq!(r.header().scene_name, "doc");
+/// assert_eq!(r.next_frame()?.map(|f| f.number), Some(3));
+/// assert_eq!(r.next_frame()?, None);
+/// # Ok::<(), TraceError>(())
+/// ```
+#[derive(Debug)]
+pub struct JsonlWriter<W: Write> {
+    w: W,
+    line: u64,
+    buf: Vec<u8>,
+    validator: TraceValidator,
+    limits: TraceLimits,
+}
+
+fn line_err(line: u64, e: &io::Error) -> TraceError {
+    TraceError::at(TraceLocation::Line(line), TraceErrorKind::io(e))
+}
+
+impl<W: Write> JsonlWriter<W> {
+    /// Checks `header` against the default [`TraceLimits`] and writes line 1.
+    pub fn new(w: W, header: &TraceHeader) -> Result<Self, TraceError> {
+        Self::with_limits(w, header, TraceLimits::default())
+    }
+
+    /// As [`JsonlWriter::new`] with explicit limits.
+    pub fn with_limits(
+        mut w: W,
+        header: &TraceHeader,
+        limits: TraceLimits,
+    ) -> Result<Self, TraceError> {
+        let here = |kind| TraceError::at(TraceLocation::Line(1), kind);
+        let meshes: MeshTable = check_header(header, &limits).map_err(here)?;
+        let mut buf = Vec::new();
+        to_line(&header_dto(header), &mut buf).map_err(|e| line_err(1, &e))?;
+        if buf.len() as u64 > limits.max_header_bytes {
+            return Err(here(TraceErrorKind::LimitExceeded {
+                what: "header line bytes",
+                value: buf.len() as u64,
+                limit: limits.max_header_bytes,
+            }));
+        }
+        w.write_all(&buf).map_err(|e| line_err(1, &e))?;
+        buf.clear();
+        Ok(Self {
+            w,
+            line: 1,
+            buf,
+            validator: TraceValidator::with_meshes(meshes, limits),
+            limits,
+        })
+    }
+
+    /// Checks `frame` (see [`TraceValidator`]) and appends its line.
+    pub fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError> {
+        let line = self.line + 1;
+        let index = self.validator.frames();
+        let err = |event: Option<u32>, kind| TraceError {
+            location: TraceLocation::Line(line),
+            frame_index: Some(index),
+            frame_number: Some(frame.number),
+            event,
+            kind,
+        };
+        if let Err(FrameFault { event, kind }) = self.validator.check_frame(frame) {
+            return Err(err(event, kind));
+        }
+        self.buf.clear();
+        to_line(&frame_dto(frame), &mut self.buf).map_err(|e| err(None, TraceErrorKind::io(&e)))?;
+        if self.buf.len() as u64 > u64::from(self.limits.max_frame_bytes) {
+            return Err(err(
+                None,
+                TraceErrorKind::LimitExceeded {
+                    what: "frame line bytes",
+                    value: self.buf.len() as u64,
+                    limit: self.limits.max_frame_bytes.into(),
+                },
+            ));
+        }
+        self.w
+            .write_all(&self.buf)
+            .map_err(|e| err(None, TraceErrorKind::io(&e)))?;
+        self.line = line;
+        Ok(())
+    }
+
+    /// Frames written so far.
+    pub fn frames_written(&self) -> u64 {
+        self.validator.frames()
+    }
+
+    /// Writes the end line, flushes, and returns the sink.
+    pub fn finish(mut self) -> Result<W, TraceError> {
+        let line = self.line + 1;
+        self.buf.clear();
+        let end = LineDto {
+            end: Some(EndDto {
+                frames: self.validator.frames(),
+            }),
+            ..LineDto::default()
+        };
+        to_line(&end, &mut self.buf)
+            .and_then(|()| self.w.write_all(&self.buf))
+            .and_then(|()| self.w.flush())
+            .map_err(|e| line_err(line, &e))?;
+        Ok(self.w)
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Reader
+
+/// Reads one line of at most `max` bytes (without its `\n` / `\r\n`) into
+/// `buf`. Returns `Ok(None)` at end of input, `Err(Ok(len))` when the line is
+/// longer than `max`.
+fn read_line<R: BufRead>(
+    r: &mut R,
+    buf: &mut Vec<u8>,
+    max: u64,
+) -> io::Result<Option<Result<(), u64>>> {
+    buf.clear();
+    let n = r.take(max.saturating_add(1)).read_until(b'\n', buf)?;
+    if n == 0 {
+        return Ok(None);
+    }
+    if buf.last() == Some(&b'\n') {
+        buf.pop();
+        if buf.last() == Some(&b'\r') {
+            buf.pop();
+        }
+    } else if n as u64 > max {
+        return Ok(Some(Err(n as u64)));
+    }
+    Ok(Some(Ok(())))
+}
+
+#[derive(Debug)]
+enum ReadState {
+    Frames,
+    Done,
+    Failed(Box<TraceError>),
+}
+
+/// Reads a JSON-lines trace frame by frame, with the same checks, limits
+/// and guarantees as [`TraceReader`](super::TraceReader); errors name the
+/// 1-based line (and the column for JSON syntax or schema errors).
+///
+/// See [`JsonlWriter`] for an example.
+#[derive(Debug)]
+pub struct JsonlReader<R: Read> {
+    r: BufReader<R>,
+    limits: TraceLimits,
+    header: TraceHeader,
+    validator: TraceValidator,
+    line: u64,
+    buf: Vec<u8>,
+    state: ReadState,
+}
+
+fn json_err(e: &serde_json::Error) -> TraceErrorKind {
+    TraceErrorKind::Json {
+        column: e.column() as u64,
+        message: e.to_string(),
+    }
+}
+
+impl<R: Read> JsonlReader<R> {
+    /// Reads and checks the header line with the default [`TraceLimits`].
+    pub fn new(r: R) -> Result<Self, TraceError> {
+        Self::with_limits(r, TraceLimits::default())
+    }
+
+    /// As [`JsonlReader::new`] with explicit limits.
+    pub fn with_limits(r: R, limits: TraceLimits) -> Result<Self, TraceError> {
+        let mut r = BufReader::new(r);
+        let here = |kind| TraceError::at(TraceLocation::Line(1), kind);
+        let mut buf = Vec::new();
+        match read_line(&mut r, &mut buf, limits.max_header_bytes).map_err(|e| line_err(1, &e))? {
+            None => {
+                return Err(here(TraceErrorKind::BadMagic { found: Vec::new() }));
+            }
+            Some(Err(len)) => {
+                return Err(here(TraceErrorKind::LimitExceeded {
+                    what: "header line bytes",
+                    value: len,
+                    limit: limits.max_header_bytes,
+                }))
+            }
+            Some(Ok(())) => {}
+        }
+        let probe: HeaderProbe = serde_json::from_slice(&buf).map_err(|_| {
+            here(TraceErrorKind::BadMagic {
+                found: buf.iter().take(8).copied().collect(),
+            })
+        })?;
+        if probe.format.as_deref() != Some(JSONL_FORMAT_NAME) {
+            return Err(here(TraceErrorKind::BadMagic {
+                found: buf.iter().take(8).copied().collect(),
+            }));
+        }
+        match probe.version {
+            Some(v) if v == u64::from(TRACE_VERSION) => {}
+            v => {
+                return Err(here(TraceErrorKind::UnsupportedVersion {
+                    found: v.unwrap_or(0),
+                    supported: TRACE_VERSION,
+                }))
+            }
+        }
+        let dto: HeaderDto = serde_json::from_slice(&buf).map_err(|e| here(json_err(&e)))?;
+        let header = header_of(dto);
+        let meshes = check_header(&header, &limits).map_err(here)?;
+        buf.clear();
+        buf.shrink_to(64 * 1024);
+        Ok(Self {
+            r,
+            limits,
+            header,
+            validator: TraceValidator::with_meshes(meshes, limits),
+            line: 1,
+            buf,
+            state: ReadState::Frames,
+        })
+    }
+
+    /// The trace header.
+    pub fn header(&self) -> &TraceHeader {
+        &self.header
+    }
+
+    /// The limits in force.
+    pub fn limits(&self) -> &TraceLimits {
+        &self.limits
+    }
+
+    /// The validator every frame passes through.
+    pub fn validator(&self) -> &TraceValidator {
+        &self.validator
+    }
+
+    /// Frames read so far.
+    pub fn frames_read(&self) -> u64 {
+        self.validator.frames()
+    }
+
+    /// The last line read (1 = header).
+    pub fn line(&self) -> u64 {
+        self.line
+    }
+
+    /// The next frame, or `None` after the end line.
+    pub fn next_frame(&mut self) -> Result<Option<Frame>, TraceError> {
+        match &self.state {
+            ReadState::Frames => {}
+            ReadState::Done => return Ok(None),
+            ReadState::Failed(e) => return Err((**e).clone()),
+        }
+        match self.read() {
+            Ok(Some(f)) => Ok(Some(f)),
+            Ok(None) => {
+                self.state = ReadState::Done;
+                Ok(None)
+            }
+            Err(e) => {
+                self.state = ReadState::Failed(Box::new(e.clone()));
+                Err(e)
+            }
+        }
+    }
+
+    fn read(&mut self) -> Result<Option<Frame>, TraceError> {
+        let line = self.line + 1;
+        let index = self.validator.frames();
+        let err = |number: Option<u64>, event: Option<u32>, kind| TraceError {
+            location: TraceLocation::Line(line),
+            frame_index: Some(index),
+            frame_number: number,
+            event,
+            kind,
+        };
+        let max = u64::from(self.limits.max_frame_bytes);
+        match read_line(&mut self.r, &mut self.buf, max)
+            .map_err(|e| err(None, None, TraceErrorKind::io(&e)))?
+        {
+            None => {
+                return Err(err(
+                    None,
+                    None,
+                    TraceErrorKind::MissingEnd { frames: index },
+                ))
+            }
+            Some(Err(len)) => {
+                return Err(err(
+                    None,
+                    None,
+                    TraceErrorKind::LimitExceeded {
+                        what: "frame line bytes",
+                        value: len,
+                        limit: max,
+                    },
+                ))
+            }
+            Some(Ok(())) => {}
+        }
+        self.line = line;
+        if self.buf.is_empty() {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::InvalidValue {
+                    what: "line".into(),
+                    reason: "empty line".into(),
+                },
+            ));
+        }
+        let dto: LineDto =
+            serde_json::from_slice(&self.buf).map_err(|e| err(None, None, json_err(&e)))?;
+        let shape_err = |number, reason: &str| {
+            err(
+                number,
+                None,
+                TraceErrorKind::InvalidValue {
+                    what: "line".into(),
+                    reason: reason.into(),
+                },
+            )
+        };
+        match dto {
+            LineDto {
+                end: Some(end),
+                frame: None,
+                camera: None,
+                events: None,
+                hits: None,
+            } => {
+                let e = |kind| TraceError::at(TraceLocation::Line(line), kind);
+                if end.frames != index {
+                    return Err(e(TraceErrorKind::FrameCountMismatch {
+                        recorded: end.frames,
+                        read: index,
+                    }));
+                }
+                self.buf.clear();
+                let more = read_line(&mut self.r, &mut self.buf, 0)
+                    .map_err(|x| e(TraceErrorKind::io(&x)))?;
+                if more.is_some() {
+                    return Err(TraceError::at(
+                        TraceLocation::Line(line + 1),
+                        TraceErrorKind::TrailingData,
+                    ));
+                }
+                Ok(None)
+            }
+            LineDto {
+                end: Some(_),
+                frame,
+                ..
+            } => Err(shape_err(frame, "an end line holds only \"end\"")),
+            LineDto {
+                frame: Some(number),
+                camera: Some(camera),
+                events,
+                hits,
+                end: None,
+            } => {
+                let frame = frame_of(number, camera, events.unwrap_or_default(), hits)
+                    .map_err(|FrameFault { event, kind }| err(Some(number), event, kind))?;
+                self.validator
+                    .check_frame(&frame)
+                    .map_err(|FrameFault { event, kind }| err(Some(number), event, kind))?;
+                Ok(Some(frame))
+            }
+            LineDto { frame, .. } => Err(shape_err(
+                frame,
+                "a frame line needs \"frame\" and \"camera\" (or the line is {\"end\": ...})",
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::format_f32;
+
+    fn round_trip(v: f32) -> f32 {
+        let s = format_f32(v);
+        serde_json::from_str::<f32>(&s).unwrap_or_else(|e| panic!("{s}: {e}"))
+    }
+
+    #[test]
+    fn f32_text_parses_back_to_identical_bits() {
+        let special = [
+            0.0f32,
+            -0.0,
+            0.1,
+            1.0 / 3.0,
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            f32::EPSILON,
+            f32::from_bits(1),
+            -f32::from_bits(0x007F_FFFF),
+            16_777_217.0,
+            1e-7,
+            3.4e38,
+        ];
+        for v in special {
+            assert_eq!(round_trip(v).to_bits(), v.to_bits(), "{v:?}");
+        }
+        // A spread of bit patterns over every exponent (xorshift).
+        let mut x = 0x1234_5678_9ABC_DEF0u64;
+        for _ in 0..200_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let v = f32::from_bits(x as u32);
+            if v.is_finite() {
+                assert_eq!(
+                    round_trip(v).to_bits(),
+                    v.to_bits(),
+                    "{v:?} bits {:#x}",
+                    v.to_bits()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn short_floats_stay_short() {
+        assert_eq!(format_f32(0.1), "0.1");
+        assert_eq!(format_f32(16.0), "16.0");
+        assert_eq!(format_f32(-0.0), "-0.0");
+        assert_eq!(format_f32(1e-7), "1e-7");
+    }
+}
