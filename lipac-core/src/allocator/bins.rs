@@ -71,19 +71,28 @@ pub(crate) fn bin_ceil_of(size: u64) -> Option<Bin> {
 
 /// The flat index of the bin a free block of `size` (> 0) is filed under
 /// (as [`bin_floor_of`]) and the flat index of the smallest bin all of whose
-/// blocks are at least `size` bytes (as [`bin_ceil_of`]): the same bin when
+/// blocks are at least `size` bytes (as `bin_ceil_of`): the same bin when
 /// `size` is a bin boundary, else the next one in flat order. The second is
 /// `BIN_COUNT` when no bin guarantees `size` (the last bin's sizes).
-#[inline]
+///
+/// Branch-free: with `shift = max(floor(log2 size), SL_BITS) - SL_BITS`
+/// (`size | SL_COUNT` has the same top bit as `size` unless `size <
+/// SL_COUNT`), the flat index `fl * SL_COUNT + sl` is `shift * SL_COUNT +
+/// (size >> shift)` for every size: for small sizes `shift = 0` and this is
+/// `size`; otherwise `size >> shift` is `SL_COUNT + sl` and `fl = shift + 1`.
+#[inline(always)]
 pub(crate) fn flat_floor_ceil(size: u64) -> (usize, usize) {
-    let floor = bin_floor_of(size).flat();
-    let boundary = if size < SL_COUNT as u64 {
-        true
-    } else {
-        let m = 63 - size.leading_zeros();
-        size & ((1u64 << (m - SL_BITS)) - 1) == 0
-    };
-    (floor, floor + usize::from(!boundary))
+    let shift = 63 - SL_BITS - (size | SL_COUNT as u64).leading_zeros();
+    let floor = ((shift as usize) << SL_BITS) + (size >> shift) as usize;
+    let between = size & ((1u64 << shift) - 1) != 0;
+    (floor, floor + usize::from(between))
+}
+
+/// The flat index of the bin a free block of `size` (> 0) is filed under
+/// (branch-free, see [`flat_floor_ceil`]).
+#[inline(always)]
+pub(crate) fn flat_floor(size: u64) -> usize {
+    flat_floor_ceil(size).0
 }
 
 /// The smallest size filed under `bin`.
@@ -171,6 +180,7 @@ mod tests {
         for s in sizes {
             let (floor, ceil) = flat_floor_ceil(s);
             assert_eq!(floor, bin_floor_of(s).flat(), "{s}");
+            assert_eq!(flat_floor(s), floor, "{s}");
             match bin_ceil_of(s) {
                 Some(c) => assert_eq!(ceil, c.flat(), "{s}"),
                 None => assert_eq!(ceil, BIN_COUNT, "{s}"),

@@ -25,7 +25,9 @@
 use std::num::NonZeroU32;
 use std::sync::atomic::{AtomicU32, Ordering};
 
-use super::bins::{bin_floor_of, bin_min_size, flat_floor_ceil, BIN_COUNT, FL_COUNT, SL_BITS};
+use super::bins::{
+    bin_floor_of, bin_min_size, flat_floor, flat_floor_ceil, BIN_COUNT, FL_COUNT, SL_BITS, SL_COUNT,
+};
 use super::error::AllocError;
 
 /// "No node" link value.
@@ -628,39 +630,73 @@ impl TlsfAllocator {
     /// Files node `i`, a free block of `size` bytes, in its bin: at the
     /// front if at least as large as the head (keeps a large block at the
     /// head for the exact-bin check), else at the back.
-    #[inline]
+    ///
+    /// Written without data-dependent branches (the front/back choice is
+    /// unpredictable): an empty list has `head_size == 0`, so the block goes
+    /// to the front, and the neighbour whose link is rewritten is then `i`
+    /// itself, whose links are written last.
+    #[inline(always)]
     fn insert_free(&mut self, i: u32, size: u64) {
         debug_assert_eq!(self.nodes[i as usize].size, size);
-        let bin = bin_floor_of(size);
-        let list = &mut self.bins[bin.flat()];
-        let (head, tail) = (list.head, list.tail);
-        let (prev, next) = if head == NIL {
-            *list = BinList {
-                head_size: size,
-                head: i,
-                tail: i,
-            };
-            self.fl_bitmap |= 1 << bin.fl;
-            self.sl_bitmaps[bin.fl] |= 1 << bin.sl;
-            (NIL, NIL)
-        } else if size >= list.head_size {
-            list.head = i;
-            list.head_size = size;
-            self.nodes[head as usize].prev_free = i;
-            (NIL, head)
+        let b = flat_floor(size);
+        let list = self.bins[b];
+        let empty = list.head == NIL;
+        let front = size >= list.head_size;
+        let other = if empty {
+            i
+        } else if front {
+            list.head
         } else {
-            list.tail = i;
-            self.nodes[tail as usize].next_free = i;
-            (tail, NIL)
+            list.tail
         };
+        let o = &mut self.nodes[other as usize];
+        o.prev_free = if front { i } else { o.prev_free };
+        o.next_free = if front { o.next_free } else { i };
         let n = &mut self.nodes[i as usize];
-        n.prev_free = prev;
-        n.next_free = next;
+        n.prev_free = if front { NIL } else { list.tail };
+        n.next_free = if front { list.head } else { NIL };
+        self.bins[b] = BinList {
+            head_size: if front { size } else { list.head_size },
+            head: if front { i } else { list.head },
+            tail: if front && !empty { list.tail } else { i },
+        };
+        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+        self.fl_bitmap |= 1 << fl;
+        self.sl_bitmaps[fl] |= 1 << sl;
         self.free_blocks += 1;
     }
 
+    /// Takes the head `i` off the list of bin `b` (the allocation path: it
+    /// always takes a bin's head).
+    #[inline(always)]
+    fn pop_head(&mut self, i: u32, b: usize) {
+        let next = self.nodes[i as usize].next_free;
+        let list = &mut self.bins[b];
+        debug_assert_eq!(list.head, i);
+        if next == NIL {
+            *list = BinList::EMPTY;
+            self.clear_bin_bits(b);
+        } else {
+            let n = &mut self.nodes[next as usize];
+            n.prev_free = NIL;
+            list.head = next;
+            list.head_size = n.size;
+        }
+        self.free_blocks -= 1;
+    }
+
+    /// Clears the bitmap bits of flat bin `b`, which just became empty.
+    #[inline(always)]
+    fn clear_bin_bits(&mut self, b: usize) {
+        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+        self.sl_bitmaps[fl] &= !(1 << sl);
+        if self.sl_bitmaps[fl] == 0 {
+            self.fl_bitmap &= !(1 << fl);
+        }
+    }
+
     /// Takes free node `i` off the list of bin `b` (its flat bin index).
-    #[inline]
+    #[inline(always)]
     fn remove_free(&mut self, i: u32, b: usize) {
         let Node {
             prev_free: prev,
@@ -672,11 +708,7 @@ impl TlsfAllocator {
             list.head = next;
             if next == NIL {
                 *list = BinList::EMPTY;
-                let (fl, sl) = (b >> SL_BITS, b & ((1 << SL_BITS) - 1));
-                self.sl_bitmaps[fl] &= !(1 << sl);
-                if self.sl_bitmaps[fl] == 0 {
-                    self.fl_bitmap &= !(1 << fl);
-                }
+                self.clear_bin_bits(b);
             } else {
                 let n = &mut self.nodes[next as usize];
                 n.prev_free = NIL;
@@ -695,7 +727,7 @@ impl TlsfAllocator {
 
     /// Takes free node `i` off its bin list.
     fn remove_free_node(&mut self, i: u32) {
-        let b = bin_floor_of(self.nodes[i as usize].size).flat();
+        let b = flat_floor(self.nodes[i as usize].size);
         self.remove_free(i, b);
     }
 
@@ -703,7 +735,7 @@ impl TlsfAllocator {
     /// masked `trailing_zeros`.
     #[inline]
     fn first_nonempty_from(&self, b: usize) -> Option<usize> {
-        let (fl, sl) = (b >> SL_BITS, b & ((1 << SL_BITS) - 1));
+        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
         if fl >= FL_COUNT {
             return None;
         }
@@ -730,35 +762,39 @@ impl TlsfAllocator {
     }
 
     /// The constant-step search described in the module docs: the chosen
-    /// free node, its flat bin index and the aligned start.
+    /// free node (always a bin's head except in step 4), its flat bin index
+    /// and the aligned start.
     #[inline(always)]
     pub(super) fn find_block(&self, size: u64, align_log2: u32) -> Option<(u32, usize, u64)> {
-        let align = 1u64 << align_log2;
         let (floor, ceil) = flat_floor_ceil(size);
         // 1. Head of the exact (rounded-down) bin; its cached size (0 when
-        //    empty; size > 0) decides without touching the node, and
-        //    without alignment any block that large fits.
-        let exact = &self.bins[floor];
-        if exact.head_size >= size {
-            let head = exact.head;
-            if align_log2 == 0 {
-                return Some((head, floor, self.nodes[head as usize].offset));
-            }
-            if let Some(start) = self.fit(head, size, align) {
-                return Some((head, floor, start));
-            }
-        }
+        //    empty; size > 0) decides without touching the node.
         // 2. First non-empty bin whose blocks are all >= size.
-        if let Some(b) = self.first_nonempty_from(ceil) {
-            let h = self.bins[b].head;
-            if align_log2 == 0 {
-                return Some((h, b, self.nodes[h as usize].offset));
+        let exact_fits = self.bins[floor].head_size >= size;
+        if align_log2 == 0 {
+            // Any block of at least `size` bytes fits: choose between the
+            // two candidates without a (poorly predictable) branch.
+            let above = self.first_nonempty_from(ceil).unwrap_or(BIN_COUNT);
+            let b = if exact_fits { floor } else { above };
+            if let Some(list) = self.bins.get(b) {
+                return Some((list.head, b, self.nodes[list.head as usize].offset));
             }
-            if let Some(start) = self.fit(h, size, align) {
-                return Some((h, b, start));
+        } else {
+            let align = 1u64 << align_log2;
+            if exact_fits {
+                let head = self.bins[floor].head;
+                if let Some(start) = self.fit(head, size, align) {
+                    return Some((head, floor, start));
+                }
+            }
+            if let Some(b) = self.first_nonempty_from(ceil) {
+                let h = self.bins[b].head;
+                if let Some(start) = self.fit(h, size, align) {
+                    return Some((h, b, start));
+                }
             }
         }
-        self.find_block_slow(size, align)
+        self.find_block_slow(size, 1 << align_log2)
     }
 
     /// Steps 3 and 4 of the search (rarely reached).
@@ -779,7 +815,7 @@ impl TlsfAllocator {
         // 4. The free block at the end of the buffer.
         if self.last != NIL && self.nodes[self.last as usize].is_free() {
             if let Some(start) = self.fit(self.last, size, align) {
-                let b = bin_floor_of(self.nodes[self.last as usize].size).flat();
+                let b = flat_floor(self.nodes[self.last as usize].size);
                 return Some((self.last, b, start));
             }
         }
@@ -799,7 +835,11 @@ impl TlsfAllocator {
         size: u64,
         align_log2: u32,
     ) -> Allocation {
-        self.remove_free(i, bin);
+        if self.bins[bin].head == i {
+            self.pop_head(i, bin);
+        } else {
+            self.remove_free(i, bin);
+        }
         let Node {
             offset: block_start,
             size: block_size,
@@ -877,7 +917,7 @@ impl TlsfAllocator {
         if left != NIL {
             let l = self.nodes[left as usize];
             if l.is_free() {
-                self.remove_free(left, bin_floor_of(l.size).flat());
+                self.remove_free(left, flat_floor(l.size));
                 self.release_node(i);
                 keep = left;
                 offset = l.offset;
@@ -889,7 +929,7 @@ impl TlsfAllocator {
         if right != NIL {
             let r = self.nodes[right as usize];
             if r.is_free() {
-                self.remove_free(right, bin_floor_of(r.size).flat());
+                self.remove_free(right, flat_floor(r.size));
                 self.release_node(right);
                 size += r.size;
                 next = r.next_phys;
@@ -945,7 +985,7 @@ impl TlsfAllocator {
         } = self.nodes[i as usize];
         let align_log2 = self.nodes[i as usize].align_log2();
         let (peak, next_serial) = (self.peak_used, self.next_serial);
-        let bin = bin_floor_of(self.nodes[dst as usize].size).flat();
+        let bin = flat_floor(self.nodes[dst as usize].size);
         let t = self
             .take_block(dst, bin, start, size, align_log2)
             .handle
@@ -1012,7 +1052,7 @@ impl TlsfAllocator {
     /// Checks every structural invariant; test support.
     #[cfg(test)]
     pub(super) fn check_invariants(&self) {
-        use super::bins::{Bin, SL_COUNT};
+        use super::bins::Bin;
         let mut cur = self.first;
         let mut prev = NIL;
         let mut expected_offset = 0;
