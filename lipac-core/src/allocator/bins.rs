@@ -29,8 +29,9 @@ pub(crate) struct Bin {
 }
 
 impl Bin {
-    /// Flat index into the per-bin list heads.
-    #[inline]
+    /// Flat index into the per-bin list heads (the hot paths compute it
+    /// directly with [`flat_floor_ceil`]).
+    #[cfg(test)]
     pub fn flat(self) -> usize {
         self.fl * SL_COUNT + self.sl
     }

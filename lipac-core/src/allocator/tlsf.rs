@@ -7,7 +7,7 @@
 //! `u64` offset and size, the `u32` physical links, and two `u32` words whose
 //! meaning depends on the block's state, which is encoded in the first one:
 //!
-//! | state  | `prev_free`                              | `next_free`          |
+//! | state  | `links[PREV]`                            | `links[NEXT]`        |
 //! |--------|------------------------------------------|----------------------|
 //! | free   | previous block on its bin list, or `NIL` | next on the bin list |
 //! | used   | `MARK_BASE + log2(alignment)`            | allocation serial    |
@@ -20,7 +20,7 @@
 //! second free, or any use of a handle whose record was since reused, is a
 //! [`AllocError::StaleHandle`]. (A stale handle could only be accepted after
 //! exactly a multiple of 2^32 allocations in between that land on the same
-//! record.) Vacant records form an intrusive stack through `next_free`.
+//! record.) Vacant records form an intrusive stack through `links[NEXT]`.
 
 use std::num::NonZeroU32;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -32,12 +32,15 @@ use super::error::AllocError;
 
 /// "No node" link value.
 pub(super) const NIL: u32 = u32::MAX;
-/// First value of `Node::prev_free` that is a state mark, not a node index:
+/// First value of `Node::links[PREV]` that is a state mark, not a node index:
 /// `MARK_BASE + a` (a < 64) marks a used block allocated with alignment
 /// `2^a`, [`VACANT`] a vacant record.
 const MARK_BASE: u32 = u32::MAX - 128;
-/// `Node::prev_free` of a vacant record.
+/// `Node::links[PREV]` of a vacant record.
 const VACANT: u32 = MARK_BASE + 64;
+/// Index of the backward / forward link in `Node::links`.
+const PREV: usize = 0;
+const NEXT: usize = 1;
 /// Node indices are below this (the values above are marks and `NIL`).
 const MAX_NODES: usize = MARK_BASE as usize;
 
@@ -115,7 +118,7 @@ pub struct AllocatorStats {
     pub peak_used_bytes: u64,
 }
 
-/// A record's state, decoded from its `prev_free` word (invariant checks).
+/// A record's state, decoded from its `links[PREV]` word (invariant checks).
 #[cfg(test)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum State {
@@ -135,12 +138,12 @@ pub(super) struct Node {
     pub size: u64,
     pub prev_phys: u32,
     pub next_phys: u32,
-    /// Free: previous on the bin list (`NIL` at the head). Used:
-    /// `MARK_BASE + log2(alignment)`. Vacant: `VACANT`.
-    prev_free: u32,
-    /// Free: next on the bin list. Used: the allocation serial. Vacant: next
-    /// vacant record.
-    next_free: u32,
+    /// `links[PREV]`: free: previous on the bin list (`NIL` at the head);
+    /// used: `MARK_BASE + log2(alignment)`; vacant: `VACANT`.
+    /// `links[NEXT]`: free: next on the bin list; used: the allocation
+    /// serial; vacant: next vacant record. An array so that the link to
+    /// rewrite can be chosen by index instead of by a branch.
+    links: [u32; 2],
 }
 
 impl Node {
@@ -149,16 +152,16 @@ impl Node {
         self.offset + self.size
     }
 
-    /// Whether this is a free block (`prev_free` is a node index or `NIL`).
+    /// Whether this is a free block (`links[PREV]` is a node index or `NIL`).
     #[inline]
     pub fn is_free(&self) -> bool {
-        self.prev_free.wrapping_sub(MARK_BASE) > VACANT - MARK_BASE
+        self.links[PREV].wrapping_sub(MARK_BASE) > VACANT - MARK_BASE
     }
 
     /// Whether this is a live allocation.
     #[inline]
     pub fn is_used(&self) -> bool {
-        self.prev_free.wrapping_sub(MARK_BASE) < VACANT - MARK_BASE
+        self.links[PREV].wrapping_sub(MARK_BASE) < VACANT - MARK_BASE
     }
 
     #[cfg(test)]
@@ -176,7 +179,7 @@ impl Node {
     #[inline]
     pub fn align_log2(&self) -> u32 {
         debug_assert!(self.is_used());
-        self.prev_free - MARK_BASE
+        self.links[PREV] - MARK_BASE
     }
 }
 
@@ -208,21 +211,25 @@ pub struct TlsfAllocator {
     high_water: u64,
 }
 
-/// A bin's free list: head, tail, and the head's size cached (0 when the
-/// list is empty) so that the exact-bin check and the front/back insertion
-/// choice need not touch the head node.
+/// A bin's free list, last in first out, and its *best* block: the block
+/// the exact-bin check of the search tries, with its size cached (0 when the
+/// list is empty) so that the check and the choice of a new best need not
+/// touch the node. A block filed in the bin becomes the best if it is at
+/// least as large as the current one; when the best leaves the list, the
+/// list's head takes over. The best is on the list whenever the list is
+/// not empty.
 #[derive(Clone, Copy, Debug)]
 struct BinList {
-    head_size: u64,
+    best_size: u64,
+    best: u32,
     head: u32,
-    tail: u32,
 }
 
 impl BinList {
     const EMPTY: BinList = BinList {
-        head_size: 0,
+        best_size: 0,
+        best: NIL,
         head: NIL,
-        tail: NIL,
     };
 }
 
@@ -262,6 +269,14 @@ impl TlsfAllocator {
             this.insert_free(i, capacity);
         }
         this
+    }
+
+    /// Reserves room for at least `additional` more block records (each
+    /// live allocation and each free block is one), so that the record
+    /// storage does not have to grow (reallocate and copy) later. Optional:
+    /// storage grows on demand without it.
+    pub fn reserve_blocks(&mut self, additional: usize) {
+        self.nodes.reserve(additional);
     }
 
     /// Managed bytes.
@@ -528,7 +543,7 @@ impl TlsfAllocator {
         while cur != NIL {
             let n = &self.nodes[cur as usize];
             best = best.max(n.size);
-            cur = n.next_free;
+            cur = n.links[NEXT];
         }
         best
     }
@@ -541,7 +556,7 @@ impl TlsfAllocator {
         Allocation {
             handle: AllocHandle {
                 index: i,
-                serial: n.next_free,
+                serial: n.links[NEXT],
                 owner: self.id,
             },
             offset: n.offset,
@@ -558,7 +573,7 @@ impl TlsfAllocator {
             .nodes
             .get(h.index as usize)
             .ok_or(AllocError::UnknownHandle)?;
-        if !n.is_used() || n.next_free != h.serial {
+        if !n.is_used() || n.links[NEXT] != h.serial {
             return Err(AllocError::StaleHandle);
         }
         Ok(h.index)
@@ -582,13 +597,12 @@ impl TlsfAllocator {
             size,
             prev_phys,
             next_phys,
-            prev_free: NIL,
-            next_free: NIL,
+            links: [NIL, NIL],
         };
         if self.vacant_head != NIL {
             let i = self.vacant_head;
             let slot = &mut self.nodes[i as usize];
-            self.vacant_head = slot.next_free;
+            self.vacant_head = slot.links[NEXT];
             *slot = node;
             self.vacant_count -= 1;
             i
@@ -602,8 +616,8 @@ impl TlsfAllocator {
     #[inline]
     fn release_node(&mut self, i: u32) {
         let n = &mut self.nodes[i as usize];
-        n.prev_free = VACANT;
-        n.next_free = self.vacant_head;
+        n.links[PREV] = VACANT;
+        n.links[NEXT] = self.vacant_head;
         self.vacant_head = i;
         self.vacant_count += 1;
     }
@@ -627,38 +641,29 @@ impl TlsfAllocator {
         }
     }
 
-    /// Files node `i`, a free block of `size` bytes, in its bin: at the
-    /// front if at least as large as the head (keeps a large block at the
-    /// head for the exact-bin check), else at the back.
+    /// Files node `i`, a free block of `size` bytes, at the front of its
+    /// bin's list (the old head was touched recently, so this is usually
+    /// cache-warm), and makes it the bin's best block if it is at least as
+    /// large as the current best.
     ///
-    /// Written without data-dependent branches (the front/back choice is
-    /// unpredictable): an empty list has `head_size == 0`, so the block goes
-    /// to the front, and the neighbour whose link is rewritten is then `i`
-    /// itself, whose links are written last.
+    /// The back link of a list's head is not maintained (it may name the
+    /// previous head; it is always a node index or `NIL`, never a state
+    /// mark): list removal recognises the head by `BinList::head`.
+    /// Written without data-dependent branches: with an empty list the back
+    /// link written is `i`'s own, which is then overwritten.
     #[inline(always)]
     fn insert_free(&mut self, i: u32, size: u64) {
         debug_assert_eq!(self.nodes[i as usize].size, size);
         let b = flat_floor(size);
         let list = self.bins[b];
-        let empty = list.head == NIL;
-        let front = size >= list.head_size;
-        let other = if empty {
-            i
-        } else if front {
-            list.head
-        } else {
-            list.tail
-        };
-        let o = &mut self.nodes[other as usize];
-        o.prev_free = if front { i } else { o.prev_free };
-        o.next_free = if front { o.next_free } else { i };
-        let n = &mut self.nodes[i as usize];
-        n.prev_free = if front { NIL } else { list.tail };
-        n.next_free = if front { list.head } else { NIL };
+        let other = if list.head == NIL { i } else { list.head };
+        self.nodes[other as usize].links[PREV] = i;
+        self.nodes[i as usize].links = [NIL, list.head];
+        let better = size >= list.best_size;
         self.bins[b] = BinList {
-            head_size: if front { size } else { list.head_size },
-            head: if front { i } else { list.head },
-            tail: if front && !empty { list.tail } else { i },
+            best_size: if better { size } else { list.best_size },
+            best: if better { i } else { list.best },
+            head: i,
         };
         let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
         self.fl_bitmap |= 1 << fl;
@@ -666,61 +671,33 @@ impl TlsfAllocator {
         self.free_blocks += 1;
     }
 
-    /// Takes the head `i` off the list of bin `b` (the allocation path: it
-    /// always takes a bin's head).
-    #[inline(always)]
-    fn pop_head(&mut self, i: u32, b: usize) {
-        let next = self.nodes[i as usize].next_free;
-        let list = &mut self.bins[b];
-        debug_assert_eq!(list.head, i);
-        if next == NIL {
-            *list = BinList::EMPTY;
-            self.clear_bin_bits(b);
-        } else {
-            let n = &mut self.nodes[next as usize];
-            n.prev_free = NIL;
-            list.head = next;
-            list.head_size = n.size;
-        }
-        self.free_blocks -= 1;
-    }
-
-    /// Clears the bitmap bits of flat bin `b`, which just became empty.
-    #[inline(always)]
-    fn clear_bin_bits(&mut self, b: usize) {
-        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
-        self.sl_bitmaps[fl] &= !(1 << sl);
-        if self.sl_bitmaps[fl] == 0 {
-            self.fl_bitmap &= !(1 << fl);
-        }
-    }
-
     /// Takes free node `i` off the list of bin `b` (its flat bin index).
     #[inline(always)]
     fn remove_free(&mut self, i: u32, b: usize) {
-        let Node {
-            prev_free: prev,
-            next_free: next,
-            ..
-        } = self.nodes[i as usize];
+        let [prev, next] = self.nodes[i as usize].links;
         let list = &mut self.bins[b];
-        if prev == NIL {
+        if list.head == i {
+            // The head's back link is not kept (see `insert_free`), so the
+            // new head's node need not be touched here.
             list.head = next;
-            if next == NIL {
-                *list = BinList::EMPTY;
-                self.clear_bin_bits(b);
-            } else {
-                let n = &mut self.nodes[next as usize];
-                n.prev_free = NIL;
-                list.head_size = n.size;
-            }
         } else {
-            self.nodes[prev as usize].next_free = next;
-            if next == NIL {
-                list.tail = prev;
-            } else {
-                self.nodes[next as usize].prev_free = prev;
+            self.nodes[prev as usize].links[NEXT] = next;
+            if next != NIL {
+                self.nodes[next as usize].links[PREV] = prev;
             }
+        }
+        if list.best == i {
+            // The head takes over; without a branch on whether the list
+            // just became empty (then `i`'s own, warm, node is probed).
+            let head = list.head;
+            let empty = head == NIL;
+            let probe = if empty { i } else { head };
+            let probe_size = self.nodes[probe as usize].size;
+            list.best = head;
+            list.best_size = if empty { 0 } else { probe_size };
+            let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+            self.sl_bitmaps[fl] &= !(u32::from(empty) << sl);
+            self.fl_bitmap &= !(u64::from(self.sl_bitmaps[fl] == 0) << fl);
         }
         self.free_blocks -= 1;
     }
@@ -770,21 +747,26 @@ impl TlsfAllocator {
         // 1. Head of the exact (rounded-down) bin; its cached size (0 when
         //    empty; size > 0) decides without touching the node.
         // 2. First non-empty bin whose blocks are all >= size.
-        let exact_fits = self.bins[floor].head_size >= size;
+        let exact = self.bins[floor];
+        let exact_fits = exact.best_size >= size;
         if align_log2 == 0 {
             // Any block of at least `size` bytes fits: choose between the
             // two candidates without a (poorly predictable) branch.
             let above = self.first_nonempty_from(ceil).unwrap_or(BIN_COUNT);
-            let b = if exact_fits { floor } else { above };
-            if let Some(list) = self.bins.get(b) {
-                return Some((list.head, b, self.nodes[list.head as usize].offset));
+            let above_head = self.bins.get(above).map_or(NIL, |list| list.head);
+            let (i, b) = if exact_fits {
+                (exact.best, floor)
+            } else {
+                (above_head, above)
+            };
+            if i != NIL {
+                return Some((i, b, self.nodes[i as usize].offset));
             }
         } else {
             let align = 1u64 << align_log2;
             if exact_fits {
-                let head = self.bins[floor].head;
-                if let Some(start) = self.fit(head, size, align) {
-                    return Some((head, floor, start));
+                if let Some(start) = self.fit(exact.best, size, align) {
+                    return Some((exact.best, floor, start));
                 }
             }
             if let Some(b) = self.first_nonempty_from(ceil) {
@@ -835,11 +817,7 @@ impl TlsfAllocator {
         size: u64,
         align_log2: u32,
     ) -> Allocation {
-        if self.bins[bin].head == i {
-            self.pop_head(i, bin);
-        } else {
-            self.remove_free(i, bin);
-        }
+        self.remove_free(i, bin);
         let Node {
             offset: block_start,
             size: block_size,
@@ -878,8 +856,7 @@ impl TlsfAllocator {
             size,
             prev_phys,
             next_phys,
-            prev_free: MARK_BASE + align_log2,
-            next_free: serial,
+            links: [MARK_BASE + align_log2, serial],
         };
         self.used_bytes += size;
         self.live += 1;
@@ -979,8 +956,7 @@ impl TlsfAllocator {
     pub(super) fn relocate(&mut self, i: u32, dst: u32, start: u64) -> u32 {
         let Node {
             size,
-            prev_free: mark,
-            next_free: serial,
+            links: [mark, serial],
             ..
         } = self.nodes[i as usize];
         let align_log2 = self.nodes[i as usize].align_log2();
@@ -998,8 +974,8 @@ impl TlsfAllocator {
         // `t` the old one, which is then freed.
         self.swap_identity(i, t);
         let n = &mut self.nodes[i as usize];
-        n.prev_free = mark;
-        n.next_free = serial;
+        n.links[PREV] = mark;
+        n.links[NEXT] = serial;
         self.release_free_range(t)
     }
 
@@ -1081,7 +1057,7 @@ impl TlsfAllocator {
                     let mut found = false;
                     while c != NIL {
                         found |= c == cur;
-                        c = self.nodes[c as usize].next_free;
+                        c = self.nodes[c as usize].links[NEXT];
                     }
                     assert!(found, "free block missing from its bin");
                 }
@@ -1102,7 +1078,7 @@ impl TlsfAllocator {
         while v != NIL {
             assert_eq!(self.nodes[v as usize].state(), State::Vacant);
             vacant += 1;
-            v = self.nodes[v as usize].next_free;
+            v = self.nodes[v as usize].links[NEXT];
         }
         assert_eq!(vacant, self.vacant_count);
         let vacant_records = self
@@ -1120,23 +1096,26 @@ impl TlsfAllocator {
                 let nonempty = list.head != NIL;
                 assert_eq!(nonempty, self.sl_bitmaps[fl] & (1 << sl) != 0);
                 if nonempty {
-                    let head = &self.nodes[list.head as usize];
-                    assert_eq!(head.prev_free, NIL);
-                    assert_eq!(self.nodes[list.tail as usize].next_free, NIL);
-                    assert_eq!(head.size, list.head_size);
+                    let head_back = self.nodes[list.head as usize].links[PREV];
+                    assert!(head_back == NIL || (head_back as usize) < self.nodes.len());
+                    assert_eq!(self.nodes[list.best as usize].size, list.best_size);
                     let mut c = list.head;
                     let mut p = NIL;
+                    let mut best_listed = false;
                     while c != NIL {
                         let n = &self.nodes[c as usize];
                         assert_eq!(n.state(), State::Free);
-                        assert_eq!(n.prev_free, p, "bin list back link");
+                        if p != NIL {
+                            assert_eq!(n.links[PREV], p, "bin list back link");
+                        }
                         assert_eq!(bin_floor_of(n.size).flat(), b.flat(), "node in wrong bin");
+                        best_listed |= c == list.best;
                         p = c;
-                        c = n.next_free;
+                        c = n.links[NEXT];
                     }
-                    assert_eq!(p, list.tail);
+                    assert!(best_listed, "best block not on its bin's list");
                 } else {
-                    assert_eq!((list.head_size, list.tail), (0, NIL));
+                    assert_eq!((list.best_size, list.best), (0, NIL));
                 }
             }
             assert_eq!(self.sl_bitmaps[fl] != 0, self.fl_bitmap & (1 << fl) != 0);
