@@ -334,9 +334,15 @@ pub trait RangeAlloc {
 
 pub struct Lipac(pub TlsfAllocator);
 
+/// Block records every adapter sets up front (offset-allocator's
+/// `max_allocs`; lipac reserves as many, and can grow beyond).
+pub const BLOCK_RECORDS: u32 = 1 << 18;
+
 impl Lipac {
     pub fn new(capacity: u32) -> Self {
-        Lipac(TlsfAllocator::new(u64::from(capacity)))
+        let mut a = TlsfAllocator::new(u64::from(capacity));
+        a.reserve_blocks(BLOCK_RECORDS as usize);
+        Lipac(a)
     }
 }
 
@@ -365,7 +371,7 @@ impl OffsetAlloc {
     pub fn new(capacity: u32) -> Self {
         OffsetAlloc(offset_allocator::Allocator::with_max_allocs(
             capacity,
-            1 << 18,
+            BLOCK_RECORDS,
         ))
     }
 }

@@ -29,8 +29,9 @@ pub(crate) struct Bin {
 }
 
 impl Bin {
-    /// Flat index into the per-bin list heads.
-    #[inline]
+    /// Flat index into the per-bin list heads (the hot paths compute it
+    /// directly with [`flat_floor_ceil`]).
+    #[cfg(test)]
     pub fn flat(self) -> usize {
         self.fl * SL_COUNT + self.sl
     }
@@ -55,8 +56,9 @@ pub(crate) fn bin_floor_of(size: u64) -> Bin {
 }
 
 /// The smallest bin all of whose blocks are at least `size` bytes (rounds
-/// up); `None` when no bin guarantees that (sizes near `u64::MAX`).
-#[inline]
+/// up); `None` when no bin guarantees that (sizes near `u64::MAX`). The
+/// reference for [`flat_floor_ceil`].
+#[cfg(test)]
 pub(crate) fn bin_ceil_of(size: u64) -> Option<Bin> {
     debug_assert!(size > 0);
     if size < SL_COUNT as u64 {
@@ -66,6 +68,32 @@ pub(crate) fn bin_ceil_of(size: u64) -> Option<Bin> {
     let step = 1u64 << (m - SL_BITS);
     let rounded = size.checked_add(step - 1)?;
     Some(bin_floor_of(rounded))
+}
+
+/// The flat index of the bin a free block of `size` (> 0) is filed under
+/// (as [`bin_floor_of`]) and the flat index of the smallest bin all of whose
+/// blocks are at least `size` bytes (as `bin_ceil_of`): the same bin when
+/// `size` is a bin boundary, else the next one in flat order. The second is
+/// `BIN_COUNT` when no bin guarantees `size` (the last bin's sizes).
+///
+/// Branch-free: with `shift = max(floor(log2 size), SL_BITS) - SL_BITS`
+/// (`size | SL_COUNT` has the same top bit as `size` unless `size <
+/// SL_COUNT`), the flat index `fl * SL_COUNT + sl` is `shift * SL_COUNT +
+/// (size >> shift)` for every size: for small sizes `shift = 0` and this is
+/// `size`; otherwise `size >> shift` is `SL_COUNT + sl` and `fl = shift + 1`.
+#[inline(always)]
+pub(crate) fn flat_floor_ceil(size: u64) -> (usize, usize) {
+    let shift = 63 - SL_BITS - (size | SL_COUNT as u64).leading_zeros();
+    let floor = ((shift as usize) << SL_BITS) + (size >> shift) as usize;
+    let between = size & ((1u64 << shift) - 1) != 0;
+    (floor, floor + usize::from(between))
+}
+
+/// The flat index of the bin a free block of `size` (> 0) is filed under
+/// (branch-free, see [`flat_floor_ceil`]).
+#[inline(always)]
+pub(crate) fn flat_floor(size: u64) -> usize {
+    flat_floor_ceil(size).0
 }
 
 /// The smallest size filed under `bin`.
@@ -139,6 +167,24 @@ mod tests {
                     assert_eq!(c == b, is_bin_boundary(s));
                 }
                 None => assert!(s > u64::MAX - (1 << 58)),
+            }
+        }
+    }
+
+    #[test]
+    fn flat_floor_ceil_agrees_with_floor_and_ceil_bins() {
+        let mut sizes: Vec<u64> = (1..5000).collect();
+        for shift in 5..64 {
+            let p = 1u64 << shift;
+            sizes.extend([p - 1, p, p + 1, p + p / 3, p | (p - 1)]);
+        }
+        for s in sizes {
+            let (floor, ceil) = flat_floor_ceil(s);
+            assert_eq!(floor, bin_floor_of(s).flat(), "{s}");
+            assert_eq!(flat_floor(s), floor, "{s}");
+            match bin_ceil_of(s) {
+                Some(c) => assert_eq!(ceil, c.flat(), "{s}"),
+                None => assert_eq!(ceil, BIN_COUNT, "{s}"),
             }
         }
     }

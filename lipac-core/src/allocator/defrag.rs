@@ -2,7 +2,7 @@
 //! buffer into lower free blocks, within a byte budget per call.
 
 use super::error::AllocError;
-use super::tlsf::{AllocHandle, State, TlsfAllocator, NIL};
+use super::tlsf::{AllocHandle, TlsfAllocator, NIL};
 
 /// One relocation decided by [`TlsfAllocator::defragment`]: the backend
 /// copies `len` bytes from `from` to `to` (the ranges never overlap) before
@@ -50,15 +50,12 @@ impl TlsfAllocator {
         let mut cur = self.last;
         while cur != NIL && moved < budget_bytes {
             let node = self.nodes[cur as usize];
-            if node.state != State::Used
-                || node.size > budget_bytes - moved
-                || node.size >= smallest_failed
-            {
+            if !node.is_used() || node.size > budget_bytes - moved || node.size >= smallest_failed {
                 cur = node.prev_phys;
                 continue;
             }
             self.ensure_nodes(2)?;
-            let align = 1u64 << node.align_log2;
+            let align = 1u64 << node.align_log2();
             match self.lowest_fit_below(node.size, align, node.offset) {
                 Some((dst, start)) => {
                     let freed = self.relocate(cur, dst, start);
@@ -91,7 +88,7 @@ impl TlsfAllocator {
             if n.offset >= limit {
                 return None;
             }
-            if n.state == State::Free {
+            if n.is_free() {
                 let start = n.offset.checked_next_multiple_of(align)?;
                 let end = start.checked_add(size)?;
                 if end <= n.offset + n.size && end <= limit {

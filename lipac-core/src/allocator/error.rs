@@ -56,7 +56,7 @@ pub enum AllocError {
         /// The capacity that was asked for.
         requested: u64,
     },
-    /// The node storage would exceed `u32::MAX - 1` block records.
+    /// The node storage would exceed `u32::MAX - 128` block records.
     TooManyBlocks,
 }
 

@@ -12,8 +12,9 @@
 //! free, kept in a doubly linked list in address order (the *physical* list),
 //! so that freeing merges a block with free physical neighbours in O(1). Two
 //! free blocks are never adjacent. Block records live in a growable `Vec` of
-//! nodes with a free-list of vacant nodes, so there is no fixed cap on the
-//! number of live allocations.
+//! 32-byte, cache-line-aligned nodes with an intrusive stack of vacant
+//! nodes, so there is no fixed cap on the number of live allocations
+//! ([`TlsfAllocator::reserve_blocks`] can pre-size the storage).
 //!
 //! **Bins (first/second-level index).** Every free block is also on the list
 //! of the size class ("bin") of its size `s`. With `SL_BITS = 5` (32
@@ -41,7 +42,7 @@
 //! known weakness of `offset-allocator`). Allocation therefore tries, in this
 //! order, each step O(1):
 //!
-//! 1. the **head block of the exact bin** `s` maps to (rounding down): it is
+//! 1. the **best block of the exact bin** `s` maps to (rounding down): it is
 //!    used if it is large enough (with alignment);
 //! 2. the head of the first non-empty bin at or above the rounded-up bin of
 //!    `s` (any block there is at least `s`; with alignment the head is
@@ -52,14 +53,20 @@
 //! 4. the physically last block, if free (the end of the buffer: this makes
 //!    the growth request below exact).
 //!
-//! To make step 1 succeed as often as possible a bin's list keeps a large
-//! block at its head: a freed block goes to the front if it is at least as
-//! large as the current head, else to the back (O(1) with a tail pointer).
-//! With all blocks of one size, every block in that size's bin fits, so the
-//! between-bins case reaches full utilisation. Like every good-fit TLSF, the
-//! search does not look behind a bin's head: a request can still fail while
-//! a block deeper in its own bin would fit; the growth request is then
-//! conservative, never wrong.
+//! Bin lists are last in, first out (a freed block goes to the front, whose
+//! old head was touched recently, so this stays cache-warm). To make step 1
+//! succeed as often as possible each bin also remembers a *best* block, with
+//! its size cached next to the list head: a block filed in the bin becomes
+//! the best if it is at least as large as the current best; when the best
+//! leaves the list, the list's head takes over. With all blocks of one size,
+//! every block in that size's bin fits, so the between-bins case reaches full
+//! utilisation. Like every good-fit TLSF, the search does not look at the
+//! other blocks of a bin: a request can still fail while one of them would
+//! fit; the growth request is then conservative, never wrong.
+//!
+//! The hot paths avoid poorly predictable branches: the bin index is
+//! computed without the small-size branch, the choice between steps 1 and 2
+//! (without alignment) and the best-block bookkeeping are selects.
 //!
 //! **Alignment.** [`TlsfAllocator::allocate_aligned`] takes a power-of-two
 //! alignment and places the range at the first aligned offset of the chosen
@@ -68,10 +75,12 @@
 //! as numbers: the backing buffer's base must be aligned at least as much as
 //! the largest alignment requested.
 //!
-//! **Handles.** An allocation is named by an [`AllocHandle`]: node index,
-//! node generation and the id of the allocator that issued it. Freeing bumps
-//! the generation, so a second free, or any use of a handle after its range
-//! was freed, is [`AllocError::StaleHandle`]; an index that was never issued
+//! **Handles.** An allocation is named by an [`AllocHandle`] (12 bytes): node
+//! index, the allocation's serial (a per-allocator counter stamped on the
+//! node while it is used) and the id of the allocator that issued it. A
+//! handle is valid only while its node is used with the same serial, so a
+//! second free, or any use of a handle after its range was freed, is
+//! [`AllocError::StaleHandle`]; an index that was never issued
 //! is [`AllocError::UnknownHandle`] and a handle of another allocator is
 //! [`AllocError::ForeignHandle`]. None of these panic or corrupt state.
 //!

@@ -240,6 +240,22 @@ fn node_storage_grows_without_a_cap() {
     assert_eq!(a.stats().free_block_count, 1);
 }
 
+#[test]
+fn reserved_block_storage_is_used_without_reallocating() {
+    let mut a = TlsfAllocator::new(1 << 20);
+    a.reserve_blocks(1000);
+    let storage = a.nodes.as_ptr();
+    let hs: Vec<_> = (0..999).map(|_| a.allocate(16).unwrap()).collect();
+    // 999 allocations and the free tail: 1000 records, no reallocation.
+    assert_eq!(a.nodes.len(), 1000);
+    assert_eq!(a.nodes.as_ptr(), storage);
+    for h in &hs {
+        a.free(h.handle).unwrap();
+    }
+    a.check_invariants();
+    assert_eq!(a.stats().free_block_count, 1);
+}
+
 /// Utilisation at the first failure for a churn that ramps up occupancy
 /// (60 % allocate, 40 % free a random live range) with one size.
 fn ramp_utilisation(size: u64, capacity: u64, seed: u64) -> f64 {

@@ -1,29 +1,73 @@
 //! The TLSF range allocator: block records, bin lists, allocate/free/resize/grow.
+//!
+//! # Block records
+//!
+//! Every block (used or free) and every vacant record slot is one 32-byte,
+//! 32-byte-aligned [`Node`], so one record never straddles two cache lines:
+//! `u64` offset and size, the `u32` physical links, and two `u32` words whose
+//! meaning depends on the block's state, which is encoded in the first one:
+//!
+//! | state  | `links[PREV]`                            | `links[NEXT]`        |
+//! |--------|------------------------------------------|----------------------|
+//! | free   | previous block on its bin list, or `NIL` | next on the bin list |
+//! | used   | `MARK_BASE + log2(alignment)`            | allocation serial    |
+//! | vacant | `VACANT`                                 | next vacant record   |
+//!
+//! Node indices stay below `MARK_BASE`, so the three cases cannot be
+//! confused. The allocation serial is a per-allocator counter stamped on a
+//! block when it is handed out and copied into its [`AllocHandle`]: a handle
+//! is valid only while its record is used *and* carries the same serial, so a
+//! second free, or any use of a handle whose record was since reused, is a
+//! [`AllocError::StaleHandle`]. (A stale handle could only be accepted after
+//! exactly a multiple of 2^32 allocations in between that land on the same
+//! record.) Vacant records form an intrusive stack through `links[NEXT]`.
 
+use std::num::NonZeroU32;
 use std::sync::atomic::{AtomicU32, Ordering};
 
-use super::bins::{bin_ceil_of, bin_floor_of, bin_min_size, Bin, BIN_COUNT, FL_COUNT};
+use super::bins::{
+    bin_floor_of, bin_min_size, flat_floor, flat_floor_ceil, BIN_COUNT, FL_COUNT, SL_BITS, SL_COUNT,
+};
 use super::error::AllocError;
 
 /// "No node" link value.
 pub(super) const NIL: u32 = u32::MAX;
-/// Largest node index we hand out (`NIL` is reserved).
-const MAX_NODES: usize = (u32::MAX - 1) as usize;
+/// First value of `Node::links[PREV]` that is a state mark, not a node index:
+/// `MARK_BASE + a` (a < 64) marks a used block allocated with alignment
+/// `2^a`, [`VACANT`] a vacant record.
+const MARK_BASE: u32 = u32::MAX - 128;
+/// `Node::links[PREV]` of a vacant record.
+const VACANT: u32 = MARK_BASE + 64;
+/// Index of the backward / forward link in `Node::links`.
+const PREV: usize = 0;
+const NEXT: usize = 1;
+/// Node indices are below this (the values above are marks and `NIL`).
+const MAX_NODES: usize = MARK_BASE as usize;
 
 /// Source of allocator ids, so that handles of one allocator are recognised
 /// as foreign by another.
 static NEXT_ALLOCATOR_ID: AtomicU32 = AtomicU32::new(1);
 
+fn next_allocator_id() -> NonZeroU32 {
+    loop {
+        // Skips 0 when the counter wraps.
+        if let Some(id) = NonZeroU32::new(NEXT_ALLOCATOR_ID.fetch_add(1, Ordering::Relaxed)) {
+            return id;
+        }
+    }
+}
+
 /// Names one live allocation of one [`TlsfAllocator`].
 ///
-/// Cheap to copy. Using a handle after its allocation was freed is detected
+/// Cheap to copy (12 bytes; `Option<AllocHandle>` is 12 bytes too). Using a
+/// handle after its allocation was freed is detected
 /// ([`AllocError::StaleHandle`]), as is a handle of another allocator
 /// ([`AllocError::ForeignHandle`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct AllocHandle {
     pub(super) index: u32,
-    pub(super) generation: u32,
-    pub(super) owner: u32,
+    pub(super) serial: u32,
+    pub(super) owner: NonZeroU32,
 }
 
 /// A live allocation: the byte range `offset..offset + size` of the buffer.
@@ -74,9 +118,11 @@ pub struct AllocatorStats {
     pub peak_used_bytes: u64,
 }
 
+/// A record's state, decoded from its `links[PREV]` word (invariant checks).
+#[cfg(test)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum State {
-    /// Node slot not in use (on the vacant list).
+    /// Record not in use (on the vacant stack).
     Vacant,
     /// A free block, on its bin's list.
     Free,
@@ -84,23 +130,56 @@ pub(super) enum State {
     Used,
 }
 
+/// One block record (see the module docs for the state encoding).
 #[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
 pub(super) struct Node {
     pub offset: u64,
     pub size: u64,
     pub prev_phys: u32,
     pub next_phys: u32,
-    prev_free: u32,
-    next_free: u32,
-    generation: u32,
-    /// log2 of the alignment a used block was allocated with.
-    pub align_log2: u8,
-    pub state: State,
+    /// `links[PREV]`: free: previous on the bin list (`NIL` at the head);
+    /// used: `MARK_BASE + log2(alignment)`; vacant: `VACANT`.
+    /// `links[NEXT]`: free: next on the bin list; used: the allocation
+    /// serial; vacant: next vacant record. An array so that the link to
+    /// rewrite can be chosen by index instead of by a branch.
+    links: [u32; 2],
 }
 
 impl Node {
+    #[inline]
     fn end(&self) -> u64 {
         self.offset + self.size
+    }
+
+    /// Whether this is a free block (`links[PREV]` is a node index or `NIL`).
+    #[inline]
+    pub fn is_free(&self) -> bool {
+        self.links[PREV].wrapping_sub(MARK_BASE) > VACANT - MARK_BASE
+    }
+
+    /// Whether this is a live allocation.
+    #[inline]
+    pub fn is_used(&self) -> bool {
+        self.links[PREV].wrapping_sub(MARK_BASE) < VACANT - MARK_BASE
+    }
+
+    #[cfg(test)]
+    pub fn state(&self) -> State {
+        if self.is_used() {
+            State::Used
+        } else if self.is_free() {
+            State::Free
+        } else {
+            State::Vacant
+        }
+    }
+
+    /// log2 of the alignment a used block was allocated with.
+    #[inline]
+    pub fn align_log2(&self) -> u32 {
+        debug_assert!(self.is_used());
+        self.links[PREV] - MARK_BASE
     }
 }
 
@@ -110,14 +189,18 @@ impl Node {
 /// see the [module documentation](super) for the design.
 #[derive(Debug)]
 pub struct TlsfAllocator {
-    id: u32,
+    id: NonZeroU32,
     capacity: u64,
     pub(super) nodes: Vec<Node>,
-    vacant: Vec<u32>,
+    /// Top of the intrusive stack of vacant records (`NIL` if none).
+    vacant_head: u32,
+    vacant_count: usize,
+    /// Serial stamped on the next allocation.
+    next_serial: u32,
     fl_bitmap: u64,
     sl_bitmaps: [u32; FL_COUNT],
-    /// One free list per bin.
-    bins: Vec<BinList>,
+    /// One free list per bin, by flat bin index.
+    bins: Box<[BinList; BIN_COUNT]>,
     /// Physically first / last block (`NIL` iff capacity is 0).
     pub(super) first: u32,
     pub(super) last: u32,
@@ -128,21 +211,25 @@ pub struct TlsfAllocator {
     high_water: u64,
 }
 
-/// A bin's free list: head, tail, and the head's size cached so that the
-/// exact-bin check and the front/back insertion choice need not touch the
-/// head node.
+/// A bin's free list, last in first out, and its *best* block: the block
+/// the exact-bin check of the search tries, with its size cached (0 when the
+/// list is empty) so that the check and the choice of a new best need not
+/// touch the node. A block filed in the bin becomes the best if it is at
+/// least as large as the current one; when the best leaves the list, the
+/// list's head takes over. The best is on the list whenever the list is
+/// not empty.
 #[derive(Clone, Copy, Debug)]
 struct BinList {
-    head_size: u64,
+    best_size: u64,
+    best: u32,
     head: u32,
-    tail: u32,
 }
 
 impl BinList {
     const EMPTY: BinList = BinList {
-        head_size: 0,
+        best_size: 0,
+        best: NIL,
         head: NIL,
-        tail: NIL,
     };
 }
 
@@ -156,13 +243,15 @@ impl TlsfAllocator {
     /// allowed (every allocation then asks to [`grow`](Self::grow)).
     pub fn new(capacity: u64) -> Self {
         let mut this = TlsfAllocator {
-            id: NEXT_ALLOCATOR_ID.fetch_add(1, Ordering::Relaxed),
+            id: next_allocator_id(),
             capacity: 0,
             nodes: Vec::new(),
-            vacant: Vec::new(),
+            vacant_head: NIL,
+            vacant_count: 0,
+            next_serial: 0,
             fl_bitmap: 0,
             sl_bitmaps: [0; FL_COUNT],
-            bins: vec![BinList::EMPTY; BIN_COUNT],
+            bins: Box::new([BinList::EMPTY; BIN_COUNT]),
             first: NIL,
             last: NIL,
             used_bytes: 0,
@@ -173,13 +262,21 @@ impl TlsfAllocator {
         };
         if capacity > 0 {
             // A fresh allocator has no nodes, so this cannot hit the node cap.
-            let i = this.push_node(0, capacity);
+            let i = this.push_node(0, capacity, NIL, NIL);
             this.first = i;
             this.last = i;
             this.capacity = capacity;
-            this.insert_free(i);
+            this.insert_free(i, capacity);
         }
         this
+    }
+
+    /// Reserves room for at least `additional` more block records (each
+    /// live allocation and each free block is one), so that the record
+    /// storage does not have to grow (reallocate and copy) later. Optional:
+    /// storage grows on demand without it.
+    pub fn reserve_blocks(&mut self, additional: usize) {
+        self.nodes.reserve(additional);
     }
 
     /// Managed bytes.
@@ -217,9 +314,10 @@ impl TlsfAllocator {
     ///
     /// # Errors
     /// [`AllocError::ZeroSize`]; [`AllocError::OutOfSpace`] with the capacity
-    /// to [`grow`](Self::grow) to; [`AllocError::CapacityOverflow`].
+    /// to [`grow`](Self::grow) to; [`AllocError::CapacityOverflow`];
+    /// [`AllocError::TooManyBlocks`].
     pub fn allocate(&mut self, size: u64) -> Result<Allocation, AllocError> {
-        self.allocate_aligned(size, 1)
+        self.allocate_log2(size, 0)
     }
 
     /// Allocates `size` bytes at an offset that is a multiple of `align` (a
@@ -231,17 +329,24 @@ impl TlsfAllocator {
     /// [`grow`](Self::grow) to, [`AllocError::CapacityOverflow`],
     /// [`AllocError::TooManyBlocks`].
     pub fn allocate_aligned(&mut self, size: u64, align: u64) -> Result<Allocation, AllocError> {
-        if size == 0 {
-            return Err(AllocError::ZeroSize);
-        }
         if !align.is_power_of_two() {
             return Err(AllocError::InvalidAlignment { align });
         }
+        self.allocate_log2(size, align.trailing_zeros())
+    }
+
+    /// Allocation with alignment `2^align_log2`; inlined into both entry
+    /// points so that `allocate` runs the alignment-free search.
+    #[inline(always)]
+    fn allocate_log2(&mut self, size: u64, align_log2: u32) -> Result<Allocation, AllocError> {
+        if size == 0 {
+            return Err(AllocError::ZeroSize);
+        }
         // Up to two new nodes (padding and tail remainder).
         self.ensure_nodes(2)?;
-        match self.find_block(size, align) {
-            Some((i, start)) => Ok(self.take_block(i, start, size, align)),
-            None => Err(self.out_of_space(size, align)),
+        match self.find_block(size, align_log2) {
+            Some((i, bin, start)) => Ok(self.take_block(i, bin, start, size, align_log2)),
+            None => Err(self.out_of_space(size, 1 << align_log2)),
         }
     }
 
@@ -253,10 +358,7 @@ impl TlsfAllocator {
     /// [`AllocError::ForeignHandle`]; the allocator is unchanged then.
     pub fn free(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
         let i = self.validate(handle)?;
-        let node = &mut self.nodes[i as usize];
-        node.state = State::Free;
-        node.generation = node.generation.wrapping_add(1);
-        self.used_bytes -= node.size;
+        self.used_bytes -= self.nodes[i as usize].size;
         self.live -= 1;
         self.release_free_range(i);
         Ok(())
@@ -283,7 +385,7 @@ impl TlsfAllocator {
             while cur != NIL {
                 let i = cur;
                 cur = self.nodes[i as usize].next_phys;
-                if self.nodes[i as usize].state == State::Used {
+                if self.nodes[i as usize].is_used() {
                     return Some(self.allocation_at(i));
                 }
             }
@@ -312,44 +414,52 @@ impl TlsfAllocator {
             next_phys: right,
             ..
         } = self.nodes[i as usize];
+        let right_free = right != NIL && self.nodes[right as usize].is_free();
         if new_size < size {
             let delta = size - new_size;
-            if right != NIL && self.nodes[right as usize].state == State::Free {
-                self.remove_free(right);
+            if right_free {
+                self.remove_free_node(right);
                 let r = &mut self.nodes[right as usize];
                 r.offset -= delta;
                 r.size += delta;
-                self.insert_free(right);
+                let r_size = r.size;
+                self.insert_free(right, r_size);
             } else {
                 self.ensure_nodes(1)?;
-                let t = self.push_node(offset + new_size, delta);
-                self.link_after(i, t);
-                self.insert_free(t);
+                let t = self.push_node(offset + new_size, delta, i, right);
+                self.nodes[i as usize].next_phys = t;
+                if right == NIL {
+                    self.last = t;
+                } else {
+                    self.nodes[right as usize].prev_phys = t;
+                }
+                self.insert_free(t, delta);
             }
             self.nodes[i as usize].size = new_size;
             self.used_bytes -= delta;
         } else if new_size > size {
             let delta = new_size - size;
-            let right_free = if right != NIL && self.nodes[right as usize].state == State::Free {
+            let available = if right_free {
                 self.nodes[right as usize].size
             } else {
                 0
             };
-            if right_free < delta {
+            if available < delta {
                 return Err(AllocError::CannotGrowInPlace {
                     requested: new_size,
-                    available: size + right_free,
+                    available: size + available,
                 });
             }
-            self.remove_free(right);
-            if right_free == delta {
+            self.remove_free_node(right);
+            if available == delta {
                 self.unlink(right);
                 self.release_node(right);
             } else {
                 let r = &mut self.nodes[right as usize];
                 r.offset += delta;
                 r.size -= delta;
-                self.insert_free(right);
+                let r_size = r.size;
+                self.insert_free(right, r_size);
             }
             self.nodes[i as usize].size = new_size;
             self.used_bytes += delta;
@@ -376,21 +486,23 @@ impl TlsfAllocator {
         if delta == 0 {
             return Ok(());
         }
-        if self.last != NIL && self.nodes[self.last as usize].state == State::Free {
+        if self.last != NIL && self.nodes[self.last as usize].is_free() {
             let l = self.last;
-            self.remove_free(l);
+            self.remove_free_node(l);
             self.nodes[l as usize].size += delta;
-            self.insert_free(l);
+            let l_size = self.nodes[l as usize].size;
+            self.insert_free(l, l_size);
         } else {
             self.ensure_nodes(1)?;
-            let t = self.push_node(self.capacity, delta);
-            if self.last == NIL {
+            let last = self.last;
+            let t = self.push_node(self.capacity, delta, last, NIL);
+            if last == NIL {
                 self.first = t;
-                self.last = t;
             } else {
-                self.link_after(self.last, t);
+                self.nodes[last as usize].next_phys = t;
             }
-            self.insert_free(t);
+            self.last = t;
+            self.insert_free(t, delta);
         }
         self.capacity = new_capacity;
         Ok(())
@@ -426,24 +538,25 @@ impl TlsfAllocator {
         }
         let fl = (63 - self.fl_bitmap.leading_zeros()) as usize;
         let sl = (31 - self.sl_bitmaps[fl].leading_zeros()) as usize;
-        let mut cur = self.bins[Bin { fl, sl }.flat()].head;
+        let mut cur = self.bins[(fl << SL_BITS) | sl].head;
         let mut best = 0;
         while cur != NIL {
             let n = &self.nodes[cur as usize];
             best = best.max(n.size);
-            cur = n.next_free;
+            cur = n.links[NEXT];
         }
         best
     }
 
     // ---- internals -------------------------------------------------------
 
+    /// The allocation held by used node `i`.
     pub(super) fn allocation_at(&self, i: u32) -> Allocation {
         let n = &self.nodes[i as usize];
         Allocation {
             handle: AllocHandle {
                 index: i,
-                generation: n.generation,
+                serial: n.links[NEXT],
                 owner: self.id,
             },
             offset: n.offset,
@@ -451,6 +564,7 @@ impl TlsfAllocator {
         }
     }
 
+    #[inline]
     fn validate(&self, h: AllocHandle) -> Result<u32, AllocError> {
         if h.owner != self.id {
             return Err(AllocError::ForeignHandle);
@@ -459,74 +573,53 @@ impl TlsfAllocator {
             .nodes
             .get(h.index as usize)
             .ok_or(AllocError::UnknownHandle)?;
-        if n.generation != h.generation || n.state != State::Used {
+        if !n.is_used() || n.links[NEXT] != h.serial {
             return Err(AllocError::StaleHandle);
         }
         Ok(h.index)
     }
 
+    #[inline]
     pub(super) fn ensure_nodes(&self, n: usize) -> Result<(), AllocError> {
-        if self.vacant.len() + (MAX_NODES - self.nodes.len()) >= n {
+        if self.vacant_count + (MAX_NODES - self.nodes.len()) >= n {
             Ok(())
         } else {
             Err(AllocError::TooManyBlocks)
         }
     }
 
-    /// A new unlinked free-state node (callers ran `ensure_nodes` first).
-    fn push_node(&mut self, offset: u64, size: u64) -> u32 {
-        let fresh = |generation| Node {
+    /// A new node with the given range and physical links, not on any bin
+    /// list yet (callers ran `ensure_nodes` first and file it next).
+    #[inline]
+    fn push_node(&mut self, offset: u64, size: u64, prev_phys: u32, next_phys: u32) -> u32 {
+        let node = Node {
             offset,
             size,
-            prev_phys: NIL,
-            next_phys: NIL,
-            prev_free: NIL,
-            next_free: NIL,
-            generation,
-            align_log2: 0,
-            state: State::Free,
+            prev_phys,
+            next_phys,
+            links: [NIL, NIL],
         };
-        if let Some(i) = self.vacant.pop() {
-            let g = self.nodes[i as usize].generation;
-            self.nodes[i as usize] = fresh(g);
+        if self.vacant_head != NIL {
+            let i = self.vacant_head;
+            let slot = &mut self.nodes[i as usize];
+            self.vacant_head = slot.links[NEXT];
+            *slot = node;
+            self.vacant_count -= 1;
             i
         } else {
-            self.nodes.push(fresh(0));
+            self.nodes.push(node);
             (self.nodes.len() - 1) as u32
         }
     }
 
+    /// Puts node `i` (no longer linked anywhere) on the vacant stack.
+    #[inline]
     fn release_node(&mut self, i: u32) {
         let n = &mut self.nodes[i as usize];
-        n.state = State::Vacant;
-        n.generation = n.generation.wrapping_add(1);
-        self.vacant.push(i);
-    }
-
-    /// Inserts unlinked node `t` physically right after `i`.
-    fn link_after(&mut self, i: u32, t: u32) {
-        let next = self.nodes[i as usize].next_phys;
-        self.nodes[t as usize].prev_phys = i;
-        self.nodes[t as usize].next_phys = next;
-        self.nodes[i as usize].next_phys = t;
-        if next == NIL {
-            self.last = t;
-        } else {
-            self.nodes[next as usize].prev_phys = t;
-        }
-    }
-
-    /// Inserts unlinked node `t` physically right before `i`.
-    fn link_before(&mut self, i: u32, t: u32) {
-        let prev = self.nodes[i as usize].prev_phys;
-        self.nodes[t as usize].next_phys = i;
-        self.nodes[t as usize].prev_phys = prev;
-        self.nodes[i as usize].prev_phys = t;
-        if prev == NIL {
-            self.first = t;
-        } else {
-            self.nodes[prev as usize].next_phys = t;
-        }
+        n.links[PREV] = VACANT;
+        n.links[NEXT] = self.vacant_head;
+        self.vacant_head = i;
+        self.vacant_count += 1;
     }
 
     /// Removes `i` from the physical list.
@@ -548,98 +641,93 @@ impl TlsfAllocator {
         }
     }
 
-    /// Files free node `i` in its bin: at the front if at least as large as
-    /// the head (keeps a large block at the head for the exact-bin check),
-    /// else at the back.
-    fn insert_free(&mut self, i: u32) {
-        let size = self.nodes[i as usize].size;
-        let bin = bin_floor_of(size);
-        let list = &mut self.bins[bin.flat()];
-        let (head, tail) = (list.head, list.tail);
-        if head == NIL {
-            *list = BinList {
-                head_size: size,
-                head: i,
-                tail: i,
-            };
-            self.fl_bitmap |= 1 << bin.fl;
-            self.sl_bitmaps[bin.fl] |= 1 << bin.sl;
-            let n = &mut self.nodes[i as usize];
-            n.prev_free = NIL;
-            n.next_free = NIL;
-        } else if size >= list.head_size {
-            list.head = i;
-            list.head_size = size;
-            let n = &mut self.nodes[i as usize];
-            n.prev_free = NIL;
-            n.next_free = head;
-            self.nodes[head as usize].prev_free = i;
-        } else {
-            list.tail = i;
-            let n = &mut self.nodes[i as usize];
-            n.prev_free = tail;
-            n.next_free = NIL;
-            self.nodes[tail as usize].next_free = i;
-        }
+    /// Files node `i`, a free block of `size` bytes, at the front of its
+    /// bin's list (the old head was touched recently, so this is usually
+    /// cache-warm), and makes it the bin's best block if it is at least as
+    /// large as the current best.
+    ///
+    /// The back link of a list's head is not maintained (it may name the
+    /// previous head; it is always a node index or `NIL`, never a state
+    /// mark): list removal recognises the head by `BinList::head`.
+    /// Written without data-dependent branches: with an empty list the back
+    /// link written is `i`'s own, which is then overwritten.
+    #[inline(always)]
+    fn insert_free(&mut self, i: u32, size: u64) {
+        debug_assert_eq!(self.nodes[i as usize].size, size);
+        let b = flat_floor(size);
+        let list = self.bins[b];
+        let other = if list.head == NIL { i } else { list.head };
+        self.nodes[other as usize].links[PREV] = i;
+        self.nodes[i as usize].links = [NIL, list.head];
+        let better = size >= list.best_size;
+        self.bins[b] = BinList {
+            best_size: if better { size } else { list.best_size },
+            best: if better { i } else { list.best },
+            head: i,
+        };
+        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+        self.fl_bitmap |= 1 << fl;
+        self.sl_bitmaps[fl] |= 1 << sl;
         self.free_blocks += 1;
     }
 
-    /// Takes free node `i` off its bin list.
-    fn remove_free(&mut self, i: u32) {
-        let Node {
-            size,
-            prev_free,
-            next_free,
-            ..
-        } = self.nodes[i as usize];
-        let bin = bin_floor_of(size);
-        let b = bin.flat();
-        if prev_free == NIL {
-            self.bins[b].head = next_free;
-            if next_free != NIL {
-                self.bins[b].head_size = self.nodes[next_free as usize].size;
-            }
+    /// Takes free node `i` off the list of bin `b` (its flat bin index).
+    #[inline(always)]
+    fn remove_free(&mut self, i: u32, b: usize) {
+        let [prev, next] = self.nodes[i as usize].links;
+        let list = &mut self.bins[b];
+        if list.head == i {
+            // The head's back link is not kept (see `insert_free`), so the
+            // new head's node need not be touched here.
+            list.head = next;
         } else {
-            self.nodes[prev_free as usize].next_free = next_free;
-        }
-        if next_free == NIL {
-            self.bins[b].tail = prev_free;
-        } else {
-            self.nodes[next_free as usize].prev_free = prev_free;
-        }
-        if self.bins[b].head == NIL {
-            self.sl_bitmaps[bin.fl] &= !(1 << bin.sl);
-            if self.sl_bitmaps[bin.fl] == 0 {
-                self.fl_bitmap &= !(1 << bin.fl);
+            self.nodes[prev as usize].links[NEXT] = next;
+            if next != NIL {
+                self.nodes[next as usize].links[PREV] = prev;
             }
+        }
+        if list.best == i {
+            // The head takes over; without a branch on whether the list
+            // just became empty (then `i`'s own, warm, node is probed).
+            let head = list.head;
+            let empty = head == NIL;
+            let probe = if empty { i } else { head };
+            let probe_size = self.nodes[probe as usize].size;
+            list.best = head;
+            list.best_size = if empty { 0 } else { probe_size };
+            let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+            self.sl_bitmaps[fl] &= !(u32::from(empty) << sl);
+            self.fl_bitmap &= !(u64::from(self.sl_bitmaps[fl] == 0) << fl);
         }
         self.free_blocks -= 1;
     }
 
-    /// First non-empty bin at or above `bin`: two masked `trailing_zeros`.
+    /// Takes free node `i` off its bin list.
+    fn remove_free_node(&mut self, i: u32) {
+        let b = flat_floor(self.nodes[i as usize].size);
+        self.remove_free(i, b);
+    }
+
+    /// First non-empty bin at or above flat bin `b` (`b <= BIN_COUNT`): two
+    /// masked `trailing_zeros`.
     #[inline]
-    fn first_nonempty_from(&self, bin: Bin) -> Option<Bin> {
-        let sl_map = self.sl_bitmaps[bin.fl] & (u32::MAX << bin.sl);
-        if sl_map != 0 {
-            return Some(Bin {
-                fl: bin.fl,
-                sl: sl_map.trailing_zeros() as usize,
-            });
-        }
-        let above = bin.fl + 1;
-        if above >= FL_COUNT {
+    fn first_nonempty_from(&self, b: usize) -> Option<usize> {
+        let (fl, sl) = (b >> SL_BITS, b & (SL_COUNT - 1));
+        if fl >= FL_COUNT {
             return None;
         }
-        let fl_map = self.fl_bitmap & (u64::MAX << above);
+        let sl_map = self.sl_bitmaps[fl] & (u32::MAX << sl);
+        if sl_map != 0 {
+            return Some((fl << SL_BITS) | sl_map.trailing_zeros() as usize);
+        }
+        // fl + 1 <= FL_COUNT < 64, so the shift cannot overflow.
+        let fl_map = self.fl_bitmap & (u64::MAX << (fl + 1));
         if fl_map == 0 {
             return None;
         }
         let fl = fl_map.trailing_zeros() as usize;
         debug_assert!(self.sl_bitmaps[fl] != 0);
-        Some(Bin {
-            fl,
-            sl: self.sl_bitmaps[fl].trailing_zeros() as usize,
-        })
+        Some((fl << SL_BITS) | self.sl_bitmaps[fl].trailing_zeros() as usize)
     }
 
     /// Aligned start of a `size`-byte range in free node `i`, if it fits.
@@ -650,109 +738,202 @@ impl TlsfAllocator {
         (start.checked_add(size)? <= n.end()).then_some(start)
     }
 
-    /// The constant-step search described in the module docs.
-    pub(super) fn find_block(&self, size: u64, align: u64) -> Option<(u32, u64)> {
-        // 1. Head of the exact (rounded-down) bin; without alignment its
-        //    cached size decides without touching the node.
-        let exact = &self.bins[bin_floor_of(size).flat()];
-        let head = exact.head;
-        if head != NIL && exact.head_size >= size {
-            if let Some(start) = self.fit(head, size, align) {
-                return Some((head, start));
-            }
-        }
+    /// The constant-step search described in the module docs: the chosen
+    /// free node (always a bin's head except in step 4), its flat bin index
+    /// and the aligned start.
+    #[inline(always)]
+    pub(super) fn find_block(&self, size: u64, align_log2: u32) -> Option<(u32, usize, u64)> {
+        let (floor, ceil) = flat_floor_ceil(size);
+        // 1. Head of the exact (rounded-down) bin; its cached size (0 when
+        //    empty; size > 0) decides without touching the node.
         // 2. First non-empty bin whose blocks are all >= size.
-        if let Some(bin) = bin_ceil_of(size).and_then(|c| self.first_nonempty_from(c)) {
-            let h = self.bins[bin.flat()].head;
-            if let Some(start) = self.fit(h, size, align) {
-                return Some((h, start));
+        let exact = self.bins[floor];
+        let exact_fits = exact.best_size >= size;
+        if align_log2 == 0 {
+            // Any block of at least `size` bytes fits: choose between the
+            // two candidates without a (poorly predictable) branch.
+            let above = self.first_nonempty_from(ceil).unwrap_or(BIN_COUNT);
+            let above_head = self.bins.get(above).map_or(NIL, |list| list.head);
+            let (i, b) = if exact_fits {
+                (exact.best, floor)
+            } else {
+                (above_head, above)
+            };
+            if i != NIL {
+                return Some((i, b, self.nodes[i as usize].offset));
+            }
+        } else {
+            let align = 1u64 << align_log2;
+            if exact_fits {
+                if let Some(start) = self.fit(exact.best, size, align) {
+                    return Some((exact.best, floor, start));
+                }
+            }
+            if let Some(b) = self.first_nonempty_from(ceil) {
+                let h = self.bins[b].head;
+                if let Some(start) = self.fit(h, size, align) {
+                    return Some((h, b, start));
+                }
             }
         }
+        self.find_block_slow(size, 1 << align_log2)
+    }
+
+    /// Steps 3 and 4 of the search (rarely reached).
+    #[cold]
+    #[inline(never)]
+    fn find_block_slow(&self, size: u64, align: u64) -> Option<(u32, usize, u64)> {
         // 3. With alignment: a bin whose blocks fit wherever they start.
         if align > 1 {
-            let worst = size.checked_add(align - 1);
-            if let Some(bin) = worst
-                .and_then(bin_ceil_of)
-                .and_then(|c| self.first_nonempty_from(c))
-            {
-                let h = self.bins[bin.flat()].head;
-                if let Some(start) = self.fit(h, size, align) {
-                    return Some((h, start));
+            if let Some(worst) = size.checked_add(align - 1) {
+                if let Some(b) = self.first_nonempty_from(flat_floor_ceil(worst).1) {
+                    let h = self.bins[b].head;
+                    if let Some(start) = self.fit(h, size, align) {
+                        return Some((h, b, start));
+                    }
                 }
             }
         }
         // 4. The free block at the end of the buffer.
-        if self.last != NIL && self.nodes[self.last as usize].state == State::Free {
+        if self.last != NIL && self.nodes[self.last as usize].is_free() {
             if let Some(start) = self.fit(self.last, size, align) {
-                return Some((self.last, start));
+                let b = flat_floor(self.nodes[self.last as usize].size);
+                return Some((self.last, b, start));
             }
         }
         None
     }
 
-    /// Turns free node `i` into a used `[start, start + size)`, splitting off
-    /// the padding before and the remainder after as free blocks.
-    pub(super) fn take_block(&mut self, i: u32, start: u64, size: u64, align: u64) -> Allocation {
-        self.remove_free(i);
+    /// Turns free node `i` (on the list of flat bin `bin`) into a used
+    /// `[start, start + size)` allocated with alignment `2^align_log2`,
+    /// splitting off the padding before and the remainder after as free
+    /// blocks. Callers ran `ensure_nodes(2)` first.
+    #[inline]
+    pub(super) fn take_block(
+        &mut self,
+        i: u32,
+        bin: usize,
+        start: u64,
+        size: u64,
+        align_log2: u32,
+    ) -> Allocation {
+        self.remove_free(i, bin);
         let Node {
             offset: block_start,
+            size: block_size,
+            mut prev_phys,
+            mut next_phys,
             ..
         } = self.nodes[i as usize];
-        let block_end = self.nodes[i as usize].end();
+        let block_end = block_start + block_size;
         if start > block_start {
-            let p = self.push_node(block_start, start - block_start);
-            self.link_before(i, p);
-            self.insert_free(p);
+            let pad = start - block_start;
+            let p = self.push_node(block_start, pad, prev_phys, i);
+            if prev_phys == NIL {
+                self.first = p;
+            } else {
+                self.nodes[prev_phys as usize].next_phys = p;
+            }
+            prev_phys = p;
+            self.insert_free(p, pad);
         }
         let end = start + size;
         if end < block_end {
-            let t = self.push_node(end, block_end - end);
-            self.link_after(i, t);
-            self.insert_free(t);
+            let rest = block_end - end;
+            let t = self.push_node(end, rest, i, next_phys);
+            if next_phys == NIL {
+                self.last = t;
+            } else {
+                self.nodes[next_phys as usize].prev_phys = t;
+            }
+            next_phys = t;
+            self.insert_free(t, rest);
         }
-        let n = &mut self.nodes[i as usize];
-        n.offset = start;
-        n.size = size;
-        n.state = State::Used;
-        n.align_log2 = align.trailing_zeros() as u8;
+        let serial = self.next_serial;
+        self.next_serial = serial.wrapping_add(1);
+        self.nodes[i as usize] = Node {
+            offset: start,
+            size,
+            prev_phys,
+            next_phys,
+            links: [MARK_BASE + align_log2, serial],
+        };
         self.used_bytes += size;
         self.live += 1;
         self.note_used(end);
-        self.allocation_at(i)
+        Allocation {
+            handle: AllocHandle {
+                index: i,
+                serial,
+                owner: self.id,
+            },
+            offset: start,
+            size,
+        }
     }
 
+    #[inline]
     fn note_used(&mut self, end: u64) {
         self.peak_used = self.peak_used.max(self.used_bytes);
         self.high_water = self.high_water.max(end);
     }
 
-    /// Node `i` just became free (state already set): merge it with free
-    /// physical neighbours and file the result in its bin. Returns the node
-    /// that holds the merged free block.
+    /// Node `i` just stopped being used (its record still holds the range):
+    /// merge it with free physical neighbours and file the result in its
+    /// bin. Returns the node that holds the merged free block.
+    #[inline]
     pub(super) fn release_free_range(&mut self, i: u32) -> u32 {
-        let mut cur = i;
-        let left = self.nodes[cur as usize].prev_phys;
-        if left != NIL && self.nodes[left as usize].state == State::Free {
-            self.remove_free(left);
-            self.nodes[left as usize].size += self.nodes[cur as usize].size;
-            self.unlink(cur);
-            self.release_node(cur);
-            cur = left;
+        let Node {
+            mut offset,
+            mut size,
+            prev_phys: mut left,
+            next_phys: right,
+            ..
+        } = self.nodes[i as usize];
+        let mut keep = i;
+        if left != NIL {
+            let l = self.nodes[left as usize];
+            if l.is_free() {
+                self.remove_free(left, flat_floor(l.size));
+                self.release_node(i);
+                keep = left;
+                offset = l.offset;
+                size += l.size;
+                left = l.prev_phys;
+            }
         }
-        let right = self.nodes[cur as usize].next_phys;
-        if right != NIL && self.nodes[right as usize].state == State::Free {
-            self.remove_free(right);
-            self.nodes[cur as usize].size += self.nodes[right as usize].size;
-            self.unlink(right);
-            self.release_node(right);
+        let mut next = right;
+        if right != NIL {
+            let r = self.nodes[right as usize];
+            if r.is_free() {
+                self.remove_free(right, flat_floor(r.size));
+                self.release_node(right);
+                size += r.size;
+                next = r.next_phys;
+            }
         }
-        self.insert_free(cur);
-        cur
+        // The left side's links are unchanged (whoever precedes `keep`
+        // already points at it); the right side's point past the merge.
+        if keep != i || next != right {
+            if next == NIL {
+                self.last = keep;
+            } else {
+                self.nodes[next as usize].prev_phys = keep;
+            }
+        }
+        let n = &mut self.nodes[keep as usize];
+        n.offset = offset;
+        n.size = size;
+        n.prev_phys = left;
+        n.next_phys = next;
+        self.insert_free(keep, size);
+        keep
     }
 
+    #[cold]
+    #[inline(never)]
     fn out_of_space(&self, size: u64, align: u64) -> AllocError {
-        let tail_start = if self.last != NIL && self.nodes[self.last as usize].state == State::Free
-        {
+        let tail_start = if self.last != NIL && self.nodes[self.last as usize].is_free() {
             self.nodes[self.last as usize].offset
         } else {
             self.capacity
@@ -775,25 +956,26 @@ impl TlsfAllocator {
     pub(super) fn relocate(&mut self, i: u32, dst: u32, start: u64) -> u32 {
         let Node {
             size,
-            generation,
-            align_log2,
+            links: [mark, serial],
             ..
         } = self.nodes[i as usize];
-        let peak = self.peak_used;
+        let align_log2 = self.nodes[i as usize].align_log2();
+        let (peak, next_serial) = (self.peak_used, self.next_serial);
+        let bin = flat_floor(self.nodes[dst as usize].size);
         let t = self
-            .take_block(dst, start, size, 1u64 << align_log2)
+            .take_block(dst, bin, start, size, align_log2)
             .handle
             .index;
         self.used_bytes -= size;
         self.live -= 1;
         self.peak_used = peak;
+        self.next_serial = next_serial;
         // Swap places so that index `i` (the handle) names the new range and
         // `t` the old one, which is then freed.
-        let old_gen_t = self.nodes[t as usize].generation;
         self.swap_identity(i, t);
-        self.nodes[i as usize].generation = generation;
-        self.nodes[t as usize].generation = old_gen_t.wrapping_add(1);
-        self.nodes[t as usize].state = State::Free;
+        let n = &mut self.nodes[i as usize];
+        n.links[PREV] = mark;
+        n.links[NEXT] = serial;
         self.release_free_range(t)
     }
 
@@ -846,6 +1028,7 @@ impl TlsfAllocator {
     /// Checks every structural invariant; test support.
     #[cfg(test)]
     pub(super) fn check_invariants(&self) {
+        use super::bins::Bin;
         let mut cur = self.first;
         let mut prev = NIL;
         let mut expected_offset = 0;
@@ -856,8 +1039,10 @@ impl TlsfAllocator {
             assert_eq!(n.prev_phys, prev, "physical back link");
             assert_eq!(n.offset, expected_offset, "blocks tile the buffer");
             assert!(n.size > 0, "empty block");
-            match n.state {
+            match n.state() {
                 State::Used => {
+                    assert!(n.align_log2() < 64);
+                    assert_eq!(n.offset % (1 << n.align_log2()), 0, "alignment");
                     used += n.size;
                     live += 1;
                     prev_free = false;
@@ -872,7 +1057,7 @@ impl TlsfAllocator {
                     let mut found = false;
                     while c != NIL {
                         found |= c == cur;
-                        c = self.nodes[c as usize].next_free;
+                        c = self.nodes[c as usize].links[NEXT];
                     }
                     assert!(found, "free block missing from its bin");
                 }
@@ -887,16 +1072,50 @@ impl TlsfAllocator {
         assert_eq!(used, self.used_bytes);
         assert_eq!(live, self.live);
         assert_eq!(free_blocks, self.free_blocks);
-        // Bitmaps agree with the lists.
+        // The vacant stack holds exactly the vacant records.
+        let mut vacant = 0;
+        let mut v = self.vacant_head;
+        while v != NIL {
+            assert_eq!(self.nodes[v as usize].state(), State::Vacant);
+            vacant += 1;
+            v = self.nodes[v as usize].links[NEXT];
+        }
+        assert_eq!(vacant, self.vacant_count);
+        let vacant_records = self
+            .nodes
+            .iter()
+            .filter(|n| n.state() == State::Vacant)
+            .count();
+        assert_eq!(vacant, vacant_records);
+        assert_eq!(vacant + live + free_blocks, self.nodes.len());
+        // Bitmaps agree with the lists; list links are consistent.
         for fl in 0..FL_COUNT {
-            for sl in 0..super::bins::SL_COUNT {
+            for sl in 0..SL_COUNT {
                 let b = Bin { fl, sl };
                 let list = self.bins[b.flat()];
                 let nonempty = list.head != NIL;
                 assert_eq!(nonempty, self.sl_bitmaps[fl] & (1 << sl) != 0);
                 if nonempty {
-                    assert_eq!(self.nodes[list.tail as usize].next_free, NIL);
-                    assert_eq!(self.nodes[list.head as usize].size, list.head_size);
+                    let head_back = self.nodes[list.head as usize].links[PREV];
+                    assert!(head_back == NIL || (head_back as usize) < self.nodes.len());
+                    assert_eq!(self.nodes[list.best as usize].size, list.best_size);
+                    let mut c = list.head;
+                    let mut p = NIL;
+                    let mut best_listed = false;
+                    while c != NIL {
+                        let n = &self.nodes[c as usize];
+                        assert_eq!(n.state(), State::Free);
+                        if p != NIL {
+                            assert_eq!(n.links[PREV], p, "bin list back link");
+                        }
+                        assert_eq!(bin_floor_of(n.size).flat(), b.flat(), "node in wrong bin");
+                        best_listed |= c == list.best;
+                        p = c;
+                        c = n.links[NEXT];
+                    }
+                    assert!(best_listed, "best block not on its bin's list");
+                } else {
+                    assert_eq!((list.best_size, list.best), (0, NIL));
                 }
             }
             assert_eq!(self.sl_bitmaps[fl] != 0, self.fl_bitmap & (1 << fl) != 0);
