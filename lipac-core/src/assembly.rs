@@ -16,7 +16,8 @@
 //!    A GPU backend does the same, either as a small dispatch over the
 //!    hitboxes or fused into its first pass. The per-instance hit buffer is
 //!    cleared by the backend (e.g. `vkCmdFillBuffer`) before tracing.
-//! 1. **Per live instance** (lines 1–19):
+//! 1. **Per live instance** (lines 1–19; an active or omitted instance in an
+//!    inactive hitbox counts as inactive, see the deviations below):
 //!    * *active* with a BLAS → its own TLAS record (line 7): transform, custom
 //!      index = slot, its mask, SBT offset and instance flags, reference =
 //!      BLAS address. *Active* without a BLAS yet (the CPU has not built it)
@@ -46,6 +47,18 @@
 //!   otherwise that hitbox could never count a ray again and its instances
 //!   would stay culled forever. The same padding applies to omitted boxes.
 //!   "At least one inactive instance" is `min_y <= max_y` after the reset.
+//! * **In an inactive hitbox** (not in the pseudocode): an *active* or
+//!   *omitted* instance whose hitbox is inactive is treated as *inactive* —
+//!   left out of the TLAS and reduced into the hitbox's counting box — and
+//!   counted in [`AssemblyStats::in_inactive_hitbox`]. The printed
+//!   Algorithm 1 never needs this because Algorithm 2 (line 17) removes such
+//!   instances in the pass that deactivates the hitbox. Here that can be
+//!   delayed: the `remove` command may not fit in the bounded command buffer
+//!   (the overflow rule keeps the instance active for a retry), or the engine
+//!   moved an active instance into an inactive cell. Without the check such
+//!   an instance would sit in the TLAS, uncounted by its hitbox, in a region
+//!   the feedback has culled. It costs one read of the hitbox record per
+//!   active/omitted instance on the GPU.
 //! * The hitbox of an instance is its record's [`InstanceRecord::hitbox`]
 //!   field (the registry stores `hitbox_at(aabb centre)` there), not a
 //!   lookup per frame; the [`HitboxIndex`] only supplies the x/z bounds.
@@ -117,8 +130,12 @@ pub struct AssemblyStats {
     pub active_without_blas: u32,
     /// Omitted instances emitted as counting boxes.
     pub omitted_boxes: u32,
-    /// Inactive instances reduced into their hitbox's height range.
+    /// Instances reduced into their hitbox's height range (inactive ones and
+    /// those counted in [`AssemblyStats::in_inactive_hitbox`]).
     pub inactive: u32,
+    /// Active or omitted instances whose hitbox is inactive, treated as
+    /// inactive (not emitted, reduced into the hitbox's counting box).
+    pub in_inactive_hitbox: u32,
     /// Counting boxes emitted for inactive hitboxes.
     pub hitbox_boxes: u32,
     /// Of those, boxes padded because all instances were flat.
@@ -307,7 +324,18 @@ pub fn assemble_tlas(
             continue;
         }
         let slot = slot as u32;
-        match m.state() {
+        let mut state = m.state();
+        // An active or omitted instance whose hitbox is inactive counts as
+        // inactive here (see the module docs, "in an inactive hitbox").
+        if state != InstanceState::Inactive
+            && hitboxes
+                .get(m.hitbox as usize)
+                .is_some_and(|h| !h.is_active())
+        {
+            stats.in_inactive_hitbox += 1;
+            state = InstanceState::Inactive;
+        }
+        match state {
             InstanceState::Active => {
                 if m.blas == 0 {
                     stats.active_without_blas += 1;
@@ -616,6 +644,27 @@ mod tests {
     }
 
     #[test]
+    fn active_and_omitted_in_inactive_hitbox_fold_into_its_box() {
+        let mut a = inst(InstanceState::Active, 0, [1.0, 1.0, 1.0], [2.0, 6.0, 2.0]);
+        a.blas = 0xABCD;
+        let o = inst(InstanceState::Omitted, 0, [3.0, -2.0, 1.0], [4.0, 0.0, 2.0]);
+        let mut b = inst(InstanceState::Active, 1, [17.0, 0.0, 1.0], [18.0, 1.0, 2.0]);
+        b.blas = 0xBEEF;
+        let mut hb = [HitboxRecord::default(), active_hitbox()];
+        let (stats, out) = run(&[a, o, b], &mut hb);
+        assert_eq!((stats.in_inactive_hitbox, stats.inactive), (2, 2));
+        assert_eq!(
+            (stats.active, stats.omitted_boxes, stats.hitbox_boxes),
+            (1, 0, 1)
+        );
+        // Only b's own record and hitbox 0's box, which spans both folded instances.
+        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].acceleration_structure_reference, 0xBEEF);
+        assert_eq!((out[1].custom_index(), out[1].sbt_offset()), (0, 6));
+        assert_eq!((hb[0].min_y, hb[0].max_y), (-2.0, 6.0));
+    }
+
+    #[test]
     fn flat_hitbox_still_gets_a_padded_box() {
         let a = inst(InstanceState::Inactive, 0, [1.0, 4.0, 1.0], [2.0, 4.0, 2.0]);
         let mut hb = [HitboxRecord::default()];
@@ -681,6 +730,7 @@ mod tests {
             [f32::NAN, 0.0, 1.0],
             [2.0, 1.0, 2.0],
         );
+        hb[0] = active_hitbox(); // the omitted NaN box is judged, not folded into an inactive hitbox
         let (stats, out) = run(&[bad_hitbox, nan_box], &mut hb);
         assert_eq!(stats.invalid_instances, 2);
         assert!(out.is_empty());
@@ -745,7 +795,7 @@ mod tests {
             [17.0, 0.0, 1.0],
             [18.0, 1.0, 2.0],
         );
-        let mut hb = [HitboxRecord::default(); 2];
+        let mut hb = [active_hitbox(), HitboxRecord::default()];
         let (_, mut out) = run(&[a, b, a], &mut hb);
         let mut shuffled = out.clone();
         shuffled.reverse();

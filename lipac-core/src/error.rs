@@ -85,6 +85,16 @@ pub enum CoreError {
         /// What is wrong, naming the offending value.
         what: String,
     },
+    /// A per-frame step called out of order (e.g. hit feedback processed
+    /// twice in one frame, or before the last frame's commands were taken).
+    CallOrder {
+        /// What was out of order.
+        what: String,
+    },
+    /// Algorithm 1 rejected its inputs.
+    Assembly(crate::assembly::AssemblyError),
+    /// Algorithm 2 rejected its inputs.
+    Feedback(crate::feedback::FeedbackError),
 }
 
 impl fmt::Display for CoreError {
@@ -126,11 +136,22 @@ impl fmt::Display for CoreError {
                 "frame {given} is before the current frame {current}; frames must not go backwards"
             ),
             Self::InvalidConfig { what } => write!(f, "invalid configuration: {what}"),
+            Self::CallOrder { what } => write!(f, "call out of order: {what}"),
+            Self::Assembly(e) => write!(f, "TLAS assembly: {e}"),
+            Self::Feedback(e) => write!(f, "feedback processing: {e}"),
         }
     }
 }
 
-impl std::error::Error for CoreError {}
+impl std::error::Error for CoreError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Assembly(e) => Some(e),
+            Self::Feedback(e) => Some(e),
+            _ => None,
+        }
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -17,6 +17,7 @@ pub mod blas_cache;
 pub mod blas_ids;
 pub mod build_plan;
 pub mod command;
+pub mod culling;
 pub mod dirty;
 pub mod error;
 pub mod feedback;

@@ -534,6 +534,13 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         &self.records
     }
 
+    /// The records for Algorithm 2 ([`crate::culling`]), which writes their
+    /// state bits. Not marked dirty: the state bits are GPU-owned, so those
+    /// writes are never uploaded.
+    pub(crate) fn records_mut(&mut self) -> &mut [InstanceRecord] {
+        &mut self.records
+    }
+
     /// An instance's description.
     pub fn desc(&self, handle: InstanceHandle) -> Result<&InstanceDesc, CoreError> {
         self.instances

@@ -1,0 +1,1029 @@
+//! The per-frame command loop: one object that ties the registry, the hitbox
+//! records, the hit counters, Algorithms 1 and 2, the command buffer and
+//! queue, and latency mitigation together.
+//!
+//! [`Culling`] is the CPU reference of the whole GPU loop. A CPU backend
+//! (`lipac-sim`) drives exactly this; a GPU backend (`lipac-vk`) replaces
+//! [`Culling::assemble`] and [`Culling::process_feedback`] by its shaders and
+//! keeps the rest.
+//!
+//! # One frame
+//!
+//! | step | call | paper |
+//! | --- | --- | --- |
+//! | 1 | [`Culling::begin_frame`]: slot quarantine, hitbox reset, hit counters cleared | |
+//! | 2 | [`Culling::mitigate_latency`] (optional): instances newly in the frustum become active now | §3.6 |
+//! | 3 | [`Culling::ingest_readback`]: the commands of frame `N - k` | §3.4 |
+//! | 4 | [`Culling::process_commands`]: budgeted BLAS work through a handler | §3.4 |
+//! | 5 | [`Culling::take_uploads`] (GPU backends): what to upload | |
+//! | 6 | [`Culling::assemble`]: the TLAS instances | Alg. 1 |
+//! | 7 | trace; write [`Culling::instance_hits_mut`] and hitbox hits ([`Culling::hitboxes_mut`]) | §3.3 |
+//! | 8 | [`Culling::process_feedback`]: states and commands | Alg. 2 |
+//! | 9 | [`Culling::take_commands`] → the backend's read-back ring ([`ReadbackRing`]) | |
+//!
+//! # Who owns the state bits
+//!
+//! The state bits of an [`InstanceRecord`] belong to Algorithm 2, i.e. to the
+//! GPU. The CPU writes them in two cases only: registration (a new instance
+//! starts [`InstanceState::Inactive`]) and latency mitigation (→
+//! [`InstanceState::Active`]). The same holds for the hitboxes' active bit and
+//! streak, which the CPU writes only in latency mitigation. A GPU backend
+//! therefore uploads [`Uploads::records`] *without* overwriting the state bits
+//! of the GPU copy (a scatter shader that keeps bits
+//! [`instance_bits::STATE_MASK`] of the destination), and then applies
+//! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
+//! exactly the CPU's writes since the last take. In this CPU reference the
+//! registry's records *are* the GPU buffer, so that is trivially consistent.
+//!
+//! # Commands are hints; the state bits are the truth
+//!
+//! A command says "slot `s` changed state, its BLAS may need work". By the
+//! time the CPU processes it (readback latency, budget), the GPU may have
+//! changed the state again, and latency mitigation may have overridden it.
+//! Processing a command therefore **reconciles** the instance's BLAS with its
+//! *current* state instead of replaying the command's kind:
+//!
+//! | current state | BLAS | action ([`BlasAction`]) |
+//! | --- | --- | --- |
+//! | active | none, no build pending | [`BlasAction::Acquire`]: the handler returns the address, or `None` = build pending ([`Culling::set_blas`] later) |
+//! | active | held or build pending | nothing |
+//! | omitted / inactive | held | [`BlasAction::Release`]: the record's BLAS is cleared, the caller releases it |
+//! | omitted / inactive | build pending | [`BlasAction::CancelBuild`] |
+//! | omitted / inactive | none | nothing |
+//!
+//! So an `add` for an instance the GPU has already turned inactive again does
+//! nothing (its `remove` is then a no-op too), and a `remove` for an instance
+//! latency mitigation re-activated keeps its BLAS. Such commands are counted
+//! in [`ProcessStats::stale_kind`].
+//!
+//! This is why no command is lost: every transition of Algorithm 2 that
+//! changes whether an instance should hold a BLAS (into or out of *active*)
+//! appends a command (or does not happen: the overflow rule), and processing
+//! the last command of a slot makes BLAS and state agree. [`Culling`] keeps
+//! the **newest** command when one of the opposite kind is pending (counted
+//! in [`IngestSummary::replaced`]) instead of cancelling both as
+//! [`CommandQueue::ingest`] does. Under reconciliation the kind no longer
+//! matters, and keeping the newest makes the invariant "a slot whose BLAS
+//! disagrees with its state has a command pending or in flight" hold by
+//! construction, whatever happened in between (latency mitigation,
+//! [`Culling::set_blas`]), without a case analysis of which pairs may cancel.
+//! Slots whose BLAS changes outside a command ([`Culling::set_blas`] on an
+//! instance that is no longer active) get a synthetic command, so they are
+//! reconciled by the same path.
+//!
+//! # Dead slots
+//!
+//! A command naming a slot that holds no live instance (removed since) is
+//! dropped and counted, at ingest ([`IngestSummary::dead`]) and again at
+//! processing ([`ProcessStats::dead`]). [`Culling::remove`] cancels the
+//! slot's pending command. [`CullingConfig::validate`] requires the slot
+//! quarantine to be longer than the readback latency, so a late command can
+//! never reach a new instance in a reused slot; even if it did, reconciliation
+//! would only compare the new instance's own state and BLAS.
+//!
+//! # Latency mitigation and hitboxes
+//!
+//! An instance made active by latency mitigation in an *inactive* hitbox would
+//! be removed again by Algorithm 2 (line 17) in the very same frame, and it
+//! would not even be traced ([`crate::assembly`] folds active instances of
+//! inactive hitboxes into the hitbox's box). So
+//! [`Culling::mitigate_latency`] also activates that hitbox (active bit set,
+//! streak reset). The paper's "unimportant ones are quickly made inactive
+//! again by hit feedback processing" then happens through the normal
+//! deactivation after `n_d` frames below θd. A consequence: the *other*
+//! inactive instances of such a hitbox are added by Algorithm 2 (lines 21–26:
+//! `add` for shared BLASes, *omitted* for unique ones) in that frame's
+//! feedback, as if the hitbox had been activated by hits. Instances that need
+//! a unique BLAS and are newly in the frustum are made active too (paper:
+//! "all instances newly appearing in the frustum have an associated BLAS and
+//! are marked active").
+
+use std::collections::{HashMap, VecDeque};
+use std::ops::Range;
+
+use glam::{Affine3A, Vec3};
+
+use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
+use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue};
+use crate::error::CoreError;
+use crate::feedback::{process_feedback, FeedbackStats};
+use crate::grid::HitboxGrid;
+use crate::hitbox_index::HitboxIndex;
+use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
+use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
+use crate::layout::{
+    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
+    MAX_SLOTS,
+};
+use crate::math::Aabb;
+use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
+use crate::thresholds::Thresholds;
+
+/// Settings of a [`Culling`]; checked by [`CullingConfig::validate`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CullingConfig {
+    /// Slot quarantine and limits of the instance registry.
+    pub registry: RegistryConfig,
+    /// θa, θd, σa, σo, n_a, n_d.
+    pub thresholds: Thresholds,
+    /// Backend constants of Algorithm 1 (unit-cube BLAS, masks, SBT offsets).
+    pub assembly: AssemblyConfig,
+    /// Capacity of the bounded command buffer Algorithm 2 appends to
+    /// (1..=[`MAX_SLOTS`]; more than one command per slot and frame never
+    /// happens). Transitions that do not fit are retried next frame.
+    pub command_capacity: u32,
+    /// Commands [`Culling::process_frame_commands`] handles per frame; the
+    /// rest wait, highest hit count first. `usize::MAX` = no limit.
+    pub command_budget: usize,
+    /// Latency mitigation (§3.6) with this heuristic, or `None` to disable it.
+    pub latency_mitigation: Option<ActivationHeuristic>,
+    /// Frames between a frame's feedback and the ingestion of its commands
+    /// (the read-back ring's depth, at least 1). Must be below
+    /// [`RegistryConfig::quarantine_frames`].
+    pub readback_latency: u32,
+}
+
+impl CullingConfig {
+    /// Defaults around the backend's unit-cube BLAS: the registry's defaults
+    /// (quarantine 4 frames), the paper's thresholds, [`AssemblyConfig::new`],
+    /// 65 536 commands per frame in the buffer, a budget of 4096 commands per
+    /// frame, latency mitigation with the default heuristic, readback latency
+    /// 2.
+    pub fn new(unit_cube_blas: u64) -> Self {
+        Self {
+            registry: RegistryConfig::default(),
+            thresholds: Thresholds::paper(),
+            assembly: AssemblyConfig::new(unit_cube_blas),
+            command_capacity: 1 << 16,
+            command_budget: 4096,
+            latency_mitigation: Some(ActivationHeuristic::default()),
+            readback_latency: 2,
+        }
+    }
+
+    /// Checks every field; the error names the offending value. (The
+    /// registry's own fields and the heuristic are checked again when
+    /// [`Culling::new`] builds them.)
+    pub fn validate(&self) -> Result<(), CoreError> {
+        let invalid = |what: String| Err(CoreError::InvalidConfig { what });
+        if let Err(e) = self.thresholds.validate() {
+            return invalid(format!("thresholds: {e}"));
+        }
+        if self.command_capacity == 0 || self.command_capacity > MAX_SLOTS {
+            return invalid(format!(
+                "command_capacity = {} must be in 1..={MAX_SLOTS}",
+                self.command_capacity
+            ));
+        }
+        if self.readback_latency == 0 {
+            return invalid(
+                "readback_latency = 0: commands are read back at least one frame later".into(),
+            );
+        }
+        if self.registry.quarantine_frames <= self.readback_latency {
+            return invalid(format!(
+                "registry.quarantine_frames = {} must exceed readback_latency = {} so that a late \
+                 command never reaches a reused slot",
+                self.registry.quarantine_frames, self.readback_latency
+            ));
+        }
+        let a = &self.assembly;
+        if a.unit_cube_blas == 0 {
+            return invalid("assembly.unit_cube_blas = 0: 0 means \"no BLAS\"".into());
+        }
+        if !a.min_box_extent.is_finite() || a.min_box_extent < 0.0 {
+            return invalid(format!(
+                "assembly.min_box_extent = {} must be finite and >= 0",
+                a.min_box_extent
+            ));
+        }
+        for (name, v) in [
+            ("omitted_box_sbt_offset", a.omitted_box_sbt_offset),
+            ("hitbox_sbt_offset", a.hitbox_sbt_offset),
+        ] {
+            if v >= 1 << 24 {
+                return invalid(format!("assembly.{name} = {v} does not fit 24 bits"));
+            }
+        }
+        if let Some(h) = self.latency_mitigation {
+            LatencyMitigation::new(h)?;
+        }
+        Ok(())
+    }
+}
+
+/// One frame's command words as the GPU left them: what a backend copies
+/// into a read-back slot and hands to [`Culling::ingest_readback`] later.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Readback {
+    /// The frame whose feedback wrote the commands.
+    pub frame: u64,
+    /// The GPU's atomic counter: commands requested, stored or not.
+    pub counter: u32,
+    /// The stored words (`min(counter, capacity)` of them).
+    pub words: Vec<u32>,
+}
+
+/// A model of the GPU's read-back ring for CPU backends and tests: the
+/// commands of frame `f` become readable at frame `f + latency`.
+///
+/// ```
+/// use lipac_core::culling::{Readback, ReadbackRing};
+/// let mut ring = ReadbackRing::new(2)?;
+/// ring.push(Readback { frame: 5, counter: 1, words: vec![7] })?;
+/// assert!(ring.pop_ready(6).is_none());
+/// assert_eq!(ring.pop_ready(7).map(|r| r.words), Some(vec![7]));
+/// # Ok::<(), lipac_core::error::CoreError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct ReadbackRing {
+    latency: u32,
+    slots: VecDeque<Readback>,
+}
+
+impl ReadbackRing {
+    /// A ring of `latency` slots (at least 1).
+    pub fn new(latency: u32) -> Result<Self, CoreError> {
+        if latency == 0 {
+            return Err(CoreError::InvalidConfig {
+                what: "read-back ring latency 0: it must be at least 1 frame".into(),
+            });
+        }
+        Ok(Self {
+            latency,
+            slots: VecDeque::with_capacity(latency as usize),
+        })
+    }
+
+    /// The latency in frames.
+    pub fn latency(&self) -> u32 {
+        self.latency
+    }
+
+    /// Stores a frame's read-back. Fails ([`CoreError::CallOrder`]) if all
+    /// `latency` slots still hold unread read-backs (the GPU would overwrite
+    /// one) or if `readback.frame` is not after the last stored frame.
+    pub fn push(&mut self, readback: Readback) -> Result<(), CoreError> {
+        if self.slots.len() >= self.latency as usize {
+            return Err(CoreError::CallOrder {
+                what: format!(
+                    "read-back ring full: {} unread read-backs (pop_ready each frame)",
+                    self.slots.len()
+                ),
+            });
+        }
+        if let Some(last) = self.slots.back() {
+            if readback.frame <= last.frame {
+                return Err(CoreError::CallOrder {
+                    what: format!(
+                        "read-back of frame {} after one of frame {}",
+                        readback.frame, last.frame
+                    ),
+                });
+            }
+        }
+        self.slots.push_back(readback);
+        Ok(())
+    }
+
+    /// At frame `frame`: the oldest read-back written at or before
+    /// `frame - latency`, if any. Call until `None`.
+    pub fn pop_ready(&mut self, frame: u64) -> Option<Readback> {
+        let ready = self
+            .slots
+            .front()?
+            .frame
+            .saturating_add(self.latency.into())
+            <= frame;
+        if ready {
+            self.slots.pop_front()
+        } else {
+            None
+        }
+    }
+
+    /// Read-backs waiting.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether nothing is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// The waiting read-backs, oldest first.
+    pub fn iter(&self) -> impl Iterator<Item = &Readback> {
+        self.slots.iter()
+    }
+}
+
+/// What the handler of [`Culling::process_commands`] is asked to do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlasAction {
+    /// The instance is active and has no BLAS: return `Some(address)` if one
+    /// is ready now (shared BLAS in the cache), or `None` when a build was
+    /// requested; then call [`Culling::set_blas`] once it is built.
+    Acquire,
+    /// The instance is no longer active: its record's BLAS was cleared,
+    /// release this address.
+    Release {
+        /// The BLAS address the record held (nonzero).
+        blas: u64,
+    },
+    /// The instance is no longer active and its requested build (an
+    /// [`BlasAction::Acquire`] answered `None`) is not wanted any more.
+    CancelBuild,
+}
+
+/// One unit of BLAS work handed to the handler of
+/// [`Culling::process_commands`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CommandEvent {
+    /// The instance.
+    pub handle: InstanceHandle,
+    /// Its GPU slot.
+    pub slot: u32,
+    /// Its mesh.
+    pub mesh: MeshId,
+    /// Its LOD.
+    pub lod: u32,
+    /// Its flags ([`InstanceFlags::UNIQUE_BLAS`] selects a unique BLAS).
+    pub flags: InstanceFlags,
+    /// The command's priority (quantised hit count).
+    pub priority: u8,
+    /// The command's kind as the GPU wrote it (informational; the action
+    /// follows the current state, see the [module docs](self)).
+    pub command: CommandKind,
+    /// What to do.
+    pub action: BlasAction,
+}
+
+/// A request to provide a BLAS, from [`Culling::mitigate_latency`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BlasRequest {
+    /// The instance (now active, no BLAS yet).
+    pub handle: InstanceHandle,
+    /// Its GPU slot.
+    pub slot: u32,
+    /// Its mesh.
+    pub mesh: MeshId,
+    /// Its LOD.
+    pub lod: u32,
+    /// Its flags.
+    pub flags: InstanceFlags,
+}
+
+/// Result of [`Culling::mitigate_latency`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LatencyOutcome {
+    /// The frustum test's counts.
+    pub summary: LatencySummary,
+    /// Instances made active that need a BLAS: provide one with
+    /// [`Culling::set_blas`] (this frame if it is to be traced this frame).
+    /// Each is marked as waiting for its BLAS.
+    pub requests: Vec<BlasRequest>,
+    /// Instances made active that already held a BLAS or had a build
+    /// pending.
+    pub already_provided: u32,
+    /// Hitboxes activated so that the instances survive Algorithm 2.
+    pub hitboxes_activated: u32,
+}
+
+/// What [`Culling::ingest_readback`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IngestSummary {
+    /// Commands queued.
+    pub accepted: u32,
+    /// Words naming a slot beyond the registry's slots (corrupt read-back).
+    pub rejected: u32,
+    /// Commands for slots holding no live instance, dropped.
+    pub dead: u32,
+    /// Commands that replaced a pending one of the opposite kind.
+    pub replaced: u32,
+    /// Commands that replaced a pending one of the same kind.
+    pub superseded: u32,
+    /// `counter - stored`: transitions that did not fit; retried by the GPU.
+    pub overflowed: u32,
+}
+
+/// What [`Culling::process_commands`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ProcessStats {
+    /// Commands taken from the queue (at most the budget).
+    pub drained: u32,
+    /// [`BlasAction::Acquire`] answered with an address.
+    pub acquired: u32,
+    /// [`BlasAction::Acquire`] answered `None` (build pending).
+    pub requested: u32,
+    /// [`BlasAction::Release`]s.
+    pub released: u32,
+    /// [`BlasAction::CancelBuild`]s.
+    pub builds_cancelled: u32,
+    /// Commands whose instance's BLAS already agreed with its state.
+    pub no_op: u32,
+    /// Commands whose kind disagreed with the instance's current state (an
+    /// `add` for a non-active or a `remove` for an active instance); they are
+    /// also counted as what reconciliation did.
+    pub stale_kind: u32,
+    /// Commands for dead slots, dropped.
+    pub dead: u32,
+    /// Commands still pending after this call.
+    pub remaining: u32,
+}
+
+/// What a GPU backend uploads before Algorithm 1, from
+/// [`Culling::take_uploads`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Uploads {
+    /// Slot ranges whose records changed (sorted, disjoint): upload
+    /// `registry().records()[range]`, **keeping the state bits** of the GPU
+    /// copy (see the [module docs](self)).
+    pub records: Vec<Range<u32>>,
+    /// The CPU's writes of state bits since the last take, by ascending slot
+    /// (registration → inactive, latency mitigation → active); apply after
+    /// the records.
+    pub state_overrides: Vec<(u32, InstanceState)>,
+    /// Hitboxes whose active bit the CPU set, by ascending index, as
+    /// `(index, active)`: set the active bit and zero the streak, keeping the
+    /// hit count and heights.
+    pub hitbox_overrides: Vec<(u32, bool)>,
+}
+
+/// What [`Culling::remove`] hands back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Removal {
+    /// The registry's account: slot, description, state and the BLAS to
+    /// release (`instance.blas`, 0 = none).
+    pub instance: RemovedInstance,
+    /// The instance was waiting for a requested build: cancel it.
+    pub build_was_pending: bool,
+    /// Its pending command, now cancelled.
+    pub cancelled_command: Option<Command>,
+}
+
+/// The LiPaC per-frame loop over one scene; see the [module docs](self).
+///
+/// A full frame, with a read-back latency of one frame:
+///
+/// ```
+/// use glam::{Affine3A, Vec3};
+/// use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+/// use lipac_core::grid::{GridConfig, HitboxGrid};
+/// use lipac_core::instance::{InstanceDesc, MeshId};
+/// use lipac_core::layout::InstanceState;
+/// use lipac_core::math::Aabb;
+///
+/// let grid = HitboxGrid::new(GridConfig { min: [0.0, 0.0], max: [64.0, 64.0], cell_size: 16.0 })?;
+/// let mut config = CullingConfig::new(0xC0BE); // unit-cube BLAS address
+/// config.readback_latency = 1;
+/// config.latency_mitigation = None;
+/// let mut culling = Culling::new(grid, config)?;
+/// let mut ring = ReadbackRing::new(1)?;
+///
+/// let aabb = Aabb::new(Vec3::new(7.0, 0.0, 7.0), Vec3::new(9.0, 2.0, 9.0));
+/// let house = culling.register(InstanceDesc::new(MeshId(1), Affine3A::IDENTITY, aabb))?;
+///
+/// let mut tlas = Vec::new();
+/// for frame in 0..2 {
+///     culling.begin_frame(frame)?;
+///     while let Some(r) = ring.pop_ready(frame) {
+///         culling.ingest_readback(r.counter, &r.words);
+///     }
+///     culling.process_commands(usize::MAX, &mut |event| match event.action {
+///         BlasAction::Acquire => Some(0xB1A5), // the shared BLAS of mesh 1
+///         BlasAction::Release { .. } | BlasAction::CancelBuild => None,
+///     });
+///     culling.assemble(&mut tlas)?;
+///     // "Trace": 2500 rays hit hitbox 0's counting box (> 2·θa).
+///     if frame == 0 {
+///         assert_eq!(tlas.len(), 1); // only the hitbox's counting box
+///         culling.hitboxes_mut()[tlas[0].custom_index() as usize].add_hits(2500);
+///     }
+///     culling.process_feedback()?;
+///     ring.push(culling.take_commands().expect("feedback ran"))?;
+/// }
+/// // Frame 0's feedback activated the hitbox and the house; frame 1 processed
+/// // its `add` and traced the house with its own BLAS.
+/// assert_eq!(culling.registry().state(house)?, InstanceState::Active);
+/// assert_eq!(tlas.len(), 1);
+/// assert_eq!((tlas[0].custom_index(), tlas[0].acceleration_structure_reference), (0, 0xB1A5));
+/// # Ok::<(), lipac_core::error::CoreError>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct Culling<H: HitboxIndex = HitboxGrid> {
+    config: CullingConfig,
+    registry: InstanceRegistry<H>,
+    hitboxes: Vec<HitboxRecord>,
+    instance_hits: Vec<u32>,
+    /// Per slot: an `Acquire` was answered `None` (or latency mitigation
+    /// requested a BLAS) and no address has come yet.
+    awaiting: Vec<bool>,
+    commands: CommandBuffer,
+    /// Algorithm 2 ran and its commands were not taken yet.
+    untaken: bool,
+    /// Algorithm 2 ran in the current frame.
+    fed_back: bool,
+    queue: CommandQueue,
+    latency: Option<LatencyMitigation>,
+    state_overrides: HashMap<u32, InstanceState>,
+    hitbox_overrides: HashMap<u32, bool>,
+    scratch: Vec<u32>,
+}
+
+impl<H: HitboxIndex> Culling<H> {
+    /// A loop over the hitbox structure `index` with all hitboxes inactive
+    /// and no instances, at frame 0. Fails for an invalid `config`.
+    pub fn new(index: H, config: CullingConfig) -> Result<Self, CoreError> {
+        config.validate()?;
+        let hitbox_count = index.len() as usize;
+        let latency = config
+            .latency_mitigation
+            .map(LatencyMitigation::new)
+            .transpose()?;
+        Ok(Self {
+            registry: InstanceRegistry::new(index, config.registry)?,
+            hitboxes: vec![HitboxRecord::default(); hitbox_count],
+            instance_hits: Vec::new(),
+            awaiting: Vec::new(),
+            commands: CommandBuffer::new(config.command_capacity),
+            untaken: false,
+            fed_back: false,
+            queue: CommandQueue::new(MAX_SLOTS),
+            latency,
+            state_overrides: HashMap::new(),
+            hitbox_overrides: HashMap::new(),
+            scratch: Vec::new(),
+            config,
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &CullingConfig {
+        &self.config
+    }
+
+    /// The instance registry (read-only; change instances through
+    /// [`Culling`] so that commands, hit counters and uploads follow).
+    pub fn registry(&self) -> &InstanceRegistry<H> {
+        &self.registry
+    }
+
+    /// The current frame.
+    pub fn frame(&self) -> u64 {
+        self.registry.frame()
+    }
+
+    /// The hitbox records, one per hitbox of the index.
+    pub fn hitboxes(&self) -> &[HitboxRecord] {
+        &self.hitboxes
+    }
+
+    /// The hitbox records, for the tracer to add its counting-box hits
+    /// ([`HitboxRecord::add_hits`], index = the box's custom index).
+    pub fn hitboxes_mut(&mut self) -> &mut [HitboxRecord] {
+        &mut self.hitboxes
+    }
+
+    /// The per-slot hit counters (length = the registry's slot count).
+    pub fn instance_hits(&self) -> &[u32] {
+        &self.instance_hits
+    }
+
+    /// The per-slot hit counters, for the tracer (index = the custom index
+    /// of an instance's own record or of its omitted box).
+    pub fn instance_hits_mut(&mut self) -> &mut [u32] {
+        &mut self.instance_hits
+    }
+
+    /// The per-frame command budget of [`Culling::process_frame_commands`].
+    pub fn command_budget(&self) -> usize {
+        self.config.command_budget
+    }
+
+    /// Changes the per-frame command budget.
+    pub fn set_command_budget(&mut self, budget: usize) {
+        self.config.command_budget = budget;
+    }
+
+    /// Commands waiting for processing.
+    pub fn pending_commands(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// The pending command for `slot`, if any.
+    pub fn pending_command(&self, slot: u32) -> Option<Command> {
+        self.queue.pending(slot)
+    }
+
+    /// Whether the instance waits for a BLAS it was promised
+    /// ([`BlasAction::Acquire`] answered `None`, or a latency-mitigation
+    /// request).
+    pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
+        let slot = self.registry.slot(handle)?;
+        Ok(self.awaiting[slot as usize])
+    }
+
+    /// Latency mitigation's tracker, if enabled.
+    pub fn latency_mitigation(&self) -> Option<&LatencyMitigation> {
+        self.latency.as_ref()
+    }
+
+    // ---- instances ------------------------------------------------------
+
+    /// Registers an instance ([`InstanceRegistry::register`]): inactive, no
+    /// BLAS. Its state write is an upload override.
+    pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
+        let handle = self.registry.register(desc)?;
+        let slot = self.registry.slot(handle)?;
+        let n = self.registry.slot_count() as usize;
+        if self.instance_hits.len() < n {
+            self.instance_hits.resize(n, 0);
+            self.awaiting.resize(n, false);
+        }
+        self.instance_hits[slot as usize] = 0;
+        self.awaiting[slot as usize] = false;
+        // Nothing can be pending for a fresh slot (see `remove` and
+        // `ingest_readback`); make sure.
+        self.queue.cancel_slot(slot);
+        self.state_overrides.insert(slot, InstanceState::Inactive);
+        Ok(handle)
+    }
+
+    /// Replaces an instance's description ([`InstanceRegistry::update`]);
+    /// state and BLAS stay. If the mesh, LOD or
+    /// [`InstanceFlags::UNIQUE_BLAS`] changed, provide the new BLAS with
+    /// [`Culling::set_blas`] and release the old one it returns.
+    pub fn update(
+        &mut self,
+        handle: InstanceHandle,
+        desc: InstanceDesc,
+    ) -> Result<InstanceDesc, CoreError> {
+        self.registry.update(handle, desc)
+    }
+
+    /// Moves an instance ([`InstanceRegistry::set_transform`]). An active
+    /// instance moved into an inactive hitbox leaves the TLAS at once
+    /// ([`crate::assembly`]) and is removed by the next feedback pass.
+    pub fn set_transform(
+        &mut self,
+        handle: InstanceHandle,
+        transform: Affine3A,
+        aabb: Aabb,
+    ) -> Result<(), CoreError> {
+        self.registry.set_transform(handle, transform, aabb)
+    }
+
+    /// Removes an instance: its slot is quarantined, its pending command
+    /// cancelled; release `instance.blas` and cancel a pending build.
+    pub fn remove(&mut self, handle: InstanceHandle) -> Result<Removal, CoreError> {
+        let instance = self.registry.remove(handle)?;
+        let slot = instance.slot as usize;
+        let build_was_pending = std::mem::take(&mut self.awaiting[slot]);
+        self.instance_hits[slot] = 0;
+        self.state_overrides.remove(&instance.slot);
+        Ok(Removal {
+            instance,
+            build_was_pending,
+            cancelled_command: self.queue.cancel_slot(instance.slot),
+        })
+    }
+
+    /// Sets the BLAS address of an instance (a finished build, or a LOD
+    /// switch) and returns the previous one, which the caller releases if it
+    /// is nonzero and different. Ends a pending build. If the instance is no
+    /// longer active and `address` is nonzero, a command is queued so that
+    /// processing hands the BLAS back ([`BlasAction::Release`]).
+    pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
+        let slot = self.registry.slot(handle)?;
+        let old = self.registry.set_blas(handle, address)?;
+        self.awaiting[slot as usize] = false;
+        if address != 0 && self.registry.records()[slot as usize].state() != InstanceState::Active {
+            let mut s = IngestSummary::default();
+            self.enqueue(
+                Command {
+                    slot,
+                    kind: CommandKind::Remove,
+                    priority: 0,
+                },
+                &mut s,
+            );
+        }
+        Ok(old)
+    }
+
+    // ---- the frame ------------------------------------------------------
+
+    /// Starts frame `frame`: releases quarantined slots, resets the hitboxes'
+    /// hits and heights ([`crate::assembly::begin_frame`]) and clears the
+    /// instance hit counters. Fails if frames go backwards or the last
+    /// frame's commands were not taken ([`Culling::take_commands`]).
+    pub fn begin_frame(&mut self, frame: u64) -> Result<(), CoreError> {
+        if self.untaken {
+            return Err(CoreError::CallOrder {
+                what: format!(
+                    "the commands of frame {} were not taken (take_commands) before frame {frame}",
+                    self.registry.frame()
+                ),
+            });
+        }
+        self.registry.begin_frame(frame)?;
+        crate::assembly::begin_frame(&mut self.hitboxes);
+        self.instance_hits.fill(0);
+        self.fed_back = false;
+        Ok(())
+    }
+
+    /// Latency mitigation (§3.6): every live instance newly in `frustum` that
+    /// passes the heuristic and is not active becomes active now, and its
+    /// hitbox active too (see the [module docs](self)). Those without a BLAS
+    /// are returned as [`LatencyOutcome::requests`]. With latency mitigation
+    /// disabled, does nothing. Fails only for a non-finite camera.
+    pub fn mitigate_latency(
+        &mut self,
+        camera: Vec3,
+        frustum: &Frustum,
+    ) -> Result<LatencyOutcome, CoreError> {
+        let Some(lm) = self.latency.as_mut() else {
+            return Ok(LatencyOutcome::default());
+        };
+        let mut activate = std::mem::take(&mut self.scratch);
+        let summary = lm.update(&self.registry, camera, frustum, &mut activate)?;
+        let mut out = LatencyOutcome {
+            summary,
+            ..LatencyOutcome::default()
+        };
+        for &slot in &activate {
+            let Some(handle) = self.registry.handle_at(slot) else {
+                continue;
+            };
+            self.registry.set_state(slot, InstanceState::Active)?;
+            self.state_overrides.insert(slot, InstanceState::Active);
+            let record = self.registry.records()[slot as usize];
+            if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
+                if !h.is_active() {
+                    h.packed = (h.packed & !(hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT))
+                        | hitbox_bits::ACTIVE;
+                    self.hitbox_overrides.insert(record.hitbox, true);
+                    out.hitboxes_activated += 1;
+                }
+            }
+            if record.blas != 0 || self.awaiting[slot as usize] {
+                out.already_provided += 1;
+            } else {
+                self.awaiting[slot as usize] = true;
+                let desc = self.registry.desc(handle)?;
+                out.requests.push(BlasRequest {
+                    handle,
+                    slot,
+                    mesh: desc.mesh,
+                    lod: desc.lod,
+                    flags: desc.flags,
+                });
+            }
+        }
+        self.scratch = activate;
+        Ok(out)
+    }
+
+    /// Ingests one read-back (`counter` = the GPU's atomic counter, `words`
+    /// the stored words): decodes and validates each word, drops commands for
+    /// dead slots, and queues the rest, at most one per slot (the newest, see
+    /// the [module docs](self)). Never fails: bad words are counted.
+    pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+        let stored = (counter as usize).min(words.len());
+        let mut s = IngestSummary {
+            overflowed: counter.saturating_sub(stored as u32),
+            ..IngestSummary::default()
+        };
+        let limit = self.registry.slot_count();
+        for &w in &words[..stored] {
+            let Ok(c) = Command::decode(w, limit) else {
+                s.rejected += 1;
+                continue;
+            };
+            if self.registry.handle_at(c.slot).is_none() {
+                s.dead += 1;
+                continue;
+            }
+            s.accepted += 1;
+            self.enqueue(c, &mut s);
+        }
+        s
+    }
+
+    /// Queues `c`, replacing whatever is pending for its slot.
+    fn enqueue(&mut self, c: Command, s: &mut IngestSummary) {
+        match self.queue.pending(c.slot) {
+            Some(p) if p.kind != c.kind => {
+                self.queue.cancel_slot(c.slot);
+                s.replaced += 1;
+            }
+            Some(_) => s.superseded += 1,
+            None => {}
+        }
+        self.queue.ingest(1, &[c.encode()]);
+    }
+
+    /// [`Culling::process_commands`] with the configured per-frame budget.
+    pub fn process_frame_commands(
+        &mut self,
+        handler: &mut impl FnMut(CommandEvent) -> Option<u64>,
+    ) -> ProcessStats {
+        self.process_commands(self.config.command_budget, handler)
+    }
+
+    /// Takes up to `budget` pending commands, highest priority first, and
+    /// reconciles each instance's BLAS with its current state through
+    /// `handler` (see the [module docs](self) for the table). The handler's
+    /// return value matters only for [`BlasAction::Acquire`]: `Some(address)`
+    /// attaches the BLAS now, `None` (or `Some(0)`) means a build is pending.
+    pub fn process_commands(
+        &mut self,
+        budget: usize,
+        handler: &mut impl FnMut(CommandEvent) -> Option<u64>,
+    ) -> ProcessStats {
+        let mut st = ProcessStats::default();
+        for c in self.queue.drain(budget) {
+            st.drained += 1;
+            let Some(handle) = self.registry.handle_at(c.slot) else {
+                st.dead += 1;
+                continue;
+            };
+            let slot = c.slot as usize;
+            let record = self.registry.records()[slot];
+            let Ok(desc) = self.registry.desc(handle).copied() else {
+                st.dead += 1;
+                continue;
+            };
+            let active = record.state() == InstanceState::Active;
+            if active != (c.kind == CommandKind::Add) {
+                st.stale_kind += 1;
+            }
+            let event = |action| CommandEvent {
+                handle,
+                slot: c.slot,
+                mesh: desc.mesh,
+                lod: desc.lod,
+                flags: desc.flags,
+                priority: c.priority,
+                command: c.kind,
+                action,
+            };
+            if active {
+                if record.blas != 0 || self.awaiting[slot] {
+                    st.no_op += 1;
+                    continue;
+                }
+                match handler(event(BlasAction::Acquire)) {
+                    Some(address) if address != 0 => {
+                        // The slot is live: cannot fail.
+                        let _ = self.registry.set_blas_at(c.slot, address);
+                        st.acquired += 1;
+                    }
+                    _ => {
+                        self.awaiting[slot] = true;
+                        st.requested += 1;
+                    }
+                }
+            } else {
+                let mut acted = false;
+                if record.blas != 0 {
+                    let _ = self.registry.set_blas_at(c.slot, 0);
+                    handler(event(BlasAction::Release { blas: record.blas }));
+                    st.released += 1;
+                    acted = true;
+                }
+                if std::mem::take(&mut self.awaiting[slot]) {
+                    handler(event(BlasAction::CancelBuild));
+                    st.builds_cancelled += 1;
+                    acted = true;
+                }
+                if !acted {
+                    st.no_op += 1;
+                }
+            }
+        }
+        st.remaining = self.queue.len() as u32;
+        st
+    }
+
+    /// What a GPU backend uploads before Algorithm 1: the dirty record ranges
+    /// and the CPU's state-bit writes since the last call (see
+    /// [`Uploads`]). The CPU reference needs none of it.
+    pub fn take_uploads(&mut self) -> Uploads {
+        let mut state_overrides: Vec<(u32, InstanceState)> = self.state_overrides.drain().collect();
+        state_overrides.sort_unstable_by_key(|&(s, _)| s);
+        let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
+        hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
+        Uploads {
+            records: self.registry.take_dirty(),
+            state_overrides,
+            hitbox_overrides,
+        }
+    }
+
+    /// Algorithm 1 ([`assemble_tlas`]) over the registry's records: fills
+    /// `out` (cleared first) with this frame's TLAS instances.
+    pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, CoreError> {
+        assemble_tlas(
+            self.registry.records(),
+            &mut self.hitboxes,
+            self.registry.hitbox_index(),
+            &self.config.assembly,
+            out,
+        )
+        .map_err(CoreError::Assembly)
+    }
+
+    /// Algorithm 2 ([`process_feedback`]) over this frame's hits: hitbox and
+    /// instance transitions, commands into the bounded buffer. Once per
+    /// frame, after the previous frame's commands were taken.
+    pub fn process_feedback(&mut self) -> Result<FeedbackStats, CoreError> {
+        if self.fed_back {
+            return Err(CoreError::CallOrder {
+                what: format!(
+                    "feedback of frame {} was already processed",
+                    self.registry.frame()
+                ),
+            });
+        }
+        if self.untaken {
+            return Err(CoreError::CallOrder {
+                what: "the previous feedback's commands were not taken (take_commands)".into(),
+            });
+        }
+        self.commands.clear();
+        let stats = process_feedback(
+            self.registry.records_mut(),
+            &self.instance_hits,
+            &mut self.hitboxes,
+            &self.config.thresholds,
+            &mut self.commands,
+        )
+        .map_err(CoreError::Feedback)?;
+        self.fed_back = true;
+        self.untaken = true;
+        Ok(stats)
+    }
+
+    /// The commands of this frame's feedback, for the read-back ring;
+    /// `None` if there are none to take (no feedback since the last take).
+    pub fn take_commands(&mut self) -> Option<Readback> {
+        if !std::mem::take(&mut self.untaken) {
+            return None;
+        }
+        let readback = Readback {
+            frame: self.registry.frame(),
+            counter: self.commands.requested(),
+            words: self.commands.words().to_vec(),
+        };
+        self.commands.clear();
+        Some(readback)
+    }
+}
+
+/// Writes `uploads` into a GPU-side copy of the instance and hitbox buffers
+/// the way a GPU backend must: record ranges without their state bits, then
+/// the overrides. `records` is the CPU's instance buffer; `gpu_instances` is
+/// grown to its length. Used by tests and as the specification of the scatter
+/// shader.
+pub fn apply_uploads(
+    uploads: &Uploads,
+    records: &[InstanceRecord],
+    gpu_instances: &mut Vec<InstanceRecord>,
+    gpu_hitboxes: &mut [HitboxRecord],
+) {
+    if gpu_instances.len() < records.len() {
+        gpu_instances.resize(records.len(), InstanceRecord::default());
+    }
+    for range in &uploads.records {
+        let (lo, hi) = (
+            range.start as usize,
+            (range.end as usize).min(records.len()),
+        );
+        for (dst, src) in gpu_instances[lo.min(hi)..hi]
+            .iter_mut()
+            .zip(&records[lo.min(hi)..hi])
+        {
+            let state = dst.packed & instance_bits::STATE_MASK;
+            *dst = *src;
+            dst.packed = (dst.packed & !instance_bits::STATE_MASK) | state;
+        }
+    }
+    for &(slot, state) in &uploads.state_overrides {
+        if let Some(r) = gpu_instances.get_mut(slot as usize) {
+            r.set_state(state);
+        }
+    }
+    for &(index, active) in &uploads.hitbox_overrides {
+        if let Some(h) = gpu_hitboxes.get_mut(index as usize) {
+            h.packed &=
+                !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT) | hitbox_bits::ACTIVE);
+            h.packed |= u32::from(active);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,548 @@
+use super::*;
+use crate::grid::GridConfig;
+use glam::camera::rh::{proj, view};
+
+const CUBE: u64 = 0xC0BE;
+
+fn grid() -> HitboxGrid {
+    HitboxGrid::new(GridConfig {
+        min: [0.0, 0.0],
+        max: [64.0, 64.0],
+        cell_size: 16.0,
+    })
+    .unwrap()
+}
+
+fn config() -> CullingConfig {
+    let mut c = CullingConfig::new(CUBE);
+    c.latency_mitigation = None;
+    c.readback_latency = 1;
+    c
+}
+
+fn desc(x: f32, z: f32, mesh: u32, unique: bool) -> InstanceDesc {
+    let aabb = Aabb::new(
+        Vec3::new(x - 1.0, 0.0, z - 1.0),
+        Vec3::new(x + 1.0, 2.0, z + 1.0),
+    );
+    let mut d = InstanceDesc::new(
+        MeshId(mesh),
+        Affine3A::from_translation(Vec3::new(x, 0.0, z)),
+        aabb,
+    );
+    if unique {
+        d.flags = InstanceFlags::UNIQUE_BLAS;
+    }
+    d
+}
+
+/// A frustum seeing the whole 64 x 64 m world from 40 m above its centre.
+fn frustum_over_world() -> (Vec3, Frustum) {
+    let camera = Vec3::new(32.0, 40.0, 32.0);
+    let v = view::look_to_mat4(camera, Vec3::NEG_Y, Vec3::NEG_Z);
+    let p = proj::vulkan::perspective(100f32.to_radians(), 1.0, 0.1, 500.0);
+    (camera, Frustum::from_view_projection(p * v).unwrap())
+}
+
+/// A frustum that sees nothing of the world (looking up).
+fn frustum_away() -> (Vec3, Frustum) {
+    let camera = Vec3::new(32.0, 40.0, 32.0);
+    let v = view::look_to_mat4(camera, Vec3::Y, Vec3::NEG_Z);
+    let p = proj::vulkan::perspective(60f32.to_radians(), 1.0, 0.1, 500.0);
+    (camera, Frustum::from_view_projection(p * v).unwrap())
+}
+
+/// A backend stub: acquires answer `addr(slot)`, counts releases.
+#[derive(Default)]
+struct Blas {
+    released: Vec<u64>,
+    cancelled: Vec<u32>,
+    acquired: Vec<u32>,
+}
+
+impl Blas {
+    fn handler(&mut self, ready: bool) -> impl FnMut(CommandEvent) -> Option<u64> + '_ {
+        move |e| match e.action {
+            BlasAction::Acquire => {
+                self.acquired.push(e.slot);
+                ready.then_some(0x1000 + u64::from(e.slot))
+            }
+            BlasAction::Release { blas } => {
+                self.released.push(blas);
+                None
+            }
+            BlasAction::CancelBuild => {
+                self.cancelled.push(e.slot);
+                None
+            }
+        }
+    }
+}
+
+fn decode_all(r: &Readback) -> Vec<(u32, CommandKind)> {
+    r.words
+        .iter()
+        .map(|&w| {
+            let c = Command::decode(w, MAX_SLOTS).unwrap();
+            (c.slot, c.kind)
+        })
+        .collect()
+}
+
+#[test]
+fn config_validation_names_the_field() {
+    let ok = config();
+    assert!(ok.validate().is_ok());
+    let cases: Vec<(CullingConfig, &str)> = vec![
+        (
+            CullingConfig {
+                command_capacity: 0,
+                ..ok
+            },
+            "command_capacity",
+        ),
+        (
+            CullingConfig {
+                readback_latency: 0,
+                ..ok
+            },
+            "readback_latency",
+        ),
+        (
+            CullingConfig {
+                readback_latency: 4,
+                ..ok
+            },
+            "quarantine_frames",
+        ),
+        (
+            CullingConfig {
+                assembly: AssemblyConfig::new(0),
+                ..ok
+            },
+            "unit_cube_blas",
+        ),
+        (
+            CullingConfig {
+                assembly: AssemblyConfig {
+                    min_box_extent: f32::NAN,
+                    ..ok.assembly
+                },
+                ..ok
+            },
+            "min_box_extent",
+        ),
+        (
+            CullingConfig {
+                thresholds: Thresholds {
+                    theta_d: 5000,
+                    ..Thresholds::paper()
+                },
+                ..ok
+            },
+            "thresholds",
+        ),
+        (
+            CullingConfig {
+                latency_mitigation: Some(ActivationHeuristic {
+                    max_distance: f32::NAN,
+                    min_projected_size: 0.1,
+                }),
+                ..ok
+            },
+            "max_distance",
+        ),
+    ];
+    for (c, field) in cases {
+        let err = Culling::new(grid(), c).unwrap_err();
+        assert!(
+            matches!(err, CoreError::InvalidConfig { .. }) && err.to_string().contains(field),
+            "{field}: {err}"
+        );
+    }
+}
+
+#[test]
+fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
+    let mut cfg = config();
+    cfg.latency_mitigation = Some(ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+    });
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let b = c.register(desc(10.0, 10.0, 2, false)).unwrap(); // same hitbox as a
+    let u = c.register(desc(40.0, 40.0, 3, true)).unwrap(); // unique BLAS, other hitbox
+    c.begin_frame(0).unwrap();
+    let (camera, f) = frustum_over_world();
+    let out = c.mitigate_latency(camera, &f).unwrap();
+    let requested: Vec<InstanceHandle> = out.requests.iter().map(|r| r.handle).collect();
+    assert_eq!(requested.len(), 3);
+    assert!(requested.contains(&a) && requested.contains(&b) && requested.contains(&u));
+    assert_eq!(out.hitboxes_activated, 2);
+    for h in [a, b, u] {
+        assert_eq!(c.registry().state(h).unwrap(), InstanceState::Active);
+        assert!(c.awaiting_blas(h).unwrap());
+        let hb = c.registry().record(h).unwrap().hitbox;
+        assert!(c.hitboxes()[hb as usize].is_active());
+        assert_eq!(c.hitboxes()[hb as usize].streak(), 0);
+    }
+    // The caller provides the BLASes the same frame.
+    for (i, r) in out.requests.iter().enumerate() {
+        assert_eq!(c.set_blas(r.handle, 0x100 + i as u64).unwrap(), 0);
+    }
+    let mut tlas = Vec::new();
+    let st = c.assemble(&mut tlas).unwrap();
+    assert_eq!((st.active, st.hitbox_boxes), (3, 0));
+    // A few hits only (below θd): Algorithm 2 must keep them active this frame.
+    for r in &tlas {
+        c.instance_hits_mut()[r.custom_index() as usize] = 10;
+    }
+    let fs = c.process_feedback().unwrap();
+    assert_eq!(fs.active_to_inactive, 0);
+    assert_eq!(fs.hitboxes_deactivated, 0);
+    for h in [a, b] {
+        assert_eq!(c.registry().state(h).unwrap(), InstanceState::Active);
+    }
+    // The unique instance has its BLAS and few hits: lines 34/35 omit it
+    // ("quickly made inactive again"), with a remove command.
+    assert_eq!(c.registry().state(u).unwrap(), InstanceState::Omitted);
+    let rb = c.take_commands().unwrap();
+    let slot_u = c.registry().slot(u).unwrap();
+    assert_eq!(decode_all(&rb), vec![(slot_u, CommandKind::Remove)]);
+    // The uploads carry the CPU's state writes: registration, then activation.
+    let up = c.take_uploads();
+    assert_eq!(
+        up.state_overrides,
+        vec![
+            (0, InstanceState::Active),
+            (1, InstanceState::Active),
+            (2, InstanceState::Active)
+        ]
+    );
+    assert_eq!(up.hitbox_overrides.len(), 2);
+    assert!(up.hitbox_overrides.iter().all(|&(_, active)| active));
+
+    // The shared ones go inactive after n_d = 15 quiet frames: the hitbox's
+    // streak is 1 after frame 0 and reaches 15 in frame 14.
+    let mut ring = ReadbackRing::new(1).unwrap();
+    ring.push(rb).unwrap();
+    let mut blas = Blas::default();
+    for frame in 1..=14 {
+        assert_eq!(
+            c.registry().state(a).unwrap(),
+            InstanceState::Active,
+            "frame {frame}"
+        );
+        c.begin_frame(frame).unwrap();
+        while let Some(r) = ring.pop_ready(frame) {
+            c.ingest_readback(r.counter, &r.words);
+        }
+        c.process_commands(usize::MAX, &mut blas.handler(true));
+        c.assemble(&mut tlas).unwrap();
+        c.process_feedback().unwrap();
+        ring.push(c.take_commands().unwrap()).unwrap();
+    }
+    assert_eq!(c.registry().state(a).unwrap(), InstanceState::Inactive);
+    assert_eq!(c.registry().state(b).unwrap(), InstanceState::Inactive);
+    // u's BLAS was released first (omitted), then a's and b's.
+    assert_eq!(blas.released.len(), 1);
+    c.begin_frame(15).unwrap();
+    while let Some(r) = ring.pop_ready(15) {
+        c.ingest_readback(r.counter, &r.words);
+    }
+    c.process_commands(usize::MAX, &mut blas.handler(true));
+    assert_eq!(blas.released.len(), 3);
+    for h in [a, b, u] {
+        assert_eq!(c.registry().record(h).unwrap().blas, 0);
+    }
+}
+
+#[test]
+fn latency_mitigation_in_inactive_hitbox_adds_the_other_instances() {
+    let mut cfg = config();
+    cfg.latency_mitigation = Some(ActivationHeuristic {
+        max_distance: 0.0,
+        min_projected_size: 0.0,
+    });
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    let (camera, away) = frustum_away();
+    c.begin_frame(0).unwrap();
+    // Nothing registered yet is seen; register two instances in one hitbox,
+    // one of them in view of a frustum over the world, the other registered
+    // after the update (so not newly visible in this frame).
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let out = c.mitigate_latency(camera, &away).unwrap();
+    assert!(out.requests.is_empty());
+    let (camera, f) = frustum_over_world();
+    let out = c.mitigate_latency(camera, &f).unwrap();
+    assert_eq!(out.requests.len(), 1);
+    let b = c.register(desc(12.0, 12.0, 2, false)).unwrap();
+    let w = c.register(desc(13.0, 13.0, 3, true)).unwrap();
+    c.set_blas(a, 0xA).unwrap();
+    let mut tlas = Vec::new();
+    c.assemble(&mut tlas).unwrap();
+    let fs = c.process_feedback().unwrap();
+    // Lines 21–26 for the other inactive instances of the hitbox.
+    assert_eq!((fs.inactive_to_active, fs.inactive_to_omitted), (1, 1));
+    assert_eq!(c.registry().state(b).unwrap(), InstanceState::Active);
+    assert_eq!(c.registry().state(w).unwrap(), InstanceState::Omitted);
+    assert_eq!(c.registry().state(a).unwrap(), InstanceState::Active);
+    let rb = c.take_commands().unwrap();
+    assert_eq!(
+        decode_all(&rb),
+        vec![(c.registry().slot(b).unwrap(), CommandKind::Add)]
+    );
+}
+
+#[test]
+fn remove_cancels_pending_command_and_returns_the_blas() {
+    let mut c = Culling::new(grid(), config()).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let b = c.register(desc(9.0, 9.0, 1, false)).unwrap();
+    c.begin_frame(0).unwrap();
+    let mut tlas = Vec::new();
+    c.assemble(&mut tlas).unwrap();
+    c.hitboxes_mut()[0].add_hits(5000);
+    c.process_feedback().unwrap();
+    let rb = c.take_commands().unwrap();
+    assert_eq!(rb.counter, 2);
+    c.begin_frame(1).unwrap();
+    let s = c.ingest_readback(rb.counter, &rb.words);
+    assert_eq!(s.accepted, 2);
+    // a got its BLAS by other means (a LOD switch, say) before the command.
+    c.set_blas(a, 0xAA).unwrap();
+    let removal = c.remove(a).unwrap();
+    assert_eq!(removal.instance.blas, 0xAA);
+    assert!(!removal.build_was_pending);
+    let cancelled = removal.cancelled_command.unwrap();
+    assert_eq!((cancelled.slot, cancelled.kind), (0, CommandKind::Add));
+    assert_eq!(c.pending_commands(), 1);
+    let mut blas = Blas::default();
+    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert_eq!(blas.acquired, vec![c.registry().slot(b).unwrap()]);
+    assert_eq!((st.requested, st.dead), (1, 0));
+    // b waits for its build; removing it reports the pending build.
+    assert!(c.awaiting_blas(b).unwrap());
+    let removal = c.remove(b).unwrap();
+    assert!(removal.build_was_pending && removal.cancelled_command.is_none());
+    assert!(c.remove(b).is_err(), "stale handle");
+}
+
+#[test]
+fn commands_for_dead_slots_are_dropped_never_applied() {
+    let mut c = Culling::new(grid(), config()).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    c.begin_frame(0).unwrap();
+    let mut tlas = Vec::new();
+    c.assemble(&mut tlas).unwrap();
+    c.hitboxes_mut()[0].add_hits(5000);
+    c.process_feedback().unwrap();
+    let rb = c.take_commands().unwrap();
+    // Removed while its command is in flight.
+    let slot = c.remove(a).unwrap().instance.slot;
+    c.begin_frame(1).unwrap();
+    let s = c.ingest_readback(rb.counter, &rb.words);
+    assert_eq!((s.accepted, s.dead), (0, 1));
+    assert_eq!(c.pending_command(slot), None);
+    // A corrupt word naming a slot never used is rejected.
+    let bogus = Command::new(999, CommandKind::Add, 3).unwrap().encode();
+    assert_eq!(c.ingest_readback(5, &[bogus]).rejected, 1);
+    assert_eq!(c.ingest_readback(5, &[bogus]).overflowed, 4);
+    // The slot is not reused before the quarantine is over, and a new
+    // instance in it starts clean.
+    let b = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    assert_ne!(c.registry().slot(b).unwrap(), slot);
+    c.begin_frame(10).unwrap();
+    let d = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    assert_eq!(c.registry().slot(d).unwrap(), slot);
+    assert_eq!(c.registry().state(d).unwrap(), InstanceState::Inactive);
+    assert!(!c.awaiting_blas(d).unwrap());
+}
+
+#[test]
+fn stale_commands_reconcile_with_the_current_state() {
+    let mut c = Culling::new(grid(), config()).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let slot = c.registry().slot(a).unwrap();
+    let add = Command::new(slot, CommandKind::Add, 9).unwrap().encode();
+    let remove = Command::new(slot, CommandKind::Remove, 9).unwrap().encode();
+    let mut blas = Blas::default();
+    // An add for an instance that is inactive again: nothing to build.
+    c.ingest_readback(1, &[add]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    assert_eq!((st.stale_kind, st.no_op, st.acquired), (1, 1, 0));
+    assert!(blas.acquired.is_empty());
+    // A remove for an instance that is active (say, re-activated by latency
+    // mitigation) keeps its BLAS.
+    c.begin_frame(1).unwrap();
+    c.registry.set_state(slot, InstanceState::Active).unwrap();
+    c.set_blas(a, 0xAB).unwrap();
+    c.ingest_readback(1, &[remove]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    assert_eq!((st.stale_kind, st.released), (1, 0));
+    assert_eq!(c.registry().record(a).unwrap().blas, 0xAB);
+    // Newest wins: add then remove pending for an active instance whose
+    // BLAS is pending -> nothing lost: processing sees "active, awaiting".
+    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
+    let s = c.ingest_readback(2, &[add, remove]);
+    assert_eq!((s.accepted, s.replaced), (2, 1));
+    assert_eq!(
+        c.pending_command(slot).map(|c| c.kind),
+        Some(CommandKind::Remove)
+    );
+    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    assert_eq!(st.released, 1);
+    assert_eq!(blas.released, vec![0xAB]);
+    // A build still running when the instance went inactive is cancelled.
+    c.registry.set_state(slot, InstanceState::Active).unwrap();
+    c.ingest_readback(1, &[add]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert_eq!(st.requested, 1);
+    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
+    c.ingest_readback(1, &[remove]);
+    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert_eq!((st.builds_cancelled, st.released), (1, 0));
+    assert_eq!(blas.cancelled, vec![slot]);
+    assert!(!c.awaiting_blas(a).unwrap());
+    // A build finishing after the instance went inactive is handed back.
+    c.registry.set_state(slot, InstanceState::Active).unwrap();
+    c.ingest_readback(1, &[add]);
+    c.process_commands(usize::MAX, &mut blas.handler(false));
+    assert!(c.awaiting_blas(a).unwrap());
+    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
+    c.set_blas(a, 0xCD).unwrap();
+    assert_eq!(c.pending_commands(), 1);
+    c.process_commands(usize::MAX, &mut blas.handler(true));
+    assert_eq!(blas.released, vec![0xAB, 0xCD]);
+    assert_eq!(c.registry().record(a).unwrap().blas, 0);
+}
+
+/// Overflow of the command buffer and a budget of one command per frame:
+/// every shared instance of an activated hitbox still ends up with exactly
+/// one BLAS.
+#[test]
+fn overflow_and_budget_retry_end_to_end() {
+    let mut cfg = config();
+    cfg.command_capacity = 2;
+    cfg.readback_latency = 2;
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    let handles: Vec<InstanceHandle> = (0..5)
+        .map(|i| {
+            c.register(desc(2.0 + 3.0 * i as f32, 8.0, i, false))
+                .unwrap()
+        })
+        .collect();
+    let mut ring = ReadbackRing::new(2).unwrap();
+    let mut blas = Blas::default();
+    let mut tlas = Vec::new();
+    let mut overflowed = 0;
+    let mut max_pending = 0;
+    for frame in 0..12 {
+        c.begin_frame(frame).unwrap();
+        while let Some(r) = ring.pop_ready(frame) {
+            c.ingest_readback(r.counter, &r.words);
+        }
+        max_pending = max_pending.max(c.pending_commands());
+        let st = c.process_commands(1, &mut blas.handler(true));
+        assert!(st.drained <= 1);
+        c.assemble(&mut tlas).unwrap();
+        // Plenty of hits everywhere.
+        for r in &tlas {
+            if r.sbt_offset() == c.config().assembly.hitbox_sbt_offset {
+                c.hitboxes_mut()[r.custom_index() as usize].add_hits(5000);
+            } else {
+                c.instance_hits_mut()[r.custom_index() as usize] += 5000;
+            }
+        }
+        overflowed += c.process_feedback().unwrap().overflowed;
+        ring.push(c.take_commands().unwrap()).unwrap();
+    }
+    // 5 adds through a buffer of 2: frame 0 overflows 3, frame 1 one more.
+    assert_eq!(overflowed, 3 + 1);
+    assert!(max_pending >= 2, "the budget made commands wait");
+    let mut acquired = blas.acquired.clone();
+    acquired.sort_unstable();
+    assert_eq!(acquired, vec![0, 1, 2, 3, 4]);
+    for h in handles {
+        assert_eq!(c.registry().state(h).unwrap(), InstanceState::Active);
+        assert_ne!(c.registry().record(h).unwrap().blas, 0);
+    }
+    assert_eq!(c.pending_commands(), 0);
+    assert_eq!(tlas.len(), 5);
+}
+
+#[test]
+fn call_order_is_checked() {
+    let mut c = Culling::new(grid(), config()).unwrap();
+    c.begin_frame(3).unwrap();
+    assert!(c.take_commands().is_none());
+    c.process_feedback().unwrap();
+    assert!(matches!(
+        c.process_feedback(),
+        Err(CoreError::CallOrder { .. })
+    ));
+    assert!(matches!(c.begin_frame(4), Err(CoreError::CallOrder { .. })));
+    assert_eq!(c.take_commands().unwrap().frame, 3);
+    assert!(matches!(
+        c.begin_frame(2),
+        Err(CoreError::FrameOrder { .. })
+    ));
+    c.begin_frame(4).unwrap();
+    let mut ring = ReadbackRing::new(1).unwrap();
+    ring.push(Readback::default()).unwrap();
+    assert!(ring
+        .push(Readback {
+            frame: 1,
+            ..Readback::default()
+        })
+        .is_err());
+    assert!(ReadbackRing::new(0).is_err());
+}
+
+/// The scatter a GPU backend performs keeps GPU-owned state bits and applies
+/// exactly the CPU's writes.
+#[test]
+fn uploads_scatter_keeps_gpu_state_bits() {
+    let mut cfg = config();
+    cfg.latency_mitigation = Some(ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+    });
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let b = c.register(desc(40.0, 40.0, 1, false)).unwrap();
+    let mut gpu = Vec::new();
+    let mut gpu_hitboxes = c.hitboxes().to_vec();
+    apply_uploads(
+        &c.take_uploads(),
+        c.registry().records(),
+        &mut gpu,
+        &mut gpu_hitboxes,
+    );
+    assert_eq!(gpu, c.registry().records());
+    // The GPU's Algorithm 2 turns b omitted (pretend); the CPU moves b, and
+    // latency mitigation activates both (first update: all newly visible).
+    gpu[1].set_state(InstanceState::Omitted);
+    c.begin_frame(1).unwrap();
+    let moved = |y: f32| Aabb::new(Vec3::new(y, 0.0, 39.0), Vec3::new(41.0, 2.0, 41.0));
+    c.set_transform(b, Affine3A::IDENTITY, moved(39.0)).unwrap();
+    let (camera, f) = frustum_over_world();
+    let out = c.mitigate_latency(camera, &f).unwrap();
+    assert_eq!(out.requests.len(), 2);
+    let up = c.take_uploads();
+    assert_eq!(up.records, vec![0..2]);
+    apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
+    assert_eq!(gpu, c.registry().records());
+    assert_eq!(gpu[1].state(), InstanceState::Active); // override applied
+    let hb_a = c.registry().record(a).unwrap().hitbox as usize;
+    assert!(gpu_hitboxes[hb_a].is_active());
+    // A record upload without an override keeps the GPU's state.
+    gpu[1].set_state(InstanceState::Omitted);
+    c.set_transform(b, Affine3A::IDENTITY, moved(38.0)).unwrap();
+    let up = c.take_uploads();
+    assert!(up.state_overrides.is_empty() && up.hitbox_overrides.is_empty());
+    apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
+    assert_eq!(gpu[1].state(), InstanceState::Omitted);
+    assert_eq!(gpu[1].aabb_min, [38.0, 0.0, 39.0]);
+}
