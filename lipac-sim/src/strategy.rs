@@ -220,9 +220,10 @@ impl BlasAccounting {
     /// Accounting for `instances` slots with `budgets` per frame.
     pub fn new(instances: usize, budgets: BuildBudgets) -> Result<Self, SimError> {
         let mut config = SchedulerConfig::default();
-        // Memory is measured, not limited; keep unused shared BLASes 2 s.
+        // Memory is measured, not limited; unreferenced shared BLASes stay
+        // cached for 8 frames (then freed after the frames in flight).
         config.cache.memory_budget = u64::MAX / 4;
-        config.cache.max_unused_frames = 60;
+        config.cache.max_unused_frames = 8;
         config.lod_hysteresis_frames = 8;
         Ok(Self {
             scheduler: BuildScheduler::new(config).map_err(SimError::core)?,

@@ -1,42 +1,37 @@
-//! LiPaC driven as an engine drives a GPU backend, over lipac-core.
+//! LiPaC driven as an engine drives a GPU backend: one
+//! [`lipac_core::culling::Culling`] per-frame loop, a [`ReadbackRing`] of
+//! `k` frames, and a [`BlasAccounting`] build scheduler as the backend's BLAS
+//! manager.
 //!
-//! Per frame (`f`), in order:
+//! Per frame `f`, in order:
 //!
-//! 1. **Algorithm 2 of frame `f − 1`** on the "GPU" copy of the instance
-//!    records: the tracer's hitbox counts go into the hitbox records, then
-//!    [`process_feedback`] with the instance counters; its bounded command
-//!    buffer goes into the readback ring (`k` frames of latency).
-//! 2. **CPU frame start**: registry and scheduler frames, animated units'
-//!    transforms, the CPU mirror follows the GPU's state bits.
-//! 3. **Latency mitigation** (optional, paper §3.6): instances newly in the
-//!    frustum that pass the [`ActivationHeuristic`] become active now and
-//!    get their BLAS requested.
-//! 4. **Commands of frame `f − k`** from the ring into the [`CommandQueue`];
-//!    at most `command_budget` are processed: `add` requests the BLAS from
-//!    the [`BlasAccounting`] scheduler, `remove` releases it.
-//! 5. **BLAS builds** under the per-frame budgets, acknowledged at once;
-//!    new addresses go into the registry; dirty records are uploaded.
-//! 6. **Algorithm 1** ([`assemble_tlas`]) over the uploaded records: active
-//!    instances with a BLAS, omitted instances' boxes, inactive hitboxes'
-//!    boxes. The caller traces these records (counting boxes count by
-//!    custom index: slot or hitbox index) and hands the counters back as
-//!    `previous` next frame.
+//! 1. **End of frame `f − 1`**: the tracer's counters of frame `f − 1` are
+//!    written into the loop's hit buffers, [`Culling::process_feedback`]
+//!    runs Algorithm 2 and [`Culling::take_commands`] goes into the ring.
+//! 2. [`Culling::begin_frame`]; animated units' transforms.
+//! 3. [`Culling::mitigate_latency`] (optional, paper §3.6): its BLAS
+//!    requests go to the scheduler.
+//! 4. [`Culling::ingest_readback`] of the commands of frame `f − k`, then
+//!    [`Culling::process_commands`] under the command budget; the handler
+//!    requests BLASes from the scheduler (or releases them).
+//! 5. The scheduler plans this frame's builds under its budgets; they are
+//!    acknowledged at once (the CPU backend builds synchronously), and the
+//!    addresses go back through [`Culling::set_blas`].
+//! 6. [`Culling::assemble`] (Algorithm 1). Geometry records get this frame's
+//!    BLAS from the shared geometry; the caller traces the records (counting
+//!    boxes count by custom index: slot or hitbox index) and hands the
+//!    counters back as `previous` next frame.
 //!
 //! Registry slots are assigned in scene order and checked to equal scene
 //! slots, so custom indices, counters and commands all speak scene slots.
 
-use std::collections::VecDeque;
-
-use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::build_plan::BuildBudgets;
-use lipac_core::command::{CommandBuffer, CommandKind, CommandQueue};
-use lipac_core::feedback::process_feedback;
+use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
 use lipac_core::grid::{GridConfig, HitboxGrid};
-use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
-use lipac_core::latency::{ActivationHeuristic, Frustum, LatencyMitigation};
-use lipac_core::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
-use lipac_core::registry::{InstanceHandle, InstanceRegistry, RegistryConfig};
+use lipac_core::latency::{ActivationHeuristic, Frustum};
+use lipac_core::layout::{InstanceRecord, InstanceState, TlasInstance};
+use lipac_core::registry::{InstanceHandle, RegistryConfig};
 use lipac_core::thresholds::Thresholds;
 
 use super::{BlasAccounting, FrameContext, Strategy, StrategyFrame};
@@ -62,7 +57,7 @@ pub struct LipacConfig {
     /// Capacity of the GPU command buffer per frame.
     pub command_capacity: u32,
     /// Frames between Algorithm 2 and the CPU reading its commands.
-    pub readback_latency: usize,
+    pub readback_latency: u32,
     /// BLAS build budgets per frame.
     pub build_budgets: BuildBudgets,
 }
@@ -93,7 +88,7 @@ impl LipacConfig {
 /// Counts of LiPaC's own state, per frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LipacFrameStats {
-    /// Commands decoded from the readback this frame.
+    /// Commands accepted from the read-back this frame.
     pub commands_ingested: u32,
     /// Commands processed this frame.
     pub commands_processed: u32,
@@ -110,18 +105,13 @@ pub struct LipacFrameStats {
 pub struct Lipac {
     name: &'static str,
     config: LipacConfig,
-    registry: InstanceRegistry<HitboxGrid>,
+    culling: Culling<HitboxGrid>,
+    ring: ReadbackRing,
     handles: Vec<InstanceHandle>,
     units: Vec<u32>,
-    gpu: Vec<InstanceRecord>,
-    hitboxes: Vec<HitboxRecord>,
-    commands: CommandBuffer,
-    ring: VecDeque<CommandBuffer>,
-    queue: CommandQueue,
-    latency: Option<LatencyMitigation>,
     blas: BlasAccounting,
-    activate: Vec<u32>,
     stats: LipacFrameStats,
+    started: bool,
 }
 
 fn core<E: std::fmt::Display>(e: E) -> SimError {
@@ -129,8 +119,8 @@ fn core<E: std::fmt::Display>(e: E) -> SimError {
 }
 
 impl Lipac {
-    /// Registers every instance of `scene` (frame 0 state) in a registry
-    /// whose hitbox grid covers the scene.
+    /// Registers every instance of `scene` (frame 0 state) in a
+    /// [`Culling`] loop whose hitbox grid covers the scene.
     pub fn new(scene: &Scene, config: LipacConfig) -> Result<Self, SimError> {
         config.thresholds.validate().map_err(core)?;
         if config.readback_latency == 0 || config.command_budget == 0 {
@@ -152,15 +142,30 @@ impl Lipac {
             cell_size: c,
         })
         .map_err(core)?;
-        let hitbox_count = grid.len() as usize;
-        let mut registry = InstanceRegistry::new(
-            grid,
-            RegistryConfig {
-                quarantine_frames: config.readback_latency as u32 + 2,
+        // The tracer's unit cube: BlasStore::new() puts it at index 0.
+        let unit_cube = crate::blas::BlasStore::new().unit_cube().reference();
+        let cc = CullingConfig {
+            registry: RegistryConfig {
+                quarantine_frames: config.readback_latency + 2,
                 ..RegistryConfig::default()
             },
-        )
-        .map_err(core)?;
+            thresholds: config.thresholds,
+            command_capacity: config.command_capacity,
+            command_budget: config.command_budget,
+            latency_mitigation: config.latency,
+            readback_latency: config.readback_latency,
+            ..CullingConfig::new(unit_cube)
+        };
+        let counting = CountingConfig::default();
+        if cc.assembly.omitted_box_sbt_offset != counting.instance_box_sbt
+            || cc.assembly.hitbox_sbt_offset != counting.hitbox_box_sbt
+            || cc.assembly.counting_mask != counting.counting_mask
+        {
+            return Err(SimError::BadConfig(
+                "assembly and tracer disagree on counting boxes",
+            ));
+        }
+        let mut culling = Culling::new(grid, cc).map_err(core)?;
         let mut handles = Vec::with_capacity(scene.instances().len());
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
@@ -182,10 +187,10 @@ impl Lipac {
                 mask: instance_mask(inst),
                 ..InstanceDesc::new(MeshId(inst.mesh), inst.transform, inst.aabb)
             };
-            let h = registry.register(desc).map_err(core)?;
+            let h = culling.register(desc).map_err(core)?;
             // Registry slots must equal scene slots: counters, custom indices
             // and commands are all indexed by them.
-            let got = registry.slot(h).map_err(core)?;
+            let got = culling.registry().slot(h).map_err(core)?;
             if got != slot as u32 {
                 return Err(SimError::Core(format!(
                     "registry slot {got} for scene slot {slot}"
@@ -194,29 +199,20 @@ impl Lipac {
             handles.push(h);
         }
         let n = handles.len();
-        let latency = match config.latency {
-            Some(h) => Some(LatencyMitigation::new(h).map_err(core)?),
-            None => None,
-        };
         Ok(Self {
             name: if config.latency.is_some() {
                 "lipac-latency"
             } else {
                 "lipac"
             },
-            commands: CommandBuffer::new(config.command_capacity),
-            queue: CommandQueue::new(n as u32),
+            ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
             blas: BlasAccounting::new(n, config.build_budgets)?,
             config,
-            registry,
+            culling,
             handles,
             units,
-            gpu: vec![InstanceRecord::default(); n],
-            hitboxes: vec![HitboxRecord::default(); hitbox_count],
-            ring: VecDeque::new(),
-            latency,
-            activate: Vec::new(),
             stats: LipacFrameStats::default(),
+            started: false,
         })
     }
 
@@ -224,40 +220,45 @@ impl Lipac {
     pub fn config(&self) -> &LipacConfig {
         &self.config
     }
-    /// The state of instance `slot` as the GPU records hold it.
+    /// The state of instance `slot`.
     pub fn state(&self, slot: u32) -> Option<InstanceState> {
-        self.gpu.get(slot as usize).map(InstanceRecord::state)
+        self.culling
+            .registry()
+            .record_at(slot)
+            .map(InstanceRecord::state)
     }
-    /// The hitbox records (after the last frame's Algorithm 2).
-    pub fn hitbox_records(&self) -> &[HitboxRecord] {
-        &self.hitboxes
+    /// The per-frame loop (registry, hitboxes, commands).
+    pub fn culling(&self) -> &Culling<HitboxGrid> {
+        &self.culling
     }
     /// Counts of the last frame.
     pub fn last_stats(&self) -> LipacFrameStats {
         self.stats
     }
 
-    /// Step 1: Algorithm 2 over the previous frame's counters.
+    /// Step 1: the hits of the previous frame, Algorithm 2, its commands
+    /// into the ring.
     fn feedback(&mut self, previous: &Counters) -> Result<(), SimError> {
-        if previous.instances.len() != self.gpu.len() {
+        let hits = self.culling.instance_hits_mut();
+        if previous.instances.len() != hits.len() {
             return Err(SimError::SizeMismatch {
                 a: previous.instances.len(),
-                b: self.gpu.len(),
+                b: hits.len(),
             });
         }
-        for (h, &c) in self.hitboxes.iter_mut().zip(&previous.hitboxes) {
+        hits.copy_from_slice(&previous.instances);
+        for (h, &c) in self
+            .culling
+            .hitboxes_mut()
+            .iter_mut()
+            .zip(&previous.hitboxes)
+        {
             h.add_hits(c);
         }
-        self.commands.clear();
-        process_feedback(
-            &mut self.gpu,
-            &previous.instances,
-            &mut self.hitboxes,
-            &self.config.thresholds,
-            &mut self.commands,
-        )
-        .map_err(core)?;
-        self.ring.push_back(self.commands.clone());
+        self.culling.process_feedback().map_err(core)?;
+        if let Some(r) = self.culling.take_commands() {
+            self.ring.push(r).map_err(core)?;
+        }
         Ok(())
     }
 }
@@ -267,7 +268,7 @@ impl Strategy for Lipac {
         self.name
     }
     fn hitboxes(&self) -> usize {
-        self.hitboxes.len()
+        self.culling.hitboxes().len()
     }
     fn frame(
         &mut self,
@@ -275,109 +276,98 @@ impl Strategy for Lipac {
         previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        if ctx.full_records.len() != self.gpu.len() {
+        if ctx.full_records.len() != self.handles.len() {
             return Err(SimError::SizeMismatch {
                 a: ctx.full_records.len(),
-                b: self.gpu.len(),
+                b: self.handles.len(),
             });
         }
         self.stats = LipacFrameStats::default();
-        if let Some(p) = previous {
-            self.feedback(p)?;
+        if self.started {
+            // A frame whose counters are missing still runs Algorithm 2
+            // (with no hits) so that the loop's call order holds.
+            match previous {
+                Some(p) => self.feedback(p)?,
+                None => self.feedback(&Counters::new(self.handles.len(), 0))?,
+            }
         }
+        self.started = true;
 
-        // 2. Frame start; the CPU mirror follows the GPU's states.
-        self.registry
-            .begin_frame(u64::from(ctx.frame))
-            .map_err(core)?;
+        // 2. Frame start, animated units.
+        let frame = u64::from(ctx.frame);
+        self.culling.begin_frame(frame).map_err(core)?;
         self.blas.begin_frame(ctx.frame)?;
         for &slot in &self.units {
             let inst = ctx.scene.instance(slot)?;
-            self.registry
+            self.culling
                 .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)
                 .map_err(core)?;
         }
-        for (slot, g) in self.gpu.iter().enumerate() {
-            let slot = slot as u32;
-            if self.registry.record_at(slot).map(InstanceRecord::state) != Some(g.state()) {
-                self.registry.set_state(slot, g.state()).map_err(core)?;
-            }
-        }
 
         // 3. Latency mitigation.
-        if let Some(lm) = self.latency.as_mut() {
+        if self.config.latency.is_some() {
             let frustum = Frustum::from_view_projection(ctx.camera.view_proj()).map_err(core)?;
-            lm.update(
-                &self.registry,
-                ctx.camera.position,
-                &frustum,
-                &mut self.activate,
-            )
-            .map_err(core)?;
-            for &slot in &self.activate {
-                self.registry
-                    .set_state(slot, InstanceState::Active)
-                    .map_err(core)?;
-                let lod = usize::from(ctx.lods[slot as usize]);
-                self.blas.activate(ctx.catalog, slot, lod)?;
-            }
-            self.stats.latency_activations = self.activate.len() as u32;
-        }
-
-        // 4. Commands of frame f - k.
-        while self.ring.len() >= self.config.readback_latency {
-            if let Some(buf) = self.ring.pop_front() {
-                self.stats.commands_ingested += self.queue.ingest_buffer(&buf).accepted;
-            }
-        }
-        let commands = self.queue.drain(self.config.command_budget);
-        self.stats.commands_processed = commands.len() as u32;
-        for c in commands {
-            match c.kind {
-                CommandKind::Add => {
-                    let lod = usize::from(ctx.lods[c.slot as usize]);
-                    self.blas.activate(ctx.catalog, c.slot, lod)?;
-                }
-                CommandKind::Remove => {
-                    self.blas.deactivate(c.slot)?;
-                    self.registry.set_blas_at(c.slot, 0).map_err(core)?;
+            let outcome = self
+                .culling
+                .mitigate_latency(ctx.camera.position, &frustum)
+                .map_err(core)?;
+            self.stats.latency_activations = outcome.summary.accepted;
+            for r in outcome.requests {
+                let lod = usize::from(ctx.lods[r.slot as usize]);
+                self.blas.activate(ctx.catalog, r.slot, lod)?;
+                // A BLAS the scheduler already holds (cached shared, or one
+                // whose release is still queued) is attached now.
+                if let Some(address) = self.blas.address(r.slot) {
+                    self.culling.set_blas(r.handle, address).map_err(core)?;
                 }
             }
         }
-        self.stats.commands_pending = self.queue.len() as u32;
 
-        // 5. Builds, addresses, upload.
+        // 4. Commands of frame f - k, processed under the budget.
+        while let Some(r) = self.ring.pop_ready(frame) {
+            self.stats.commands_ingested +=
+                self.culling.ingest_readback(r.counter, &r.words).accepted;
+        }
+        let blas = &mut self.blas;
+        let mut failure = None;
+        let st = self.culling.process_frame_commands(&mut |event| {
+            let result = match event.action {
+                BlasAction::Acquire => {
+                    let lod = usize::from(ctx.lods[event.slot as usize]);
+                    blas.activate(ctx.catalog, event.slot, lod)
+                        .map(|_| blas.address(event.slot))
+                }
+                BlasAction::Release { .. } | BlasAction::CancelBuild => {
+                    blas.deactivate(event.slot).map(|_| None)
+                }
+            };
+            match result {
+                Ok(address) => address,
+                Err(e) => {
+                    failure.get_or_insert(e);
+                    None
+                }
+            }
+        });
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        self.stats.commands_processed = st.drained;
+        self.stats.commands_pending = st.remaining;
+
+        // 5. Builds; new addresses.
         let work = self.blas.build(ctx.catalog, ctx.lods)?;
         for slot in self.blas.take_address_changes() {
             let address = self.blas.address(slot).unwrap_or(0);
-            self.registry.set_blas_at(slot, address).map_err(core)?;
+            self.culling
+                .set_blas(self.handles[slot as usize], address)
+                .map_err(core)?;
         }
-        let dirty = self.registry.take_dirty();
-        let records = self.registry.records();
-        for range in dirty {
-            let (a, b) = (range.start as usize, range.end as usize);
-            self.gpu[a..b].copy_from_slice(&records[a..b]);
-        }
+        self.culling.take_uploads();
 
         // 6. Algorithm 1; geometry records get this frame's BLAS.
-        let cfg = AssemblyConfig::new(ctx.unit_cube);
+        self.culling.assemble(out).map_err(core)?;
         let counting = CountingConfig::default();
-        if cfg.omitted_box_sbt_offset != counting.instance_box_sbt
-            || cfg.hitbox_sbt_offset != counting.hitbox_box_sbt
-            || cfg.counting_mask != counting.counting_mask
-        {
-            return Err(SimError::BadConfig(
-                "assembly and tracer disagree on counting boxes",
-            ));
-        }
-        assemble_tlas(
-            &self.gpu,
-            &mut self.hitboxes,
-            self.registry.hitbox_index(),
-            &cfg,
-            out,
-        )
-        .map_err(core)?;
         for r in out.iter_mut() {
             let sbt = r.sbt_offset();
             if sbt != counting.instance_box_sbt && sbt != counting.hitbox_box_sbt {
@@ -388,11 +378,12 @@ impl Strategy for Lipac {
                 r.acceleration_structure_reference = full.acceleration_structure_reference;
             }
         }
-        self.stats.active_hitboxes = self.hitboxes.iter().filter(|h| h.is_active()).count() as u32;
+        let hitboxes = self.culling.hitboxes();
+        self.stats.active_hitboxes = hitboxes.iter().filter(|h| h.is_active()).count() as u32;
         Ok(StrategyFrame {
             work,
             blas_bytes: self.blas.memory_bytes() + blas_bytes(12),
-            overhead_bytes: lipac_overhead_bytes(self.hitboxes.len() as u64, self.gpu.len() as u64),
+            overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, self.handles.len() as u64),
         })
     }
 }
