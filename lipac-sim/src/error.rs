@@ -45,6 +45,10 @@ pub enum SimError {
         /// Length of the second.
         b: usize,
     },
+    /// lipac-core refused an operation (its error, rendered as text).
+    Core(String),
+    /// Writing a report failed.
+    Io(String),
 }
 
 impl fmt::Display for SimError {
@@ -71,8 +75,23 @@ impl fmt::Display for SimError {
             }
             Self::BadConfig(what) => write!(f, "bad configuration: {what}"),
             Self::SizeMismatch { a, b } => write!(f, "sizes differ: {a} vs {b}"),
+            Self::Core(what) => write!(f, "lipac-core: {what}"),
+            Self::Io(what) => write!(f, "i/o: {what}"),
         }
     }
 }
 
 impl std::error::Error for SimError {}
+
+impl SimError {
+    /// Wraps an error of lipac-core (or any other displayable error).
+    pub fn core(e: impl fmt::Display) -> Self {
+        Self::Core(e.to_string())
+    }
+}
+
+impl From<std::io::Error> for SimError {
+    fn from(e: std::io::Error) -> Self {
+        Self::Io(e.to_string())
+    }
+}

@@ -7,12 +7,17 @@
 
 pub mod blas;
 pub mod camera;
+pub mod compare;
 pub mod error;
+pub mod memory;
 pub mod mesh;
+pub mod metrics;
 pub mod pathtrace;
+pub mod report;
 pub mod rng;
 pub mod scene;
 pub mod scene_blas;
+pub mod strategy;
 pub mod tlas;
 pub mod trace;
 

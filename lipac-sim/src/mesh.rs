@@ -993,6 +993,23 @@ pub fn mirror_block(size: Vec3) -> Mesh {
     Mesh::from_lods(MeshKind::MirrorBlock, [l.clone(), l.clone(), l])
 }
 
+/// A plain box from `min` to `max` in object space, all faces of
+/// `material`, identical at every LOD (walls and ground slabs of hand-made
+/// test scenes).
+///
+/// ```
+/// use glam::Vec3;
+/// use lipac_sim::mesh::{cuboid, material};
+/// let m = cuboid(Vec3::ZERO, Vec3::new(4.0, 2.0, 1.0), material::WALL);
+/// assert_eq!(m.lods[0].len(), 12);
+/// assert_eq!(m.bounds.max, Vec3::new(4.0, 2.0, 1.0));
+/// ```
+pub fn cuboid(min: Vec3, max: Vec3, material: u8) -> Mesh {
+    let mut l = MeshLod::default();
+    l.cuboid(min, max, material, None);
+    Mesh::from_lods(MeshKind::Building, [l.clone(), l.clone(), l])
+}
+
 /// Grid resolution (quads per side) of terrain tiles per LOD.
 pub const TERRAIN_RESOLUTION: [u32; LOD_COUNT] = [24, 12, 6];
 

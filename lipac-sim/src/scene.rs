@@ -568,6 +568,59 @@ impl Scene {
         })
     }
 
+    /// A hand-made scene from a mesh library and static instances (no
+    /// units, no terrain tiles): for tests that need a precise layout.
+    /// `config` supplies the extent (camera paths) and hill height
+    /// ([`Scene::height`]); its generation parameters are not used.
+    ///
+    /// Fails on an instance whose mesh is not in `library`, that is unique
+    /// or animated (their geometry comes from the generator), or whose
+    /// transform or bounds are not finite.
+    ///
+    /// ```
+    /// use glam::{Affine3A, Vec3};
+    /// use lipac_sim::mesh::{cuboid, material, MeshLibrary};
+    /// use lipac_sim::scene::{flags, Scene, SceneConfig};
+    /// let mut lib = MeshLibrary::new();
+    /// let wall = lib.add(cuboid(Vec3::ZERO, Vec3::new(10.0, 5.0, 1.0), material::WALL));
+    /// let s = Scene::custom(SceneConfig::small(), lib, &[(wall, Affine3A::IDENTITY, flags::STATIC)]).unwrap();
+    /// assert_eq!(s.instances().len(), 1);
+    /// assert_eq!(s.instances()[0].aabb.max, Vec3::new(10.0, 5.0, 1.0));
+    /// ```
+    pub fn custom(
+        config: SceneConfig,
+        library: MeshLibrary,
+        placed: &[(MeshId, Affine3A, u8)],
+    ) -> Result<Self, SimError> {
+        let mut instances = Vec::with_capacity(placed.len());
+        for (i, &(mesh, transform, f)) in placed.iter().enumerate() {
+            if f & (flags::UNIQUE | flags::ANIMATED | flags::TERRAIN) != 0 {
+                return Err(SimError::BadConfig(
+                    "custom scenes hold only shared static instances",
+                ));
+            }
+            if !transform.is_finite() {
+                return Err(SimError::BadTransform { record: i });
+            }
+            let aabb = transform_aabb(&transform, &library.bounds(mesh)?);
+            instances.push(SceneInstance {
+                transform,
+                aabb,
+                mesh,
+                flags: f,
+            });
+        }
+        Ok(Self {
+            config,
+            library,
+            instances,
+            units: Vec::new(),
+            unit_mesh: TERRAIN_MESH,
+            frame: 0,
+            busy: (0, 0.0),
+        })
+    }
+
     /// The configuration it was generated from.
     pub fn config(&self) -> &SceneConfig {
         &self.config

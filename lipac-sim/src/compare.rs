@@ -1,0 +1,379 @@
+//! The comparison: a camera path through a scene, the ground truth rendered
+//! once per frame, and every strategy rendered against it.
+//!
+//! Per frame: animate the scene, build the full-scene TLAS at distance LODs
+//! (this is also the rasterization stand-in of every render), render the
+//! ground truth (every instance traced), then for each strategy: its
+//! records, its TLAS, its render with the same random numbers, the error of
+//! its indirect light against the ground truth's, its metrics.
+//!
+//! The full-scene strategy's TLAS *is* the ground truth's, and the hybrid
+//! renderer of a TLAS equal to the full scene gives exactly the ground
+//! truth (see [`crate::pathtrace`]); with
+//! [`CompareConfig::share_ground_truth`] its render is reused instead of
+//! traced again (its trace time is then the ground truth's).
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::blas::BlasStore;
+use crate::camera::CameraPath;
+use crate::error::SimError;
+use crate::memory::tlas_bytes;
+use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, Summary, Tracker};
+use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
+use crate::scene::{LodPolicy, Scene, SceneConfig};
+use crate::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
+use crate::strategy::lipac::{Lipac, LipacConfig};
+use crate::strategy::{
+    FrameContext, FrustumRadius, Full, Heuristic, InstanceCatalog, Oracle, Strategy, StrategyKind,
+};
+use crate::tlas::{CountingConfig, Tlas};
+use crate::trace::{Counters, SlotSet};
+
+/// Which scene to compare on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SceneChoice {
+    /// The default city ([`SceneConfig::city`]).
+    City,
+    /// The small test scene ([`SceneConfig::small`]).
+    Small,
+    /// The city with an 80 m mirror block.
+    Mirror,
+}
+
+impl SceneChoice {
+    /// The scene's configuration with `seed` (or its own default seed).
+    pub fn config(self, seed: Option<u64>) -> SceneConfig {
+        let mut c = match self {
+            Self::City => SceneConfig::city(),
+            Self::Small => SceneConfig::small(),
+            Self::Mirror => SceneConfig::city().with_mirror(80.0),
+        };
+        if let Some(s) = seed {
+            c.seed = s;
+        }
+        c
+    }
+    /// Name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::City => "city",
+            Self::Small => "small",
+            Self::Mirror => "mirror",
+        }
+    }
+}
+
+/// Settings of a comparison.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompareConfig {
+    /// Frames to render (`None`: the whole camera path).
+    pub frames: Option<u32>,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Strategies, in report order.
+    pub strategies: Vec<StrategyKind>,
+    /// Reuse the ground truth's render for the full-scene strategy.
+    pub share_ground_truth: bool,
+    /// Render threads (0 = all cores).
+    pub threads: usize,
+}
+
+impl Default for CompareConfig {
+    /// 128 x 72, the whole path, all strategies, shared ground truth.
+    fn default() -> Self {
+        Self {
+            frames: None,
+            width: 128,
+            height: 72,
+            strategies: StrategyKind::ALL.to_vec(),
+            share_ground_truth: true,
+            threads: 0,
+        }
+    }
+}
+
+/// One strategy's results.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StrategyRun {
+    /// Strategy name.
+    pub name: String,
+    /// Summary over all frames.
+    pub summary: Summary,
+    /// Per-frame metrics.
+    pub frames: Vec<FrameMetrics>,
+    /// Slots traced as real geometry in the last frame (not serialized).
+    #[serde(skip)]
+    pub last_geometry: Vec<u32>,
+}
+
+/// The comparison's results.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CompareReport {
+    /// Scene name.
+    pub scene: String,
+    /// Scene instances.
+    pub instances: u64,
+    /// Frames rendered.
+    pub frames: u32,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Camera rays per frame (thresholds are scaled to it).
+    pub rays_per_frame: u64,
+    /// LiPaC thresholds used `[θa, θd, σa, σo, n_a, n_d]`.
+    pub thresholds: [u32; 6],
+    /// Mean ground-truth render time, ms.
+    pub ground_truth_ms: f64,
+    /// Mean full-scene TLAS build time, ms.
+    pub full_tlas_ms: f64,
+    /// Mean BLAS update time of the shared geometry (unit refits), ms.
+    pub geometry_ms: f64,
+    /// Wall time of the whole comparison, s.
+    pub wall_s: f64,
+    /// Per strategy.
+    pub strategies: Vec<StrategyRun>,
+}
+
+impl CompareReport {
+    /// The run of strategy `name`.
+    pub fn strategy(&self, name: &str) -> Option<&StrategyRun> {
+        self.strategies.iter().find(|s| s.name == name)
+    }
+}
+
+fn make_strategy(
+    kind: StrategyKind,
+    scene: &Scene,
+    lipac: &LipacConfig,
+) -> Result<Box<dyn Strategy>, SimError> {
+    let n = scene.instances().len();
+    Ok(match kind {
+        StrategyKind::Full => Box::new(Full::new(n)?),
+        StrategyKind::Frustum => Box::new(FrustumRadius::new(n, FrustumRadius::DEFAULT_RADIUS)?),
+        StrategyKind::Heuristic => Box::new(Heuristic::new(n, Default::default())?),
+        StrategyKind::Lipac => Box::new(Lipac::new(scene, lipac.clone())?),
+        StrategyKind::LipacLatency => {
+            Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
+        }
+        StrategyKind::Oracle => Box::new(Oracle::new(n)?),
+    })
+}
+
+/// Generates `choice`'s scene and runs the comparison along its fly-through.
+/// `progress(done, total)` is called after every frame.
+pub fn run_choice(
+    choice: SceneChoice,
+    seed: Option<u64>,
+    config: &CompareConfig,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CompareReport, SimError> {
+    let mut scene = Scene::generate(&choice.config(seed))?;
+    let aspect = config.width as f32 / config.height.max(1) as f32;
+    let path = CameraPath::flythrough(&scene, aspect);
+    run(choice.name(), &mut scene, &path, config, progress)
+}
+
+/// Runs the comparison on `scene` along `path` (see the module docs).
+pub fn run(
+    scene_name: &str,
+    scene: &mut Scene,
+    path: &CameraPath,
+    config: &CompareConfig,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CompareReport, SimError> {
+    let start = Instant::now();
+    if config.strategies.is_empty() {
+        return Err(SimError::BadConfig("no strategy to compare"));
+    }
+    let frames = config.frames.unwrap_or(path.frames()).min(path.frames());
+    if frames == 0 {
+        return Err(SimError::BadConfig("no frames to render"));
+    }
+    let rays_per_frame = u64::from(config.width) * u64::from(config.height);
+    let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    let pt = PathTraceConfig {
+        width: config.width,
+        height: config.height,
+        threads: config.threads,
+        ..PathTraceConfig::default()
+    };
+    let n = scene.instances().len();
+    let catalog = InstanceCatalog::new(scene)?;
+    let mut strategies = config
+        .strategies
+        .iter()
+        .map(|&k| make_strategy(k, scene, &lipac_config))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut trackers: Vec<Tracker> = strategies.iter().map(|_| Tracker::new(n)).collect();
+    let mut metrics: Vec<Vec<FrameMetrics>> = strategies.iter().map(|_| Vec::new()).collect();
+    let mut previous: Vec<Option<Counters>> = strategies.iter().map(|_| None).collect();
+    let mut last_geometry: Vec<Vec<u32>> = strategies.iter().map(|_| Vec::new()).collect();
+
+    let policy = LodPolicy::default();
+    let counting = CountingConfig::default();
+    let mut store = BlasStore::new();
+    let unit_cube = store.unit_cube().reference();
+    let mut blases = SceneBlases::new();
+    let mut full_records = Vec::new();
+    let mut full_tlas = Tlas::default();
+    let mut tlas = Tlas::default();
+    let mut records = Vec::new();
+    let mut lods = vec![0u8; n];
+    let mut all = SlotSet::new();
+    (0..n as u32).for_each(|s| all.insert(s));
+    let (mut gt_ms, mut full_tlas_ms, mut geometry_ms) = (0.0, 0.0, 0.0);
+
+    for frame in 0..frames {
+        scene.set_frame(frame);
+        let camera = path.camera_at(frame);
+        let eye = camera.position;
+        for (l, inst) in lods.iter_mut().zip(scene.instances()) {
+            *l = policy.lod(eye, &inst.aabb) as u8;
+        }
+        let t = Instant::now();
+        full_scene_records(
+            scene,
+            &mut blases,
+            &mut store,
+            eye,
+            &policy,
+            frame,
+            UniqueUpdate::Refit,
+            &mut full_records,
+        )?;
+        geometry_ms += ms(t);
+        let t = Instant::now();
+        full_tlas.rebuild(&store, &full_records, &counting)?;
+        let full_ms = ms(t);
+        full_tlas_ms += full_ms;
+        let t = Instant::now();
+        let gt = render(
+            &FrameScene {
+                store: &store,
+                full: &full_tlas,
+                traced: &full_tlas,
+                traced_slots: &all,
+            },
+            &camera,
+            frame,
+            &pt,
+            n,
+            0,
+        )?;
+        let gt_frame_ms = ms(t);
+        gt_ms += gt_frame_ms;
+        let ctx = FrameContext {
+            frame,
+            scene,
+            camera: &camera,
+            catalog: &catalog,
+            lods: &lods,
+            full_records: &full_records,
+            unit_cube,
+            rays_per_frame,
+            ground_truth_hits: &gt.counters.instances,
+        };
+        for (i, s) in strategies.iter_mut().enumerate() {
+            let t = Instant::now();
+            let sf = s.frame(&ctx, previous[i].as_ref(), &mut records)?;
+            let mut m = FrameMetrics {
+                frame,
+                strategy_ms: ms(t),
+                ..FrameMetrics::default()
+            };
+            apply_strategy_frame(&mut m, &sf);
+            let geometry = SlotSet::from_geometry_records(&records, &counting);
+            let (out, traced) = if s.is_full_scene() && config.share_ground_truth {
+                if records != full_records {
+                    return Err(SimError::BadConfig(
+                        "full-scene strategy's records differ from the ground truth's",
+                    ));
+                }
+                m.tlas_build_ms = full_ms;
+                m.trace_ms = gt_frame_ms;
+                (None, &full_tlas)
+            } else {
+                let t = Instant::now();
+                tlas.rebuild(&store, &records, &counting)?;
+                m.tlas_build_ms = ms(t);
+                let t = Instant::now();
+                let out = render(
+                    &FrameScene {
+                        store: &store,
+                        full: &full_tlas,
+                        traced: &tlas,
+                        traced_slots: &geometry,
+                    },
+                    &camera,
+                    frame,
+                    &pt,
+                    n,
+                    s.hitboxes(),
+                )?;
+                m.trace_ms = ms(t);
+                (Some(out), &tlas)
+            };
+            m.tlas_instances = traced.len() as u64;
+            m.counting_boxes = traced.box_count() as u64;
+            m.tlas_bytes = tlas_bytes(m.tlas_instances);
+            let geometry_slots = (0..n as u32).filter(|&s| geometry.contains(s));
+            trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
+            match out {
+                Some(out) => {
+                    m.error = relative_rmse(&out.indirect, &gt.indirect)?;
+                    previous[i] = Some(out.counters);
+                }
+                None => {
+                    m.error = 0.0;
+                    previous[i] = Some(gt.counters.clone());
+                }
+            }
+            if frame + 1 == frames {
+                last_geometry[i] = (0..n as u32).filter(|&s| geometry.contains(s)).collect();
+            }
+            metrics[i].push(m);
+        }
+        progress(frame + 1, frames);
+    }
+
+    let th = lipac_config.thresholds;
+    let nf = f64::from(frames);
+    let strategies = strategies
+        .iter()
+        .zip(metrics)
+        .zip(trackers.iter())
+        .zip(last_geometry)
+        .map(|(((s, frames), tracker), last)| StrategyRun {
+            name: s.name().to_string(),
+            summary: summarize(s.name(), &frames, tracker),
+            frames,
+            last_geometry: last,
+        })
+        .collect();
+    Ok(CompareReport {
+        scene: scene_name.to_string(),
+        instances: n as u64,
+        frames,
+        width: config.width,
+        height: config.height,
+        rays_per_frame,
+        thresholds: [
+            th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
+        ],
+        ground_truth_ms: gt_ms / nf,
+        full_tlas_ms: full_tlas_ms / nf,
+        geometry_ms: geometry_ms / nf,
+        wall_s: start.elapsed().as_secs_f64(),
+        strategies,
+    })
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

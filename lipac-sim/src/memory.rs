@@ -1,0 +1,63 @@
+//! The acceleration-structure memory model of the comparison, calibrated to
+//! the sizes lavapipe reports (docs/VULKAN.md, "Acceleration-structure sizes
+//! on lavapipe"; model and reasoning in docs/MEMORY_MODEL.md).
+//!
+//! * a BLAS of `n` triangles: `104·n − 16` bytes (exact on lavapipe for
+//!   every measured size; compaction gives nothing there, so the model has
+//!   no compacted sizes);
+//! * a TLAS of `n` instances: `176·n − 16` bytes, and 216 bytes for one
+//!   instance (lavapipe: exact from n = 16 on);
+//! * LiPaC's own buffers: 12 bytes per hitbox and 4 bytes of hit feedback
+//!   per instance slot (the paper's accounting; [`lipac_core::grid`]).
+//!
+//! The CPU tracer's own structures (obvhs CWBVHs) are a different size; the
+//! comparison reports the model, which is what a Vulkan backend on lavapipe
+//! would allocate for the same BLASes and TLAS records.
+
+use lipac_core::grid::{HITBOX_BYTES, HIT_FEEDBACK_BYTES_PER_INSTANCE};
+
+/// Bytes per BLAS triangle.
+pub const BLAS_BYTES_PER_TRIANGLE: u64 = 104;
+/// Bytes per TLAS instance.
+pub const TLAS_BYTES_PER_INSTANCE: u64 = 176;
+/// Build scratch of any build on lavapipe (a constant: it builds on the CPU).
+pub const BUILD_SCRATCH_BYTES: u64 = 64;
+
+/// Modelled size of a BLAS of `triangles` triangles (never 0: an empty
+/// BLAS still takes a header).
+///
+/// ```
+/// use lipac_sim::memory::blas_bytes;
+/// assert_eq!(blas_bytes(12), 1232); // lavapipe's unit cube
+/// assert_eq!(blas_bytes(2), 192);
+/// ```
+pub fn blas_bytes(triangles: u64) -> u64 {
+    (BLAS_BYTES_PER_TRIANGLE * triangles)
+        .saturating_sub(16)
+        .max(64)
+}
+
+/// Modelled size of a TLAS over `instances` instances (0 for none).
+///
+/// ```
+/// use lipac_sim::memory::tlas_bytes;
+/// assert_eq!(tlas_bytes(0), 0);
+/// assert_eq!(tlas_bytes(1), 216);
+/// assert_eq!(tlas_bytes(16), 2800); // lavapipe's figure
+/// ```
+pub fn tlas_bytes(instances: u64) -> u64 {
+    match instances {
+        0 => 0,
+        n => (TLAS_BYTES_PER_INSTANCE * n).saturating_sub(16).max(216),
+    }
+}
+
+/// LiPaC's own GPU buffers: hitbox records and per-slot hit counters.
+///
+/// ```
+/// use lipac_sim::memory::lipac_overhead_bytes;
+/// assert_eq!(lipac_overhead_bytes(512 * 512, 1_000_000), 3 * 1024 * 1024 + 4_000_000);
+/// ```
+pub fn lipac_overhead_bytes(hitboxes: u64, instance_slots: u64) -> u64 {
+    hitboxes * HITBOX_BYTES + instance_slots * HIT_FEEDBACK_BYTES_PER_INSTANCE
+}
