@@ -18,8 +18,8 @@ pub struct MeshLod {
     pub estimate: BuildEstimate,
     /// Bytes of geometry-instance data one instance of this LOD needs (e.g.
     /// per-geometry material and vertex/index offsets the hit shaders read),
-    /// > 0. Each live instance owns a range of this size in the manager's
-    /// geometry-data buffer.
+    /// at least 1. Each live instance owns a range of this size in the
+    /// manager's geometry-data buffer.
     pub data_bytes: u64,
 }
 
