@@ -26,6 +26,7 @@ pub mod hitbox_index;
 pub mod instance;
 pub mod latency;
 pub mod layout;
+pub mod manager;
 pub mod math;
 pub mod registry;
 pub mod state;

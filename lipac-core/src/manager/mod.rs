@@ -1,0 +1,927 @@
+//! The engine-facing per-frame API: one [`Manager`] that owns the command
+//! loop ([`Culling`]), the BLAS [`BuildScheduler`] (and its cache) and a
+//! [`TlsfAllocator`] for per-instance geometry-data ranges, and keeps them
+//! consistent.
+//!
+//! # One frame
+//!
+//! | step | call | what happens |
+//! | --- | --- | --- |
+//! | 1 | [`Manager::begin_frame`] | slot quarantine, hitbox reset, scheduler frame (deferred BLAS frees become due) |
+//! | 2 | [`Manager::mitigate_latency`] (optional) | instances newly in the frustum become active; their BLASes are requested |
+//! | 3 | [`Manager::ingest_readback`] | the commands Algorithm 2 wrote frames ago |
+//! | 4 | [`Manager::plan`] | commands under the budget → BLAS activations / releases; priorities; [`FramePlan`] (builds, updates, compactions, frees); uploads; geometry-data changes and buffer growth |
+//! | 5 | backend | executes the plan and uploads; acknowledges whenever results arrive: [`Manager::ack_built`], [`Manager::ack_compacted_size`], [`Manager::ack_compacted`] |
+//! | 6 | [`Manager::assemble`] (CPU backends) | Algorithm 1: TLAS instances; a GPU backend runs it as a shader over the uploaded records |
+//! | 7 | trace | hits into [`Manager::instance_hits_mut`] / [`Manager::hitboxes_mut`] |
+//! | 8 | [`Manager::process_feedback`] + [`Manager::take_commands`] (CPU backends) | Algorithm 2; its commands go to the read-back ring |
+//!
+//! Instances are added, changed and removed at any time between frames:
+//! [`Manager::register`], [`Manager::update`], [`Manager::set_transform`],
+//! [`Manager::set_lod`], [`Manager::remove`].
+//!
+//! # Identities
+//!
+//! The engine holds [`InstanceHandle`]s. The GPU and the scheduler use the
+//! instance's GPU slot: the scheduler's [`InstanceKey`] is the slot number.
+//! Slots are reused after a quarantine, so [`Manager::remove`] always takes
+//! the instance out of the scheduler (its BLAS references released, pending
+//! builds cancelled): a new instance in a reused slot starts with no BLAS
+//! state at all.
+//!
+//! # BLAS addresses follow acknowledgements
+//!
+//! Whenever the scheduler reports address changes (first BLAS built, a LOD
+//! switch completed, a compaction copied, an instant switch to a cached
+//! BLAS), the manager writes the new address into the instance's record
+//! ([`Culling::set_blas`]) before the call returns. So a newly built BLAS is
+//! in the next [`Manager::assemble`], and an instance switching LOD keeps
+//! its old, valid BLAS until the new one is acknowledged.
+//!
+//! # LODs and geometry data
+//!
+//! An instance has a *requested* LOD (what the engine asked for) and a
+//! *traced* LOD: the LOD of the BLAS in its record. They differ while a LOD
+//! switch waits for hysteresis or for its build. The instance record's `lod`
+//! field and the instance's geometry-data range always follow the **traced**
+//! LOD, so hit shaders never read one LOD's data for another LOD's BLAS.
+//! An instance without a BLAS (not active, or waiting for its first build)
+//! is at its requested LOD.
+//!
+//! Every live instance owns one range of the geometry-data buffer, of
+//! [`MeshLod::data_bytes`] for its traced LOD. On a LOD change the range is
+//! resized in place when the allocator can, else a new range is allocated
+//! and then the old one freed. Each change is listed in
+//! [`ManagerPlan::data_uploads`]: the backend writes that LOD's data at the
+//! range and points the slot at it. When the buffer must grow, the
+//! allocator grows at once (at least doubling) and the next plan reports
+//! [`ManagerPlan::data_growth`]: the backend grows its buffer (keeping the
+//! contents) before writing the uploads.
+//!
+//! # Example
+//!
+//! A tiny synthetic backend that "builds" BLASes by handing out fake
+//! addresses and acknowledges them one frame later (the same program is
+//! `lipac-core/examples/manager_frame.rs`):
+//!
+//! ```
+#![doc = include_str!("../../examples/manager_frame.rs")]
+//! ```
+
+mod catalog;
+mod error;
+mod stats;
+
+pub use catalog::{MeshCatalog, MeshLod, MAX_LODS};
+pub use error::ManagerError;
+pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
+
+use std::ops::Range;
+
+use glam::{Affine3A, Vec3};
+
+use crate::allocator::{AllocError, AllocHandle, TlsfAllocator};
+use crate::assembly::AssemblyStats;
+use crate::blas_ids::{BuildId, InstanceKey, Lod};
+use crate::build_plan::{
+    BlasGeometry, BuildBudgets, BuildScheduler, FramePlan, InstanceBlasRequest, SchedulerConfig,
+};
+use crate::culling::{
+    BlasAction, Culling, CullingConfig, IngestSummary, LatencyOutcome, ProcessStats, Readback,
+    Uploads,
+};
+use crate::feedback::FeedbackStats;
+use crate::grid::HitboxGrid;
+use crate::hitbox_index::HitboxIndex;
+use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
+use crate::latency::Frustum;
+use crate::layout::{HitboxRecord, InstanceState, TlasInstance};
+use crate::math::Aabb;
+use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
+
+/// The geometry-data buffer's allocator settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DataConfig {
+    /// Initial capacity in bytes (0 allowed: the first registration grows).
+    pub initial_capacity: u64,
+    /// Alignment of every range (a power of two, e.g. 16 or 256).
+    pub alignment: u64,
+}
+
+impl Default for DataConfig {
+    /// 1 MiB, 16-byte ranges.
+    fn default() -> Self {
+        Self {
+            initial_capacity: 1 << 20,
+            alignment: 16,
+        }
+    }
+}
+
+/// Settings of a [`Manager`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ManagerConfig {
+    /// The command loop (registry, thresholds, assembly, command buffer,
+    /// latency mitigation, read-back latency). Its `command_budget` is not
+    /// used: [`FrameBudgets::commands`] is.
+    pub culling: CullingConfig,
+    /// The BLAS scheduler and cache.
+    pub scheduler: SchedulerConfig,
+    /// The geometry-data allocator.
+    pub data: DataConfig,
+}
+
+impl ManagerConfig {
+    /// Defaults around the backend's unit-cube BLAS ([`CullingConfig::new`],
+    /// [`SchedulerConfig::default`], [`DataConfig::default`]).
+    pub fn new(unit_cube_blas: u64) -> Self {
+        Self {
+            culling: CullingConfig::new(unit_cube_blas),
+            scheduler: SchedulerConfig::default(),
+            data: DataConfig::default(),
+        }
+    }
+}
+
+/// Per-frame budgets of [`Manager::plan`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameBudgets {
+    /// Commands processed per frame (the rest wait, highest priority first).
+    pub commands: usize,
+    /// BLAS builds, compactions and scratch per frame.
+    pub builds: BuildBudgets,
+}
+
+impl Default for FrameBudgets {
+    /// 4096 commands, [`BuildBudgets::default`].
+    fn default() -> Self {
+        Self {
+            commands: 4096,
+            builds: BuildBudgets::default(),
+        }
+    }
+}
+
+/// One geometry-data range to (re)write: the instance in `slot` now uses
+/// `bytes` bytes at `offset` for LOD `lod` of `mesh`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DataUpload {
+    /// The GPU slot.
+    pub slot: u32,
+    /// The instance.
+    pub handle: InstanceHandle,
+    /// Its mesh.
+    pub mesh: MeshId,
+    /// Its traced LOD.
+    pub lod: u32,
+    /// Byte offset in the geometry-data buffer.
+    pub offset: u64,
+    /// Byte size ([`MeshLod::data_bytes`]).
+    pub bytes: u64,
+}
+
+/// The geometry-data buffer grew (see the [module docs](self)).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DataGrowth {
+    /// The capacity the backend had.
+    pub from: u64,
+    /// The capacity it must have now (contents `0..from` kept).
+    pub to: u64,
+}
+
+/// Everything the backend does for one frame, from [`Manager::plan`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ManagerPlan {
+    /// The frame.
+    pub frame: u64,
+    /// What command processing did this frame.
+    pub commands: ProcessStats,
+    /// BLAS builds and updates (batches with scratch slices), compactions and
+    /// frees; acknowledge builds and compactions with [`Manager::ack_built`],
+    /// [`Manager::ack_compacted_size`] and [`Manager::ack_compacted`].
+    pub blas: FramePlan,
+    /// Instance records to upload (keeping the GPU's state bits) and the
+    /// CPU's state-bit overrides ([`Uploads`]).
+    pub uploads: Uploads,
+    /// Geometry-data ranges that changed since the last plan (registrations
+    /// and traced-LOD changes), by ascending slot, one per slot.
+    pub data_uploads: Vec<DataUpload>,
+    /// Growth of the geometry-data buffer since the last plan, if any: apply
+    /// it before writing [`ManagerPlan::data_uploads`].
+    pub data_growth: Option<DataGrowth>,
+}
+
+/// A read-only view of one instance, from [`Manager::instance`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstanceView {
+    /// The GPU slot (= the scheduler's [`InstanceKey`]).
+    pub slot: u32,
+    /// Its state (GPU-owned; the CPU mirror).
+    pub state: InstanceState,
+    /// The BLAS address in its record (0 = none).
+    pub blas: u64,
+    /// The LOD the engine asked for.
+    pub requested_lod: u32,
+    /// The LOD of the BLAS it is traced with (= its record's `lod`).
+    pub traced_lod: u32,
+    /// Its geometry-data range.
+    pub data: Range<u64>,
+    /// Whether it waits for a BLAS build.
+    pub awaiting_blas: bool,
+    /// Whether the scheduler knows it (holds or waits for a BLAS).
+    pub scheduled: bool,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    handle: InstanceHandle,
+    mesh: MeshId,
+    geometry: BlasGeometry,
+    requested_lod: u8,
+    traced_lod: u8,
+    range: AllocHandle,
+    scheduled: bool,
+}
+
+/// The per-frame manager; see the [module docs](self).
+#[derive(Debug)]
+pub struct Manager<H: HitboxIndex = HitboxGrid> {
+    culling: Culling<H>,
+    scheduler: BuildScheduler,
+    data: TlsfAllocator,
+    data_config: DataConfig,
+    catalog: MeshCatalog,
+    /// Per GPU slot: the live instance's manager state.
+    slots: Vec<Option<Slot>>,
+    /// Per GPU slot: the hits of the last frame whose feedback was seen.
+    last_hits: Vec<u32>,
+    /// Slots whose geometry-data range changed since the last plan.
+    data_dirty: Vec<u32>,
+    data_dirty_mark: Vec<bool>,
+    /// The buffer capacity the backend was last told about.
+    reported_capacity: u64,
+    frame: Option<u64>,
+    planned: Option<u64>,
+    actions: Vec<(u32, BlasAction, u8)>,
+}
+
+fn geometry_of(mesh: MeshId, flags: InstanceFlags) -> BlasGeometry {
+    if flags.contains(InstanceFlags::UNIQUE_BLAS) {
+        BlasGeometry::Unique { mesh }
+    } else {
+        let compactable = flags.contains(InstanceFlags::STATIC);
+        // Static and non-static instances of a mesh use different shared
+        // BLASes: compaction is a property of the BLAS.
+        BlasGeometry::Shared {
+            mesh,
+            variant: u32::from(compactable),
+            compactable,
+        }
+    }
+}
+
+/// A hit count of the order a command priority stands for
+/// ([`crate::command::priority_from_hits`] inverted, rounded down).
+fn hits_from_priority(priority: u8) -> u32 {
+    let p = u32::from(priority.min(124));
+    (1u32 << (p / 4)).saturating_sub(1)
+}
+
+impl<H: HitboxIndex> Manager<H> {
+    /// A manager over the hitbox structure `index`, with the meshes of
+    /// `catalog`. Fails for an invalid configuration.
+    pub fn new(
+        index: H,
+        config: ManagerConfig,
+        catalog: MeshCatalog,
+    ) -> Result<Self, ManagerError> {
+        if !config.data.alignment.is_power_of_two() {
+            return Err(ManagerError::InvalidConfig {
+                what: format!(
+                    "data.alignment = {} must be a power of two",
+                    config.data.alignment
+                ),
+            });
+        }
+        let culling = Culling::new(index, config.culling)?;
+        let scheduler = BuildScheduler::new(config.scheduler)?;
+        let data = TlsfAllocator::new(config.data.initial_capacity);
+        Ok(Self {
+            culling,
+            scheduler,
+            reported_capacity: data.capacity(),
+            data,
+            data_config: config.data,
+            catalog,
+            slots: Vec::new(),
+            last_hits: Vec::new(),
+            data_dirty: Vec::new(),
+            data_dirty_mark: Vec::new(),
+            frame: None,
+            planned: None,
+            actions: Vec::new(),
+        })
+    }
+
+    // ---- read access ------------------------------------------------------
+
+    /// The command loop (registry, hitboxes, hit counters, queue).
+    pub fn culling(&self) -> &Culling<H> {
+        &self.culling
+    }
+
+    /// The instance registry (records, slots, dirty ranges).
+    pub fn registry(&self) -> &InstanceRegistry<H> {
+        self.culling.registry()
+    }
+
+    /// The BLAS build scheduler (and through it the cache).
+    pub fn scheduler(&self) -> &BuildScheduler {
+        &self.scheduler
+    }
+
+    /// The geometry-data allocator.
+    pub fn data_allocator(&self) -> &TlsfAllocator {
+        &self.data
+    }
+
+    /// The mesh catalog.
+    pub fn catalog(&self) -> &MeshCatalog {
+        &self.catalog
+    }
+
+    /// The current frame (`None` before the first [`Manager::begin_frame`]).
+    pub fn frame(&self) -> Option<u64> {
+        self.frame
+    }
+
+    /// One instance: slot, state, BLAS, LODs, data range.
+    pub fn instance(&self, handle: InstanceHandle) -> Result<InstanceView, ManagerError> {
+        let (slot, s) = self.slot_of(handle)?;
+        let record = self.registry().record(handle)?;
+        let range = self.data.get(s.range)?;
+        Ok(InstanceView {
+            slot,
+            state: record.state(),
+            blas: record.blas,
+            requested_lod: s.requested_lod.into(),
+            traced_lod: s.traced_lod.into(),
+            data: range.range(),
+            awaiting_blas: self.culling.awaiting_blas(handle)?,
+            scheduled: s.scheduled,
+        })
+    }
+
+    /// The hitbox records, for the tracer's counting-box hits.
+    pub fn hitboxes_mut(&mut self) -> &mut [HitboxRecord] {
+        self.culling.hitboxes_mut()
+    }
+
+    /// The per-slot hit counters, for the tracer.
+    pub fn instance_hits_mut(&mut self) -> &mut [u32] {
+        self.culling.instance_hits_mut()
+    }
+
+    // ---- meshes and instances -------------------------------------------
+
+    /// Adds a mesh to the catalog ([`MeshCatalog::insert`]).
+    pub fn register_mesh(&mut self, mesh: MeshId, lods: Vec<MeshLod>) -> Result<(), ManagerError> {
+        self.catalog.insert(mesh, lods)
+    }
+
+    /// Registers an instance: inactive, no BLAS, a geometry-data range for
+    /// its mesh's LOD `desc.lod`. Fails, changing nothing but possibly the
+    /// buffer's capacity, for a mesh or LOD not in the catalog or an invalid
+    /// description.
+    pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, ManagerError> {
+        let bytes = self.catalog.lod(desc.mesh, desc.lod)?.data_bytes;
+        let lod = u8::try_from(desc.lod).map_err(|_| ManagerError::Invariant {
+            what: format!("catalog accepted LOD {} over 255", desc.lod),
+        })?;
+        let range = self.allocate(bytes)?;
+        let handle = match self.culling.register(desc) {
+            Ok(h) => h,
+            Err(e) => {
+                self.data.free(range)?;
+                return Err(e.into());
+            }
+        };
+        let slot = self.culling.registry().slot(handle)?;
+        let i = slot as usize;
+        if self.slots.len() <= i {
+            self.slots.resize(i + 1, None);
+            self.last_hits.resize(i + 1, 0);
+            self.data_dirty_mark.resize(i + 1, false);
+        }
+        self.slots[i] = Some(Slot {
+            handle,
+            mesh: desc.mesh,
+            geometry: geometry_of(desc.mesh, desc.flags),
+            requested_lod: lod,
+            traced_lod: lod,
+            range,
+            scheduled: false,
+        });
+        self.last_hits[i] = 0;
+        self.mark_data(slot);
+        Ok(handle)
+    }
+
+    /// Replaces an instance's description and returns the previous one
+    /// (with the requested LOD). The mesh and the `UNIQUE_BLAS` / `STATIC`
+    /// flags cannot change ([`ManagerError::GeometryChange`]); a new
+    /// `desc.lod` is a [`Manager::set_lod`]. On error nothing changes.
+    pub fn update(
+        &mut self,
+        handle: InstanceHandle,
+        desc: InstanceDesc,
+    ) -> Result<InstanceDesc, ManagerError> {
+        let (_, s) = self.slot_of(handle)?;
+        if desc.mesh != s.mesh {
+            return Err(ManagerError::GeometryChange { what: "the mesh" });
+        }
+        if geometry_of(desc.mesh, desc.flags) != s.geometry {
+            return Err(ManagerError::GeometryChange {
+                what: "the UNIQUE_BLAS or STATIC flag",
+            });
+        }
+        self.catalog.lod(desc.mesh, desc.lod)?;
+        let requested = u32::from(s.requested_lod);
+        let mut old = self.culling.update(
+            handle,
+            InstanceDesc {
+                lod: s.traced_lod.into(),
+                ..desc
+            },
+        )?;
+        old.lod = requested;
+        if desc.lod != requested {
+            self.set_lod(handle, desc.lod)?;
+        }
+        Ok(old)
+    }
+
+    /// Moves an instance (new transform and world AABB).
+    pub fn set_transform(
+        &mut self,
+        handle: InstanceHandle,
+        transform: Affine3A,
+        aabb: Aabb,
+    ) -> Result<(), ManagerError> {
+        self.culling.set_transform(handle, transform, aabb)?;
+        Ok(())
+    }
+
+    /// Requests LOD `lod` for an instance and returns the previously
+    /// requested one. An instance without a BLAS switches at once (record
+    /// and data range); one with a BLAS asks the scheduler, which switches
+    /// after its hysteresis and once the new BLAS is built (see the
+    /// [module docs](self)). Unknown LOD → [`ManagerError::UnknownLod`],
+    /// nothing changed.
+    pub fn set_lod(&mut self, handle: InstanceHandle, lod: u32) -> Result<u32, ManagerError> {
+        let (slot, s) = self.slot_of(handle)?;
+        let estimate = self.catalog.lod(s.mesh, lod)?.estimate;
+        let lod8 = u8::try_from(lod).map_err(|_| ManagerError::Invariant {
+            what: format!("catalog accepted LOD {lod} over 255"),
+        })?;
+        let old = s.requested_lod;
+        if s.scheduled {
+            self.scheduler
+                .request_lod(InstanceKey(slot), Lod(lod8), estimate)?;
+        }
+        if let Some(s) = self.slots[slot as usize].as_mut() {
+            s.requested_lod = lod8;
+        }
+        self.sync_addresses()?;
+        self.sync_lod(slot)?;
+        Ok(old.into())
+    }
+
+    /// Removes an instance: its slot is quarantined, its pending command
+    /// cancelled, its BLAS released through the scheduler (freed in a later
+    /// plan's [`FramePlan::frees`] once no frame in flight uses it, a shared
+    /// one stays cached), a pending build cancelled, its data range freed.
+    /// Returns the registry's account of it.
+    pub fn remove(&mut self, handle: InstanceHandle) -> Result<RemovedInstance, ManagerError> {
+        let (slot, s) = self.slot_of(handle)?;
+        let removal = self.culling.remove(handle)?;
+        self.slots[slot as usize] = None;
+        self.last_hits[slot as usize] = 0;
+        if s.scheduled {
+            self.scheduler.deactivate(InstanceKey(slot))?;
+        }
+        self.data.free(s.range)?;
+        Ok(removal.instance)
+    }
+
+    /// Evicts every unreferenced cached BLAS (e.g. at a level change); the
+    /// frees follow in later plans. Returns how many were evicted.
+    pub fn trim_blas_cache(&mut self) -> usize {
+        self.scheduler.trim_cache()
+    }
+
+    // ---- the frame --------------------------------------------------------
+
+    /// Starts frame `frame` (strictly after the previous one). Fails,
+    /// changing nothing, if frames do not increase or the last frame's
+    /// commands were not taken ([`Manager::take_commands`]).
+    pub fn begin_frame(&mut self, frame: u64) -> Result<(), ManagerError> {
+        if let Some(prev) = self.frame {
+            if frame <= prev {
+                return Err(ManagerError::CallOrder {
+                    what: format!("frame {frame} does not follow frame {prev}"),
+                });
+            }
+        }
+        self.culling.begin_frame(frame)?;
+        self.scheduler.begin_frame(frame)?;
+        self.frame = Some(frame);
+        Ok(())
+    }
+
+    /// Latency mitigation (§3.6, [`Culling::mitigate_latency`]): instances
+    /// newly in `frustum` become active now, and their BLASes are requested
+    /// from the scheduler at once (in the frustum: high priority). A cached
+    /// BLAS is in the record when this returns.
+    pub fn mitigate_latency(
+        &mut self,
+        camera: Vec3,
+        frustum: &Frustum,
+    ) -> Result<LatencyOutcome, ManagerError> {
+        let out = self.culling.mitigate_latency(camera, frustum)?;
+        for r in &out.requests {
+            let hits = self.last_hits.get(r.slot as usize).copied().unwrap_or(0);
+            self.activate(r.slot, hits, true)?;
+        }
+        self.sync_addresses()?;
+        Ok(out)
+    }
+
+    /// Ingests one read-back of commands ([`Culling::ingest_readback`]).
+    pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+        self.culling.ingest_readback(counter, words)
+    }
+
+    /// For GPU backends: the per-slot hit counters of a finished frame (read
+    /// back), used to prioritise builds. CPU backends get them from
+    /// [`Manager::process_feedback`].
+    pub fn record_hits(&mut self, hits: &[u32]) {
+        let n = hits.len().min(self.last_hits.len());
+        self.last_hits[..n].copy_from_slice(&hits[..n]);
+    }
+
+    /// Plans the frame, once per frame after [`Manager::begin_frame`]:
+    ///
+    /// 1. up to `budgets.commands` pending commands are reconciled: an
+    ///    active instance without a BLAS is activated in the scheduler (a
+    ///    cached BLAS is assigned at once, else a build is queued), a
+    ///    non-active one with a BLAS or a pending build is deactivated;
+    /// 2. the last hits and frustum visibility of instances waiting for a
+    ///    build become their build priority;
+    /// 3. the scheduler plans (due LOD switches, unique updates, budgeted
+    ///    batches, compactions, frees);
+    /// 4. the uploads, the geometry-data changes and growth are collected.
+    pub fn plan(&mut self, budgets: &FrameBudgets) -> Result<ManagerPlan, ManagerError> {
+        let frame = self.frame.ok_or_else(|| ManagerError::CallOrder {
+            what: "plan before the first begin_frame".into(),
+        })?;
+        if self.planned == Some(frame) {
+            return Err(ManagerError::CallOrder {
+                what: format!("frame {frame} was already planned"),
+            });
+        }
+        self.planned = Some(frame);
+
+        // 1. Commands: record the actions, apply them after the loop.
+        let mut actions = std::mem::take(&mut self.actions);
+        actions.clear();
+        let commands = self.culling.process_commands(budgets.commands, &mut |e| {
+            actions.push((e.slot, e.action, e.priority));
+            None
+        });
+        let mut result = Ok(());
+        for &(slot, action, priority) in &actions {
+            let r = match action {
+                BlasAction::Acquire => {
+                    let hits = self.last_hits[slot as usize].max(hits_from_priority(priority));
+                    let visible = self.visible(slot);
+                    self.activate(slot, hits, visible)
+                }
+                BlasAction::Release { .. } | BlasAction::CancelBuild => self.deactivate(slot),
+            };
+            if r.is_err() && result.is_ok() {
+                result = r;
+            }
+        }
+        self.actions = actions;
+        result?;
+
+        // 2. Priorities of waiting instances.
+        for slot in 0..self.slots.len() as u32 {
+            let Some(s) = self.slots[slot as usize] else {
+                continue;
+            };
+            let key = InstanceKey(slot);
+            if s.scheduled && self.scheduler.pending_lod(key).is_some() {
+                let visible = self.visible(slot);
+                self.scheduler
+                    .set_feedback(key, self.last_hits[slot as usize], visible)?;
+            }
+        }
+
+        // 3. The scheduler.
+        let blas = self.scheduler.plan(&budgets.builds)?;
+        self.sync_addresses()?;
+
+        // 4. Uploads.
+        let uploads = self.culling.take_uploads();
+        let mut data_uploads = Vec::with_capacity(self.data_dirty.len());
+        self.data_dirty.sort_unstable();
+        for &slot in &self.data_dirty {
+            self.data_dirty_mark[slot as usize] = false;
+            let Some(s) = self.slots[slot as usize] else {
+                continue;
+            };
+            let a = self.data.get(s.range)?;
+            data_uploads.push(DataUpload {
+                slot,
+                handle: s.handle,
+                mesh: s.mesh,
+                lod: s.traced_lod.into(),
+                offset: a.offset,
+                bytes: a.size,
+            });
+        }
+        self.data_dirty.clear();
+        let capacity = self.data.capacity();
+        let data_growth = (capacity != self.reported_capacity).then_some(DataGrowth {
+            from: self.reported_capacity,
+            to: capacity,
+        });
+        self.reported_capacity = capacity;
+        Ok(ManagerPlan {
+            frame,
+            commands,
+            blas,
+            uploads,
+            data_uploads,
+            data_growth,
+        })
+    }
+
+    /// Acknowledges build `build` ([`BuildScheduler::ack_built`]); the
+    /// instances waiting for it get its address in their records now.
+    pub fn ack_built(
+        &mut self,
+        build: BuildId,
+        result_bytes: u64,
+        address: u64,
+    ) -> Result<(), ManagerError> {
+        self.scheduler.ack_built(build, result_bytes, address)?;
+        self.sync_addresses()
+    }
+
+    /// Acknowledges the compacted-size query after build `build`
+    /// ([`BuildScheduler::ack_compacted_size`]); a compaction follows in a
+    /// later plan.
+    pub fn ack_compacted_size(
+        &mut self,
+        build: BuildId,
+        compacted_bytes: u64,
+    ) -> Result<(), ManagerError> {
+        self.scheduler.ack_compacted_size(build, compacted_bytes)?;
+        self.sync_addresses()
+    }
+
+    /// Acknowledges compaction `op` ([`BuildScheduler::ack_compacted`]); the
+    /// instances using that BLAS get the compacted address now.
+    pub fn ack_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
+        self.scheduler.ack_compacted(op, address)?;
+        self.sync_addresses()
+    }
+
+    /// Algorithm 1 over the records ([`Culling::assemble`]): this frame's
+    /// TLAS instances into `out` (cleared first). For CPU backends; a GPU
+    /// backend runs it as a shader over the uploaded records.
+    pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, ManagerError> {
+        Ok(self.culling.assemble(out)?)
+    }
+
+    /// Algorithm 2 over this frame's hits ([`Culling::process_feedback`]),
+    /// for CPU backends. The hits are kept to prioritise builds.
+    pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
+        let stats = self.culling.process_feedback()?;
+        let hits = self.culling.instance_hits();
+        let n = hits.len().min(self.last_hits.len());
+        self.last_hits[..n].copy_from_slice(&hits[..n]);
+        Ok(stats)
+    }
+
+    /// The commands of this frame's feedback, for the read-back ring
+    /// ([`Culling::take_commands`]).
+    pub fn take_commands(&mut self) -> Option<Readback> {
+        self.culling.take_commands()
+    }
+
+    /// Statistics: memory by category, instances by state, commands and
+    /// builds waiting. O(slots).
+    pub fn stats(&self) -> ManagerStats {
+        let sched = self.scheduler.stats();
+        let cache = sched.cache;
+        let data = self.data.stats();
+        let reg = self.culling.registry();
+        let slot_count = u64::from(reg.slot_count());
+        let mut inst = InstanceCounts {
+            quarantined_slots: reg.quarantined_slots(),
+            ..InstanceCounts::default()
+        };
+        for (handle, slot) in reg.iter() {
+            let Some(r) = reg.record_at(slot) else {
+                continue;
+            };
+            inst.live += 1;
+            match r.state() {
+                InstanceState::Active => inst.active += 1,
+                InstanceState::Omitted => inst.omitted += 1,
+                InstanceState::Inactive => inst.inactive += 1,
+            }
+            inst.with_blas += usize::from(r.blas != 0);
+            inst.awaiting_blas += usize::from(self.culling.awaiting_blas(handle).unwrap_or(false));
+            inst.scheduled += usize::from(
+                self.slots
+                    .get(slot as usize)
+                    .and_then(|s| s.as_ref())
+                    .is_some_and(|s| s.scheduled),
+            );
+        }
+        ManagerStats {
+            memory: MemoryStats {
+                blas_shared: cache.shared_bytes,
+                blas_unique: cache.unique_bytes,
+                blas_compacted: cache.compacted_bytes,
+                blas_scratch: cache.scratch_in_use,
+                blas_pending_free: cache.pending_free_bytes,
+                data_capacity: data.capacity,
+                data_used: data.used_bytes,
+                data_free: data.free_bytes,
+                data_largest_free: data.largest_free_block,
+                data_fragmentation: data.fragmentation,
+                hitbox_bytes: self.culling.hitboxes().len() as u64
+                    * std::mem::size_of::<HitboxRecord>() as u64,
+                feedback_bytes: slot_count * 4,
+                instance_record_bytes: slot_count
+                    * std::mem::size_of::<crate::layout::InstanceRecord>() as u64,
+            },
+            instances: inst,
+            commands_pending: self.culling.pending_commands(),
+            builds_queued: sched.queued_builds,
+            builds_in_flight: sched.in_flight,
+            blas_entries: cache.entries,
+            blas_pending_frees: cache.pending_frees,
+            data_ranges: data.allocation_count,
+            data_free_blocks: data.free_block_count,
+        }
+    }
+
+    // ---- internals ----------------------------------------------------
+
+    fn slot_of(&self, handle: InstanceHandle) -> Result<(u32, Slot), ManagerError> {
+        let slot = self.culling.registry().slot(handle)?;
+        match self.slots.get(slot as usize).copied().flatten() {
+            Some(s) if s.handle == handle => Ok((slot, s)),
+            _ => Err(ManagerError::Invariant {
+                what: format!("live instance in slot {slot} has no manager record"),
+            }),
+        }
+    }
+
+    fn visible(&self, slot: u32) -> bool {
+        self.culling
+            .latency_mitigation()
+            .is_some_and(|lm| lm.was_visible(slot))
+    }
+
+    fn mark_data(&mut self, slot: u32) {
+        if !std::mem::replace(&mut self.data_dirty_mark[slot as usize], true) {
+            self.data_dirty.push(slot);
+        }
+    }
+
+    /// Allocates a data range, growing the buffer (at least doubling) when
+    /// the allocator asks for it.
+    fn allocate(&mut self, bytes: u64) -> Result<AllocHandle, ManagerError> {
+        let align = self.data_config.alignment;
+        match self.data.allocate_aligned(bytes, align) {
+            Ok(a) => Ok(a.handle),
+            Err(e) => {
+                let Some(required) = e.required_capacity() else {
+                    return Err(e.into());
+                };
+                let doubled = self.data.capacity().saturating_mul(2);
+                self.data.grow(required.max(doubled))?;
+                Ok(self.data.allocate_aligned(bytes, align)?.handle)
+            }
+        }
+    }
+
+    /// Activates `slot` in the scheduler at its requested LOD (no-op if it
+    /// is already known); a cached BLAS goes into the record at once.
+    fn activate(&mut self, slot: u32, hits: u32, in_frustum: bool) -> Result<(), ManagerError> {
+        let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+            return Err(ManagerError::Invariant {
+                what: format!("BLAS requested for slot {slot} without an instance"),
+            });
+        };
+        let key = InstanceKey(slot);
+        if !s.scheduled {
+            let estimate = self.catalog.lod(s.mesh, s.requested_lod.into())?.estimate;
+            self.scheduler.activate(
+                key,
+                InstanceBlasRequest {
+                    geometry: s.geometry,
+                    lod: Lod(s.requested_lod),
+                    estimate,
+                    hits,
+                    in_frustum,
+                },
+            )?;
+            if let Some(s) = self.slots[slot as usize].as_mut() {
+                s.scheduled = true;
+            }
+        }
+        if let Some(address) = self.scheduler.blas_address(key) {
+            self.culling.set_blas(s.handle, address)?;
+        }
+        self.sync_lod(slot)
+    }
+
+    /// Takes `slot` out of the scheduler (its record's BLAS was cleared or
+    /// its build is no longer wanted).
+    fn deactivate(&mut self, slot: u32) -> Result<(), ManagerError> {
+        let Some(s) = self.slots.get_mut(slot as usize).and_then(|s| s.as_mut()) else {
+            return Ok(());
+        };
+        if std::mem::take(&mut s.scheduled) {
+            self.scheduler.deactivate(InstanceKey(slot))?;
+        }
+        self.sync_lod(slot)
+    }
+
+    /// Writes the scheduler's address changes into the records.
+    fn sync_addresses(&mut self) -> Result<(), ManagerError> {
+        for key in self.scheduler.take_address_changes() {
+            let slot = key.0;
+            let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+                return Err(ManagerError::Invariant {
+                    what: format!("BLAS address change for empty slot {slot}"),
+                });
+            };
+            if let Some(address) = self.scheduler.blas_address(key) {
+                self.culling.set_blas(s.handle, address)?;
+            }
+            self.sync_lod(slot)?;
+        }
+        Ok(())
+    }
+
+    /// Makes the record's LOD and the data range follow the traced LOD.
+    fn sync_lod(&mut self, slot: u32) -> Result<(), ManagerError> {
+        let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+            return Ok(());
+        };
+        let traced = if s.scheduled {
+            self.scheduler
+                .current_lod(InstanceKey(slot))
+                .map_or(s.requested_lod, |l| l.0)
+        } else {
+            s.requested_lod
+        };
+        if traced == s.traced_lod {
+            return Ok(());
+        }
+        let bytes = self.catalog.lod(s.mesh, traced.into())?.data_bytes;
+        let range = match self.data.resize(s.range, bytes) {
+            Ok(a) => a.handle,
+            Err(AllocError::CannotGrowInPlace { .. }) => {
+                let new = self.allocate(bytes)?;
+                self.data.free(s.range)?;
+                new
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let desc = InstanceDesc {
+            lod: traced.into(),
+            ..*self.culling.registry().desc(s.handle)?
+        };
+        self.culling.update(s.handle, desc)?;
+        if let Some(s) = self.slots[slot as usize].as_mut() {
+            s.traced_lod = traced;
+            s.range = range;
+        }
+        self.mark_data(slot);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

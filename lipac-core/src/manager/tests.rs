@@ -1,0 +1,355 @@
+use super::*;
+use crate::build_plan::BuildEstimate;
+use crate::culling::ReadbackRing;
+use crate::grid::GridConfig;
+
+const CUBE: u64 = 0xC0BE;
+
+fn lod(triangles: u64, data_bytes: u64) -> MeshLod {
+    MeshLod {
+        estimate: BuildEstimate {
+            primitives: triangles,
+            result_bytes: triangles * 64,
+            build_scratch_bytes: triangles * 16,
+            update_scratch_bytes: triangles * 4,
+        },
+        data_bytes,
+    }
+}
+
+fn catalog() -> MeshCatalog {
+    let mut c = MeshCatalog::new();
+    c.insert(MeshId(1), vec![lod(1000, 96), lod(250, 32), lod(60, 16)])
+        .unwrap();
+    c.insert(MeshId(2), vec![lod(400, 64)]).unwrap();
+    c
+}
+
+fn desc(x: f32, z: f32, mesh: u32) -> InstanceDesc {
+    let aabb = Aabb::new(
+        Vec3::new(x - 1.0, 0.0, z - 1.0),
+        Vec3::new(x + 1.0, 2.0, z + 1.0),
+    );
+    InstanceDesc::new(
+        MeshId(mesh),
+        Affine3A::from_translation(Vec3::new(x, 0.0, z)),
+        aabb,
+    )
+}
+
+struct Rig {
+    m: Manager,
+    ring: ReadbackRing,
+    frame: u64,
+    tlas: Vec<TlasInstance>,
+    /// Rays per frame into every traced record (counting boxes and instances).
+    heat: u32,
+}
+
+impl Rig {
+    fn new(data: DataConfig) -> Self {
+        let grid = HitboxGrid::new(GridConfig {
+            min: [0.0, 0.0],
+            max: [64.0, 64.0],
+            cell_size: 16.0,
+        })
+        .unwrap();
+        let mut config = ManagerConfig::new(CUBE);
+        config.culling.latency_mitigation = None;
+        config.culling.readback_latency = 1;
+        config.scheduler.lod_hysteresis_frames = 1;
+        config.data = data;
+        Self {
+            m: Manager::new(grid, config, catalog()).unwrap(),
+            ring: ReadbackRing::new(1).unwrap(),
+            frame: 0,
+            tlas: Vec::new(),
+            heat: 2500,
+        }
+    }
+
+    /// begin, ingest, plan (with `before_plan`), assemble, trace, feedback.
+    fn frame_with(&mut self, before_plan: impl FnOnce(&mut Manager)) -> ManagerPlan {
+        self.frame += 1;
+        self.m.begin_frame(self.frame).unwrap();
+        while let Some(r) = self.ring.pop_ready(self.frame) {
+            self.m.ingest_readback(r.counter, &r.words);
+        }
+        before_plan(&mut self.m);
+        let plan = self.m.plan(&FrameBudgets::default()).unwrap();
+        self.m.assemble(&mut self.tlas).unwrap();
+        for t in &self.tlas {
+            let i = t.custom_index() as usize;
+            if t.acceleration_structure_reference == CUBE {
+                self.m.hitboxes_mut()[i].add_hits(self.heat);
+            } else {
+                self.m.instance_hits_mut()[i] += self.heat;
+            }
+        }
+        self.m.process_feedback().unwrap();
+        self.ring.push(self.m.take_commands().unwrap()).unwrap();
+        plan
+    }
+
+    fn frame(&mut self) -> ManagerPlan {
+        self.frame_with(|_| {})
+    }
+
+    fn traced(&self, slot: u32) -> Option<u64> {
+        self.tlas
+            .iter()
+            .find(|t| t.custom_index() == slot && t.acceleration_structure_reference != CUBE)
+            .map(|t| t.acceleration_structure_reference)
+    }
+}
+
+#[test]
+fn add_plans_a_build_and_the_ack_puts_it_in_the_next_tlas() {
+    let mut r = Rig::new(DataConfig::default());
+    let h = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    let slot = r.m.instance(h).unwrap().slot;
+    let p0 = r.frame(); // feedback activates the hitbox and the instance
+    assert_eq!(p0.blas.builds().count(), 0);
+    assert_eq!(r.m.instance(h).unwrap().state, InstanceState::Active);
+    let p1 = r.frame(); // the `add` is processed: a build is planned
+    let builds: Vec<_> = p1.blas.builds().copied().collect();
+    assert_eq!(builds.len(), 1);
+    assert_eq!(builds[0].result_bytes, 1000 * 64);
+    assert!(r.m.instance(h).unwrap().awaiting_blas);
+    assert_eq!(r.traced(slot), None, "no BLAS yet: not in the TLAS");
+    r.m.ack_built(builds[0].id, 60_000, 0xB000).unwrap();
+    assert_eq!(r.m.instance(h).unwrap().blas, 0xB000);
+    assert!(!r.m.instance(h).unwrap().awaiting_blas);
+    r.frame();
+    assert_eq!(r.traced(slot), Some(0xB000));
+    let st = r.m.stats();
+    assert_eq!(st.memory.blas_shared, 60_000);
+    assert_eq!((st.instances.active, st.instances.with_blas), (1, 1));
+    assert_eq!(st.memory.data_used, 96);
+}
+
+#[test]
+fn lod_switch_keeps_the_old_blas_until_the_new_one_is_acknowledged() {
+    let mut r = Rig::new(DataConfig::default());
+    let h = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    let slot = r.m.instance(h).unwrap().slot;
+    r.frame();
+    let b = r.frame().blas.builds().next().copied().unwrap();
+    r.m.ack_built(b.id, b.result_bytes, 0xA000).unwrap();
+    let data_before = r.m.instance(h).unwrap().data;
+
+    assert_eq!(r.m.set_lod(h, 2).unwrap(), 0);
+    let v = r.m.instance(h).unwrap();
+    assert_eq!((v.requested_lod, v.traced_lod, v.blas), (2, 0, 0xA000));
+    assert_eq!(v.data, data_before, "data follows the traced LOD");
+    // Hysteresis (1 frame), then the switch's build is planned.
+    let mut build = None;
+    for _ in 0..3 {
+        let p = r.frame();
+        assert_eq!(r.traced(slot), Some(0xA000));
+        let first = p.blas.builds().next().copied();
+        if first.is_some() {
+            build = first;
+            break;
+        }
+    }
+    let b = build.expect("the LOD 2 build is planned");
+    assert_eq!(b.owner.lod(), Lod(2));
+    assert_eq!(r.m.registry().records()[slot as usize].lod, 0);
+    r.m.ack_built(b.id, b.result_bytes, 0xA100).unwrap();
+    let v = r.m.instance(h).unwrap();
+    assert_eq!((v.traced_lod, v.blas), (2, 0xA100));
+    assert_eq!(v.data.end - v.data.start, 16);
+    assert_eq!(r.m.registry().records()[slot as usize].lod, 2);
+    let p = r.frame();
+    assert_eq!(r.traced(slot), Some(0xA100));
+    // The data change is reported (shrunk in place: same offset).
+    assert_eq!(
+        p.data_uploads,
+        vec![DataUpload {
+            slot,
+            handle: h,
+            mesh: MeshId(1),
+            lod: 2,
+            offset: data_before.start,
+            bytes: 16
+        }]
+    );
+    assert_eq!(r.m.data_allocator().used_bytes(), 16);
+}
+
+#[test]
+fn remove_during_a_pending_build_cancels_it_and_leaks_nothing() {
+    let mut r = Rig::new(DataConfig::default());
+    let h = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    r.frame();
+    let b = r.frame().blas.builds().next().copied().unwrap();
+    r.m.remove(h).unwrap();
+    assert!(r.m.instance(h).is_err(), "stale handle");
+    assert_eq!(r.m.scheduler().stats().instances, 0);
+    assert_eq!(r.m.data_allocator().used_bytes(), 0);
+    // The late acknowledgement is still accepted; nobody gets the address.
+    r.m.ack_built(b.id, b.result_bytes, 0xD000).unwrap();
+    assert_eq!(r.m.stats().instances.with_blas, 0);
+    assert_eq!(r.m.stats().commands_pending, 0);
+    // The unreferenced shared BLAS is cached; trimming frees it after the
+    // frames in flight.
+    assert_eq!(r.m.trim_blas_cache(), 1);
+    let mut freed = Vec::new();
+    for _ in 0..4 {
+        freed.extend(r.frame().blas.frees.iter().map(|f| f.address));
+    }
+    assert_eq!(freed, vec![0xD000]);
+    let st = r.m.stats();
+    assert_eq!((st.blas_entries, st.memory.blas_shared), (0, 0));
+}
+
+#[test]
+fn unknown_mesh_and_lod_are_clear_errors_that_change_nothing() {
+    let mut r = Rig::new(DataConfig::default());
+    let e = r.m.register(desc(8.0, 8.0, 9)).unwrap_err();
+    assert_eq!(e, ManagerError::UnknownMesh(MeshId(9)));
+    assert!(e.to_string().contains("mesh 9"), "{e}");
+    let mut d = desc(8.0, 8.0, 1);
+    d.lod = 3;
+    assert!(matches!(
+        r.m.register(d),
+        Err(ManagerError::UnknownLod {
+            lod: 3,
+            lods: 3,
+            ..
+        })
+    ));
+    assert_eq!(r.m.stats().instances.live, 0);
+    assert_eq!(r.m.data_allocator().allocation_count(), 0);
+
+    let h = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    assert!(matches!(
+        r.m.set_lod(h, 7),
+        Err(ManagerError::UnknownLod { lod: 7, .. })
+    ));
+    assert_eq!(r.m.instance(h).unwrap().requested_lod, 0);
+    // A mesh change is refused.
+    assert!(matches!(
+        r.m.update(h, desc(8.0, 8.0, 2)),
+        Err(ManagerError::GeometryChange { .. })
+    ));
+    // NaN transform: a core error, nothing changed.
+    let mut bad = desc(8.0, 8.0, 1);
+    bad.transform.translation.x = f32::NAN;
+    assert!(matches!(r.m.update(h, bad), Err(ManagerError::Core(_))));
+    assert_eq!(r.m.data_allocator().used_bytes(), 96);
+    // Registering a mesh twice is refused.
+    assert!(matches!(
+        r.m.register_mesh(MeshId(1), vec![lod(1, 1)]),
+        Err(ManagerError::InvalidMesh { .. })
+    ));
+    // Call order.
+    assert!(matches!(
+        r.m.plan(&FrameBudgets::default()),
+        Err(ManagerError::CallOrder { .. })
+    ));
+    r.m.begin_frame(5).unwrap();
+    assert!(matches!(
+        r.m.begin_frame(5),
+        Err(ManagerError::CallOrder { .. })
+    ));
+    r.m.plan(&FrameBudgets::default()).unwrap();
+    assert!(matches!(
+        r.m.plan(&FrameBudgets::default()),
+        Err(ManagerError::CallOrder { .. })
+    ));
+}
+
+#[test]
+fn data_buffer_growth_is_reported_once_and_covers_every_range() {
+    let mut r = Rig::new(DataConfig {
+        initial_capacity: 100,
+        alignment: 16,
+    });
+    let hs: Vec<_> = (0..5)
+        .map(|i| r.m.register(desc(4.0 + 8.0 * i as f32, 8.0, 1)).unwrap())
+        .collect();
+    let cap = r.m.data_allocator().capacity();
+    assert!(cap >= 5 * 96, "grew to {cap}");
+    let p = r.frame();
+    let g = p.data_growth.expect("growth reported");
+    assert_eq!((g.from, g.to), (100, cap));
+    assert_eq!(p.data_uploads.len(), 5);
+    let mut ranges: Vec<_> = p.data_uploads.iter().map(|u| (u.offset, u.bytes)).collect();
+    ranges.sort_unstable();
+    for w in ranges.windows(2) {
+        assert!(w[0].0 + w[0].1 <= w[1].0, "ranges overlap: {ranges:?}");
+    }
+    for u in &p.data_uploads {
+        assert_eq!(u.offset % 16, 0);
+        assert!(u.offset + u.bytes <= g.to);
+        assert_eq!(
+            r.m.instance(u.handle).unwrap().data,
+            u.offset..u.offset + 96
+        );
+    }
+    assert!(hs.iter().all(|&h| r.m.instance(h).is_ok()));
+    // Nothing new next frame.
+    let p = r.frame();
+    assert_eq!((p.data_growth, p.data_uploads.len()), (None, 0));
+}
+
+#[test]
+fn a_reused_slot_starts_with_a_clean_blas_state() {
+    let mut r = Rig::new(DataConfig::default());
+    let a = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    let slot = r.m.instance(a).unwrap().slot;
+    r.frame();
+    let b = r.frame().blas.builds().next().copied().unwrap();
+    r.m.ack_built(b.id, b.result_bytes, 0xAA00).unwrap();
+    assert!(r.m.scheduler().blas_address(InstanceKey(slot)).is_some());
+    r.m.remove(a).unwrap();
+    assert_eq!(r.m.scheduler().blas_address(InstanceKey(slot)), None);
+    assert_eq!(r.m.scheduler().current_blas(InstanceKey(slot)), None);
+    // Cool down (no rays), past the quarantine.
+    r.heat = 0;
+    for _ in 0..6 {
+        r.frame();
+    }
+    let c = r.m.register(desc(40.0, 40.0, 2)).unwrap();
+    let v = r.m.instance(c).unwrap();
+    assert_eq!(v.slot, slot, "slot reused");
+    assert_eq!((v.blas, v.awaiting_blas, v.scheduled), (0, false, false));
+    assert_eq!(r.m.scheduler().blas_address(InstanceKey(slot)), None);
+    assert_eq!(r.m.scheduler().pending_lod(InstanceKey(slot)), None);
+    assert_eq!(r.m.scheduler().stats().instances, 0);
+    // It gets its own BLAS (mesh 2), not the old one.
+    r.heat = 2500;
+    r.frame();
+    let b = r.frame().blas.builds().next().copied().unwrap();
+    assert_eq!(b.owner.mesh(), MeshId(2));
+    r.m.ack_built(b.id, b.result_bytes, 0xCC00).unwrap();
+    assert_eq!(r.m.instance(c).unwrap().blas, 0xCC00);
+}
+
+#[test]
+fn an_instance_turning_inactive_releases_its_blas_through_the_scheduler() {
+    let mut r = Rig::new(DataConfig::default());
+    let h = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    r.frame();
+    let b = r.frame().blas.builds().next().copied().unwrap();
+    r.m.ack_built(b.id, b.result_bytes, 0xB100).unwrap();
+    assert_eq!(r.m.stats().instances.scheduled, 1);
+    r.heat = 0; // the hitbox deactivates after n_d frames, a remove follows
+    for _ in 0..40 {
+        r.frame();
+    }
+    let v = r.m.instance(h).unwrap();
+    assert_eq!(
+        (v.state, v.blas, v.scheduled),
+        (InstanceState::Inactive, 0, false)
+    );
+    assert_eq!(r.m.scheduler().stats().instances, 0);
+    // The shared BLAS stays cached for a later activation.
+    assert_eq!(r.m.stats().blas_entries, 1);
+    // A LOD change of an instance without a BLAS applies at once.
+    r.m.set_lod(h, 1).unwrap();
+    let v = r.m.instance(h).unwrap();
+    assert_eq!((v.traced_lod, v.data.end - v.data.start), (1, 32));
+}
