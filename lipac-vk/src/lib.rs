@@ -30,6 +30,7 @@
 #![warn(clippy::undocumented_unsafe_blocks)]
 
 mod accel;
+mod as_pool;
 mod assembly;
 mod blas;
 mod commands;
@@ -46,12 +47,15 @@ mod tlas;
 mod trace;
 
 pub use accel::{AccelerationStructure, AsSizes};
+pub use as_pool::{
+    AccelerationStructurePool, PoolStats, AS_OFFSET_ALIGNMENT, DEFAULT_POOL_BLOCK_SIZE,
+};
 pub use assembly::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
 };
 pub use blas::{
-    record_compactions, Blas, BlasBatch, BlasBatchOutput, CompactionQuery, IndexFormat,
-    TriangleGeometry,
+    record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
+    BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
 };
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
