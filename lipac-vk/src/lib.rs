@@ -39,6 +39,7 @@ mod context;
 mod counting;
 mod error;
 mod feedback;
+mod lifetimes;
 mod memory;
 mod readback;
 pub mod shaders;
@@ -68,6 +69,7 @@ pub use counting::{
 };
 pub use error::{Result, VkError};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
+pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use readback::{Readback, ReadbackRing, ReadbackTicket};
 pub use timeline::TimelineSemaphore;
