@@ -38,6 +38,7 @@ mod compute;
 mod context;
 mod counting;
 mod error;
+mod executor;
 mod feedback;
 mod lifetimes;
 mod memory;
@@ -68,6 +69,7 @@ pub use counting::{
     UNIT_CUBE_VERTICES,
 };
 pub use error::{Result, VkError};
+pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
