@@ -9,10 +9,17 @@
 //!
 //! * [`DeviceContext`]: lipac's binding to an engine's instance, device and
 //!   queues; [`HeadlessContext`]: a device of its own for tests and examples.
-//! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`].
+//! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`];
+//!   [`AccelerationStructurePool`]: acceleration structures at 256-byte
+//!   aligned TLSF ranges of large blocks, with [`PoolStats`].
 //! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
-//!   compaction ([`CompactionQuery`], [`record_compactions`]); [`Tlas`]:
-//!   builds from [`lipac_core::layout::TlasInstance`] records with geometric growth.
+//!   compaction ([`CompactionQuery`], [`record_compactions`]) and in-place
+//!   updates ([`BlasUpdateMode`]); [`Tlas`]: builds from
+//!   [`lipac_core::layout::TlasInstance`] records with geometric growth;
+//!   [`TlasPair`]: a double-buffered TLAS.
+//! * [`Retirement`]: deferred destruction keyed by timeline value (never
+//!   waits); [`PlanExecutor`]: records lipac-core's BLAS build plans and
+//!   acknowledges them.
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
 //!   from a buffer with it.
