@@ -9,7 +9,7 @@
 //! ```
 //!
 //! Defaults: about 5000 instances, 12 frames at 160 × 96, `vk_city.png`.
-//! `--full` renders the default city (~80k instances). Prints, per frame,
+//! `--full` renders the default city (about 20k instances). Prints, per frame,
 //! the active instances, BLAS builds / updates / compactions / frees, the
 //! acceleration-structure pool's used bytes, the TLAS bytes and the counting
 //! boxes; writes the last frame as a PNG. Without a ray-query device it
