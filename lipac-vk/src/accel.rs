@@ -1,5 +1,6 @@
 //! The acceleration-structure object shared by BLAS and TLAS, and its sizes.
 
+use crate::as_pool::PoolRange;
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkContext, VkError};
@@ -28,14 +29,26 @@ impl From<vk::AccelerationStructureBuildSizesInfoKHR<'_>> for AsSizes {
     }
 }
 
-/// A `VkAccelerationStructureKHR` with the buffer holding it.
+/// Where an acceleration structure's bytes live.
+#[derive(Debug)]
+enum Storage {
+    /// A buffer (and memory) of its own.
+    Dedicated(Buffer),
+    /// A range of an [`crate::AccelerationStructurePool`] block.
+    Pooled(PoolRange),
+}
+
+/// A `VkAccelerationStructureKHR` with the storage holding it: a buffer of
+/// its own ([`AccelerationStructure::new`]) or a range of an
+/// [`crate::AccelerationStructurePool`] block.
 ///
-/// Dropping destroys both: keep it alive until the GPU no longer uses it
-/// (builds, copies, traces, and TLASes referencing it).
+/// Dropping destroys the object and frees its storage (or returns the range
+/// to the pool): keep it alive until the GPU no longer uses it (builds,
+/// copies, traces, and TLASes referencing it).
 pub struct AccelerationStructure {
     ctx: DeviceContext,
     raw: vk::AccelerationStructureKHR,
-    buffer: Buffer,
+    storage: Storage,
     size: u64,
     address: vk::DeviceAddress,
     ty: vk::AccelerationStructureTypeKHR,
@@ -75,14 +88,40 @@ impl AccelerationStructure {
             vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
             MemoryLocation::GpuOnly,
         )?;
+        let raw_buffer = buffer.raw();
+        Self::create(ctx, ty, raw_buffer, 0, size, Storage::Dedicated(buffer))
+    }
+
+    /// Creates an acceleration structure in a pool range (the pool checked
+    /// the block's usage, the bounds and the 256-byte offset alignment).
+    pub(crate) fn in_pool_range(
+        ctx: &DeviceContext,
+        ty: vk::AccelerationStructureTypeKHR,
+        block: vk::Buffer,
+        range: PoolRange,
+    ) -> Result<Self> {
+        let (offset, size) = (range.offset, range.size);
+        Self::create(ctx, ty, block, offset, size, Storage::Pooled(range))
+    }
+
+    fn create(
+        ctx: &DeviceContext,
+        ty: vk::AccelerationStructureTypeKHR,
+        buffer: vk::Buffer,
+        offset: u64,
+        size: u64,
+        storage: Storage,
+    ) -> Result<Self> {
         let info = vk::AccelerationStructureCreateInfoKHR::default()
-            .buffer(buffer.raw())
-            .offset(0)
+            .buffer(buffer)
+            .offset(offset)
             .size(size)
             .ty(ty);
         let accel = ctx.acceleration_structure();
-        // SAFETY: the buffer has ACCELERATION_STRUCTURE_STORAGE usage and at
-        // least `size` bytes at offset 0 (256-byte alignment holds at 0).
+        // SAFETY: `buffer` has ACCELERATION_STRUCTURE_STORAGE usage and bound
+        // memory, and `offset..offset + size` lies inside it with `offset` a
+        // multiple of 256 (dedicated: offset 0; pooled: the pool's TLSF range
+        // allocated with 256-byte alignment). `storage` keeps it alive.
         let raw = unsafe { accel.create_acceleration_structure(&info, None) }
             .ctx("vkCreateAccelerationStructureKHR")?;
         let addr_info =
@@ -92,7 +131,7 @@ impl AccelerationStructure {
         Ok(Self {
             ctx: ctx.clone(),
             raw,
-            buffer,
+            storage,
             size,
             address,
             ty,
@@ -111,9 +150,20 @@ impl AccelerationStructure {
     pub fn size(&self) -> u64 {
         self.size
     }
-    /// Bytes of device memory held (the storage buffer's allocation).
+    /// Bytes of device memory held: the storage buffer's allocation, or
+    /// the size of the pool range.
     pub fn memory_bytes(&self) -> u64 {
-        self.buffer.allocation_size()
+        match &self.storage {
+            Storage::Dedicated(b) => b.allocation_size(),
+            Storage::Pooled(r) => r.size,
+        }
+    }
+    /// Byte offset inside its pool block, or `None` for a dedicated buffer.
+    pub fn pool_offset(&self) -> Option<u64> {
+        match &self.storage {
+            Storage::Dedicated(_) => None,
+            Storage::Pooled(r) => Some(r.offset),
+        }
     }
     /// BLAS or TLAS.
     pub fn ty(&self) -> vk::AccelerationStructureTypeKHR {
@@ -128,7 +178,8 @@ impl AccelerationStructure {
 impl Drop for AccelerationStructure {
     fn drop(&mut self) {
         // SAFETY: created on this device; by the type's contract the GPU no
-        // longer uses it. The buffer is freed afterwards (field drop).
+        // longer uses it. The storage is freed (or its pool range returned)
+        // afterwards, by the field drop.
         unsafe {
             self.ctx
                 .acceleration_structure()

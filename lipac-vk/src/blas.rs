@@ -1,6 +1,7 @@
 //! Triangle BLASes built by device address, batched, with compaction.
 
 use crate::accel::{record_build_barrier, same_context, AccelerationStructure, AsSizes};
+use crate::as_pool::AccelerationStructurePool;
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkContext, VkError};
@@ -246,6 +247,27 @@ fn build_sizes(
     sizes.into()
 }
 
+/// What an update must keep from the original build, per geometry
+/// (Vulkan requires these to match for `BUILD_MODE_UPDATE`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct GeometrySignature {
+    triangle_count: u32,
+    vertex_count: u32,
+    index_format: Option<IndexFormat>,
+    opaque: bool,
+}
+
+impl From<&TriangleGeometry> for GeometrySignature {
+    fn from(g: &TriangleGeometry) -> Self {
+        Self {
+            triangle_count: g.triangle_count,
+            vertex_count: g.vertex_count,
+            index_format: g.indices.map(|(_, f)| f),
+            opaque: g.opaque,
+        }
+    }
+}
+
 /// A bottom-level acceleration structure over triangles.
 #[derive(Debug)]
 pub struct Blas {
@@ -254,6 +276,7 @@ pub struct Blas {
     flags: vk::BuildAccelerationStructureFlagsKHR,
     sizes: AsSizes,
     compacted: bool,
+    signature: Vec<GeometrySignature>,
 }
 
 impl Blas {
@@ -318,15 +341,98 @@ impl Blas {
         out.pop()
             .ok_or_else(|| VkError::InvalidArgument("no compaction recorded".into()))
     }
+
+    fn check_update(
+        &self,
+        geometries: &[TriangleGeometry],
+        mode: BlasUpdateMode,
+    ) -> Result<Vec<GeometrySignature>> {
+        let bad = |s: String| Err(VkError::InvalidArgument(s));
+        if geometries.is_empty() {
+            return bad("update without geometries".into());
+        }
+        for g in geometries {
+            g.validate()?;
+        }
+        let sig: Vec<GeometrySignature> = geometries.iter().map(Into::into).collect();
+        if mode == BlasUpdateMode::Refit
+            && !self
+                .flags
+                .contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE)
+        {
+            return bad("refit of a BLAS built without ALLOW_UPDATE".into());
+        }
+        if mode == BlasUpdateMode::Refit && sig != self.signature {
+            return bad(format!(
+                "refit geometries {sig:?} differ from the build's {:?} (counts, index format and opacity must match)",
+                self.signature
+            ));
+        }
+        Ok(sig)
+    }
+}
+
+fn make_blas(
+    accel: AccelerationStructure,
+    geoms: &[TriangleGeometry],
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+    sizes: AsSizes,
+) -> Blas {
+    Blas {
+        accel,
+        triangle_count: geoms.iter().map(|g| u64::from(g.triangle_count)).sum(),
+        flags,
+        sizes,
+        compacted: false,
+        signature: geoms.iter().map(Into::into).collect(),
+    }
+}
+
+fn create_blas_storage(
+    ctx: &DeviceContext,
+    pool: Option<&AccelerationStructurePool>,
+    size: u64,
+) -> Result<AccelerationStructure> {
+    let ty = vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL;
+    match pool {
+        Some(p) => {
+            same_context(ctx, p.context())?;
+            p.create(ty, size)
+        }
+        None => AccelerationStructure::new(ctx, ty, size),
+    }
 }
 
 /// Records compacting copies of several BLASes (each with the compacted size
-/// from its [`CompactionQuery`]) followed by one barrier.
+/// from its [`CompactionQuery`]) followed by one barrier. Each copy gets a
+/// buffer of its own; [`record_compactions_pooled`] puts them in a pool.
 ///
 /// # Errors
 ///
 /// As [`Blas::record_compact`]; nothing is recorded on error.
 pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Result<Vec<Blas>> {
+    compactions(rec, items, None)
+}
+
+/// [`record_compactions`] with the copies created in `pool`.
+///
+/// # Errors
+///
+/// As [`record_compactions`]; [`VkError::WrongContext`] for a pool of
+/// another context.
+pub fn record_compactions_pooled(
+    rec: &mut Recorder<'_>,
+    items: &[(&Blas, u64)],
+    pool: &AccelerationStructurePool,
+) -> Result<Vec<Blas>> {
+    compactions(rec, items, Some(pool))
+}
+
+fn compactions(
+    rec: &mut Recorder<'_>,
+    items: &[(&Blas, u64)],
+    pool: Option<&AccelerationStructurePool>,
+) -> Result<Vec<Blas>> {
     let ctx = rec.context();
     for (blas, size) in items {
         same_context(ctx, blas.accel.context())?;
@@ -347,14 +453,14 @@ pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Res
     }
     let mut out = Vec::with_capacity(items.len());
     for (blas, size) in items {
-        let accel =
-            AccelerationStructure::new(ctx, vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL, *size)?;
+        let accel = create_blas_storage(ctx, pool, *size)?;
         out.push(Blas {
             accel,
             triangle_count: blas.triangle_count,
             flags: blas.flags,
             sizes: blas.sizes,
             compacted: true,
+            signature: blas.signature.clone(),
         });
     }
     for ((src, _), dst) in items.iter().zip(&out) {
@@ -375,9 +481,29 @@ pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Res
     Ok(out)
 }
 
-/// Several BLAS builds recorded together: one `vkCmdBuildAccelerationStructuresKHR`
-/// with scratch slices of one [`ScratchBuffer`], one barrier after the batch,
-/// and a compacted-size query for the builds that allow compaction.
+/// How [`BlasBatch::push_update`] updates a BLAS in place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BlasUpdateMode {
+    /// `BUILD_MODE_UPDATE` with source = destination (a refit): needs
+    /// `ALLOW_UPDATE` and geometries with the build's counts, index format
+    /// and opacity; uses the update scratch size.
+    Refit,
+    /// A full build into the same acceleration structure (restores trace
+    /// quality after many refits); the new build must fit its size.
+    Rebuild,
+}
+
+#[derive(Clone, Debug)]
+struct UpdateRequest<'a> {
+    blas: &'a Blas,
+    geometries: Vec<TriangleGeometry>,
+    mode: BlasUpdateMode,
+}
+
+/// Several BLAS builds and in-place updates recorded together: one
+/// `vkCmdBuildAccelerationStructuresKHR` with scratch slices of one
+/// [`ScratchBuffer`], one barrier after the batch, and a compacted-size query
+/// for the builds that allow compaction.
 ///
 /// ```no_run
 /// use ash::vk;
@@ -393,11 +519,12 @@ pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Res
 /// # Ok::<(), lipac_vk::VkError>(())
 /// ```
 #[derive(Clone, Debug, Default)]
-pub struct BlasBatch {
+pub struct BlasBatch<'a> {
     requests: Vec<(
         Vec<TriangleGeometry>,
         vk::BuildAccelerationStructureFlagsKHR,
     )>,
+    updates: Vec<UpdateRequest<'a>>,
 }
 
 /// What [`BlasBatch::record`] produced.
@@ -410,9 +537,14 @@ pub struct BlasBatchOutput {
     /// A scratch buffer replaced while growing: keep it until GPU work
     /// recorded before this batch has completed.
     pub retired_scratch: Option<Buffer>,
+    /// Byte offset of each build's scratch slice (builds first, in push
+    /// order, then updates), from the scratch buffer's base address.
+    pub scratch_offsets: Vec<u64>,
+    /// Scratch bytes the batch used (end of its last slice).
+    pub scratch_bytes: u64,
 }
 
-impl BlasBatch {
+impl<'a> BlasBatch<'a> {
     /// An empty batch.
     pub fn new() -> Self {
         Self::default()
@@ -446,50 +578,144 @@ impl BlasBatch {
         Ok(self.requests.len() - 1)
     }
 
+    /// Adds an in-place update of `blas` from `geometries` (its deformed
+    /// vertices): a refit (`BUILD_MODE_UPDATE`, source = destination) or a
+    /// rebuild into the same structure, with the BLAS's build flags. Its
+    /// address does not change, so TLAS records stay valid. Returns the
+    /// update's index among the batch's updates.
+    ///
+    /// The batch records a barrier before its builds when it holds updates,
+    /// so earlier traces and builds reading the BLAS finish first.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`]: no or invalid geometries, a refit of a
+    /// BLAS built without `ALLOW_UPDATE` or with other geometry counts, index
+    /// format or opacity, or the same BLAS twice in one batch.
+    pub fn push_update(
+        &mut self,
+        blas: &'a Blas,
+        geometries: &[TriangleGeometry],
+        mode: BlasUpdateMode,
+    ) -> Result<usize> {
+        blas.check_update(geometries, mode)?;
+        if self
+            .updates
+            .iter()
+            .any(|u| u.blas.accel.raw() == blas.accel.raw())
+        {
+            return Err(VkError::InvalidArgument(
+                "the same BLAS updated twice in one batch".into(),
+            ));
+        }
+        self.updates.push(UpdateRequest {
+            blas,
+            geometries: geometries.to_vec(),
+            mode,
+        });
+        Ok(self.updates.len() - 1)
+    }
+
     /// Number of builds in the batch.
     pub fn len(&self) -> usize {
         self.requests.len()
     }
 
-    /// Whether the batch is empty.
-    pub fn is_empty(&self) -> bool {
-        self.requests.is_empty()
+    /// Number of updates in the batch.
+    pub fn update_count(&self) -> usize {
+        self.updates.len()
     }
 
-    /// Creates the BLASes and records their builds: a query-pool reset (when
-    /// some builds allow compaction), all builds in one call with disjoint
-    /// aligned scratch slices, one barrier, then the compacted-size queries.
+    /// Whether the batch has neither builds nor updates.
+    pub fn is_empty(&self) -> bool {
+        self.requests.is_empty() && self.updates.is_empty()
+    }
+
+    /// Creates the BLASes (each in a buffer of its own) and records the
+    /// batch: a barrier if it has updates, a query-pool reset (when some
+    /// builds allow compaction), all builds and updates in one call with
+    /// disjoint aligned scratch slices, one barrier, then the compacted-size
+    /// queries.
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an empty batch or counts over the
-    /// device limits; creation errors. Nothing is recorded on error.
+    /// [`VkError::InvalidArgument`] for an empty batch, counts over the
+    /// device limits or a rebuild that does not fit its BLAS; creation
+    /// errors. Nothing is recorded on error.
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
         scratch: &mut ScratchBuffer,
     ) -> Result<BlasBatchOutput> {
-        if self.requests.is_empty() {
+        self.record_impl(rec, scratch, None)
+    }
+
+    /// [`BlasBatch::record`] with the new BLASes created in `pool`.
+    ///
+    /// # Errors
+    ///
+    /// As [`BlasBatch::record`]; [`VkError::WrongContext`] for a pool of
+    /// another context.
+    pub fn record_pooled(
+        &self,
+        rec: &mut Recorder<'_>,
+        scratch: &mut ScratchBuffer,
+        pool: &AccelerationStructurePool,
+    ) -> Result<BlasBatchOutput> {
+        self.record_impl(rec, scratch, Some(pool))
+    }
+
+    fn record_impl(
+        &self,
+        rec: &mut Recorder<'_>,
+        scratch: &mut ScratchBuffer,
+        pool: Option<&AccelerationStructurePool>,
+    ) -> Result<BlasBatchOutput> {
+        if self.is_empty() {
             return Err(VkError::InvalidArgument("empty BLAS batch".into()));
         }
         let ctx = rec.context();
         let align = scratch.alignment();
-        let mut vk_geoms = Vec::with_capacity(self.requests.len());
-        let mut ranges = Vec::with_capacity(self.requests.len());
+        let ops = self.requests.len() + self.updates.len();
+        let mut vk_geoms = Vec::with_capacity(ops);
+        let mut ranges = Vec::with_capacity(ops);
         let mut sizes = Vec::with_capacity(self.requests.len());
-        let mut scratch_offsets = Vec::with_capacity(self.requests.len());
+        let mut scratch_offsets = Vec::with_capacity(ops);
         let mut scratch_total = 0u64;
         let overflow = || VkError::InvalidArgument("scratch size overflows u64".into());
-        for (geoms, flags) in &self.requests {
+        let all = self.requests.iter().map(|(g, f)| (g, *f, None)).chain(
+            self.updates
+                .iter()
+                .map(|u| (&u.geometries, u.blas.flags, Some((u.blas, u.mode)))),
+        );
+        for (geoms, flags, update) in all {
+            if let Some((blas, _)) = update {
+                same_context(ctx, blas.accel.context())?;
+            }
             check_geometries(ctx, geoms)?;
             let g: Vec<_> = geoms.iter().map(|g| g.to_vk()).collect();
             let counts: Vec<u32> = geoms.iter().map(|g| g.triangle_count).collect();
-            let s = build_sizes(ctx, &g, &counts, *flags);
+            let s = build_sizes(ctx, &g, &counts, flags);
+            let needed = match update {
+                Some((_, BlasUpdateMode::Refit)) => s.update_scratch,
+                Some((blas, BlasUpdateMode::Rebuild)) => {
+                    if s.acceleration_structure > blas.size() {
+                        return Err(VkError::InvalidArgument(format!(
+                            "rebuild needs {} bytes, the BLAS has {}",
+                            s.acceleration_structure,
+                            blas.size()
+                        )));
+                    }
+                    s.build_scratch
+                }
+                None => {
+                    sizes.push(s);
+                    s.build_scratch
+                }
+            };
             scratch_offsets.push(scratch_total);
             scratch_total = align_up(
-                scratch_total
-                    .checked_add(s.build_scratch)
-                    .ok_or_else(overflow)?,
+                scratch_total.checked_add(needed).ok_or_else(overflow)?,
                 align,
             )
             .ok_or_else(overflow)?;
@@ -502,26 +728,14 @@ impl BlasBatch {
                     .collect::<Vec<_>>(),
             );
             vk_geoms.push(g);
-            sizes.push(s);
         }
-        let retired_scratch = scratch.reserve(scratch_total)?;
-        let base = scratch.base_address();
-
         let mut blases = Vec::with_capacity(self.requests.len());
         for ((geoms, flags), s) in self.requests.iter().zip(&sizes) {
-            let accel = AccelerationStructure::new(
-                ctx,
-                vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
-                s.acceleration_structure,
-            )?;
-            blases.push(Blas {
-                accel,
-                triangle_count: geoms.iter().map(|g| u64::from(g.triangle_count)).sum(),
-                flags: *flags,
-                sizes: *s,
-                compacted: false,
-            });
+            let accel = create_blas_storage(ctx, pool, s.acceleration_structure)?;
+            blases.push(make_blas(accel, geoms, *flags, *s));
         }
+        let retired_scratch = scratch.reserve(scratch_total.max(1))?;
+        let base = scratch.base_address();
         let compactable: Vec<usize> = blases
             .iter()
             .enumerate()
@@ -537,27 +751,54 @@ impl BlasBatch {
             Some(CompactionQuery::new(ctx, compactable)?)
         };
 
-        let infos: Vec<_> = self
-            .requests
-            .iter()
-            .zip(&vk_geoms)
-            .zip(&blases)
-            .zip(&scratch_offsets)
-            .map(|((((_, flags), g), blas), off)| {
+        let mut infos = Vec::with_capacity(ops);
+        for (i, ((_, flags), blas)) in self.requests.iter().zip(&blases).enumerate() {
+            infos.push(
                 vk::AccelerationStructureBuildGeometryInfoKHR::default()
                     .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
                     .flags(*flags)
                     .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
                     .dst_acceleration_structure(blas.accel.raw())
-                    .geometries(g)
+                    .geometries(&vk_geoms[i])
                     .scratch_data(vk::DeviceOrHostAddressKHR {
-                        device_address: base + off,
-                    })
-            })
-            .collect();
+                        device_address: base + scratch_offsets[i],
+                    }),
+            );
+        }
+        let first_update = self.requests.len();
+        for (k, u) in self.updates.iter().enumerate() {
+            let i = first_update + k;
+            let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+                .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+                .flags(u.blas.flags)
+                .dst_acceleration_structure(u.blas.accel.raw())
+                .geometries(&vk_geoms[i])
+                .scratch_data(vk::DeviceOrHostAddressKHR {
+                    device_address: base + scratch_offsets[i],
+                });
+            infos.push(match u.mode {
+                BlasUpdateMode::Refit => info
+                    .mode(vk::BuildAccelerationStructureModeKHR::UPDATE)
+                    .src_acceleration_structure(u.blas.accel.raw()),
+                BlasUpdateMode::Rebuild => info.mode(vk::BuildAccelerationStructureModeKHR::BUILD),
+            });
+        }
         let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> =
             ranges.iter().map(|r| r.as_slice()).collect();
 
+        if !self.updates.is_empty() {
+            // Earlier traces, copies and builds reading or writing the updated
+            // BLASes come first.
+            rec.memory_barrier(
+                vk::PipelineStageFlags2::ALL_COMMANDS,
+                vk::AccessFlags2::ACCELERATION_STRUCTURE_READ_KHR
+                    | vk::AccessFlags2::ACCELERATION_STRUCTURE_WRITE_KHR
+                    | vk::AccessFlags2::SHADER_READ,
+                vk::PipelineStageFlags2::ACCELERATION_STRUCTURE_BUILD_KHR,
+                vk::AccessFlags2::ACCELERATION_STRUCTURE_READ_KHR
+                    | vk::AccessFlags2::ACCELERATION_STRUCTURE_WRITE_KHR,
+            );
+        }
         if let Some(q) = &compaction {
             // SAFETY: recording on this device, outside a render pass; the pool
             // was just created with `q.len()` queries.
@@ -566,11 +807,14 @@ impl BlasBatch {
                     .cmd_reset_query_pool(rec.raw(), q.pool, 0, q.len() as u32)
             };
         }
-        // SAFETY: recording on this device; every destination is a fresh BLAS of
-        // the queried size; scratch slices are disjoint, aligned to
-        // minAccelerationStructureScratchOffsetAlignment and inside the reserved
-        // scratch; geometry addresses were validated (the caller keeps the
-        // vertex/index buffers alive until execution, per `TriangleGeometry`).
+        // SAFETY: recording on this device; every build destination is a fresh
+        // BLAS of the queried size, every update destination a live BLAS whose
+        // size fits the rebuild (checked) or, for a refit, its own source with
+        // the build's flags and geometry signature (checked at push); scratch
+        // slices are disjoint, aligned to minAccelerationStructureScratchOffsetAlignment
+        // and inside the reserved scratch; geometry addresses were validated
+        // (the caller keeps the vertex/index buffers alive until execution,
+        // per `TriangleGeometry`); no BLAS is updated twice (checked at push).
         unsafe {
             ctx.acceleration_structure()
                 .cmd_build_acceleration_structures(rec.raw(), &infos, &range_refs)
@@ -596,6 +840,8 @@ impl BlasBatch {
             blases,
             compaction,
             retired_scratch,
+            scratch_offsets,
+            scratch_bytes: scratch_total,
         })
     }
 }

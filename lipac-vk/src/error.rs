@@ -57,6 +57,9 @@ pub enum VkError {
     QueryNotReady,
     /// An object from another device context was passed.
     WrongContext,
+    /// lipac-core's build scheduler refused an acknowledgement from the
+    /// plan executor.
+    Scheduler(lipac_core::build_plan::BuildPlanError),
     /// A readback slot still holds an unread frame; read it
     /// ([`crate::ReadbackRing::try_read`]) before reusing it.
     ReadbackSlotBusy {
@@ -118,6 +121,7 @@ impl fmt::Display for VkError {
             Self::MissingUsage(s) => write!(f, "buffer usage missing: {s}"),
             Self::QueryNotReady => write!(f, "the compaction query has not been written yet"),
             Self::WrongContext => write!(f, "object belongs to another device context"),
+            Self::Scheduler(e) => write!(f, "build scheduler: {e}"),
             Self::ReadbackSlotBusy { slot, value } => write!(
                 f,
                 "readback slot {slot} still holds unread frame {value}; read it first"

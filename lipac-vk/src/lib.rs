@@ -9,10 +9,17 @@
 //!
 //! * [`DeviceContext`]: lipac's binding to an engine's instance, device and
 //!   queues; [`HeadlessContext`]: a device of its own for tests and examples.
-//! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`].
+//! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`];
+//!   [`AccelerationStructurePool`]: acceleration structures at 256-byte
+//!   aligned TLSF ranges of large blocks, with [`PoolStats`].
 //! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
-//!   compaction ([`CompactionQuery`], [`record_compactions`]); [`Tlas`]:
-//!   builds from [`lipac_core::layout::TlasInstance`] records with geometric growth.
+//!   compaction ([`CompactionQuery`], [`record_compactions`]) and in-place
+//!   updates ([`BlasUpdateMode`]); [`Tlas`]: builds from
+//!   [`lipac_core::layout::TlasInstance`] records with geometric growth;
+//!   [`TlasPair`]: a double-buffered TLAS.
+//! * [`Retirement`]: deferred destruction keyed by timeline value (never
+//!   waits); [`PlanExecutor`]: records lipac-core's BLAS build plans and
+//!   acknowledges them.
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
 //!   from a buffer with it.
@@ -30,6 +37,7 @@
 #![warn(clippy::undocumented_unsafe_blocks)]
 
 mod accel;
+mod as_pool;
 mod assembly;
 mod blas;
 mod commands;
@@ -37,7 +45,9 @@ mod compute;
 mod context;
 mod counting;
 mod error;
+mod executor;
 mod feedback;
+mod lifetimes;
 mod memory;
 mod readback;
 pub mod shaders;
@@ -46,12 +56,15 @@ mod tlas;
 mod trace;
 
 pub use accel::{AccelerationStructure, AsSizes};
+pub use as_pool::{
+    AccelerationStructurePool, PoolStats, AS_OFFSET_ALIGNMENT, DEFAULT_POOL_BLOCK_SIZE,
+};
 pub use assembly::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
 };
 pub use blas::{
-    record_compactions, Blas, BlasBatch, BlasBatchOutput, CompactionQuery, IndexFormat,
-    TriangleGeometry,
+    record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
+    BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
 };
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
@@ -63,7 +76,9 @@ pub use counting::{
     UNIT_CUBE_VERTICES,
 };
 pub use error::{Result, VkError};
+pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
+pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use readback::{Readback, ReadbackRing, ReadbackTicket};
 pub use timeline::TimelineSemaphore;
