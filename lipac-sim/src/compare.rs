@@ -266,8 +266,8 @@ pub fn run(
             n,
             0,
         )?;
-        let gt_frame_ms = ms(t);
-        gt_ms += gt_frame_ms;
+        gt_ms += ms(t);
+        let gt_trace_ms = gt.traced_ns as f64 * 1e-6;
         let ctx = FrameContext {
             frame,
             scene,
@@ -296,13 +296,12 @@ pub fn run(
                     ));
                 }
                 m.tlas_build_ms = full_ms;
-                m.trace_ms = gt_frame_ms;
+                m.trace_ms = gt_trace_ms;
                 (None, &full_tlas)
             } else {
                 let t = Instant::now();
                 tlas.rebuild(&store, &records, &counting)?;
                 m.tlas_build_ms = ms(t);
-                let t = Instant::now();
                 let out = render(
                     &FrameScene {
                         store: &store,
@@ -316,7 +315,7 @@ pub fn run(
                     n,
                     s.hitboxes(),
                 )?;
-                m.trace_ms = ms(t);
+                m.trace_ms = out.traced_ns as f64 * 1e-6;
                 (Some(out), &tlas)
             };
             m.tlas_instances = traced.len() as u64;

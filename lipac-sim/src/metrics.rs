@@ -58,7 +58,10 @@ pub struct FrameMetrics {
     pub needed_missing: u64,
     /// Relative RMSE of the indirect light against the ground truth.
     pub error: f64,
-    /// Wall time of the strategy's path tracing, ms.
+    /// CPU time (summed over threads) of the bounce and shadow rays traced
+    /// against the strategy's TLAS, ms. Primary hits and the rasterized-shadow
+    /// fallback stand in for rasterization, which every strategy pays alike,
+    /// and are excluded (see `pathtrace::FrameOutput::traced_ns`).
     pub trace_ms: f64,
     /// Wall time of its TLAS build, ms.
     pub tlas_build_ms: f64,

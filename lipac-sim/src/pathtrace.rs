@@ -25,6 +25,8 @@
 //! a render and its ground truth use identical numbers, and results do not
 //! depend on the thread count (counters are sums).
 
+use std::time::Instant;
+
 use glam::{Vec3, Vec3A};
 
 use crate::blas::BlasStore;
@@ -152,6 +154,22 @@ pub struct FrameOutput {
     pub counters: Counters,
     /// Rays traced.
     pub rays: RayStats,
+    /// CPU time, summed over threads, spent tracing the bounce and shadow
+    /// rays against the traced (culled) TLAS, in nanoseconds. Primary hits and
+    /// the rasterized-shadow fallback stand in for rasterization, which every
+    /// strategy pays alike, and are not included. Not deterministic; see
+    /// [`FrameOutput::without_timings`].
+    pub traced_ns: u64,
+}
+
+impl FrameOutput {
+    /// A copy with the timing zeroed, for bitwise comparisons of renders.
+    pub fn without_timings(&self) -> Self {
+        Self {
+            traced_ns: 0,
+            ..self.clone()
+        }
+    }
 }
 
 /// Relative RMSE of `image` against `reference`:
@@ -223,6 +241,7 @@ struct Worker<'a> {
     frame: u32,
     counters: Counters,
     rays: RayStats,
+    traced_ns: u64,
 }
 
 impl Worker<'_> {
@@ -245,11 +264,16 @@ impl Worker<'_> {
         if fs.traced.box_count() == 0 || ray.mask & masks::COUNTING == 0 {
             // Nothing to count: a cheaper any-hit query gives the same answer.
             let mask = ray.mask;
-            if occluded_by(fs.traced, fs.store, &ray, |_, m| m & mask != 0) {
+            let t = Instant::now();
+            let hit = occluded_by(fs.traced, fs.store, &ray, |_, m| m & mask != 0);
+            self.traced_ns += elapsed_ns(t);
+            if hit {
                 return false;
             }
         } else {
+            let t = Instant::now();
             let r = trace(fs.traced, fs.store, &ray, None);
+            self.traced_ns += elapsed_ns(t);
             self.count(&r, false);
             if r.hit.is_some() {
                 return false;
@@ -319,7 +343,9 @@ impl Worker<'_> {
             beta *= mat.albedo;
             self.rays.bounce += 1;
             let ray = Ray::unchecked(offset(p, n), dir, 0.0, f32::INFINITY, cfg.bounce_mask);
+            let t = Instant::now();
             let r = trace(fs.traced, fs.store, &ray, None);
+            self.traced_ns += elapsed_ns(t);
             self.count(&r, true);
             let Some(h) = r.hit else {
                 indirect += beta * cfg.sky_radiance;
@@ -383,7 +409,7 @@ pub fn render(
     {
         work[i % threads].push((i * 4, d, ind));
     }
-    let results: Vec<(Counters, RayStats)> = std::thread::scope(|s| {
+    let results: Vec<(Counters, RayStats, u64)> = std::thread::scope(|s| {
         let handles: Vec<_> = work
             .into_iter()
             .map(|chunks| {
@@ -396,6 +422,7 @@ pub fn render(
                         frame,
                         counters: Counters::new(instance_slots, hitboxes),
                         rays: RayStats::default(),
+                        traced_ns: 0,
                     };
                     for (row0, d, ind) in chunks {
                         for (k, (dp, ip)) in d.iter_mut().zip(ind.iter_mut()).enumerate() {
@@ -405,7 +432,7 @@ pub fn render(
                             *ip = b;
                         }
                     }
-                    (wk.counters, wk.rays)
+                    (wk.counters, wk.rays, wk.traced_ns)
                 })
             })
             .collect();
@@ -416,9 +443,11 @@ pub fn render(
     });
     let mut counters = Counters::new(instance_slots, hitboxes);
     let mut rays = RayStats::default();
-    for (c, r) in &results {
+    let mut traced_ns = 0;
+    for (c, r, t) in &results {
         counters.merge(c);
         rays.add(r);
+        traced_ns += t;
     }
     Ok(FrameOutput {
         width: config.width,
@@ -427,5 +456,10 @@ pub fn render(
         indirect,
         counters,
         rays,
+        traced_ns,
     })
+}
+
+fn elapsed_ns(t: Instant) -> u64 {
+    u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX)
 }
