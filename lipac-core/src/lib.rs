@@ -27,6 +27,7 @@ pub mod instance;
 pub mod latency;
 pub mod layout;
 pub mod math;
+pub mod memory;
 pub mod registry;
 pub mod state;
 pub mod thresholds;
