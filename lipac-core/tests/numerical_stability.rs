@@ -871,3 +871,30 @@ fn camera_inside_instances_and_hitboxes_far_from_the_origin() {
         assert_eq!(traced, 3);
     }
 }
+
+#[test]
+fn frustum_slack_grows_with_distance_from_the_origin_but_stays_small() {
+    // The plane test allows a relative slack of 1e-6 of its terms'
+    // magnitude (f64 planes): sub-millimetre near the origin, about 0.1 m
+    // at 100 km, never metres.
+    for (origin, rejected_at, accepted_at) in [(0.0f32, 0.001f32, 0.0f32), (100_000.0, 1.0, 0.0)] {
+        let camera = Vec3::new(origin, 1.7, origin);
+        let f = frustum_at(camera, Vec3::NEG_Z, 0.1);
+        // A thin box behind the camera, `gap` metres behind the apex plane
+        // z = camera.z (the side planes meet there).
+        let behind = |gap: f32| {
+            let z = camera.z + gap;
+            f.intersects(Vec3::new(camera.x - 1.0, 0.0, z), Vec3::new(camera.x + 1.0, 3.0, z + 1.0))
+        };
+        assert!(!behind(rejected_at + 0.1), "origin {origin}");
+        assert!(behind(accepted_at - 0.5), "origin {origin}: straddling box rejected");
+        // A box just before the near plane (ends 1 cm before it).
+        let z_near = camera.z - 0.1;
+        let before_near = f.intersects(
+            Vec3::new(camera.x - 0.01, 1.69, z_near + 0.01),
+            Vec3::new(camera.x + 0.01, 1.71, z_near + 0.05),
+        );
+        // Separated near the origin; within the slack at 100 km (conservative).
+        assert_eq!(before_near, origin != 0.0, "origin {origin}");
+    }
+}
