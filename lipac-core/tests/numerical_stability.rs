@@ -884,10 +884,16 @@ fn frustum_slack_grows_with_distance_from_the_origin_but_stays_small() {
         // z = camera.z (the side planes meet there).
         let behind = |gap: f32| {
             let z = camera.z + gap;
-            f.intersects(Vec3::new(camera.x - 1.0, 0.0, z), Vec3::new(camera.x + 1.0, 3.0, z + 1.0))
+            f.intersects(
+                Vec3::new(camera.x - 1.0, 0.0, z),
+                Vec3::new(camera.x + 1.0, 3.0, z + 1.0),
+            )
         };
         assert!(!behind(rejected_at + 0.1), "origin {origin}");
-        assert!(behind(accepted_at - 0.5), "origin {origin}: straddling box rejected");
+        assert!(
+            behind(accepted_at - 0.5),
+            "origin {origin}: straddling box rejected"
+        );
         // A box just before the near plane (ends 1 cm before it).
         let z_near = camera.z - 0.1;
         let before_near = f.intersects(
