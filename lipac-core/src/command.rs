@@ -214,6 +214,11 @@ impl CommandBuffer {
         }
     }
 
+    /// Heap bytes held (the word buffer's capacity).
+    pub(crate) fn heap_bytes(&self) -> u64 {
+        crate::memory::vec_bytes::<u32>(self.words.capacity())
+    }
+
     /// Appends a command if there is room; returns whether it was stored.
     /// The request is counted either way.
     ///
@@ -426,6 +431,12 @@ impl CommandQueue {
             kind,
             priority,
         })
+    }
+
+    /// Heap bytes held (estimated for the ordered set; see
+    /// [`crate::memory`]).
+    pub(crate) fn heap_bytes(&self) -> u64 {
+        crate::memory::hash_map_bytes(&self.by_slot) + crate::memory::btree_set_bytes(&self.order)
     }
 
     /// Number of pending commands.

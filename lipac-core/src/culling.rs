@@ -116,6 +116,7 @@ use crate::layout::{
     MAX_SLOTS,
 };
 use crate::math::Aabb;
+use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
 use crate::thresholds::Thresholds;
 
@@ -627,6 +628,42 @@ impl<H: HitboxIndex> Culling<H> {
     /// Latency mitigation's tracker, if enabled.
     pub fn latency_mitigation(&self) -> Option<&LatencyMitigation> {
         self.latency.as_ref()
+    }
+
+    /// CPU bytes held by the loop's containers, computed from their
+    /// capacities (see [`crate::memory`]).
+    ///
+    /// ```
+    /// use lipac_core::culling::{Culling, CullingConfig};
+    /// use lipac_core::grid::{GridConfig, HitboxGrid};
+    /// let culling = Culling::new(HitboxGrid::new(GridConfig::default())?, CullingConfig::new(1))?;
+    /// let m = culling.memory_usage();
+    /// assert_eq!(m.hitboxes, 512 * 512 * 12); // 3 MiB of hitbox records
+    /// assert_eq!(m.records, 0); // no instances yet
+    /// # Ok::<(), lipac_core::error::CoreError>(())
+    /// ```
+    pub fn memory_usage(&self) -> MemoryUsage {
+        use crate::memory::{hash_map_bytes, vec_bytes};
+        let (records, handles, slot_occupants, free_lists, dirty) = self.registry.heap_bytes();
+        MemoryUsage {
+            records,
+            handles,
+            slot_occupants,
+            free_lists,
+            dirty,
+            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity()),
+            awaiting: vec_bytes::<bool>(self.awaiting.capacity()),
+            latency_bits: self
+                .latency
+                .as_ref()
+                .map_or(0, LatencyMitigation::heap_bytes),
+            hitboxes: vec_bytes::<HitboxRecord>(self.hitboxes.capacity()),
+            command_buffer: self.commands.heap_bytes(),
+            command_queue: self.queue.heap_bytes(),
+            overrides: hash_map_bytes(&self.state_overrides)
+                + hash_map_bytes(&self.hitbox_overrides),
+            scratch: vec_bytes::<u32>(self.scratch.capacity()),
+        }
     }
 
     // ---- instances ------------------------------------------------------

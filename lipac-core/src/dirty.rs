@@ -49,6 +49,12 @@ impl DirtySet {
             .is_some_and(|w| w & (1u64 << (i % 64)) != 0)
     }
 
+    /// Heap bytes held (bitset and list capacities).
+    pub(crate) fn heap_bytes(&self) -> u64 {
+        crate::memory::vec_bytes::<u64>(self.bits.capacity())
+            + crate::memory::vec_bytes::<u32>(self.list.capacity())
+    }
+
     /// Number of dirty indices.
     pub fn len(&self) -> usize {
         self.list.len()

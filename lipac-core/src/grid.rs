@@ -11,6 +11,15 @@
 //! arithmetic, so indexing stays exact far from the origin (±100 km and
 //! beyond), where `f32` cell borders would already be rounded.
 //!
+//! An instance belongs to the cell holding its AABB's *exact* centre
+//! ([`HitboxIndex::hitbox_of`]): the centre `(min + max) / 2` of the `f32`
+//! corners is kept as an unevaluated `f64` sum (no rounding at all), so it is
+//! never moved across a cell border or out of the world by rounding.
+//! [`HitboxIndex::xz_bounds`] rounds the `f64` cell borders *outwards* to
+//! `f32`, so a cell's `f32` bounds contain its exact region; where a border
+//! is not an `f32` value, neighbouring cells overlap by one `f32` step (never
+//! a gap). See `docs/PRECISION.md`.
+//!
 //! # Memory
 //!
 //! Each hitbox costs [`HITBOX_BYTES`] = 12 bytes on the GPU
@@ -23,6 +32,7 @@
 use crate::error::CoreError;
 use crate::hitbox_index::HitboxIndex;
 use crate::layout::HitboxRecord;
+use crate::math::Aabb;
 use glam::{Vec2, Vec3};
 
 /// GPU bytes per hitbox (one [`HitboxRecord`]).
@@ -197,22 +207,82 @@ impl HitboxGrid {
     }
 
     fn axis_cell(&self, axis: usize, v: f64) -> Option<u32> {
+        self.axis_cell_exact(axis, v, 0.0)
+    }
+
+    /// The cell on `axis` holding the exact value `hi + lo` (an unevaluated
+    /// sum with `|lo| <= ulp(hi) / 2`, as [`exact_center`] returns).
+    fn axis_cell_exact(&self, axis: usize, hi: f64, lo: f64) -> Option<u32> {
+        // `hi + lo < b` exactly, for an f64 border `b`: since `hi` is the
+        // f64 nearest to `hi + lo`, the sign of `hi - b` decides unless
+        // `hi == b`, where the sign of `lo` does.
+        let below = |b: f64| hi < b || (hi == b && lo < 0.0);
+        let above = |b: f64| hi > b || (hi == b && lo > 0.0);
         let n = self.dims[axis];
-        if !v.is_finite() || v < self.border(axis, 0) || v > self.border(axis, n) {
+        if !hi.is_finite()
+            || !lo.is_finite()
+            || below(self.border(axis, 0))
+            || above(self.border(axis, n))
+        {
             return None;
         }
-        let estimate = ((v - self.min[axis]) * self.inv_cell).floor();
+        let estimate = ((hi - self.min[axis]) * self.inv_cell).floor();
         // The estimate may round across a border; fix up against the exact
         // borders so that border(k) <= v < border(k + 1) holds, using the same
         // `border` function as `bounds_f64`.
         let mut k = (estimate.max(0.0) as u32).min(n - 1);
-        while k > 0 && v < self.border(axis, k) {
+        while k > 0 && below(self.border(axis, k)) {
             k -= 1;
         }
-        while k + 1 < n && v >= self.border(axis, k + 1) {
+        while k + 1 < n && !below(self.border(axis, k + 1)) {
             k += 1;
         }
         Some(k)
+    }
+
+    /// Cell `(cx, cz)` holding the exact centre of `aabb` in x/z, or `None`
+    /// outside the grid or for non-finite corners. Unlike
+    /// `cell_at(aabb.center())`, the centre is not rounded to `f32`.
+    pub fn cell_of_aabb_center(&self, aabb: &Aabb) -> Option<(u32, u32)> {
+        let (xh, xl) = exact_center(aabb.min.x, aabb.max.x);
+        let (zh, zl) = exact_center(aabb.min.z, aabb.max.z);
+        Some((
+            self.axis_cell_exact(0, xh, xl)?,
+            self.axis_cell_exact(1, zh, zl)?,
+        ))
+    }
+}
+
+/// The exact midpoint of two `f32` values as an unevaluated `f64` sum
+/// `hi + lo` (`hi` the nearest `f64`, `|lo| <= ulp(hi) / 2`): Knuth's TwoSum
+/// of the widened values, halved. Exact for every pair of finite `f32`
+/// (no overflow in `f64`; halving a multiple of 2^-149 stays exact).
+fn exact_center(a: f32, b: f32) -> (f64, f64) {
+    let (a, b) = (f64::from(a), f64::from(b));
+    let s = a + b;
+    let bb = s - a;
+    let e = (a - (s - bb)) + (b - bb);
+    (s * 0.5, e * 0.5)
+}
+
+/// The largest `f32` not above `v` (`v` finite and within `f32` range).
+fn f32_down(v: f64) -> f32 {
+    let r = v as f32; // nearest
+    if f64::from(r) > v {
+        next_toward_neg_inf(r)
+    } else {
+        r
+    }
+}
+
+/// The next `f32` below a finite `x`.
+fn next_toward_neg_inf(x: f32) -> f32 {
+    if x == 0.0 {
+        -f32::from_bits(1)
+    } else if x > 0.0 {
+        f32::from_bits(x.to_bits() - 1)
+    } else {
+        f32::from_bits(x.to_bits() + 1)
     }
 }
 
@@ -227,13 +297,33 @@ impl HitboxIndex for HitboxGrid {
         self.index(cx, cz)
     }
 
-    /// Bounds rounded to nearest `f32`. Rounding is monotone, so a point the
-    /// grid maps to this cell lies within the rounded bounds (inclusive).
+    /// The exact centre of `aabb` (not rounded to `f32`); see
+    /// [`HitboxGrid::cell_of_aabb_center`].
+    fn hitbox_of(&self, aabb: &Aabb) -> Option<u32> {
+        let (cx, cz) = self.cell_of_aabb_center(aabb)?;
+        self.index(cx, cz)
+    }
+
+    /// Bounds rounded *outwards* to `f32` (minimum down, maximum up), so they
+    /// contain the exact cell `bounds_f64(index)`: unchanged where a border
+    /// is an `f32` value, one `f32` step of overlap with the neighbour where
+    /// it is not. A cell reaching beyond the `f32` range gets infinite
+    /// bounds (and then no counting box).
     fn xz_bounds(&self, index: u32) -> Option<(Vec2, Vec2)> {
         let (lo, hi) = self.bounds_f64(index)?;
+        let down = |v: f64| {
+            if v < -f64::from(f32::MAX) {
+                f32::NEG_INFINITY
+            } else if v > f64::from(f32::MAX) {
+                f32::MAX
+            } else {
+                f32_down(v)
+            }
+        };
+        let up = |v: f64| -down(-v);
         Some((
-            Vec2::new(lo[0] as f32, lo[1] as f32),
-            Vec2::new(hi[0] as f32, hi[1] as f32),
+            Vec2::new(down(lo[0]), down(lo[1])),
+            Vec2::new(up(hi[0]), up(hi[1])),
         ))
     }
 }
@@ -391,6 +481,86 @@ mod tests {
             g.xz_bounds(4),
             Some((Vec2::new(16.0, 16.0), Vec2::new(32.0, 32.0)))
         );
+    }
+
+    /// The f32 just below / above `x`.
+    fn pred(x: f32) -> f32 {
+        next_toward_neg_inf(x)
+    }
+    fn succ(x: f32) -> f32 {
+        -next_toward_neg_inf(-x)
+    }
+
+    fn aabb_x(a: f32, b: f32) -> Aabb {
+        Aabb::new(Vec3::new(a, 0.0, 1.0), Vec3::new(b, 1.0, 1.0))
+    }
+
+    #[test]
+    fn exact_center_decides_at_a_border_where_the_f32_centre_rounds_across() {
+        let g = grid([0.0, 0.0], [64.0, 64.0], 16.0);
+        // Exact centre 16 - 2^-21, in cell 0; the f32 sum 32 - 2^-20 is a tie
+        // that rounds (to even) up to 32, so the f32 centre is 16: cell 1.
+        let aabb = aabb_x(pred(16.0), 16.0);
+        assert_eq!(aabb.center().x, 16.0);
+        assert_eq!(g.hitbox_at(aabb.center()), Some(1));
+        assert_eq!(g.cell_of_aabb_center(&aabb), Some((0, 0)));
+        assert_eq!(g.hitbox_of(&aabb), Some(0));
+        // Exactly on the border: the upper cell, as for points.
+        assert_eq!(g.hitbox_of(&aabb_x(15.0, 17.0)), Some(1));
+        assert_eq!(g.hitbox_of(&aabb_x(16.0, 16.0)), Some(1));
+        // Far border closed, beyond it outside; non-finite is outside.
+        assert_eq!(g.hitbox_of(&aabb_x(60.0, 68.0)), Some(3));
+        assert_eq!(g.hitbox_of(&aabb_x(60.0, succ(68.0))), None);
+        assert_eq!(g.hitbox_of(&aabb_x(f32::NAN, 1.0)), None);
+        assert_eq!(g.hitbox_of(&aabb_x(1.0, f32::INFINITY)), None);
+        // Huge corners do not overflow (the f32 sum would be infinite).
+        let g = grid([-4e38, -1.0], [4e38, 1.0], 1e36);
+        let aabb = aabb_x(f32::MAX, f32::MAX);
+        assert!(aabb.center().x.is_infinite());
+        assert!(g.hitbox_of(&aabb).is_some());
+    }
+
+    #[test]
+    fn centre_just_inside_an_unaligned_far_border_is_inside() {
+        // Worlds whose far border is no f32 value: with the f32 centre, a box
+        // whose exact centre lies inside could round outside (OutsideWorld).
+        let mut found = 0;
+        for k in 0..400u32 {
+            let min = -100_000.0 - f64::from(k) * 0.013;
+            let g = grid([min, 0.0], [min + 160.0, 16.0], 16.0);
+            let border = g.max()[0];
+            let b = f32_down(border);
+            let (a, b) = (pred(b), b); // two f32 at or below the border
+            for (a, b) in [(a, b), (b, succ(b)), (pred(a), succ(b))] {
+                let aabb = aabb_x(a, b);
+                let exact = (f64::from(a) + f64::from(b)) / 2.0; // exact here
+                let inside = exact <= border;
+                assert_eq!(g.hitbox_of(&aabb).is_some(), inside, "{a} {b} {border}");
+                if inside && g.hitbox_at(aabb.center()).is_none() {
+                    found += 1;
+                }
+            }
+        }
+        assert!(found > 0, "no case where the f32 centre rounds outside");
+    }
+
+    #[test]
+    fn xz_bounds_round_outwards_and_neighbours_never_gap() {
+        let g = grid([-100_000.3, 7.77], [-99_000.0, 100.0], 16.1);
+        for i in 0..g.len() {
+            let (lo, hi) = g.bounds_f64(i).unwrap();
+            let (flo, fhi) = g.xz_bounds(i).unwrap();
+            assert!(f64::from(flo.x) <= lo[0] && f64::from(fhi.x) >= hi[0]);
+            assert!(f64::from(flo.y) <= lo[1] && f64::from(fhi.y) >= hi[1]);
+            // Tight: within one f32 step.
+            assert!(succ(flo.x) as f64 > lo[0] && (pred(fhi.x) as f64) < hi[0]);
+            let (cx, cz) = g.cell(i).unwrap();
+            if let Some(right) = g.index(cx + 1, cz) {
+                let (rlo, _) = g.xz_bounds(right).unwrap();
+                assert!(rlo.x <= fhi.x, "gap between {i} and {right}");
+                assert!(fhi.x <= succ(rlo.x), "overlap over one step");
+            }
+        }
     }
 
     proptest! {

@@ -266,6 +266,11 @@ impl LatencyMitigation {
         self.seen_registrations = 0;
     }
 
+    /// Heap bytes held (one bit per slot).
+    pub(crate) fn heap_bytes(&self) -> u64 {
+        crate::memory::vec_bytes::<u64>(self.visible.capacity())
+    }
+
     /// Whether the instance in `slot` was in the frustum at the last update.
     pub fn was_visible(&self, slot: u32) -> bool {
         self.visible
@@ -277,7 +282,8 @@ impl LatencyMitigation {
     /// the result, and fills `activate` (cleared first) with the slots, in
     /// ascending order, that are newly in the frustum, not already
     /// [`InstanceState::Active`], and accepted by the heuristic from
-    /// `camera`.
+    /// `camera`. An instance whose AABB contains `camera` counts as in the
+    /// frustum even if it ends before the near plane (rays start inside it).
     ///
     /// Removed instances are forgotten, and a reused slot counts as a new
     /// instance even if updates were skipped in between. Use one tracker per
@@ -307,7 +313,10 @@ impl LatencyMitigation {
             };
             summary.tested += 1;
             let aabb = Aabb::new(record.aabb_min.into(), record.aabb_max.into());
-            if !frustum.intersects_aabb(&aabb) {
+            // A box around the camera is in view even where it ends before
+            // the near plane: every primary ray starts inside it.
+            let around_camera = camera.cmpge(aabb.min).all() && camera.cmple(aabb.max).all();
+            if !around_camera && !frustum.intersects_aabb(&aabb) {
                 continue;
             }
             self.visible[word] |= bit;

@@ -28,6 +28,7 @@ pub mod latency;
 pub mod layout;
 pub mod manager;
 pub mod math;
+pub mod memory;
 pub mod registry;
 pub mod state;
 pub mod thresholds;

@@ -106,8 +106,8 @@ struct SlotOccupant {
 /// All instances of a scene with their GPU slots and records.
 ///
 /// `H` is the hitbox structure (the paper's [`HitboxGrid`] by default); the
-/// registry stores each instance's hitbox (the one holding its AABB centre)
-/// in its record.
+/// registry stores each instance's hitbox (the one holding its AABB centre,
+/// [`HitboxIndex::hitbox_of`]; exact for [`HitboxGrid`]) in its record.
 ///
 /// ```
 /// use glam::{Affine3A, Vec3};
@@ -288,10 +288,11 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     pub fn set_hitbox_index(&mut self, index: H) -> Result<H, CoreError> {
         let mut hitboxes = Vec::with_capacity(self.instances.len());
         for entry in self.instances.values() {
-            let center = entry.desc.aabb.center();
             let hitbox = index
-                .hitbox_at(center)
-                .ok_or(CoreError::OutsideWorld { center })?;
+                .hitbox_of(&entry.desc.aabb)
+                .ok_or(CoreError::OutsideWorld {
+                    center: entry.desc.aabb.center(),
+                })?;
             hitboxes.push((entry.slot, hitbox));
         }
         for (slot, hitbox) in hitboxes {
@@ -316,11 +317,12 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
                 max: MAX_SBT_OFFSET.into(),
             });
         }
-        let center = desc.aabb.center();
         let hitbox = self
             .index
-            .hitbox_at(center)
-            .ok_or(CoreError::OutsideWorld { center })?;
+            .hitbox_of(&desc.aabb)
+            .ok_or(CoreError::OutsideWorld {
+                center: desc.aabb.center(),
+            })?;
         Ok((rows, hitbox))
     }
 
@@ -648,6 +650,24 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// Whether any slot changed since the last take.
     pub fn has_dirty(&self) -> bool {
         !self.dirty.is_empty()
+    }
+
+    /// CPU bytes held, from capacities: `(records, handles, slot occupants,
+    /// free lists, dirty set)`; see [`crate::memory`].
+    pub(crate) fn heap_bytes(&self) -> (u64, u64, u64, u64, u64) {
+        use crate::memory::vec_bytes;
+        // slotmap 1.x: a slot is a union of the value and the free-list
+        // link, plus a u32 version, rounded up to the value's alignment.
+        let align = std::mem::align_of::<Entry>();
+        let slot = (std::mem::size_of::<Entry>() + 4).div_ceil(align) * align;
+        (
+            vec_bytes::<InstanceRecord>(self.records.capacity()),
+            (self.instances.capacity() * slot) as u64,
+            vec_bytes::<SlotOccupant>(self.occupants.capacity()),
+            vec_bytes::<u32>(self.free.capacity())
+                + vec_bytes::<(u64, u32)>(self.quarantine.capacity()),
+            self.dirty.heap_bytes(),
+        )
     }
 
     /// Number of [`InstanceRegistry::register`] calls that succeeded so far.

@@ -616,7 +616,7 @@ proptest! {
                 let want = build_record(
                     &e.desc,
                     affine_to_rows(&e.desc.transform),
-                    g.hitbox_at(e.desc.aabb.center()).unwrap(),
+                    g.hitbox_of(&e.desc.aabb).unwrap(),
                     e.state,
                     e.blas,
                 );
