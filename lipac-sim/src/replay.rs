@@ -168,11 +168,13 @@ pub fn empty_frame() -> Frame {
 
 /// The mode `config` asks for on a trace with `header`.
 pub fn mode_for(header: &TraceHeader, config: &ReplayConfig) -> ReplayMode {
-    config.mode.unwrap_or(if SceneRef::parse(&header.scene_name).is_some() {
-        ReplayMode::Geometry
-    } else {
-        ReplayMode::HitsOnly
-    })
+    config
+        .mode
+        .unwrap_or(if SceneRef::parse(&header.scene_name).is_some() {
+            ReplayMode::Geometry
+        } else {
+            ReplayMode::HitsOnly
+        })
 }
 
 /// Replays `input` (see the module docs). `progress(frames_done)` is called
@@ -230,8 +232,8 @@ fn replay_geometry<R: Read>(
                 frame.number
             ))
         };
-        let number = u32::try_from(frame.number)
-            .map_err(|_| bad("frame number above 2^32 - 1".into()))?;
+        let number =
+            u32::try_from(frame.number).map_err(|_| bad("frame number above 2^32 - 1".into()))?;
         scene.set_frame(number);
         if read == 0 {
             check_first_frame(&frame, &scene).map_err(bad)?;

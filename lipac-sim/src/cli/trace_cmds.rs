@@ -162,12 +162,11 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
         }),
         keep_frames: true,
     };
-    let report = match TraceInput::open(&a.file).and_then(|input| {
-        replay(input, &config, &mut |_| {})
-    }) {
-        Ok(r) => r,
-        Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
-    };
+    let report =
+        match TraceInput::open(&a.file).and_then(|input| replay(input, &config, &mut |_| {})) {
+            Ok(r) => r,
+            Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
+        };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");

@@ -19,6 +19,9 @@
 //!    instances the frame's recorded hits name (the engine's paths needed
 //!    them). The error is not available (`NaN`).
 //!
+//! A frame without recorded hit counts counts as a frame without hits; a
+//! trace none of whose frames carries them is refused.
+//!
 //! The `full` baseline keeps every live instance, with unlimited budgets.
 //!
 //! BLAS ownership follows the flags: `unique_blas` and `static` — one static
@@ -144,7 +147,10 @@ impl World {
     /// The capacity of every per-instance structure (for bounded-memory
     /// checks).
     fn footprint(&self) -> usize {
-        self.live.capacity() + self.slot_ids.capacity() + self.free.capacity() + self.hits.capacity()
+        self.live.capacity()
+            + self.slot_ids.capacity()
+            + self.free.capacity()
+            + self.hits.capacity()
     }
 }
 
@@ -197,9 +203,7 @@ impl Blases {
             return Ok(());
         }
         self.active[slot as usize] = false;
-        self.scheduler
-            .deactivate(InstanceKey(slot))
-            .map_err(core)
+        self.scheduler.deactivate(InstanceKey(slot)).map_err(core)
     }
     fn build(&mut self, world: &World, frame: u64) -> Result<BlasWork, SimError> {
         for l in world.live.values() {
@@ -269,7 +273,7 @@ struct LipacReplay {
 
 #[derive(Debug)]
 enum Runner {
-    Full(FullReplay),
+    Full(Box<FullReplay>),
     Lipac(Box<LipacReplay>),
 }
 
@@ -364,9 +368,9 @@ pub fn replay_hits_with<R: Read>(
     let mut runs = Vec::with_capacity(kinds.len());
     for k in &kinds {
         let runner = match k {
-            StrategyKind::Full => Runner::Full(FullReplay {
+            StrategyKind::Full => Runner::Full(Box::new(FullReplay {
                 blas: Blases::new(unlimited_budgets())?,
-            }),
+            })),
             StrategyKind::Lipac | StrategyKind::LipacLatency => {
                 let c = if *k == StrategyKind::Lipac {
                     lipac_config.clone()
@@ -396,6 +400,7 @@ pub fn replay_hits_with<R: Read>(
     let mut prev_hits: Vec<(u32, u32)> = Vec::new();
     let mut fp = HitsFootprint::default();
     let mut read = 0u64;
+    let mut with_hits = 0u64;
     let counting = CountingConfig::default();
     while input.next_frame_into(&mut frame)? {
         let number = u32::try_from(frame.number).map_err(|_| {
@@ -404,13 +409,7 @@ pub fn replay_hits_with<R: Read>(
                 frame.number
             ))
         })?;
-        let Some(hits) = &frame.hits else {
-            return Err(SimError::Replay(format!(
-                "frame record {read} (frame number {}) has no hit counts; a trace without \
-                 them replays only in geometry mode (recorded from a built-in scene)",
-                frame.number
-            )));
-        };
+        with_hits += u64::from(frame.hits.is_some());
         let camera = from_trace_camera(&frame.camera)?;
         // Feedback of the previous frame, before this frame's events.
         for run in &mut runs {
@@ -426,7 +425,7 @@ pub fn replay_hits_with<R: Read>(
         world.hits.clear();
         world.hits.resize(world.slots(), 0);
         prev_hits.clear();
-        for h in hits {
+        for h in frame.hits.iter().flatten() {
             if let Some(l) = world.live.get(&h.id) {
                 world.hits[l.slot as usize] = h.hits;
                 prev_hits.push((l.slot, h.hits));
@@ -478,6 +477,12 @@ pub fn replay_hits_with<R: Read>(
     }
     if read == 0 {
         return Err(SimError::Replay("the trace has no frames".into()));
+    }
+    if with_hits == 0 {
+        return Err(SimError::Replay(format!(
+            "none of the {read} frames carries hit counts; a trace without them replays \
+             only in geometry mode (recorded from a built-in scene)"
+        )));
     }
     let th = lipac_config.thresholds;
     let strategies = kinds
@@ -581,10 +586,10 @@ fn apply_event(
             }
         }
         InstanceEvent::Update(u) => {
-            let l = world
-                .live
-                .get_mut(&u.id)
-                .ok_or(SimError::Replay(format!("update of unknown instance {}", u.id)))?;
+            let l = world.live.get_mut(&u.id).ok_or(SimError::Replay(format!(
+                "update of unknown instance {}",
+                u.id
+            )))?;
             let mut redescribe = false;
             if let Some(p) = &u.pose {
                 l.desc.transform = rows_to_affine(&p.transform);
@@ -776,10 +781,7 @@ impl LipacReplay {
         self.started = true;
         let f = u64::from(frame);
         self.culling.begin_frame(f).map_err(core)?;
-        self.blas
-            .scheduler
-            .begin_frame(f + 1)
-            .map_err(core)?;
+        self.blas.scheduler.begin_frame(f + 1).map_err(core)?;
         if self.latency {
             let frustum = lipac_core::latency::Frustum::from_view_projection(camera.view_proj())
                 .map_err(core)?;
