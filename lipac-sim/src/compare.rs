@@ -18,7 +18,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::blas::BlasStore;
-use crate::camera::CameraPath;
+use crate::camera::{Camera, CameraPath};
 use crate::error::SimError;
 use crate::memory::tlas_bytes;
 use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, Summary, Tracker};
@@ -31,6 +31,7 @@ use crate::strategy::{
 };
 use crate::tlas::{CountingConfig, Tlas};
 use crate::trace::{Counters, SlotSet};
+use lipac_core::layout::TlasInstance;
 
 /// Which scene to compare on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -187,190 +188,288 @@ pub fn run(
     config: &CompareConfig,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<CompareReport, SimError> {
-    let start = Instant::now();
-    if config.strategies.is_empty() {
-        return Err(SimError::BadConfig("no strategy to compare"));
-    }
     let frames = config.frames.unwrap_or(path.frames()).min(path.frames());
     if frames == 0 {
         return Err(SimError::BadConfig("no frames to render"));
     }
-    let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
-    let pt = PathTraceConfig {
-        width: config.width,
-        height: config.height,
-        threads: config.threads,
-        ..PathTraceConfig::default()
-    };
-    let n = scene.instances().len();
-    let catalog = InstanceCatalog::new(scene)?;
-    let mut strategies = config
-        .strategies
-        .iter()
-        .map(|&k| make_strategy(k, scene, &lipac_config))
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut trackers: Vec<Tracker> = strategies.iter().map(|_| Tracker::new(n)).collect();
-    let mut metrics: Vec<Vec<FrameMetrics>> = strategies.iter().map(|_| Vec::new()).collect();
-    let mut previous: Vec<Option<Counters>> = strategies.iter().map(|_| None).collect();
-    let mut last_geometry: Vec<Vec<u32>> = strategies.iter().map(|_| Vec::new()).collect();
-
-    let policy = LodPolicy::default();
-    let counting = CountingConfig::default();
-    let mut store = BlasStore::new();
-    let unit_cube = store.unit_cube().reference();
-    let mut blases = SceneBlases::new();
-    let mut full_records = Vec::new();
-    let mut full_tlas = Tlas::default();
-    let mut tlas = Tlas::default();
-    let mut records = Vec::new();
-    let mut lods = vec![0u8; n];
-    let mut all = SlotSet::new();
-    (0..n as u32).for_each(|s| all.insert(s));
-    let (mut gt_ms, mut full_tlas_ms, mut geometry_ms) = (0.0, 0.0, 0.0);
-
+    let mut c = Comparison::new(scene_name, scene, config)?;
     for frame in 0..frames {
         scene.set_frame(frame);
-        let camera = path.camera_at(frame);
+        c.frame(scene, frame, &path.camera_at(frame))?;
+        progress(frame + 1, frames);
+    }
+    c.finish()
+}
+
+/// The comparison one frame at a time, for callers whose frames come from
+/// elsewhere than a [`CameraPath`] (a recorded trace: `crate::replay`).
+/// [`run`] is [`Comparison::new`], [`Comparison::frame`] per frame and
+/// [`Comparison::finish`].
+pub struct Comparison {
+    start: Instant,
+    scene_name: String,
+    config: CompareConfig,
+    rays_per_frame: u64,
+    lipac_config: LipacConfig,
+    pt: PathTraceConfig,
+    n: usize,
+    catalog: InstanceCatalog,
+    strategies: Vec<Box<dyn Strategy>>,
+    trackers: Vec<Tracker>,
+    metrics: Vec<Vec<FrameMetrics>>,
+    previous: Vec<Option<Counters>>,
+    last_geometry: Vec<Vec<u32>>,
+    policy: LodPolicy,
+    counting: CountingConfig,
+    store: BlasStore,
+    unit_cube: u64,
+    blases: SceneBlases,
+    full_records: Vec<TlasInstance>,
+    full_tlas: Tlas,
+    tlas: Tlas,
+    records: Vec<TlasInstance>,
+    lods: Vec<u8>,
+    all: SlotSet,
+    gt_ms: f64,
+    full_tlas_ms: f64,
+    geometry_ms: f64,
+    frames: u32,
+}
+
+impl std::fmt::Debug for Comparison {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Comparison")
+            .field("scene", &self.scene_name)
+            .field("instances", &self.n)
+            .field("frames", &self.frames)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Comparison {
+    /// Sets up the strategies of `config` on `scene` (its instance set is
+    /// fixed from now on; only animated transforms change between frames).
+    pub fn new(scene_name: &str, scene: &Scene, config: &CompareConfig) -> Result<Self, SimError> {
+        let start = Instant::now();
+        if config.strategies.is_empty() {
+            return Err(SimError::BadConfig("no strategy to compare"));
+        }
+        let rays_per_frame = u64::from(config.width) * u64::from(config.height);
+        let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+        let pt = PathTraceConfig {
+            width: config.width,
+            height: config.height,
+            threads: config.threads,
+            ..PathTraceConfig::default()
+        };
+        let n = scene.instances().len();
+        let catalog = InstanceCatalog::new(scene)?;
+        let strategies = config
+            .strategies
+            .iter()
+            .map(|&k| make_strategy(k, scene, &lipac_config))
+            .collect::<Result<Vec<_>, _>>()?;
+        let k = strategies.len();
+        let store = BlasStore::new();
+        let unit_cube = store.unit_cube().reference();
+        let mut all = SlotSet::new();
+        (0..n as u32).for_each(|s| all.insert(s));
+        Ok(Self {
+            start,
+            scene_name: scene_name.to_string(),
+            config: config.clone(),
+            rays_per_frame,
+            lipac_config,
+            pt,
+            n,
+            catalog,
+            strategies,
+            trackers: (0..k).map(|_| Tracker::new(n)).collect(),
+            metrics: (0..k).map(|_| Vec::new()).collect(),
+            previous: (0..k).map(|_| None).collect(),
+            last_geometry: (0..k).map(|_| Vec::new()).collect(),
+            policy: LodPolicy::default(),
+            counting: CountingConfig::default(),
+            store,
+            unit_cube,
+            blases: SceneBlases::new(),
+            full_records: Vec::new(),
+            full_tlas: Tlas::default(),
+            tlas: Tlas::default(),
+            records: Vec::new(),
+            lods: vec![0u8; n],
+            all,
+            gt_ms: 0.0,
+            full_tlas_ms: 0.0,
+            geometry_ms: 0.0,
+            frames: 0,
+        })
+    }
+
+    /// Frames compared so far.
+    pub fn frames(&self) -> u32 {
+        self.frames
+    }
+
+    /// Compares one frame: `scene` animated to `frame` (frame numbers
+    /// strictly increase), seen from `camera`.
+    pub fn frame(&mut self, scene: &Scene, frame: u32, camera: &Camera) -> Result<(), SimError> {
+        if scene.instances().len() != self.n {
+            return Err(SimError::SizeMismatch {
+                a: scene.instances().len(),
+                b: self.n,
+            });
+        }
+        let n = self.n;
         let eye = camera.position;
-        for (l, inst) in lods.iter_mut().zip(scene.instances()) {
-            *l = policy.lod(eye, &inst.aabb) as u8;
+        for (l, inst) in self.lods.iter_mut().zip(scene.instances()) {
+            *l = self.policy.lod(eye, &inst.aabb) as u8;
         }
         let t = Instant::now();
         full_scene_records(
             scene,
-            &mut blases,
-            &mut store,
+            &mut self.blases,
+            &mut self.store,
             eye,
-            &policy,
+            &self.policy,
             frame,
             UniqueUpdate::Refit,
-            &mut full_records,
+            &mut self.full_records,
         )?;
-        geometry_ms += ms(t);
+        self.geometry_ms += ms(t);
         let t = Instant::now();
-        full_tlas.rebuild(&store, &full_records, &counting)?;
+        self.full_tlas
+            .rebuild(&self.store, &self.full_records, &self.counting)?;
         let full_ms = ms(t);
-        full_tlas_ms += full_ms;
+        self.full_tlas_ms += full_ms;
         let t = Instant::now();
         let gt = render(
             &FrameScene {
-                store: &store,
-                full: &full_tlas,
-                traced: &full_tlas,
-                traced_slots: &all,
+                store: &self.store,
+                full: &self.full_tlas,
+                traced: &self.full_tlas,
+                traced_slots: &self.all,
             },
-            &camera,
+            camera,
             frame,
-            &pt,
+            &self.pt,
             n,
             0,
         )?;
-        gt_ms += ms(t);
+        self.gt_ms += ms(t);
         let gt_trace_ms = gt.traced_ns as f64 * 1e-6;
         let ctx = FrameContext {
             frame,
             scene,
-            camera: &camera,
-            catalog: &catalog,
-            lods: &lods,
-            full_records: &full_records,
-            unit_cube,
-            rays_per_frame,
+            camera,
+            catalog: &self.catalog,
+            lods: &self.lods,
+            full_records: &self.full_records,
+            unit_cube: self.unit_cube,
+            rays_per_frame: self.rays_per_frame,
             ground_truth_hits: &gt.counters.instances,
         };
-        for (i, s) in strategies.iter_mut().enumerate() {
+        for (i, s) in self.strategies.iter_mut().enumerate() {
             let t = Instant::now();
-            let sf = s.frame(&ctx, previous[i].as_ref(), &mut records)?;
+            let sf = s.frame(&ctx, self.previous[i].as_ref(), &mut self.records)?;
             let mut m = FrameMetrics {
                 frame,
                 strategy_ms: ms(t),
                 ..FrameMetrics::default()
             };
             apply_strategy_frame(&mut m, &sf);
-            let geometry = SlotSet::from_geometry_records(&records, &counting);
-            let (out, traced) = if s.is_full_scene() && config.share_ground_truth {
-                if records != full_records {
+            let geometry = SlotSet::from_geometry_records(&self.records, &self.counting);
+            let (out, traced) = if s.is_full_scene() && self.config.share_ground_truth {
+                if self.records != self.full_records {
                     return Err(SimError::BadConfig(
                         "full-scene strategy's records differ from the ground truth's",
                     ));
                 }
                 m.tlas_build_ms = full_ms;
                 m.trace_ms = gt_trace_ms;
-                (None, &full_tlas)
+                (None, &self.full_tlas)
             } else {
                 let t = Instant::now();
-                tlas.rebuild(&store, &records, &counting)?;
+                self.tlas
+                    .rebuild(&self.store, &self.records, &self.counting)?;
                 m.tlas_build_ms = ms(t);
                 let out = render(
                     &FrameScene {
-                        store: &store,
-                        full: &full_tlas,
-                        traced: &tlas,
+                        store: &self.store,
+                        full: &self.full_tlas,
+                        traced: &self.tlas,
                         traced_slots: &geometry,
                     },
-                    &camera,
+                    camera,
                     frame,
-                    &pt,
+                    &self.pt,
                     n,
                     s.hitboxes(),
                 )?;
                 m.trace_ms = out.traced_ns as f64 * 1e-6;
-                (Some(out), &tlas)
+                (Some(out), &self.tlas)
             };
             m.tlas_instances = traced.len() as u64;
             m.counting_boxes = traced.box_count() as u64;
             m.tlas_bytes = tlas_bytes(m.tlas_instances);
             let geometry_slots = (0..n as u32).filter(|&s| geometry.contains(s));
-            trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
+            self.trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
             match out {
                 Some(out) => {
                     m.error = relative_rmse(&out.indirect, &gt.indirect)?;
-                    previous[i] = Some(out.counters);
+                    self.previous[i] = Some(out.counters);
                 }
                 None => {
                     m.error = 0.0;
-                    previous[i] = Some(gt.counters.clone());
+                    self.previous[i] = Some(gt.counters.clone());
                 }
             }
-            if frame + 1 == frames {
-                last_geometry[i] = (0..n as u32).filter(|&s| geometry.contains(s)).collect();
-            }
-            metrics[i].push(m);
+            self.last_geometry[i].clear();
+            self.last_geometry[i].extend((0..n as u32).filter(|&s| geometry.contains(s)));
+            self.metrics[i].push(m);
         }
-        progress(frame + 1, frames);
+        self.frames += 1;
+        Ok(())
     }
 
-    let th = lipac_config.thresholds;
-    let nf = f64::from(frames);
-    let strategies = strategies
-        .iter()
-        .zip(metrics)
-        .zip(trackers.iter())
-        .zip(last_geometry)
-        .map(|(((s, frames), tracker), last)| StrategyRun {
-            name: s.name().to_string(),
-            summary: summarize(s.name(), &frames, tracker),
+    /// The report over the frames compared.
+    pub fn finish(self) -> Result<CompareReport, SimError> {
+        let frames = self.frames;
+        if frames == 0 {
+            return Err(SimError::BadConfig("no frames to render"));
+        }
+        let th = self.lipac_config.thresholds;
+        let nf = f64::from(frames);
+        let strategies = self
+            .strategies
+            .iter()
+            .zip(self.metrics)
+            .zip(self.trackers.iter())
+            .zip(self.last_geometry)
+            .map(|(((s, frames), tracker), last)| StrategyRun {
+                name: s.name().to_string(),
+                summary: summarize(s.name(), &frames, tracker),
+                frames,
+                last_geometry: last,
+            })
+            .collect();
+        Ok(CompareReport {
+            scene: self.scene_name,
+            instances: self.n as u64,
             frames,
-            last_geometry: last,
+            width: self.config.width,
+            height: self.config.height,
+            rays_per_frame: self.rays_per_frame,
+            thresholds: [
+                th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
+            ],
+            ground_truth_ms: self.gt_ms / nf,
+            full_tlas_ms: self.full_tlas_ms / nf,
+            geometry_ms: self.geometry_ms / nf,
+            wall_s: self.start.elapsed().as_secs_f64(),
+            strategies,
         })
-        .collect();
-    Ok(CompareReport {
-        scene: scene_name.to_string(),
-        instances: n as u64,
-        frames,
-        width: config.width,
-        height: config.height,
-        rays_per_frame,
-        thresholds: [
-            th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
-        ],
-        ground_truth_ms: gt_ms / nf,
-        full_tlas_ms: full_tlas_ms / nf,
-        geometry_ms: geometry_ms / nf,
-        wall_s: start.elapsed().as_secs_f64(),
-        strategies,
-    })
+    }
 }
 
 fn ms(t: Instant) -> f64 {

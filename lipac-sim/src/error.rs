@@ -49,6 +49,12 @@ pub enum SimError {
     Core(String),
     /// Writing a report failed.
     Io(String),
+    /// A trace could not be read or written (byte offset or line, frame and
+    /// what was wrong).
+    Trace(Box<lipac_core::trace::TraceError>),
+    /// A valid trace that cannot be replayed as asked (e.g. a strategy that
+    /// needs geometry on a hits-only trace).
+    Replay(String),
 }
 
 impl fmt::Display for SimError {
@@ -77,6 +83,8 @@ impl fmt::Display for SimError {
             Self::SizeMismatch { a, b } => write!(f, "sizes differ: {a} vs {b}"),
             Self::Core(what) => write!(f, "lipac-core: {what}"),
             Self::Io(what) => write!(f, "i/o: {what}"),
+            Self::Trace(e) => write!(f, "{e}"),
+            Self::Replay(what) => write!(f, "cannot replay: {what}"),
         }
     }
 }
@@ -93,5 +101,11 @@ impl SimError {
 impl From<std::io::Error> for SimError {
     fn from(e: std::io::Error) -> Self {
         Self::Io(e.to_string())
+    }
+}
+
+impl From<lipac_core::trace::TraceError> for SimError {
+    fn from(e: lipac_core::trace::TraceError) -> Self {
+        Self::Trace(Box::new(e))
     }
 }

@@ -13,6 +13,8 @@ pub mod memory;
 pub mod mesh;
 pub mod metrics;
 pub mod pathtrace;
+pub mod record;
+pub mod replay;
 pub mod report;
 pub mod rng;
 pub mod scene;

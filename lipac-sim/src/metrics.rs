@@ -222,6 +222,36 @@ impl Tracker {
         m.latency_sum += u64::from(latency);
     }
 
+    /// Grows to `instances` slots (new slots start empty; never shrinks).
+    pub fn resize(&mut self, instances: usize) {
+        if instances > self.in_tlas.len() {
+            self.in_tlas.resize(instances, false);
+            self.now.resize(instances, false);
+            self.last_exit.resize(instances, None);
+            self.need.resize(instances, None);
+        }
+    }
+
+    /// Forgets slot `slot` (its instance was removed and the slot now holds
+    /// a new one): not in the TLAS, no open latency sample, no exit.
+    pub fn reset(&mut self, slot: u32) {
+        let i = slot as usize;
+        if i < self.in_tlas.len() {
+            self.in_tlas[i] = false;
+            self.last_exit[i] = None;
+            self.need[i] = None;
+        }
+    }
+
+    /// Capacity of the per-slot tables, in elements (latency samples not
+    /// counted).
+    pub fn capacity(&self) -> usize {
+        self.in_tlas.capacity()
+            + self.now.capacity()
+            + self.last_exit.capacity()
+            + self.need.capacity()
+    }
+
     /// All latency samples so far.
     pub fn latencies(&self) -> &[u32] {
         &self.latencies

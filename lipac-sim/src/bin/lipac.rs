@@ -3,7 +3,12 @@
 //! ```text
 //! cargo run --release -p lipac-sim --bin lipac -- compare
 //! cargo run --release -p lipac-sim --bin lipac -- run --strategy lipac --scene small
+//! cargo run --release -p lipac-sim --bin lipac -- record --scene small --frames 60 small.lipactrace
+//! cargo run --release -p lipac-sim --bin lipac -- replay small.lipactrace
 //! ```
+
+#[path = "../cli/trace_cmds.rs"]
+mod trace_cmds;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -108,6 +113,12 @@ enum Command {
         #[arg(long, value_enum, default_value = "lipac")]
         strategy: StrategyArg,
     },
+    /// Records a built-in scene and camera path as a trace.
+    Record(trace_cmds::RecordArgs),
+    /// Runs the strategies on a recorded trace (the same report as compare).
+    Replay(trace_cmds::ReplayArgs),
+    /// Converts a trace between binary and JSON lines.
+    Convert(trace_cmds::ConvertArgs),
 }
 
 fn main() -> ExitCode {
@@ -115,6 +126,9 @@ fn main() -> ExitCode {
     let (common, strategies) = match cli.command {
         Command::Compare { common, strategies } => (common, strategies),
         Command::Run { common, strategy } => (common, vec![strategy]),
+        Command::Record(a) => return trace_cmds::run_record(a),
+        Command::Replay(a) => return trace_cmds::run_replay(a),
+        Command::Convert(a) => return trace_cmds::run_convert(a),
     };
     let strategies: Vec<StrategyKind> = if strategies.is_empty() {
         StrategyKind::ALL.to_vec()

@@ -1,0 +1,337 @@
+//! Replaying a recorded trace ([`lipac_core::trace`]): the strategies run on
+//! its frames and produce the same [`CompareReport`] as
+//! [`crate::compare`].
+//!
+//! Two modes ([`ReplayMode`]):
+//!
+//! * **Geometry**: the trace names a built-in scene ([`SceneRef`], written
+//!   by [`crate::record`]). The scene is regenerated from its seed (the
+//!   header's meshes are checked against it) and every frame goes through
+//!   the CPU path tracer exactly as in `compare` ([`Comparison`]): ground
+//!   truth, every strategy, error included. Cameras come from the trace;
+//!   where a recorded camera equals the named path's camera bit for bit, the
+//!   path's camera is used, so a recording replays to exactly `compare`'s
+//!   numbers. Instance poses are the scene's animation at the recorded frame
+//!   number; a recorded pose that differs from it, or instances added or
+//!   removed after the first frame, are refused (the tracer's geometry and
+//!   materials come from the generator, not from the trace). LODs are the
+//!   distance policy's, as recorded.
+//! * **Hits only** ([`hits`]): any trace whose frames all carry hit counts.
+//!   No geometry is traced: LiPaC's state machine
+//!   ([`lipac_core::culling::Culling`]) is driven by the recorded hits, and
+//!   the full scene serves as the baseline. Memory, builds, state changes and
+//!   latency are reported; the error is not available (`NaN` in the
+//!   report, `null` in its JSON).
+//!
+//! The trace is read frame by frame ([`TraceInput::next_frame_into`] reuses
+//! one [`Frame`]); apart from the per-frame metrics kept for the report (see
+//! [`ReplayConfig::keep_frames`]), memory follows the live instances, not the
+//! trace's length.
+
+pub mod hits;
+
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::Path;
+
+use glam::{Quat, Vec3};
+use lipac_core::trace::{
+    self, Frame, InstanceEvent, JsonlReader, TraceError, TraceFormat, TraceHeader, TraceReader,
+};
+
+use crate::compare::{CompareConfig, CompareReport, Comparison};
+use crate::error::SimError;
+use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
+use crate::scene::Scene;
+use crate::strategy::StrategyKind;
+
+/// How a trace is replayed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReplayMode {
+    /// Through the CPU path tracer (built-in scene regenerated).
+    Geometry,
+    /// Through the state machine, driven by recorded hit counts.
+    HitsOnly,
+}
+
+/// Settings of a replay.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayConfig {
+    /// Strategies, in report order (empty: every strategy the mode supports).
+    pub strategies: Vec<StrategyKind>,
+    /// Image width (geometry mode).
+    pub width: u32,
+    /// Image height (geometry mode).
+    pub height: u32,
+    /// Render threads (0 = all cores).
+    pub threads: usize,
+    /// The mode (`None`: geometry if the trace names a built-in scene,
+    /// otherwise hits only).
+    pub mode: Option<ReplayMode>,
+    /// Keep per-frame metrics in the report (hits-only mode; geometry mode
+    /// always keeps them). Without them the summaries still cover every
+    /// frame, and memory does not grow with the trace's length.
+    pub keep_frames: bool,
+}
+
+impl Default for ReplayConfig {
+    /// 128 x 72 (as `compare`), all strategies, automatic mode, frames kept.
+    fn default() -> Self {
+        Self {
+            strategies: Vec::new(),
+            width: 128,
+            height: 72,
+            threads: 0,
+            mode: None,
+            keep_frames: true,
+        }
+    }
+}
+
+/// A trace reader of either encoding.
+#[derive(Debug)]
+pub enum TraceInput<R: Read> {
+    /// Binary.
+    Binary(TraceReader<R>),
+    /// JSON lines.
+    Jsonl(JsonlReader<R>),
+}
+
+impl TraceInput<BufReader<File>> {
+    /// Opens the trace at `path`, detecting its encoding.
+    pub fn open(path: &Path) -> Result<Self, SimError> {
+        let io = |e: std::io::Error| SimError::Io(format!("{}: {e}", path.display()));
+        let mut prefix = Vec::with_capacity(64);
+        File::open(path)
+            .map_err(io)?
+            .take(64)
+            .read_to_end(&mut prefix)
+            .map_err(io)?;
+        let format = TraceFormat::detect(&prefix).unwrap_or(TraceFormat::Binary);
+        let file = BufReader::new(File::open(path).map_err(io)?);
+        Self::new(format, file)
+    }
+}
+
+impl<R: Read> TraceInput<R> {
+    /// Reads the header of a trace in `format`.
+    pub fn new(format: TraceFormat, r: R) -> Result<Self, SimError> {
+        Ok(match format {
+            TraceFormat::Binary => Self::Binary(TraceReader::new(r)?),
+            TraceFormat::Jsonl => Self::Jsonl(JsonlReader::new(r)?),
+        })
+    }
+    /// The header.
+    pub fn header(&self) -> &TraceHeader {
+        match self {
+            Self::Binary(r) => r.header(),
+            Self::Jsonl(r) => r.header(),
+        }
+    }
+    /// Reads the next frame into `frame` (reusing its buffers for binary
+    /// traces); `false` after the end.
+    pub fn next_frame_into(&mut self, frame: &mut Frame) -> Result<bool, TraceError> {
+        match self {
+            Self::Binary(r) => r.next_frame_into(frame),
+            Self::Jsonl(r) => match r.next_frame()? {
+                Some(f) => {
+                    *frame = f;
+                    Ok(true)
+                }
+                None => Ok(false),
+            },
+        }
+    }
+    /// Instances live after the frames read (the validator's set).
+    pub fn live_instances(&self) -> usize {
+        match self {
+            Self::Binary(r) => r.validator().live_instances(),
+            Self::Jsonl(r) => r.validator().live_instances(),
+        }
+    }
+}
+
+/// An empty frame to read into.
+pub fn empty_frame() -> Frame {
+    Frame {
+        number: 0,
+        camera: trace::Camera {
+            position: Vec3::ZERO,
+            orientation: Quat::IDENTITY,
+            vertical_fov: 1.0,
+            aspect: 1.0,
+        },
+        events: Vec::new(),
+        hits: None,
+    }
+}
+
+/// The mode `config` asks for on a trace with `header`.
+pub fn mode_for(header: &TraceHeader, config: &ReplayConfig) -> ReplayMode {
+    config
+        .mode
+        .unwrap_or(if SceneRef::parse(&header.scene_name).is_some() {
+            ReplayMode::Geometry
+        } else {
+            ReplayMode::HitsOnly
+        })
+}
+
+/// Replays `input` (see the module docs). `progress(frames_done)` is called
+/// after every frame.
+pub fn replay<R: Read>(
+    mut input: TraceInput<R>,
+    config: &ReplayConfig,
+    progress: &mut dyn FnMut(u64),
+) -> Result<CompareReport, SimError> {
+    match mode_for(input.header(), config) {
+        ReplayMode::Geometry => replay_geometry(&mut input, config, progress),
+        ReplayMode::HitsOnly => hits::replay_hits(&mut input, config, progress),
+    }
+}
+
+fn replay_geometry<R: Read>(
+    input: &mut TraceInput<R>,
+    config: &ReplayConfig,
+    progress: &mut dyn FnMut(u64),
+) -> Result<CompareReport, SimError> {
+    let h = input.header().clone();
+    let scene_ref = SceneRef::parse(&h.scene_name).ok_or_else(|| {
+        SimError::Replay(format!(
+            "geometry mode needs a trace recorded from a built-in scene (scene name \
+             `lipac-sim:<scene>:seed=<S>:camera=<path>`); this one is `{}` \
+             (replay it in hits-only mode if its frames carry hit counts)",
+            h.scene_name
+        ))
+    })?;
+    let mut scene = Scene::generate(&scene_ref.scene.config(Some(scene_ref.seed)))?;
+    let expected = header(&scene, &scene_ref, false)?;
+    check_meshes(&h, &expected)?;
+    let strategies = if config.strategies.is_empty() {
+        StrategyKind::ALL.to_vec()
+    } else {
+        config.strategies.clone()
+    };
+    let cc = CompareConfig {
+        frames: None,
+        width: config.width,
+        height: config.height,
+        strategies,
+        share_ground_truth: true,
+        threads: config.threads,
+    };
+    let mut cmp = Comparison::new(scene_ref.scene.name(), &scene, &cc)?;
+    let n = scene.instances().len();
+    let mut frame = empty_frame();
+    let mut path = None;
+    let mut read = 0u64;
+    while input.next_frame_into(&mut frame)? {
+        let bad = |what: String| {
+            SimError::Replay(format!(
+                "frame record {read} (frame number {}): {what}",
+                frame.number
+            ))
+        };
+        let number =
+            u32::try_from(frame.number).map_err(|_| bad("frame number above 2^32 - 1".into()))?;
+        scene.set_frame(number);
+        if read == 0 {
+            check_first_frame(&frame, &scene).map_err(bad)?;
+        } else {
+            for (i, e) in frame.events.iter().enumerate() {
+                match e {
+                    InstanceEvent::Update(u) => {
+                        if let Some(p) = &u.pose {
+                            let inst = scene
+                                .instances()
+                                .get(u.id as usize)
+                                .ok_or_else(|| bad(format!("event {i}: unknown instance")))?;
+                            let now = lipac_core::trace::Pose {
+                                transform: lipac_core::math::affine_to_rows(&inst.transform),
+                                aabb: inst.aabb,
+                            };
+                            if !same_pose(p, &now) {
+                                return Err(bad(format!(
+                                    "event {i}: the recorded pose of instance {} differs \
+                                     from the built-in scene's animation",
+                                    u.id
+                                )));
+                            }
+                        }
+                    }
+                    _ => {
+                        return Err(bad(format!(
+                            "event {i}: instances are added only on the first frame and \
+                             never removed in geometry mode ({n} instances)"
+                        )))
+                    }
+                }
+            }
+        }
+        let path = path
+            .get_or_insert_with(|| scene_ref.camera.path(&scene, frame.camera.aspect))
+            .camera_at(number);
+        let camera = if to_trace_camera(&path) == frame.camera {
+            path
+        } else {
+            from_trace_camera(&frame.camera)?
+        };
+        cmp.frame(&scene, number, &camera)?;
+        read += 1;
+        progress(read);
+    }
+    cmp.finish()
+}
+
+fn check_meshes(got: &TraceHeader, expected: &TraceHeader) -> Result<(), SimError> {
+    let same = got.meshes.len() == expected.meshes.len()
+        && got.meshes.iter().zip(&expected.meshes).all(|(a, b)| {
+            a.id == b.id
+                && a.bounds == b.bounds
+                && a.lods.len() == b.lods.len()
+                && a.lods
+                    .iter()
+                    .zip(&b.lods)
+                    .all(|(x, y)| x.triangles == y.triangles)
+        });
+    if same && got.world == expected.world {
+        Ok(())
+    } else {
+        Err(SimError::Replay(format!(
+            "the header's meshes or world differ from the built-in scene `{}`",
+            got.scene_name
+        )))
+    }
+}
+
+fn check_first_frame(frame: &Frame, scene: &Scene) -> Result<(), String> {
+    let n = scene.instances().len();
+    if frame.events.len() != n {
+        return Err(format!(
+            "{} events; the built-in scene's first frame adds its {n} instances",
+            frame.events.len()
+        ));
+    }
+    for (slot, (e, inst)) in frame.events.iter().zip(scene.instances()).enumerate() {
+        let ok = match e {
+            InstanceEvent::Add(a) => {
+                a.id == slot as u64
+                    && a.mesh.0 == inst.mesh
+                    && same_pose(
+                        &a.pose,
+                        &lipac_core::trace::Pose {
+                            transform: lipac_core::math::affine_to_rows(&inst.transform),
+                            aabb: inst.aabb,
+                        },
+                    )
+            }
+            _ => false,
+        };
+        if !ok {
+            return Err(format!(
+                "event {slot} is not the add of the built-in scene's instance {slot}"
+            ));
+        }
+    }
+    Ok(())
+}

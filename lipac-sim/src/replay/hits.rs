@@ -1,0 +1,868 @@
+//! Hits-only replay: no geometry, no tracer. LiPaC's state machine is driven
+//! by the hit counts the engine recorded.
+//!
+//! Per frame `f`:
+//!
+//! 1. The hits recorded with frame `f − 1` are LiPaC's feedback
+//!    (Algorithm 2): an instance that is in the TLAS as geometry or as an
+//!    omitted box (active or omitted) gets its own hits; an inactive one has
+//!    only its hitbox's counting box in the TLAS, so its hits count for its
+//!    hitbox. Commands go through the read-back ring as in
+//!    [`crate::strategy::lipac`].
+//! 2. The frame's events: `add` registers, `update` moves (or re-describes),
+//!    `remove` removes (the BLAS is released).
+//! 3. Latency mitigation (optional), commands under the budget, BLAS builds
+//!    under the budgets (a [`BuildScheduler`] with the header's triangle
+//!    counts at the recorded LODs), Algorithm 1.
+//! 4. Metrics: TLAS records, memory (same model as `compare`), BLAS work,
+//!    state changes and cycles; latency and needed-but-missing against the
+//!    instances the frame's recorded hits name (the engine's paths needed
+//!    them). The error is not available (`NaN`).
+//!
+//! A frame without recorded hit counts counts as a frame without hits; a
+//! trace none of whose frames carries them is refused.
+//!
+//! The `full` baseline keeps every live instance, with unlimited budgets.
+//!
+//! BLAS ownership follows the flags: `unique_blas` and `static` — one static
+//! BLAS per instance; `unique_blas` alone — an animated BLAS (refit every
+//! frame); otherwise shared per (mesh, LOD).
+
+use std::collections::HashMap;
+use std::io::Read;
+use std::time::Instant;
+
+use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::build_plan::{
+    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest,
+    SchedulerConfig, UpdateMode,
+};
+use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+use lipac_core::grid::HitboxGrid;
+use lipac_core::instance::{InstanceDesc, InstanceFlags};
+use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::math::rows_to_affine;
+use lipac_core::registry::{InstanceHandle, RegistryConfig};
+use lipac_core::trace::{InstanceEvent, TraceHeader};
+
+use super::{empty_frame, ReplayConfig, TraceInput};
+use crate::camera::Camera;
+use crate::compare::{CompareReport, StrategyRun};
+use crate::error::SimError;
+use crate::memory::{blas_bytes, lipac_overhead_bytes, tlas_bytes, BUILD_SCRATCH_BYTES};
+use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
+use crate::record::from_trace_camera;
+use crate::strategy::lipac::LipacConfig;
+use crate::strategy::{unlimited_budgets, BlasWork, StrategyKind};
+use crate::tlas::CountingConfig;
+use crate::trace::SlotSet;
+
+/// Rays per frame the LiPaC thresholds are scaled to in hits-only mode:
+/// those of a `width` x `height` image (one sample per pixel).
+fn rays(config: &ReplayConfig) -> u64 {
+    u64::from(config.width) * u64::from(config.height)
+}
+
+fn core<E: std::fmt::Display>(e: E) -> SimError {
+    SimError::core(e)
+}
+
+/// One live instance of the trace.
+#[derive(Clone, Copy, Debug)]
+struct Live {
+    /// Dense slot of the replay (reused after removal).
+    slot: u32,
+    desc: InstanceDesc,
+    lod: u32,
+    serial: u32,
+}
+
+/// The trace's instances as dense slots, shared by every strategy.
+#[derive(Debug, Default)]
+struct World {
+    triangles: HashMap<u32, Vec<u32>>,
+    live: HashMap<u64, Live>,
+    slot_ids: Vec<Option<u64>>,
+    free: Vec<u32>,
+    serial: u32,
+    hits: Vec<u32>,
+}
+
+impl World {
+    fn new(h: &TraceHeader) -> Self {
+        Self {
+            triangles: h
+                .meshes
+                .iter()
+                .map(|m| (m.id.0, m.lods.iter().map(|l| l.triangles).collect()))
+                .collect(),
+            ..Self::default()
+        }
+    }
+    fn slots(&self) -> usize {
+        self.slot_ids.len()
+    }
+    fn request(&self, l: &Live) -> InstanceBlasRequest {
+        let mesh = MeshId(l.desc.mesh.0);
+        let f = l.desc.flags;
+        let geometry = if f.contains(InstanceFlags::UNIQUE_BLAS) {
+            if f.contains(InstanceFlags::STATIC) {
+                BlasGeometry::Shared {
+                    mesh,
+                    variant: l.serial,
+                    compactable: false,
+                }
+            } else {
+                BlasGeometry::Unique { mesh }
+            }
+        } else {
+            BlasGeometry::Shared {
+                mesh,
+                variant: 0,
+                compactable: false,
+            }
+        };
+        InstanceBlasRequest {
+            geometry,
+            lod: Lod(l.lod as u8),
+            estimate: self.estimate(l),
+            hits: 0,
+            in_frustum: false,
+        }
+    }
+    fn estimate(&self, l: &Live) -> BuildEstimate {
+        let tris = self
+            .triangles
+            .get(&l.desc.mesh.0)
+            .and_then(|t| t.get(l.lod as usize))
+            .copied()
+            .map_or(0, u64::from);
+        BuildEstimate {
+            primitives: tris,
+            result_bytes: blas_bytes(tris),
+            build_scratch_bytes: BUILD_SCRATCH_BYTES,
+            update_scratch_bytes: BUILD_SCRATCH_BYTES,
+        }
+    }
+    /// The capacity of every per-instance structure (for bounded-memory
+    /// checks).
+    fn footprint(&self) -> usize {
+        self.live.capacity()
+            + self.slot_ids.capacity()
+            + self.free.capacity()
+            + self.hits.capacity()
+    }
+}
+
+/// A BLAS scheduler over dense slots whose builds are acknowledged at once.
+#[derive(Debug)]
+struct Blases {
+    scheduler: BuildScheduler,
+    budgets: BuildBudgets,
+    active: Vec<bool>,
+    next_address: u64,
+}
+
+impl Blases {
+    fn new(budgets: BuildBudgets) -> Result<Self, SimError> {
+        let mut config = SchedulerConfig::default();
+        config.cache.memory_budget = u64::MAX / 4;
+        config.cache.max_unused_frames = 8;
+        config.lod_hysteresis_frames = 8;
+        Ok(Self {
+            scheduler: BuildScheduler::new(config).map_err(core)?,
+            budgets,
+            active: Vec::new(),
+            next_address: 0x1000,
+        })
+    }
+    fn is_active(&self, slot: u32) -> bool {
+        self.active.get(slot as usize).copied().unwrap_or(false)
+    }
+    fn activate(&mut self, world: &World, slot: u32) -> Result<(), SimError> {
+        if self.is_active(slot) {
+            return Ok(());
+        }
+        let id = world
+            .slot_ids
+            .get(slot as usize)
+            .copied()
+            .flatten()
+            .ok_or(SimError::UnknownInstance(slot))?;
+        let l = *world.live.get(&id).ok_or(SimError::UnknownInstance(slot))?;
+        if self.active.len() <= slot as usize {
+            self.active.resize(slot as usize + 1, false);
+        }
+        self.active[slot as usize] = true;
+        self.scheduler
+            .activate(InstanceKey(slot), world.request(&l))
+            .map_err(core)
+    }
+    fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
+        if !self.is_active(slot) {
+            return Ok(());
+        }
+        self.active[slot as usize] = false;
+        self.scheduler.deactivate(InstanceKey(slot)).map_err(core)
+    }
+    fn build(&mut self, world: &World, frame: u64) -> Result<BlasWork, SimError> {
+        for l in world.live.values() {
+            if self.is_active(l.slot) {
+                self.scheduler
+                    .request_lod(InstanceKey(l.slot), Lod(l.lod as u8), world.estimate(l))
+                    .map_err(core)?;
+            }
+        }
+        let _ = frame;
+        let plan = self.scheduler.plan(&self.budgets).map_err(core)?;
+        let mut work = BlasWork {
+            frees: plan.frees.len() as u64,
+            ..BlasWork::default()
+        };
+        for u in plan.updates() {
+            match u.mode {
+                UpdateMode::Refit => {
+                    work.refits += 1;
+                    work.primitives_refit += u.primitives;
+                }
+                UpdateMode::Rebuild => {
+                    work.builds += 1;
+                    work.primitives_built += u.primitives;
+                }
+            }
+        }
+        let builds: Vec<_> = plan.builds().copied().collect();
+        for b in builds {
+            work.builds += 1;
+            work.primitives_built += b.primitives;
+            self.next_address += 0x100;
+            self.scheduler
+                .ack_built(b.id, b.result_bytes, self.next_address)
+                .map_err(core)?;
+        }
+        Ok(work)
+    }
+    fn address(&self, slot: u32) -> Option<u64> {
+        self.scheduler.blas_address(InstanceKey(slot))
+    }
+    fn memory_bytes(&self) -> u64 {
+        self.scheduler.stats().cache.live_bytes()
+    }
+}
+
+/// The `full` baseline: every live instance.
+#[derive(Debug)]
+struct FullReplay {
+    blas: Blases,
+}
+
+/// LiPaC on recorded hits.
+#[derive(Debug)]
+struct LipacReplay {
+    latency: bool,
+    culling: Culling<HitboxGrid>,
+    ring: ReadbackRing,
+    /// Handle per dense slot.
+    handles: Vec<Option<InstanceHandle>>,
+    /// Dense slot per registry slot.
+    dense: Vec<u32>,
+    blas: Blases,
+    records: Vec<TlasInstance>,
+    started: bool,
+}
+
+#[derive(Debug)]
+enum Runner {
+    Full(Box<FullReplay>),
+    Lipac(Box<LipacReplay>),
+}
+
+struct Run {
+    runner: Runner,
+    tracker: Tracker,
+    frames: Vec<FrameMetrics>,
+    summary_frames: u32,
+    totals: FrameTotals,
+}
+
+/// Running sums of a strategy's metrics when per-frame metrics are not kept.
+#[derive(Clone, Debug, Default)]
+struct FrameTotals {
+    sum_instances: f64,
+    peak_instances: u64,
+    sum_mib: f64,
+    peak_mib: f64,
+    sum_blas_mib: f64,
+    builds: u64,
+    refits: u64,
+    primitives_built: u64,
+    primitives_refit: u64,
+    state_changes: u64,
+    cycles: u64,
+    sum_needed_missing: f64,
+    sum_strategy_ms: f64,
+}
+
+const MIB: f64 = 1024.0 * 1024.0;
+
+impl FrameTotals {
+    fn add(&mut self, m: &FrameMetrics) {
+        let mib = m.total_bytes() as f64 / MIB;
+        self.sum_instances += m.tlas_instances as f64;
+        self.peak_instances = self.peak_instances.max(m.tlas_instances);
+        self.sum_mib += mib;
+        self.peak_mib = self.peak_mib.max(mib);
+        self.sum_blas_mib += m.blas_bytes as f64 / MIB;
+        self.builds += m.builds;
+        self.refits += m.refits;
+        self.primitives_built += m.primitives_built;
+        self.primitives_refit += m.primitives_refit;
+        self.state_changes += m.state_changes;
+        self.cycles += m.cycles;
+        self.sum_needed_missing += m.needed_missing as f64;
+        self.sum_strategy_ms += m.strategy_ms;
+    }
+}
+
+/// Bounded-memory evidence of a hits-only replay: the largest capacities
+/// its per-instance structures reached.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HitsFootprint {
+    /// Most instances live at once (the trace validator's count).
+    pub peak_live: usize,
+    /// Largest total capacity of the replay's per-instance tables (slots,
+    /// ids, hits, trackers, LiPaC's slot maps), in elements.
+    pub peak_capacity: usize,
+    /// Largest event vector capacity of the reused frame.
+    pub peak_frame_events: usize,
+}
+
+/// Replays `input` in hits-only mode (module docs).
+pub fn replay_hits<R: Read>(
+    input: &mut TraceInput<R>,
+    config: &ReplayConfig,
+    progress: &mut dyn FnMut(u64),
+) -> Result<CompareReport, SimError> {
+    replay_hits_with(input, config, progress).map(|(r, _)| r)
+}
+
+/// As [`replay_hits`], also returning the [`HitsFootprint`].
+pub fn replay_hits_with<R: Read>(
+    input: &mut TraceInput<R>,
+    config: &ReplayConfig,
+    progress: &mut dyn FnMut(u64),
+) -> Result<(CompareReport, HitsFootprint), SimError> {
+    let start = Instant::now();
+    let header = input.header().clone();
+    let kinds = if config.strategies.is_empty() {
+        vec![
+            StrategyKind::Full,
+            StrategyKind::Lipac,
+            StrategyKind::LipacLatency,
+        ]
+    } else {
+        config.strategies.clone()
+    };
+    let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?;
+    let grid = HitboxGrid::new(header.world.grid_config()).map_err(core)?;
+    let mut runs = Vec::with_capacity(kinds.len());
+    for k in &kinds {
+        let runner = match k {
+            StrategyKind::Full => Runner::Full(Box::new(FullReplay {
+                blas: Blases::new(unlimited_budgets())?,
+            })),
+            StrategyKind::Lipac | StrategyKind::LipacLatency => {
+                let c = if *k == StrategyKind::Lipac {
+                    lipac_config.clone()
+                } else {
+                    lipac_config.clone().with_latency_mitigation()
+                };
+                Runner::Lipac(Box::new(LipacReplay::new(grid.clone(), &c)?))
+            }
+            other => {
+                return Err(SimError::Replay(format!(
+                    "strategy `{}` needs the scene's geometry; a hits-only replay runs \
+                     full, lipac and lipac-latency",
+                    other.name()
+                )))
+            }
+        };
+        runs.push(Run {
+            runner,
+            tracker: Tracker::new(0),
+            frames: Vec::new(),
+            summary_frames: 0,
+            totals: FrameTotals::default(),
+        });
+    }
+    let mut world = World::new(&header);
+    let mut frame = empty_frame();
+    let mut prev_hits: Vec<(u32, u32)> = Vec::new();
+    let mut fp = HitsFootprint::default();
+    let mut read = 0u64;
+    let mut with_hits = 0u64;
+    let counting = CountingConfig::default();
+    while input.next_frame_into(&mut frame)? {
+        let number = u32::try_from(frame.number).map_err(|_| {
+            SimError::Replay(format!(
+                "frame record {read}: frame number {} above 2^32 - 1",
+                frame.number
+            ))
+        })?;
+        with_hits += u64::from(frame.hits.is_some());
+        let camera = from_trace_camera(&frame.camera)?;
+        // Feedback of the previous frame, before this frame's events.
+        for run in &mut runs {
+            if let Runner::Lipac(l) = &mut run.runner {
+                l.feedback(&prev_hits)?;
+            }
+        }
+        // Events.
+        for e in &frame.events {
+            apply_event(&mut world, &mut runs, e, number)?;
+        }
+        // This frame's hits per dense slot.
+        world.hits.clear();
+        world.hits.resize(world.slots(), 0);
+        prev_hits.clear();
+        for h in frame.hits.iter().flatten() {
+            if let Some(l) = world.live.get(&h.id) {
+                world.hits[l.slot as usize] = h.hits;
+                prev_hits.push((l.slot, h.hits));
+            }
+        }
+        for run in &mut runs {
+            let t = Instant::now();
+            let mut m = FrameMetrics {
+                frame: number,
+                error: f64::NAN,
+                ..FrameMetrics::default()
+            };
+            let geometry = match &mut run.runner {
+                Runner::Full(f) => f.frame(&world, number, &mut m)?,
+                Runner::Lipac(l) => l.frame(&world, number, &camera, &counting, &mut m)?,
+            };
+            m.strategy_ms = t.elapsed().as_secs_f64() * 1e3;
+            m.tlas_bytes = tlas_bytes(m.tlas_instances);
+            run.tracker.resize(world.slots());
+            run.tracker
+                .observe(number, geometry.into_iter(), &world.hits, &mut m);
+            run.totals.add(&m);
+            run.summary_frames += 1;
+            if config.keep_frames {
+                run.frames.push(m);
+            }
+        }
+        read += 1;
+        fp.peak_live = fp.peak_live.max(input.live_instances());
+        fp.peak_frame_events = fp.peak_frame_events.max(frame.events.capacity());
+        let cap = world.footprint()
+            + runs
+                .iter()
+                .map(|r| {
+                    r.tracker.capacity()
+                        + match &r.runner {
+                            Runner::Full(f) => f.blas.active.capacity(),
+                            Runner::Lipac(l) => {
+                                l.handles.capacity()
+                                    + l.dense.capacity()
+                                    + l.blas.active.capacity()
+                                    + l.records.capacity()
+                            }
+                        }
+                })
+                .sum::<usize>();
+        fp.peak_capacity = fp.peak_capacity.max(cap);
+        progress(read);
+    }
+    if read == 0 {
+        return Err(SimError::Replay("the trace has no frames".into()));
+    }
+    if with_hits == 0 {
+        return Err(SimError::Replay(format!(
+            "none of the {read} frames carries hit counts; a trace without them replays \
+             only in geometry mode (recorded from a built-in scene)"
+        )));
+    }
+    let th = lipac_config.thresholds;
+    let strategies = kinds
+        .iter()
+        .zip(runs)
+        .map(|(k, run)| {
+            let mut summary = if config.keep_frames {
+                summarize(k.name(), &run.frames, &run.tracker)
+            } else {
+                summary_of(k.name(), &run)
+            };
+            summary.mean_error = f64::NAN;
+            summary.max_error = f64::NAN;
+            summary.mean_trace_ms = 0.0;
+            summary.mean_tlas_build_ms = 0.0;
+            StrategyRun {
+                name: k.name().to_string(),
+                summary,
+                frames: run.frames,
+                last_geometry: Vec::new(),
+            }
+        })
+        .collect();
+    Ok((
+        CompareReport {
+            scene: header.scene_name.clone(),
+            instances: fp.peak_live as u64,
+            frames: read.min(u64::from(u32::MAX)) as u32,
+            width: config.width,
+            height: config.height,
+            rays_per_frame: rays(config),
+            thresholds: [
+                th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
+            ],
+            ground_truth_ms: 0.0,
+            full_tlas_ms: 0.0,
+            geometry_ms: 0.0,
+            wall_s: start.elapsed().as_secs_f64(),
+            strategies,
+        },
+        fp,
+    ))
+}
+
+fn summary_of(name: &str, run: &Run) -> Summary {
+    // The summary of `summarize` with an empty frame list supplies the
+    // latency fields; the rest comes from the running totals.
+    let base = summarize(name, &[], &run.tracker);
+    let t = &run.totals;
+    let n = f64::from(run.summary_frames.max(1));
+    Summary {
+        frames: run.summary_frames,
+        mean_instances: t.sum_instances / n,
+        peak_instances: t.peak_instances,
+        mean_mib: t.sum_mib / n,
+        peak_mib: t.peak_mib,
+        mean_blas_mib: t.sum_blas_mib / n,
+        builds: t.builds,
+        refits: t.refits,
+        primitives_built: t.primitives_built,
+        primitives_refit: t.primitives_refit,
+        state_changes: t.state_changes,
+        cycles: t.cycles,
+        mean_needed_missing: t.sum_needed_missing / n,
+        mean_strategy_ms: t.sum_strategy_ms / n,
+        ..base
+    }
+}
+
+fn apply_event(
+    world: &mut World,
+    runs: &mut [Run],
+    e: &InstanceEvent,
+    frame: u32,
+) -> Result<(), SimError> {
+    match e {
+        InstanceEvent::Add(a) => {
+            let slot = match world.free.pop() {
+                Some(s) => s,
+                None => {
+                    world.slot_ids.push(None);
+                    (world.slot_ids.len() - 1) as u32
+                }
+            };
+            world.serial = world.serial.wrapping_add(1);
+            let l = Live {
+                slot,
+                desc: a.desc(),
+                lod: a.lod,
+                serial: world.serial,
+            };
+            world.slot_ids[slot as usize] = Some(a.id);
+            world.live.insert(a.id, l);
+            for run in runs.iter_mut() {
+                run.tracker.resize(world.slot_ids.len());
+                run.tracker.reset(slot);
+                match &mut run.runner {
+                    Runner::Full(f) => f.blas.activate(world, slot)?,
+                    Runner::Lipac(lp) => lp.register(slot, l.desc)?,
+                }
+            }
+        }
+        InstanceEvent::Update(u) => {
+            let l = world.live.get_mut(&u.id).ok_or(SimError::Replay(format!(
+                "update of unknown instance {}",
+                u.id
+            )))?;
+            let mut redescribe = false;
+            if let Some(p) = &u.pose {
+                l.desc.transform = rows_to_affine(&p.transform);
+                l.desc.aabb = p.aabb;
+            }
+            if let Some(lod) = u.lod {
+                l.lod = lod;
+            }
+            if let Some(f) = u.flags {
+                redescribe |= f != l.desc.flags;
+                l.desc.flags = f;
+            }
+            if let Some(m) = u.mask {
+                redescribe |= m != l.desc.mask;
+                l.desc.mask = m;
+            }
+            let l = *l;
+            for run in runs.iter_mut() {
+                if let Runner::Lipac(lp) = &mut run.runner {
+                    lp.update(&l, u.pose.is_some(), redescribe)?;
+                }
+            }
+        }
+        InstanceEvent::Remove { id } => {
+            let l = world
+                .live
+                .remove(id)
+                .ok_or(SimError::Replay(format!("remove of unknown instance {id}")))?;
+            world.slot_ids[l.slot as usize] = None;
+            world.free.push(l.slot);
+            for run in runs.iter_mut() {
+                match &mut run.runner {
+                    Runner::Full(f) => f.blas.deactivate(l.slot)?,
+                    Runner::Lipac(lp) => lp.remove(l.slot)?,
+                }
+            }
+        }
+    }
+    let _ = frame;
+    Ok(())
+}
+
+impl FullReplay {
+    fn frame(
+        &mut self,
+        world: &World,
+        frame: u32,
+        m: &mut FrameMetrics,
+    ) -> Result<Vec<u32>, SimError> {
+        self.blas
+            .scheduler
+            .begin_frame(u64::from(frame) + 1)
+            .map_err(core)?;
+        let work = self.blas.build(world, u64::from(frame))?;
+        self.blas.scheduler.take_address_changes();
+        let geometry: Vec<u32> = world
+            .live
+            .values()
+            .filter(|l| self.blas.address(l.slot).is_some())
+            .map(|l| l.slot)
+            .collect();
+        fill_work(m, &work);
+        m.tlas_instances = geometry.len() as u64;
+        m.blas_bytes = self.blas.memory_bytes();
+        Ok(geometry)
+    }
+}
+
+fn fill_work(m: &mut FrameMetrics, w: &BlasWork) {
+    m.builds = w.builds;
+    m.refits = w.refits;
+    m.primitives_built = w.primitives_built;
+    m.primitives_refit = w.primitives_refit;
+}
+
+impl LipacReplay {
+    fn new(grid: HitboxGrid, config: &LipacConfig) -> Result<Self, SimError> {
+        let unit_cube = crate::blas::BlasStore::new().unit_cube().reference();
+        let cc = CullingConfig {
+            registry: RegistryConfig {
+                quarantine_frames: config.readback_latency + 2,
+                ..RegistryConfig::default()
+            },
+            thresholds: config.thresholds,
+            command_capacity: config.command_capacity,
+            command_budget: config.command_budget,
+            latency_mitigation: config.latency,
+            readback_latency: config.readback_latency,
+            ..CullingConfig::new(unit_cube)
+        };
+        Ok(Self {
+            latency: config.latency.is_some(),
+            culling: Culling::new(grid, cc).map_err(core)?,
+            ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
+            handles: Vec::new(),
+            dense: Vec::new(),
+            blas: Blases::new(config.build_budgets)?,
+            records: Vec::new(),
+            started: false,
+        })
+    }
+
+    fn register(&mut self, slot: u32, desc: InstanceDesc) -> Result<(), SimError> {
+        let h = self.culling.register(desc).map_err(core)?;
+        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
+        if self.handles.len() <= slot as usize {
+            self.handles.resize(slot as usize + 1, None);
+        }
+        self.handles[slot as usize] = Some(h);
+        if self.dense.len() <= reg {
+            self.dense.resize(reg + 1, u32::MAX);
+        }
+        self.dense[reg] = slot;
+        Ok(())
+    }
+
+    fn handle(&self, slot: u32) -> Result<InstanceHandle, SimError> {
+        self.handles
+            .get(slot as usize)
+            .copied()
+            .flatten()
+            .ok_or(SimError::UnknownInstance(slot))
+    }
+
+    fn update(&mut self, l: &Live, moved: bool, redescribe: bool) -> Result<(), SimError> {
+        let h = self.handle(l.slot)?;
+        if redescribe {
+            self.culling.update(h, l.desc).map_err(core)?;
+        } else if moved {
+            self.culling
+                .set_transform(h, l.desc.transform, l.desc.aabb)
+                .map_err(core)?;
+        }
+        Ok(())
+    }
+
+    fn remove(&mut self, slot: u32) -> Result<(), SimError> {
+        let h = self.handle(slot)?;
+        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
+        self.culling.remove(h).map_err(core)?;
+        self.handles[slot as usize] = None;
+        if let Some(d) = self.dense.get_mut(reg) {
+            *d = u32::MAX;
+        }
+        self.blas.deactivate(slot)
+    }
+
+    /// Algorithm 2 on the hits recorded with the previous frame (dense slot,
+    /// hits).
+    fn feedback(&mut self, hits: &[(u32, u32)]) -> Result<(), SimError> {
+        if !self.started {
+            return Ok(());
+        }
+        self.culling.instance_hits_mut().fill(0);
+        for &(slot, n) in hits {
+            let Some(Some(h)) = self.handles.get(slot as usize).copied() else {
+                continue;
+            };
+            let reg = self.culling.registry().slot(h).map_err(core)?;
+            let record = self
+                .culling
+                .registry()
+                .record_at(reg)
+                .copied()
+                .ok_or(SimError::UnknownInstance(reg))?;
+            if record.state() == InstanceState::Inactive {
+                if let Some(b) = self.culling.hitboxes_mut().get_mut(record.hitbox as usize) {
+                    b.add_hits(n);
+                }
+            } else if let Some(c) = self.culling.instance_hits_mut().get_mut(reg as usize) {
+                *c = n;
+            }
+        }
+        self.culling.process_feedback().map_err(core)?;
+        if let Some(r) = self.culling.take_commands() {
+            self.ring.push(r).map_err(core)?;
+        }
+        Ok(())
+    }
+
+    fn frame(
+        &mut self,
+        world: &World,
+        frame: u32,
+        camera: &Camera,
+        counting: &CountingConfig,
+        m: &mut FrameMetrics,
+    ) -> Result<Vec<u32>, SimError> {
+        self.started = true;
+        let f = u64::from(frame);
+        self.culling.begin_frame(f).map_err(core)?;
+        self.blas.scheduler.begin_frame(f + 1).map_err(core)?;
+        if self.latency {
+            let frustum = lipac_core::latency::Frustum::from_view_projection(camera.view_proj())
+                .map_err(core)?;
+            let outcome = self
+                .culling
+                .mitigate_latency(camera.position, &frustum)
+                .map_err(core)?;
+            for r in outcome.requests {
+                let slot = self.dense_of(r.slot)?;
+                self.blas.activate(world, slot)?;
+                if let Some(address) = self.blas.address(slot) {
+                    self.culling.set_blas(r.handle, address).map_err(core)?;
+                }
+            }
+        }
+        while let Some(r) = self.ring.pop_ready(f) {
+            self.culling.ingest_readback(r.counter, &r.words);
+        }
+        let (blas, dense) = (&mut self.blas, &self.dense);
+        let mut failure = None;
+        self.culling.process_frame_commands(&mut |event| {
+            let slot = match dense.get(event.slot as usize) {
+                Some(&s) if s != u32::MAX => s,
+                _ => {
+                    failure.get_or_insert(SimError::UnknownInstance(event.slot));
+                    return None;
+                }
+            };
+            let result = match event.action {
+                BlasAction::Acquire => blas.activate(world, slot).map(|_| blas.address(slot)),
+                BlasAction::Release { .. } | BlasAction::CancelBuild => {
+                    blas.deactivate(slot).map(|_| None)
+                }
+            };
+            match result {
+                Ok(a) => a,
+                Err(e) => {
+                    failure.get_or_insert(e);
+                    None
+                }
+            }
+        });
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        let work = self.blas.build(world, f)?;
+        for key in self.blas.scheduler.take_address_changes() {
+            let slot = key.0;
+            let address = self.blas.address(slot).unwrap_or(0);
+            if let Ok(h) = self.handle(slot) {
+                self.culling.set_blas(h, address).map_err(core)?;
+            }
+        }
+        self.culling.take_uploads();
+        self.culling.assemble(&mut self.records).map_err(core)?;
+        let geometry = SlotSet::from_geometry_records(&self.records, counting);
+        let mut slots = Vec::new();
+        for r in &self.records {
+            let reg = r.custom_index();
+            if geometry.contains(reg) {
+                if let Some(&s) = self.dense.get(reg as usize) {
+                    if s != u32::MAX {
+                        slots.push(s);
+                    }
+                }
+            }
+        }
+        fill_work(m, &work);
+        m.tlas_instances = self.records.len() as u64;
+        m.counting_boxes = self.records.len() as u64 - slots.len() as u64;
+        let hitboxes = self.culling.hitboxes().len() as u64;
+        m.blas_bytes = self.blas.memory_bytes() + blas_bytes(12);
+        m.overhead_bytes =
+            lipac_overhead_bytes(hitboxes, u64::from(self.culling.registry().slot_count()));
+        Ok(slots)
+    }
+
+    fn dense_of(&self, reg: u32) -> Result<u32, SimError> {
+        match self.dense.get(reg as usize) {
+            Some(&s) if s != u32::MAX => Ok(s),
+            _ => Err(SimError::UnknownInstance(reg)),
+        }
+    }
+}
