@@ -231,7 +231,7 @@ pub fn instances(seed: u64) -> Trace {
 }
 
 /// One request size that falls strictly between size classes of both
-/// lipac's TLSF (32 bins per octave) and offset-allocator (8 per octave).
+/// lipac's TLSF and offset-allocator (both 8 bins per octave).
 pub const BETWEEN_BINS_SIZE: u32 = 5000;
 
 /// Whether offset-allocator (3-bit mantissa bins) files `size` between two

@@ -17,14 +17,21 @@
 //! ([`TlsfAllocator::reserve_blocks`] can pre-size the storage).
 //!
 //! **Bins (first/second-level index).** Every free block is also on the list
-//! of the size class ("bin") of its size `s`. With `SL_BITS = 5` (32
+//! of the size class ("bin") of its size `s`. With `SL_BITS = 3` (8
 //! second-level bins per first-level class):
 //!
-//! * `s < 32`: `fl = 0`, `sl = s` (one exact bin per small size);
+//! * `s < 8`: `fl = 0`, `sl = s` (one exact bin per small size);
 //! * otherwise, with `m = floor(log2 s) = 63 - s.leading_zeros()`:
-//!   `fl = m - 4` and `sl = (s >> (m - 5)) - 32`. Each octave
-//!   `[2^m, 2^(m+1))` is cut into 32 bins of width `2^(m-5)`, so a bin's
-//!   sizes differ by less than 1/32 (≈ 3 %).
+//!   `fl = m - 2` and `sl = (s >> (m - 3)) - 8`. Each octave
+//!   `[2^m, 2^(m+1))` is cut into 8 bins of width `2^(m-3)`, so a bin's
+//!   sizes differ by less than 1/8 (12.5 %).
+//!
+//! Eight bins per octave rather than 32: with the exact-bin check below the
+//! finer classes bought little utilisation (at most 1.3 points at the first
+//! failure on the churn benchmarks, none on the between-bins ones) but cost
+//! memory traffic: bin lists were shorter, so the block chosen had less
+//! often been touched recently, and the bin table was four times larger
+//! (see docs/BENCHMARKS.md).
 //!
 //! A `u64` first-level bitmap marks classes with a non-empty bin and one
 //! `u32` second-level bitmap per class marks its non-empty bins. Finding the
@@ -34,7 +41,7 @@
 //! chosen class: O(1), no loops.
 //!
 //! **Search (good fit + exact-bin head check).** Plain good-fit TLSF rounds a
-//! request up to the next bin boundary (`s + 2^(m-5) - 1`) so that *any*
+//! request up to the next bin boundary (`s + 2^(m-3) - 1`) so that *any*
 //! block of the bin found fits. For a size that falls between two bin
 //! boundaries this means free blocks of exactly that size are filed in the
 //! size's own (lower) bin and never reused for it: after churn of one such
