@@ -136,6 +136,10 @@ pub struct CompareReport {
     pub geometry_ms: f64,
     /// Wall time of the whole comparison, s.
     pub wall_s: f64,
+    /// Mean bounce plus shadow rays the ground truth traced per frame (the
+    /// rays that count hits; camera rays are `rays_per_frame`).
+    #[serde(default)]
+    pub traced_rays_per_frame: f64,
     /// Per strategy.
     pub strategies: Vec<StrategyRun>,
 }
@@ -147,7 +151,26 @@ impl CompareReport {
     }
 }
 
-fn make_strategy(
+/// A strategy under its report name (several configurations of one
+/// strategy can run side by side under different names).
+pub struct Contender {
+    /// Report name (unique within a run).
+    pub name: String,
+    /// The strategy.
+    pub strategy: Box<dyn Strategy>,
+}
+
+impl std::fmt::Debug for Contender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Contender")
+            .field("name", &self.name)
+            .field("strategy", &self.strategy.name())
+            .finish()
+    }
+}
+
+/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`).
+pub fn make_strategy(
     kind: StrategyKind,
     scene: &Scene,
     lipac: &LipacConfig,
@@ -187,9 +210,42 @@ pub fn run(
     config: &CompareConfig,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<CompareReport, SimError> {
+    let rays_per_frame = u64::from(config.width) * u64::from(config.height);
+    let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    let contenders = config
+        .strategies
+        .iter()
+        .map(|&k| {
+            Ok(Contender {
+                name: k.name().to_string(),
+                strategy: make_strategy(k, scene, &lipac_config)?,
+            })
+        })
+        .collect::<Result<Vec<_>, SimError>>()?;
+    run_contenders(scene_name, scene, path, config, contenders, progress)
+}
+
+/// Runs the comparison on `scene` along `path` with `contenders` instead of
+/// `config.strategies` (which is ignored): the ground truth is rendered once
+/// per frame and every contender against it. Names must be unique. The
+/// report's `thresholds` are the default LiPaC thresholds for the image
+/// size; a contender's own may differ.
+pub fn run_contenders(
+    scene_name: &str,
+    scene: &mut Scene,
+    path: &CameraPath,
+    config: &CompareConfig,
+    contenders: Vec<Contender>,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CompareReport, SimError> {
     let start = Instant::now();
-    if config.strategies.is_empty() {
+    if contenders.is_empty() {
         return Err(SimError::BadConfig("no strategy to compare"));
+    }
+    for (i, c) in contenders.iter().enumerate() {
+        if contenders[..i].iter().any(|d| d.name == c.name) {
+            return Err(SimError::BadConfig("two strategies share a report name"));
+        }
     }
     let frames = config.frames.unwrap_or(path.frames()).min(path.frames());
     if frames == 0 {
@@ -205,11 +261,8 @@ pub fn run(
     };
     let n = scene.instances().len();
     let catalog = InstanceCatalog::new(scene)?;
-    let mut strategies = config
-        .strategies
-        .iter()
-        .map(|&k| make_strategy(k, scene, &lipac_config))
-        .collect::<Result<Vec<_>, _>>()?;
+    let (names, mut strategies): (Vec<String>, Vec<Box<dyn Strategy>>) =
+        contenders.into_iter().map(|c| (c.name, c.strategy)).unzip();
     let mut trackers: Vec<Tracker> = strategies.iter().map(|_| Tracker::new(n)).collect();
     let mut metrics: Vec<Vec<FrameMetrics>> = strategies.iter().map(|_| Vec::new()).collect();
     let mut previous: Vec<Option<Counters>> = strategies.iter().map(|_| None).collect();
@@ -228,6 +281,7 @@ pub fn run(
     let mut all = SlotSet::new();
     (0..n as u32).for_each(|s| all.insert(s));
     let (mut gt_ms, mut full_tlas_ms, mut geometry_ms) = (0.0, 0.0, 0.0);
+    let mut traced_rays = 0u64;
 
     for frame in 0..frames {
         scene.set_frame(frame);
@@ -268,6 +322,7 @@ pub fn run(
         )?;
         let gt_frame_ms = ms(t);
         gt_ms += gt_frame_ms;
+        traced_rays += gt.rays.bounce + gt.rays.shadow;
         let ctx = FrameContext {
             frame,
             scene,
@@ -344,14 +399,14 @@ pub fn run(
 
     let th = lipac_config.thresholds;
     let nf = f64::from(frames);
-    let strategies = strategies
+    let strategies = names
         .iter()
         .zip(metrics)
         .zip(trackers.iter())
         .zip(last_geometry)
-        .map(|(((s, frames), tracker), last)| StrategyRun {
-            name: s.name().to_string(),
-            summary: summarize(s.name(), &frames, tracker),
+        .map(|(((name, frames), tracker), last)| StrategyRun {
+            name: name.clone(),
+            summary: summarize(name, &frames, tracker),
             frames,
             last_geometry: last,
         })
@@ -370,6 +425,7 @@ pub fn run(
         full_tlas_ms: full_tlas_ms / nf,
         geometry_ms: geometry_ms / nf,
         wall_s: start.elapsed().as_secs_f64(),
+        traced_rays_per_frame: traced_rays as f64 / nf,
         strategies,
     })
 }
