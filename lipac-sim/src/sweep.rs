@@ -94,7 +94,7 @@ pub struct SweepConfig {
     pub height: u32,
     /// Baseline strategies.
     pub baselines: Vec<StrategyKind>,
-    /// Threshold factors of plain LiPaC (16 m cells, n_a = 4, n_d = 15).
+    /// Threshold factors of plain LiPaC (default cells, n_a = 4, n_d = 15).
     pub factors: Vec<f64>,
     /// Latency-mitigation heuristics, each run as LiPaC + latency
     /// mitigation at factor 1.
@@ -111,7 +111,8 @@ impl Default for SweepConfig {
     /// City and mirror scenes, the whole fly-through at 128 x 72; full,
     /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
     /// mitigation with the default heuristic and a wider one (100 m, 0.05);
-    /// 8 m and 32 m cells; `(n_a, n_d)` = (1, 15) and (4, 30).
+    /// 16 m (the paper's) and 64 m cells besides the default 32 m;
+    /// `(n_a, n_d)` = (1, 15) and (4, 30).
     fn default() -> Self {
         Self {
             scenes: vec![SceneChoice::City, SceneChoice::Mirror],
@@ -133,7 +134,7 @@ impl Default for SweepConfig {
                     min_projected_size: 0.05,
                 },
             ],
-            cell_sizes: vec![8.0, 32.0],
+            cell_sizes: vec![16.0, 64.0],
             streaks: vec![(1, 15), (4, 30)],
             threads: 0,
         }
@@ -883,7 +884,7 @@ mod tests {
             .filter(|x| x.family == Family::CellSize)
             .map(|x| x.lipac.as_ref().unwrap().cell_size)
             .collect();
-        assert_eq!(cells, [8.0, 32.0]);
+        assert_eq!(cells, [16.0, 64.0]);
         let bad = SweepConfig {
             factors: vec![0.0],
             ..SweepConfig::default()

@@ -135,9 +135,9 @@ struct SweepArgs {
     /// follow at 1/10).
     #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,4")]
     factors: Vec<f64>,
-    /// Further hitbox cell sizes in metres (LiPaC at factor 1; 16 m is the
-    /// base); empty for none.
-    #[arg(long, value_delimiter = ',', default_value = "8,32")]
+    /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
+    /// lipac-sim's default, 32 m); empty for none.
+    #[arg(long, value_delimiter = ',', default_value = "16,64")]
     cells: Vec<f64>,
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
