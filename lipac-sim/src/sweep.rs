@@ -17,7 +17,10 @@
 //! (the later names are listed in [`SweepReport::skipped`]).
 //!
 //! For each scene and each cost (trace time, memory, builds) the points not
-//! dominated in (cost, error) form the Pareto front ([`pareto_front`]).
+//! dominated in (cost, error) form the Pareto front ([`pareto_front`]). The
+//! oracle is plotted as a reference but kept off the fronts: it reads the
+//! ground truth's hits, no renderer can do that, and its zero error would
+//! dominate every costlier configuration.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -400,7 +403,32 @@ fn make_contender(v: &Variant, scene: &Scene, base: &LipacConfig) -> Result<Cont
     })
 }
 
-fn mark_fronts(points: &mut [SweepPoint]) {
+/// Recomputes the Pareto flags of every point, per scene (see the module
+/// docs; the oracle is never on a front).
+pub fn mark_fronts(report: &mut SweepReport) {
+    let names: Vec<String> = report.scenes.iter().map(|s| s.name.clone()).collect();
+    for name in names {
+        let mut idx = Vec::new();
+        let mut pts = Vec::new();
+        for (i, p) in report.points.iter().enumerate() {
+            if p.scene == name && p.strategy != StrategyKind::Oracle.name() {
+                idx.push(i);
+                pts.push(p.clone());
+            }
+        }
+        mark_scene_fronts(&mut pts);
+        for p in report.points.iter_mut().filter(|p| p.scene == name) {
+            p.front_time = false;
+            p.front_memory = false;
+            p.front_builds = false;
+        }
+        for (i, p) in idx.into_iter().zip(pts) {
+            report.points[i] = p;
+        }
+    }
+}
+
+fn mark_scene_fronts(points: &mut [SweepPoint]) {
     let fronts = [
         |p: &SweepPoint| p.summary.mean_trace_ms,
         |p: &SweepPoint| p.summary.mean_mib,
@@ -467,7 +495,7 @@ pub fn run(
             &mut |d, t| progress(si, count, d, t),
         )?;
         frames = r.frames;
-        let mut scene_points: Vec<SweepPoint> = variants
+        let scene_points: Vec<SweepPoint> = variants
             .iter()
             .zip(&r.strategies)
             .map(|(v, run)| {
@@ -497,7 +525,6 @@ pub fn run(
                 }
             })
             .collect();
-        mark_fronts(&mut scene_points);
         points.extend(scene_points);
         scenes.push(SweepScene {
             name: r.scene.clone(),
@@ -507,7 +534,7 @@ pub fn run(
             wall_s: r.wall_s,
         });
     }
-    Ok(SweepReport {
+    let mut report = SweepReport {
         frames,
         width: config.width,
         height: config.height,
@@ -516,7 +543,9 @@ pub fn run(
         points,
         skipped,
         wall_s: start.elapsed().as_secs_f64(),
-    })
+    };
+    mark_fronts(&mut report);
+    Ok(report)
 }
 
 /// The three costs plotted against error: file name, title, axis label,
@@ -710,7 +739,8 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
         "{} frames of the fly-through per scene at {}x{} ({} camera rays per frame). \
          Wall time {:.1} s. Every configuration of a scene renders against the same ground \
          truth (rendered once per frame). Front columns: T = on the (trace time, error) Pareto \
-         front, M = (memory, error), B = (builds, error).\n",
+         front, M = (memory, error), B = (builds, error); the oracle (it reads the ground truth's \
+         hits) is a reference, never on a front.\n",
         r.frames, r.width, r.height, r.rays_per_frame, r.wall_s
     );
     if !r.skipped.is_empty() {

@@ -163,6 +163,10 @@ struct SweepArgs {
     /// Output folder.
     #[arg(long, default_value = "lipac-sweep")]
     out: PathBuf,
+    /// Render nothing: read this sweep.json, recompute the Pareto fronts and
+    /// write the outputs again (e.g. after a plot change).
+    #[arg(long)]
+    replot: Option<PathBuf>,
 }
 
 fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Result<(A, B), String> {
@@ -175,7 +179,26 @@ fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Resu
     }
 }
 
+fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
+    let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
+    let mut report: sweep::SweepReport =
+        serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
+    sweep::mark_fronts(&mut report);
+    sweep::write_sweep(&report, out).map_err(|e| e.to_string())?;
+    println!("sweep in {}/sweep.md", out.display());
+    Ok(())
+}
+
 fn sweep_main(a: SweepArgs) -> ExitCode {
+    if let Some(from) = &a.replot {
+        return match replot(from, &a.out) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("lipac sweep: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     let parsed = (|| -> Result<SweepConfig, String> {
         let streaks = a
             .streaks
