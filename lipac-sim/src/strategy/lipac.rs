@@ -70,7 +70,9 @@ impl LipacConfig {
     /// and the 2 km city's ~12.6k 16 m counting boxes cost ~2.2 MiB of TLAS.
     /// `lipac sweep` on the 270-frame fly-through (docs/EVALUATION.md, "Run
     /// time against error"): 32 m cells gave error 0.144 at 9.24 MiB against
-    /// 0.217 at 10.11 MiB for 16 m (city; the mirror city alike).
+    /// 0.217 at 10.11 MiB for 16 m (city; the mirror city alike), the
+    /// lowest memory of 16–128 m; coarser cells trade a little memory for
+    /// less error.
     pub const DEFAULT_CELL_SIZE: f64 = 32.0;
 
     /// Paper settings for `rays_per_frame` camera rays: scaled thresholds,
