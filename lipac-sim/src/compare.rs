@@ -135,6 +135,10 @@ pub struct CompareReport {
     pub full_tlas_ms: f64,
     /// Mean BLAS update time of the shared geometry (unit refits), ms.
     pub geometry_ms: f64,
+    /// Mean bounce plus shadow rays the ground truth traced per frame (the
+    /// rays that count hits; camera rays are `rays_per_frame`).
+    #[serde(default)]
+    pub traced_rays_per_frame: f64,
     /// Wall time of the whole comparison, s.
     pub wall_s: f64,
     /// Per strategy.
@@ -148,7 +152,26 @@ impl CompareReport {
     }
 }
 
-fn make_strategy(
+/// A strategy under its report name (several configurations of one
+/// strategy can run side by side under different names).
+pub struct Contender {
+    /// Report name (unique within a run).
+    pub name: String,
+    /// The strategy.
+    pub strategy: Box<dyn Strategy>,
+}
+
+impl std::fmt::Debug for Contender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Contender")
+            .field("name", &self.name)
+            .field("strategy", &self.strategy.name())
+            .finish()
+    }
+}
+
+/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`).
+pub fn make_strategy(
     kind: StrategyKind,
     scene: &Scene,
     lipac: &LipacConfig,
@@ -188,11 +211,44 @@ pub fn run(
     config: &CompareConfig,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<CompareReport, SimError> {
+    let contenders = contenders_of(scene, config)?;
+    run_contenders(scene_name, scene, path, config, contenders, progress)
+}
+
+/// The strategies of `config.strategies`, under their own names.
+fn contenders_of(scene: &Scene, config: &CompareConfig) -> Result<Vec<Contender>, SimError> {
+    let rays_per_frame = u64::from(config.width) * u64::from(config.height);
+    let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    config
+        .strategies
+        .iter()
+        .map(|&k| {
+            Ok(Contender {
+                name: k.name().to_string(),
+                strategy: make_strategy(k, scene, &lipac_config)?,
+            })
+        })
+        .collect()
+}
+
+/// Runs the comparison on `scene` along `path` with `contenders` instead of
+/// `config.strategies` (which is ignored): the ground truth is rendered once
+/// per frame and every contender against it. Names must be unique. The
+/// report's `thresholds` are the default LiPaC thresholds for the image
+/// size; a contender's own may differ.
+pub fn run_contenders(
+    scene_name: &str,
+    scene: &mut Scene,
+    path: &CameraPath,
+    config: &CompareConfig,
+    contenders: Vec<Contender>,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CompareReport, SimError> {
     let frames = config.frames.unwrap_or(path.frames()).min(path.frames());
     if frames == 0 {
         return Err(SimError::BadConfig("no frames to render"));
     }
-    let mut c = Comparison::new(scene_name, scene, config)?;
+    let mut c = Comparison::with_contenders(scene_name, scene, config, contenders)?;
     for frame in 0..frames {
         scene.set_frame(frame);
         c.frame(scene, frame, &path.camera_at(frame))?;
@@ -214,6 +270,7 @@ pub struct Comparison {
     pt: PathTraceConfig,
     n: usize,
     catalog: InstanceCatalog,
+    names: Vec<String>,
     strategies: Vec<Box<dyn Strategy>>,
     trackers: Vec<Tracker>,
     metrics: Vec<Vec<FrameMetrics>>,
@@ -233,6 +290,7 @@ pub struct Comparison {
     gt_ms: f64,
     full_tlas_ms: f64,
     geometry_ms: f64,
+    traced_rays: u64,
     frames: u32,
 }
 
@@ -250,9 +308,26 @@ impl Comparison {
     /// Sets up the strategies of `config` on `scene` (its instance set is
     /// fixed from now on; only animated transforms change between frames).
     pub fn new(scene_name: &str, scene: &Scene, config: &CompareConfig) -> Result<Self, SimError> {
+        let contenders = contenders_of(scene, config)?;
+        Self::with_contenders(scene_name, scene, config, contenders)
+    }
+
+    /// Like [`Comparison::new`] with `contenders` instead of
+    /// `config.strategies` (which is ignored); names must be unique.
+    pub fn with_contenders(
+        scene_name: &str,
+        scene: &Scene,
+        config: &CompareConfig,
+        contenders: Vec<Contender>,
+    ) -> Result<Self, SimError> {
         let start = Instant::now();
-        if config.strategies.is_empty() {
+        if contenders.is_empty() {
             return Err(SimError::BadConfig("no strategy to compare"));
+        }
+        for (i, c) in contenders.iter().enumerate() {
+            if contenders[..i].iter().any(|d| d.name == c.name) {
+                return Err(SimError::BadConfig("two strategies share a report name"));
+            }
         }
         let rays_per_frame = u64::from(config.width) * u64::from(config.height);
         let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
@@ -264,11 +339,8 @@ impl Comparison {
         };
         let n = scene.instances().len();
         let catalog = InstanceCatalog::new(scene)?;
-        let strategies = config
-            .strategies
-            .iter()
-            .map(|&k| make_strategy(k, scene, &lipac_config))
-            .collect::<Result<Vec<_>, _>>()?;
+        let (names, strategies): (Vec<String>, Vec<Box<dyn Strategy>>) =
+            contenders.into_iter().map(|c| (c.name, c.strategy)).unzip();
         let k = strategies.len();
         let store = BlasStore::new();
         let unit_cube = store.unit_cube().reference();
@@ -283,6 +355,7 @@ impl Comparison {
             pt,
             n,
             catalog,
+            names,
             strategies,
             trackers: (0..k).map(|_| Tracker::new(n)).collect(),
             metrics: (0..k).map(|_| Vec::new()).collect(),
@@ -302,6 +375,7 @@ impl Comparison {
             gt_ms: 0.0,
             full_tlas_ms: 0.0,
             geometry_ms: 0.0,
+            traced_rays: 0,
             frames: 0,
         })
     }
@@ -357,6 +431,7 @@ impl Comparison {
             0,
         )?;
         self.gt_ms += ms(t);
+        self.traced_rays += gt.rays.bounce + gt.rays.shadow;
         let gt_trace_ms = gt.traced_ns as f64 * 1e-6;
         let ctx = FrameContext {
             frame,
@@ -441,14 +516,14 @@ impl Comparison {
         let th = self.lipac_config.thresholds;
         let nf = f64::from(frames);
         let strategies = self
-            .strategies
+            .names
             .iter()
             .zip(self.metrics)
             .zip(self.trackers.iter())
             .zip(self.last_geometry)
-            .map(|(((s, frames), tracker), last)| StrategyRun {
-                name: s.name().to_string(),
-                summary: summarize(s.name(), &frames, tracker),
+            .map(|(((name, frames), tracker), last)| StrategyRun {
+                name: name.clone(),
+                summary: summarize(name, &frames, tracker),
                 frames,
                 last_geometry: last,
             })
@@ -466,6 +541,7 @@ impl Comparison {
             ground_truth_ms: self.gt_ms / nf,
             full_tlas_ms: self.full_tlas_ms / nf,
             geometry_ms: self.geometry_ms / nf,
+            traced_rays_per_frame: self.traced_rays as f64 / nf,
             wall_s: self.start.elapsed().as_secs_f64(),
             strategies,
         })

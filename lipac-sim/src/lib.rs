@@ -20,6 +20,7 @@ pub mod rng;
 pub mod scene;
 pub mod scene_blas;
 pub mod strategy;
+pub mod sweep;
 pub mod tlas;
 pub mod trace;
 

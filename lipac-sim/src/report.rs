@@ -211,23 +211,23 @@ pub fn csv(r: &CompareReport) -> String {
     s
 }
 
-const COLORS: [&str; 8] = [
+pub(crate) const COLORS: [&str; 8] = [
     "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
 ];
-const W: f64 = 720.0;
-const H: f64 = 420.0;
-const L: f64 = 70.0;
-const R: f64 = 150.0;
-const T: f64 = 40.0;
-const B: f64 = 50.0;
+pub(crate) const W: f64 = 720.0;
+pub(crate) const H: f64 = 420.0;
+pub(crate) const L: f64 = 70.0;
+pub(crate) const R: f64 = 150.0;
+pub(crate) const T: f64 = 40.0;
+pub(crate) const B: f64 = 50.0;
 
-fn esc(s: &str) -> String {
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
 }
 
-fn nice_max(v: f64) -> f64 {
+pub(crate) fn nice_max(v: f64) -> f64 {
     if v <= 0.0 || !v.is_finite() {
         return 1.0;
     }
@@ -240,7 +240,14 @@ fn nice_max(v: f64) -> f64 {
     10.0 * p
 }
 
-fn frame_axes(s: &mut String, title: &str, xlabel: &str, ylabel: &str, xmax: f64, ymax: f64) {
+pub(crate) fn frame_axes(
+    s: &mut String,
+    title: &str,
+    xlabel: &str,
+    ylabel: &str,
+    xmax: f64,
+    ymax: f64,
+) {
     let _ = write!(
         s,
         r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">
@@ -298,7 +305,7 @@ fn fmt_tick(v: f64) -> String {
     }
 }
 
-fn legend(s: &mut String, i: usize, name: &str) {
+pub(crate) fn legend(s: &mut String, i: usize, name: &str) {
     let y = T + 10.0 + i as f64 * 18.0;
     let _ = writeln!(
         s,

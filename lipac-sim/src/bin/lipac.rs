@@ -5,6 +5,7 @@
 //! cargo run --release -p lipac-sim --bin lipac -- run --strategy lipac --scene small
 //! cargo run --release -p lipac-sim --bin lipac -- record --scene small --frames 60 small.lipactrace
 //! cargo run --release -p lipac-sim --bin lipac -- replay small.lipactrace
+//! cargo run --release -p lipac-sim --bin lipac -- sweep --frames 60
 //! ```
 
 #[path = "../cli/trace_cmds.rs"]
@@ -15,9 +16,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use lipac_core::latency::ActivationHeuristic;
 use lipac_sim::compare::{run_choice, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report};
 use lipac_sim::strategy::StrategyKind;
+use lipac_sim::sweep::{self, SweepConfig};
 
 #[derive(Parser)]
 #[command(
@@ -119,6 +122,163 @@ enum Command {
     Replay(trace_cmds::ReplayArgs),
     /// Converts a trace between binary and JSON lines.
     Convert(trace_cmds::ConvertArgs),
+    /// Run time, memory and builds against error over many configurations
+    /// (threshold factors, latency mitigation, cell sizes, streaks,
+    /// baselines), with Pareto plots.
+    Sweep(SweepArgs),
+}
+
+#[derive(clap::Args)]
+struct SweepArgs {
+    /// Scenes.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "city,mirror")]
+    scenes: Vec<SceneArg>,
+    /// Frames per scene (default: the whole fly-through, 270).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Image width.
+    #[arg(long, default_value_t = 128)]
+    width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 72)]
+    height: u32,
+    /// Factors LiPaC's scaled thresholds are multiplied by (θd and σo
+    /// follow at 1/10).
+    #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,4")]
+    factors: Vec<f64>,
+    /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
+    /// lipac-sim's default, 32 m); empty for none.
+    #[arg(long, value_delimiter = ',', default_value = "16,64")]
+    cells: Vec<f64>,
+    /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
+    #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
+    streaks: Vec<String>,
+    /// Latency-mitigation heuristics `max_distance:min_projected_size`
+    /// (LiPaC + latency mitigation at factor 1).
+    #[arg(long, value_delimiter = ',', default_value = "50:0.1,100:0.05")]
+    latency: Vec<String>,
+    /// Baseline strategies.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "full,frustum,heuristic,oracle"
+    )]
+    baselines: Vec<StrategyArg>,
+    /// Scene seed (default: each scene's own).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Render threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Output folder.
+    #[arg(long, default_value = "lipac-sweep")]
+    out: PathBuf,
+    /// Render nothing: read this sweep.json, recompute the Pareto fronts and
+    /// write the outputs again (e.g. after a plot change).
+    #[arg(long)]
+    replot: Option<PathBuf>,
+}
+
+fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Result<(A, B), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("{what} `{s}`: expected `a:b`"))?;
+    match (a.trim().parse(), b.trim().parse()) {
+        (Ok(a), Ok(b)) => Ok((a, b)),
+        _ => Err(format!("{what} `{s}`: not two numbers")),
+    }
+}
+
+fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
+    let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
+    let mut report: sweep::SweepReport =
+        serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
+    sweep::mark_fronts(&mut report);
+    sweep::write_sweep(&report, out).map_err(|e| e.to_string())?;
+    println!("sweep in {}/sweep.md", out.display());
+    Ok(())
+}
+
+fn sweep_main(a: SweepArgs) -> ExitCode {
+    if let Some(from) = &a.replot {
+        return match replot(from, &a.out) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("lipac sweep: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
+    let parsed = (|| -> Result<SweepConfig, String> {
+        let streaks = a
+            .streaks
+            .iter()
+            .filter(|s| !s.is_empty())
+            .map(|s| pair::<u32, u32>(s, "streak"))
+            .collect::<Result<Vec<_>, _>>()?;
+        let latency = a
+            .latency
+            .iter()
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                pair::<f32, f32>(s, "latency heuristic").map(|(d, p)| ActivationHeuristic {
+                    max_distance: d,
+                    min_projected_size: p,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(SweepConfig {
+            scenes: a.scenes.iter().map(|&s| s.into()).collect(),
+            seed: a.seed,
+            frames: a.frames,
+            width: a.width,
+            height: a.height,
+            baselines: a.baselines.iter().map(|&s| s.into()).collect(),
+            factors: a.factors.clone(),
+            latency,
+            cell_sizes: a.cells.clone(),
+            streaks,
+            threads: a.threads,
+        })
+    })();
+    let config = match parsed {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("lipac sweep: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} frames  {elapsed} (eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let names: Vec<&str> = config.scenes.iter().map(|s| s.name()).collect();
+    let result = sweep::run(&config, &mut |si, count, done, total| {
+        bar.set_message(format!("{} ({}/{count})", names[si], si + 1));
+        bar.set_length(u64::from(total));
+        bar.set_position(u64::from(done));
+    });
+    bar.finish_and_clear();
+    let report = match result {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("lipac sweep: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    print!("{}", sweep::sweep_markdown(&report));
+    match sweep::write_sweep(&report, &a.out) {
+        Ok(_) => {
+            println!("\nsweep in {}/sweep.md", a.out.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("lipac sweep: writing the report: {e}");
+            ExitCode::FAILURE
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -129,6 +289,7 @@ fn main() -> ExitCode {
         Command::Record(a) => return trace_cmds::run_record(a),
         Command::Replay(a) => return trace_cmds::run_replay(a),
         Command::Convert(a) => return trace_cmds::run_convert(a),
+        Command::Sweep(args) => return sweep_main(args),
     };
     let strategies: Vec<StrategyKind> = if strategies.is_empty() {
         StrategyKind::ALL.to_vec()

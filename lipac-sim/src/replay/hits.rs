@@ -520,6 +520,8 @@ pub fn replay_hits_with<R: Read>(
             ground_truth_ms: 0.0,
             full_tlas_ms: 0.0,
             geometry_ms: 0.0,
+            // Hits-only replay traces no rays.
+            traced_rays_per_frame: 0.0,
             wall_s: start.elapsed().as_secs_f64(),
             strategies,
         },

@@ -1,0 +1,174 @@
+//! `lipac sweep` end to end: well-formed outputs on a tiny configuration,
+//! and shared ground truth giving exactly the errors of `lipac compare`.
+
+use lipac_core::latency::ActivationHeuristic;
+use lipac_sim::compare::{run_choice, CompareConfig, SceneChoice};
+use lipac_sim::strategy::StrategyKind;
+use lipac_sim::sweep::{self, SweepConfig, SweepReport, SWEEP_CSV_HEADER, SWEEP_FILES};
+
+fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
+    SweepConfig {
+        scenes,
+        seed: None,
+        frames: Some(frames),
+        width: 64,
+        height: 36,
+        baselines: vec![StrategyKind::Full, StrategyKind::Oracle],
+        // 2304 rays: ×1 gives θa = 2, ×4 gives θa = 4.
+        factors: vec![1.0, 4.0],
+        latency: vec![ActivationHeuristic::default()],
+        cell_sizes: vec![],
+        streaks: vec![],
+        threads: 2,
+    }
+}
+
+#[test]
+fn tiny_sweep_writes_well_formed_outputs() {
+    let config = tiny(vec![SceneChoice::Small, SceneChoice::City], 3);
+    let mut calls = 0;
+    let r = sweep::run(&config, &mut |_, _, _, _| calls += 1).unwrap();
+    assert_eq!(calls, 2 * 3);
+    let configs = 2 + 2 + 1;
+    assert!(r.skipped.is_empty(), "{:?}", r.skipped);
+    assert_eq!(r.points.len(), configs * 2);
+    for scene in ["small", "city"] {
+        let pts: Vec<_> = r.points.iter().filter(|p| p.scene == scene).collect();
+        let full = pts.iter().find(|p| p.name == "full").unwrap();
+        assert_eq!(full.summary.mean_error, 0.0);
+        // The oracle is exact (up to ties) and holds less than the full scene.
+        let oracle = pts.iter().find(|p| p.name == "oracle").unwrap();
+        assert!(oracle.summary.mean_error <= 1e-3);
+        assert!(oracle.summary.mean_mib < full.summary.mean_mib);
+        // The oracle is a reference, never on a front.
+        assert!(!oracle.front_time && !oracle.front_memory && !oracle.front_builds);
+        let pts: Vec<_> = pts.into_iter().filter(|p| p.name != "oracle").collect();
+        // On every front: the cheapest point, and the most accurate one of
+        // least cost among the most accurate.
+        for (plot, (_, _, _, cost)) in sweep::COSTS.iter().enumerate() {
+            let on = |p: &sweep::SweepPoint| [p.front_time, p.front_memory, p.front_builds][plot];
+            let key = |p: &&&sweep::SweepPoint| (cost(p), p.summary.mean_error);
+            let cheapest = pts
+                .iter()
+                .min_by(|a, b| key(a).partial_cmp(&key(b)).unwrap())
+                .unwrap();
+            assert!(on(cheapest), "{scene} {plot} {}", cheapest.name);
+            let best = pts
+                .iter()
+                .min_by(|a, b| {
+                    (a.summary.mean_error, cost(a))
+                        .partial_cmp(&(b.summary.mean_error, cost(b)))
+                        .unwrap()
+                })
+                .unwrap();
+            assert!(on(best), "{scene} {plot} {}", best.name);
+            // And nothing on the front is dominated by another point.
+            for p in pts.iter().filter(|p| on(p)) {
+                assert!(!pts.iter().any(|q| cost(q) <= cost(p)
+                    && q.summary.mean_error <= p.summary.mean_error
+                    && (cost(q) < cost(p) || q.summary.mean_error < p.summary.mean_error)));
+            }
+        }
+    }
+
+    let dir = std::env::temp_dir().join(format!("lipac-sweep-test-{}", std::process::id()));
+    let written = sweep::write_sweep(&r, &dir).unwrap();
+    assert_eq!(written.len(), SWEEP_FILES.len());
+
+    let json = std::fs::read_to_string(dir.join("sweep.json")).unwrap();
+    let back: SweepReport = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.points.len(), r.points.len());
+    assert_eq!(back.scenes.len(), 2);
+    for (a, b) in back.points.iter().zip(&r.points) {
+        assert_eq!((&a.scene, &a.name), (&b.scene, &b.name));
+        assert_eq!(a.summary.builds, b.summary.builds);
+        assert_eq!(a.frame_errors.len(), 3);
+        assert_eq!(a.front_memory, b.front_memory);
+    }
+
+    let csv = std::fs::read_to_string(dir.join("sweep.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(SWEEP_CSV_HEADER));
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), configs * 2);
+    let columns = SWEEP_CSV_HEADER.split(',').count();
+    assert!(rows.iter().all(|l| l.split(',').count() == columns));
+    let lipac4 = rows
+        .iter()
+        .find(|l| l.starts_with("city,lipac ×4,thresholds,lipac,4,32,4,1,4,1,4,15,"))
+        .copied();
+    assert!(lipac4.is_some(), "{csv}");
+
+    for (plot, file) in ["sweep_time.svg", "sweep_memory.svg", "sweep_builds.svg"]
+        .iter()
+        .enumerate()
+    {
+        let svg = std::fs::read_to_string(dir.join(file)).unwrap();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        // One circle per point plus one legend circle per scene.
+        assert_eq!(svg.matches("<circle").count(), configs * 2 + 2, "{file}");
+        // One front line per scene, through as many points as are on it.
+        assert_eq!(svg.matches(r#"class="front""#).count(), 2, "{file}");
+        let on_front = r
+            .points
+            .iter()
+            .filter(|p| [p.front_time, p.front_memory, p.front_builds][plot])
+            .count();
+        assert_eq!(
+            svg.matches(r#"stroke="black" stroke-width="1.5""#).count(),
+            on_front
+        );
+        for p in &r.points {
+            assert!(
+                svg.contains(&format!("{}: {} (", p.scene, p.name)),
+                "{file}"
+            );
+        }
+    }
+    let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
+    for file in &SWEEP_FILES[2..] {
+        assert!(md.contains(&format!("]({file})")), "{file}");
+    }
+    assert!(md.contains("| lipac ×4 | 4 1 4 1 4 15 | 32 |"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn shared_ground_truth_gives_the_errors_of_compare() {
+    let frames = 8;
+    let r = sweep::run(
+        &tiny(vec![SceneChoice::Small], frames),
+        &mut |_, _, _, _| {},
+    )
+    .unwrap();
+    let compare = CompareConfig {
+        frames: Some(frames),
+        width: 64,
+        height: 36,
+        strategies: vec![StrategyKind::Lipac, StrategyKind::LipacLatency],
+        share_ground_truth: true,
+        threads: 2,
+    };
+    let c = run_choice(SceneChoice::Small, None, &compare, &mut |_, _| {}).unwrap();
+    for (swept, compared) in [("lipac ×1", "lipac"), ("lipac-latency", "lipac-latency")] {
+        let s = r.point("small", swept).unwrap();
+        let run = c.strategy(compared).unwrap();
+        let errors: Vec<u64> = run.frames.iter().map(|m| m.error.to_bits()).collect();
+        let swept_errors: Vec<u64> = s.frame_errors.iter().map(|e| e.to_bits()).collect();
+        assert_eq!(swept_errors, errors, "{swept}");
+        assert_eq!(s.summary.builds, run.summary.builds);
+        assert_eq!(s.summary.mean_mib, run.summary.mean_mib);
+    }
+    // The check can fail: other thresholds give other errors.
+    let x4 = r.point("small", "lipac ×4").unwrap();
+    assert_ne!(
+        x4.frame_errors,
+        r.point("small", "lipac ×1").unwrap().frame_errors
+    );
+}
+
+#[test]
+fn duplicate_scenes_are_rejected() {
+    let c = tiny(vec![SceneChoice::Small, SceneChoice::Small], 1);
+    assert!(sweep::run(&c, &mut |_, _, _, _| {}).is_err());
+}
