@@ -169,14 +169,6 @@ pub struct CameraPath {
     aspect: f32,
 }
 
-fn catmull_rom(p0: f32, p1: f32, p2: f32, p3: f32, t: f32) -> f32 {
-    let t2 = t * t;
-    0.5 * (2.0 * p1
-        + (p2 - p0) * t
-        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
-        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t2 * t)
-}
-
 fn interpolate(keys: &[Key], frame: f32) -> Key {
     if keys.len() == 1 || frame <= keys[0].frame {
         return keys[0];
@@ -189,16 +181,14 @@ fn interpolate(keys: &[Key], frame: f32) -> Key {
         .windows(2)
         .position(|w| frame < w[1].frame)
         .unwrap_or(last - 1);
-    let (k0, k1, k2, k3) = (
-        keys[i.saturating_sub(1)],
-        keys[i],
-        keys[i + 1],
-        keys[(i + 2).min(last)],
-    );
+    let (k1, k2) = (keys[i], keys[i + 1]);
     let t = (frame - k1.frame) / (k2.frame - k1.frame);
-    // Smoothstep the parameter so each key is a rest point (no velocity jumps).
+    // Smoothstep the parameter so each key is a rest point (no velocity jumps),
+    // and blend linearly between the two keys: the camera never leaves the
+    // segment between them. (A Catmull-Rom spline through unevenly spaced keys
+    // overshot: the descent to street level dipped below the terrain.)
     let s = t * t * (3.0 - 2.0 * t);
-    let c = |f: fn(&Key) -> f32| catmull_rom(f(&k0), f(&k1), f(&k2), f(&k3), s);
+    let c = |f: fn(&Key) -> f32| f(&k1) + (f(&k2) - f(&k1)) * s;
     Key {
         frame,
         position: Vec3::new(
@@ -388,6 +378,24 @@ mod tests {
                 "{ndc} vs {sx},{sy}"
             );
             assert!((0.0..=1.0).contains(&ndc.z));
+        }
+    }
+
+    #[test]
+    fn flythrough_stays_above_the_terrain_and_outside_instances() {
+        // Regression: a spline through unevenly spaced keys dipped below the
+        // terrain and through a tree on the descent to the street.
+        let scene = Scene::generate(&SceneConfig::city()).unwrap();
+        let path = CameraPath::flythrough(&scene, 16.0 / 9.0);
+        for f in 0..path.frames() {
+            let p = path.camera_at(f).position;
+            let ground = scene.height(p.x, p.z);
+            assert!(p.y >= ground + 2.0, "frame {f}: camera {p} ground {ground}");
+            let inside = scene
+                .instances()
+                .iter()
+                .position(|i| i.aabb.min.cmple(p).all() && i.aabb.max.cmpge(p).all());
+            assert_eq!(inside, None, "frame {f}: camera {p} inside an instance");
         }
     }
 
