@@ -18,12 +18,17 @@
 //! `LIPAC_VALIDATION=1` runs it under the validation layer and fails on any
 //! validation error.
 //!
-//! Simplifications (see docs/VULKAN.md): the tracer is `trace_test.comp`
-//! ([`TracePipeline`]: primary rays, then shadow rays from their hits,
-//! both counting boxes through `lipac_counting.glsl`), the host generates
-//! the rays, copies the hitbox counters into the hitbox records and patches
-//! BLAS addresses into the mapped instance records, so each frame's three
-//! submissions run in lockstep. Animated instances use their shared mesh.
+//! The GPU owns the state bits: the instance and hitbox records live in
+//! device-local memory, the host changes them only through
+//! [`RecordUploader`] (BLAS addresses from the CPU registry's dirty ranges,
+//! scattered without touching the state bits), and the tracer
+//! (`trace_counting.comp`, [`HitboxCounting::Records`]) counts hitbox boxes
+//! straight into the hitbox records Algorithm 2 reads.
+//!
+//! Simplifications (see docs/VULKAN.md): the host generates the rays
+//! (primary rays, then shadow rays from their hits, both counting boxes
+//! through `lipac_counting.glsl`), so each frame's three submissions run in
+//! lockstep. Animated instances use their shared mesh.
 
 use ash::vk;
 use glam::Vec3;
@@ -33,10 +38,11 @@ use lipac::core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac::core::command::{CommandKind, CommandQueue};
+use lipac::core::culling::Uploads;
 use lipac::core::grid::{GridConfig, HitboxGrid};
 use lipac::core::hitbox_index::HitboxIndex;
 use lipac::core::instance::InstanceDesc;
-use lipac::core::layout::{HitboxRecord, InstanceRecord};
+use lipac::core::layout::InstanceState;
 use lipac::core::registry::{InstanceRegistry, RegistryConfig};
 use lipac::core::thresholds::Thresholds;
 use lipac::sim::camera::CameraPath;
@@ -44,9 +50,9 @@ use lipac::sim::scene::{LodPolicy, Scene, SceneConfig};
 use lipac::vk::{
     hitbox_bounds, AccelerationStructurePool, AssemblyBuffers, AssemblyPipeline, Blas, BlasBatch,
     Buffer, CountingConfig, FeedbackBuffers, FeedbackPipeline, FrameSubmitter, GpuHit, GpuRay,
-    HeadlessContext, MemoryLocation, OneShot, PlanExecutor, ReadbackRing, Retirement,
-    ScratchBuffer, TlasPair, TraceBuffers, TracePipeline, TriangleGeometry, UnitCube, Validation,
-    DEFAULT_POOL_BLOCK_SIZE,
+    HeadlessContext, HitboxCounting, MemoryLocation, OneShot, PlanExecutor, ReadbackRing,
+    RecordUploader, Retirement, ScratchBuffer, TlasPair, TraceBuffers, TracePipeline,
+    TriangleGeometry, UnitCube, UploadTargets, Validation, VkError, DEFAULT_POOL_BLOCK_SIZE,
 };
 use std::collections::HashMap;
 use std::error::Error;
@@ -254,12 +260,19 @@ fn run() -> AnyResult<()> {
 
     let tlas_capacity = slots + hitbox_count;
     let command_capacity = slots.max(1);
-    let mut instances = Buffer::with_data(ctx, STORAGE, HOST, registry.records())?;
-    let mut hitboxes = Buffer::with_data(
+    // Instance and hitbox records are device-local: Algorithm 2 owns their
+    // state bits and the host writes them only through the RecordUploader.
+    let instances = Buffer::new(
         ctx,
+        u64::from(slots) * std::mem::size_of::<lipac::core::layout::InstanceRecord>() as u64,
         STORAGE,
-        HOST,
-        &vec![HitboxRecord::default(); hitbox_count as usize],
+        MemoryLocation::GpuOnly,
+    )?;
+    let hitboxes = Buffer::new(
+        ctx,
+        u64::from(hitbox_count) * 12,
+        STORAGE,
+        MemoryLocation::GpuOnly,
     )?;
     let bounds_buf = Buffer::with_data(ctx, STORAGE, HOST, &hitbox_bounds(&grid))?;
     let tlas_out = Buffer::new(
@@ -270,8 +283,6 @@ fn run() -> AnyResult<()> {
     )?;
     let tlas_counter = Buffer::with_data(ctx, STORAGE | XFER, HOST, &[0u32])?;
     let instance_hits = Buffer::with_data(ctx, STORAGE | XFER, HOST, &vec![0u32; slots as usize])?;
-    let mut hitbox_hits =
-        Buffer::with_data(ctx, STORAGE, HOST, &vec![0u32; hitbox_count as usize])?;
     let commands = Buffer::new(ctx, u64::from(command_capacity) * 4, STORAGE | XFER, HOST)?;
     let command_counter = Buffer::with_data(ctx, STORAGE | XFER, HOST, &[0u32])?;
     let pixel_count = (args.width * args.height) as usize;
@@ -285,7 +296,22 @@ fn run() -> AnyResult<()> {
 
     let assembly = AssemblyPipeline::new(ctx)?;
     let feedback = FeedbackPipeline::new(ctx)?;
-    let tracer = TracePipeline::new(ctx, &counting)?;
+    let tracer = TracePipeline::with_hitbox_counting(ctx, &counting, HitboxCounting::Records)?;
+    let uploader = RecordUploader::new(ctx)?;
+    // One staging set suffices: every frame waits for its submissions.
+    let mut ub = uploader.bind(&UploadTargets {
+        instances: &instances,
+        hitboxes: &hitboxes,
+    })?;
+    // The first upload: every record, registration's state (inactive) for
+    // every slot, every hitbox inactive with streak 0 (Algorithm 1's reset
+    // clears the heights and hits).
+    let initial = Uploads {
+        records: registry.take_dirty(),
+        state_overrides: (0..slots).map(|s| (s, InstanceState::Inactive)).collect(),
+        hitbox_overrides: (0..hitbox_count).map(|i| (i, false)).collect(),
+    };
+    one_shot.run(|rec| uploader.record(rec, &mut ub, &initial, registry.records()))?;
     let ab = assembly.bind(&AssemblyBuffers {
         instances: &instances,
         hitboxes: &hitboxes,
@@ -319,13 +345,11 @@ fn run() -> AnyResult<()> {
     )?;
     let mut tlas_scratch = ScratchBuffer::new(ctx);
     let mut retirement = Retirement::new();
-    let blas_offset = std::mem::offset_of!(InstanceRecord, blas) as u64;
-    let record_bytes = std::mem::size_of::<InstanceRecord>() as u64;
     let sun = Vec3::new(0.4, 0.8, 0.3).normalize();
     let mut image = vec![0u8; pixel_count * 3];
 
     println!(
-        "frame | active | builds upd compact freed | pool used / capacity (blocks, frag) | TLAS bytes | TLAS records | cmds"
+        "frame | active | builds upd compact freed | pool used / capacity (blocks, frag) | TLAS bytes | TLAS records | cmds | uploaded"
     );
     for f in 1..=u64::from(args.frames) {
         let camera = path.camera_at(f as u32);
@@ -387,7 +411,7 @@ fn run() -> AnyResult<()> {
                 }
                 CommandKind::Remove if active => {
                     scheduler.deactivate(key)?;
-                    instances.write(u64::from(c.slot) * record_bytes + blas_offset, &[0u64])?;
+                    registry.set_blas_at(c.slot, 0)?;
                 }
                 _ => {}
             }
@@ -421,15 +445,25 @@ fn run() -> AnyResult<()> {
             })
             .collect();
         rays.write(0, &primary)?;
-        hitbox_hits.zero(0, u64::from(hitbox_count) * 4)?;
 
-        // Submission 1: BLAS plan, GPU Algorithm 1, TLAS build, primary trace.
+        // Submission 1: BLAS plan, record uploads, GPU Algorithm 1, TLAS build.
+        let mut uploaded = 0;
         let report = submitter.submit(&[], &[], |rec| {
             let report = executor.record(rec, &plan, &mut scheduler, &source, f)?;
             for key in scheduler.take_address_changes() {
                 let addr = scheduler.blas_address(key).unwrap_or(0);
-                instances.write(u64::from(key.0) * record_bytes + blas_offset, &[addr])?;
+                registry
+                    .set_blas_at(key.0, addr)
+                    .map_err(|e| VkError::InvalidArgument(e.to_string()))?;
             }
+            // The changed records go up without touching the GPU's state bits.
+            let uploads = Uploads {
+                records: registry.take_dirty(),
+                ..Uploads::default()
+            };
+            uploaded = uploader
+                .record(rec, &mut ub, &uploads, registry.records())?
+                .records;
             feedback.record_clear_instance_hits(rec, &fb)?;
             assembly.record(rec, &ab, &assembly_config, slots)?;
             tlas.record_build(
@@ -448,7 +482,7 @@ fn run() -> AnyResult<()> {
             rays: &rays,
             results: &results,
             instance_hits: &instance_hits,
-            hitbox_hits: &hitbox_hits,
+            hitbox_hits: &hitboxes,
         })?;
         submitter.submit(&[], &[], |rec| {
             tracer.record(rec, &tb, pixel_count as u32, 0xFF, 0)
@@ -484,15 +518,7 @@ fn run() -> AnyResult<()> {
             }
         }
 
-        // The tracer counts hitbox boxes into plain counters: add them to
-        // the hitbox records for Algorithm 2.
-        let counts: Vec<u32> = hitbox_hits.read(0, hitbox_count as usize)?;
-        let mut records: Vec<HitboxRecord> = hitboxes.read(0, hitbox_count as usize)?;
-        for (r, &n) in records.iter_mut().zip(&counts) {
-            r.add_hits(n);
-        }
-        hitboxes.write(0, &records)?;
-
+        // The tracer counted hitbox boxes into the hitbox records already.
         // Submission 3: GPU Algorithm 2 and the readback copy.
         let ring_value = f;
         submitter.submit(&[], &[(&ring_semaphore, ring_value)], |rec| {
@@ -509,7 +535,7 @@ fn run() -> AnyResult<()> {
         let tlas_records: u32 = tlas_counter.read(0, 1)?[0];
         let ps = executor.stats().pool;
         println!(
-            "{f:5} | {:6} | {:6} {:3} {:7} {:5} | {:>9} / {:>9} ({}, {:.2}) | {:>10} | {:12} | {}",
+            "{f:5} | {:6} | {:6} {:3} {:7} {:5} | {:>9} / {:>9} ({}, {:.2}) | {:>10} | {:12} | {:4} | {}",
             scheduler.stats().instances,
             report.builds,
             report.updates,
@@ -522,6 +548,7 @@ fn run() -> AnyResult<()> {
             tlas.memory_bytes(),
             tlas_records,
             ingested,
+            uploaded,
         );
         if f == u64::from(args.frames) {
             for i in 0..pixel_count {

@@ -22,7 +22,11 @@
 //!   acknowledges them.
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
-//!   from a buffer with it.
+//!   from a buffer with it, counting hitbox hits into plain counters or
+//!   straight into the hitbox records ([`HitboxCounting`]).
+//! * [`RecordUploader`]: the GPU version of
+//!   [`lipac_core::culling::apply_uploads`], scattering CPU-written records
+//!   into the GPU instance buffer without overwriting its state bits.
 //! * GPU Algorithm 1: [`AssemblyPipeline`] (TLAS instance assembly, equal to
 //!   [`lipac_core::assembly::assemble_tlas`]); GPU Algorithm 2:
 //!   [`FeedbackPipeline`] (hit feedback, equal to
@@ -54,6 +58,7 @@ pub mod shaders;
 mod timeline;
 mod tlas;
 mod trace;
+mod upload;
 
 pub use accel::{AccelerationStructure, AsSizes};
 pub use as_pool::{
@@ -83,7 +88,8 @@ pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use readback::{Readback, ReadbackRing, ReadbackTicket};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{Tlas, TlasBuildOutput};
-pub use trace::{GpuHit, GpuRay, TraceBindings, TraceBuffers, TracePipeline};
+pub use trace::{GpuHit, GpuRay, HitboxCounting, TraceBindings, TraceBuffers, TracePipeline};
+pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.
 pub const TLAS_INSTANCE_BYTES: usize = std::mem::size_of::<lipac_core::layout::TlasInstance>();

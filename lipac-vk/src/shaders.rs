@@ -8,6 +8,14 @@ use crate::error::{Result, VkError};
 /// counting-box pass-through (see [`crate::TracePipeline`]).
 pub const TRACE_TEST_SPV: &[u8] = include_bytes!("../shaders/spv/trace_test.spv");
 
+/// SPIR-V of `trace_counting.comp`: `trace_test.comp` counting hitbox hits
+/// straight into the `HitboxRecord` buffer (`LIPAC_HITBOX_RECORDS`; see
+/// [`crate::HitboxCounting::Records`]).
+pub const TRACE_COUNTING_SPV: &[u8] = include_bytes!("../shaders/spv/trace_counting.spv");
+/// SPIR-V of `upload_records.comp`: the record upload scatter
+/// ([`crate::RecordUploader`]).
+pub const UPLOAD_RECORDS_SPV: &[u8] = include_bytes!("../shaders/spv/upload_records.spv");
+
 /// SPIR-V of `hitbox_reset.comp` (Algorithm 1 pass 0, [`crate::AssemblyPipeline`]).
 pub const HITBOX_RESET_SPV: &[u8] = include_bytes!("../shaders/spv/hitbox_reset.spv");
 /// SPIR-V of `assemble_instances.comp` (Algorithm 1 pass 1).
@@ -24,8 +32,10 @@ pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedbac
 
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 7] = [
+pub const ALL_SPV: [(&str, &[u8]); 9] = [
     ("trace_test", TRACE_TEST_SPV),
+    ("trace_counting", TRACE_COUNTING_SPV),
+    ("upload_records", UPLOAD_RECORDS_SPV),
     ("hitbox_reset", HITBOX_RESET_SPV),
     ("assemble_instances", ASSEMBLE_INSTANCES_SPV),
     ("assemble_hitboxes", ASSEMBLE_HITBOXES_SPV),
@@ -43,6 +53,10 @@ pub const LIPAC_LAYOUT_GLSL: &str = include_str!("../shaders/lipac_layout.glsl")
 
 /// GLSL source of `trace_test.comp`.
 pub const TRACE_TEST_GLSL: &str = include_str!("../shaders/trace_test.comp");
+
+/// GLSL source of `trace_counting.comp`: the reference for an engine's
+/// tracer that counts into lipac's hitbox records.
+pub const TRACE_COUNTING_GLSL: &str = include_str!("../shaders/trace_counting.comp");
 
 /// `lipac_counting.glsl`: the counting-box pass-through for engines'
 /// ray-query shaders (`lipacTraceCounting`, `lipacIsCountingBox`,

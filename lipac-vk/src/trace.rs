@@ -1,7 +1,7 @@
-//! The `trace_test.comp` pipeline: traces rays from a buffer against a TLAS
-//! with counting-box pass-through and writes each ray's closest real hit.
-//! Tests and examples use it; engines trace in their own shaders with
-//! `lipac_counting.glsl`.
+//! The `trace_test.comp` / `trace_counting.comp` pipeline: traces rays from a
+//! buffer against a TLAS with counting-box pass-through and writes each ray's
+//! closest real hit. Tests and examples use it; engines trace in their own
+//! shaders with `lipac_counting.glsl`.
 
 use crate::accel::same_context;
 use crate::commands::Recorder;
@@ -9,7 +9,7 @@ use crate::context::DeviceContext;
 use crate::counting::CountingConfig;
 use crate::error::{Result, VkContext, VkError};
 use crate::memory::Buffer;
-use crate::shaders::{spirv_words, TRACE_TEST_SPV};
+use crate::shaders::{spirv_words, TRACE_COUNTING_SPV, TRACE_TEST_SPV};
 use crate::tlas::Tlas;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
@@ -60,10 +60,27 @@ impl GpuHit {
 const LOCAL_SIZE: u32 = 64;
 const BINDINGS: u32 = 5;
 
-/// The compiled `trace_test.comp` compute pipeline for one [`CountingConfig`].
+/// Where a [`TracePipeline`] counts hitbox-box hits
+/// ([`TraceBuffers::hitbox_hits`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum HitboxCounting {
+    /// `trace_test.comp`: one plain `u32` counter per hitbox (`atomicAdd`).
+    #[default]
+    Counters,
+    /// `trace_counting.comp`: straight into the
+    /// [`lipac_core::layout::HitboxRecord`] buffer that Algorithm 2 reads, a
+    /// saturating add of one hit to the 24-bit count
+    /// (`LIPAC_HITBOX_RECORDS` / `LIPAC_HITBOX_ADD_HITS`), active bit, streak
+    /// and heights untouched. No host step between trace and Algorithm 2.
+    Records,
+}
+
+/// The compiled `trace_test.comp` (or `trace_counting.comp`, see
+/// [`HitboxCounting`]) compute pipeline for one [`CountingConfig`].
 #[derive(Debug)]
 pub struct TracePipeline {
     ctx: DeviceContext,
+    hitbox_counting: HitboxCounting,
     set_layout: vk::DescriptorSetLayout,
     layout: vk::PipelineLayout,
     pipeline: vk::Pipeline,
@@ -80,7 +97,9 @@ pub struct TraceBuffers<'a> {
     pub results: &'a Buffer,
     /// `u32` hit counters indexed by instance slot (storage buffer).
     pub instance_hits: &'a Buffer,
-    /// `u32` hit counters indexed by hitbox (storage buffer).
+    /// Hitbox hits, indexed by hitbox (storage buffer): `u32` counters for
+    /// [`HitboxCounting::Counters`], the `HitboxRecord`s for
+    /// [`HitboxCounting::Records`].
     pub hitbox_hits: &'a Buffer,
 }
 
@@ -95,12 +114,27 @@ pub struct TraceBindings {
 }
 
 impl TracePipeline {
-    /// Creates the pipeline with `config` as specialization constants.
+    /// Creates the `trace_test.comp` pipeline (plain hitbox counters) with
+    /// `config` as specialization constants.
     ///
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingConfig) -> Result<Self> {
+        Self::with_hitbox_counting(ctx, config, HitboxCounting::Counters)
+    }
+
+    /// Creates the pipeline that counts hitbox hits as `counting` says, with
+    /// `config` as specialization constants.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    pub fn with_hitbox_counting(
+        ctx: &DeviceContext,
+        config: &CountingConfig,
+        counting: HitboxCounting,
+    ) -> Result<Self> {
         config.validate()?;
         let device = ctx.device();
         let mut bindings = vec![vk::DescriptorSetLayoutBinding::default()
@@ -123,6 +157,7 @@ impl TracePipeline {
             .ctx("vkCreateDescriptorSetLayout")?;
         let mut this = Self {
             ctx: ctx.clone(),
+            hitbox_counting: counting,
             set_layout,
             layout: vk::PipelineLayout::null(),
             pipeline: vk::Pipeline::null(),
@@ -138,7 +173,10 @@ impl TracePipeline {
         // SAFETY: valid device; the set layout was created above.
         this.layout =
             unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
-        let words = spirv_words(TRACE_TEST_SPV)?;
+        let words = spirv_words(match counting {
+            HitboxCounting::Counters => TRACE_TEST_SPV,
+            HitboxCounting::Records => TRACE_COUNTING_SPV,
+        })?;
         let info = vk::ShaderModuleCreateInfo::default().code(&words);
         // SAFETY: valid device; `words` is the embedded, validated SPIR-V.
         let module =
@@ -178,6 +216,11 @@ impl TracePipeline {
             vk::Result::ERROR_UNKNOWN,
         ))?;
         Ok(this)
+    }
+
+    /// Where this pipeline counts hitbox hits.
+    pub fn hitbox_counting(&self) -> HitboxCounting {
+        self.hitbox_counting
     }
 
     /// Creates a descriptor set for `buffers`.

@@ -1,0 +1,333 @@
+//! The record upload scatter: [`RecordUploader`] is the GPU version of
+//! [`lipac_core::culling::apply_uploads`]. It copies the CPU's changed
+//! instance records into the GPU instance buffer **keeping the state bits**
+//! of the GPU copy (Algorithm 2 owns them), then applies the CPU's explicit
+//! state overrides and hitbox active overrides.
+
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::compute::{compute_to_compute, compute_to_everything, ComputeKernels, StorageSet};
+use crate::context::DeviceContext;
+use crate::error::{Result, VkError};
+use crate::memory::{Buffer, MemoryLocation};
+use crate::shaders::UPLOAD_RECORDS_SPV;
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+use lipac_core::culling::Uploads;
+use lipac_core::layout::{HitboxRecord, InstanceRecord, MAX_SLOTS};
+
+const BINDINGS: u32 = 6;
+const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
+
+/// Push constants of `upload_records.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct UploadPush {
+    pass: u32,
+    record_count: u32,
+    state_count: u32,
+    hitbox_count: u32,
+    slot_capacity: u32,
+    hitbox_capacity: u32,
+}
+
+/// The GPU buffers an upload writes (both need `STORAGE_BUFFER` usage; any
+/// memory location, `GpuOnly` included).
+#[derive(Clone, Copy, Debug)]
+pub struct UploadTargets<'a> {
+    /// The GPU's [`InstanceRecord`]s, one per slot.
+    pub instances: &'a Buffer,
+    /// The GPU's [`HitboxRecord`]s.
+    pub hitboxes: &'a Buffer,
+}
+
+/// A descriptor set bound to one [`UploadTargets`], with its own host-visible
+/// staging buffers (sized for every slot and hitbox, so any [`Uploads`]
+/// fits). [`RecordUploader::record`] writes the staging on the host while
+/// recording: use one `UploadBindings` per frame in flight, and keep it (and
+/// the targets) alive until the uploads recorded with it have executed.
+#[derive(Debug)]
+pub struct UploadBindings {
+    set: StorageSet,
+    records: Buffer,
+    slots: Buffer,
+    state_overrides: Buffer,
+    hitbox_overrides: Buffer,
+    slot_capacity: u32,
+    hitbox_capacity: u32,
+}
+
+impl UploadBindings {
+    /// Instance slots the target instance buffer holds.
+    pub fn slot_capacity(&self) -> u32 {
+        self.slot_capacity
+    }
+    /// Hitboxes the target hitbox buffer holds.
+    pub fn hitbox_capacity(&self) -> u32 {
+        self.hitbox_capacity
+    }
+    /// Device memory of the staging buffers, in bytes.
+    pub fn staging_bytes(&self) -> u64 {
+        self.records.size()
+            + self.slots.size()
+            + self.state_overrides.size()
+            + self.hitbox_overrides.size()
+    }
+}
+
+/// What one [`RecordUploader::record`] staged (after removing duplicates).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UploadStats {
+    /// Records scattered (distinct slots of the ranges).
+    pub records: u32,
+    /// State overrides applied (distinct slots, inside the buffer).
+    pub state_overrides: u32,
+    /// Hitbox overrides applied (distinct hitboxes, inside the buffer).
+    pub hitbox_overrides: u32,
+}
+
+/// The GPU version of [`lipac_core::culling::apply_uploads`]
+/// (`upload_records.comp`): scatters CPU-written record ranges into the GPU
+/// instance buffer without overwriting its state bits, then applies state
+/// and hitbox active overrides. The result equals `apply_uploads` bit for
+/// bit when the GPU instance buffer holds `records.len()` records.
+///
+/// Two passes, in one recording ([`RecordUploader::record`]):
+///
+/// 1. every record of `uploads.records` (clamped to `records.len()`) is
+///    copied word for word, except that the two state bits of `packed` stay
+///    those of the GPU copy; every hitbox override sets the active bit and
+///    zeroes the streak, keeping the hit count and heights;
+/// 2. every state override replaces the two state bits.
+///
+/// Duplicates are removed on the host (overrides: the last one wins, as in
+/// the CPU's sequential loop), so no two threads write the same word.
+/// Overrides past the buffers are ignored, as on the CPU.
+///
+/// See also `docs/VULKAN.md`.
+#[derive(Debug)]
+pub struct RecordUploader {
+    kernels: ComputeKernels,
+}
+
+impl RecordUploader {
+    /// Creates the pipeline.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::Vulkan`] when creation fails.
+    pub fn new(ctx: &DeviceContext) -> Result<Self> {
+        let kernels = ComputeKernels::new(
+            ctx,
+            BINDINGS,
+            std::mem::size_of::<UploadPush>() as u32,
+            &[UPLOAD_RECORDS_SPV],
+        )?;
+        Ok(Self { kernels })
+    }
+
+    /// Creates the staging buffers and a descriptor set for `targets`.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::MissingUsage`] without `STORAGE_BUFFER`,
+    /// [`VkError::InvalidArgument`] when a buffer holds no record or more
+    /// than 2^24, [`VkError::WrongContext`], [`VkError::Vulkan`],
+    /// [`VkError::NoMemoryType`].
+    pub fn bind(&self, targets: &UploadTargets<'_>) -> Result<UploadBindings> {
+        let ctx = self.kernels.context();
+        same_context(ctx, targets.instances.context())?;
+        same_context(ctx, targets.hitboxes.context())?;
+        let slots = targets.instances.size() / RECORD_BYTES;
+        let hitboxes = targets.hitboxes.size() / std::mem::size_of::<HitboxRecord>() as u64;
+        if slots == 0 || hitboxes == 0 {
+            return Err(VkError::InvalidArgument(format!(
+                "upload targets hold {slots} instance records and {hitboxes} hitbox records"
+            )));
+        }
+        if slots > u64::from(MAX_SLOTS) || hitboxes > u64::from(MAX_SLOTS) {
+            return Err(VkError::InvalidArgument(format!(
+                "{slots} slots / {hitboxes} hitboxes exceed 2^24"
+            )));
+        }
+        let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let staging = |bytes: u64| Buffer::new(ctx, bytes, storage, MemoryLocation::CpuToGpu);
+        let records = staging(slots * RECORD_BYTES)?;
+        let slot_list = staging(slots * 4)?;
+        let state_overrides = staging(slots * 8)?;
+        let hitbox_overrides = staging(hitboxes * 8)?;
+        let set = self.kernels.bind(
+            &[
+                targets.instances,
+                targets.hitboxes,
+                &records,
+                &slot_list,
+                &state_overrides,
+                &hitbox_overrides,
+            ],
+            "STORAGE_BUFFER on an upload target",
+        )?;
+        Ok(UploadBindings {
+            set,
+            records,
+            slots: slot_list,
+            state_overrides,
+            hitbox_overrides,
+            slot_capacity: slots as u32,
+            hitbox_capacity: hitboxes as u32,
+        })
+    }
+
+    /// Stages `uploads` (the CPU's `records` of its ranges and its
+    /// overrides) into `bindings`' staging buffers and records the two passes
+    /// with barriers: one before (every earlier command's reads and writes of
+    /// the targets, e.g. Algorithm 2's state writes, finish first), one
+    /// between, one after (the records visible to every later command and
+    /// the host). Records nothing but the barriers for empty uploads.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] when a range (clamped to `records.len()`)
+    /// reaches past the target instance buffer; [`VkError::WrongContext`].
+    pub fn record(
+        &self,
+        rec: &mut Recorder<'_>,
+        bindings: &mut UploadBindings,
+        uploads: &Uploads,
+        records: &[InstanceRecord],
+    ) -> Result<UploadStats> {
+        same_context(rec.context(), self.kernels.context())?;
+        let (slots, staged) = stage_records(uploads, records, bindings.slot_capacity)?;
+        let states = last_wins(
+            uploads
+                .state_overrides
+                .iter()
+                .map(|&(slot, state)| [slot, state as u32]),
+            bindings.slot_capacity,
+        );
+        let hitboxes = last_wins(
+            uploads
+                .hitbox_overrides
+                .iter()
+                .map(|&(index, active)| [index, u32::from(active)]),
+            bindings.hitbox_capacity,
+        );
+        if !slots.is_empty() {
+            bindings.slots.write(0, &slots)?;
+            bindings.records.write(0, &staged)?;
+        }
+        if !states.is_empty() {
+            bindings.state_overrides.write(0, &states)?;
+        }
+        if !hitboxes.is_empty() {
+            bindings.hitbox_overrides.write(0, &hitboxes)?;
+        }
+        let mut push = UploadPush {
+            pass: 0,
+            record_count: slots.len() as u32,
+            state_count: states.len() as u32,
+            hitbox_count: hitboxes.len() as u32,
+            slot_capacity: bindings.slot_capacity,
+            hitbox_capacity: bindings.hitbox_capacity,
+        };
+        rec.memory_barrier(
+            vk::PipelineStageFlags2::ALL_COMMANDS,
+            vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE,
+            vk::PipelineStageFlags2::COMPUTE_SHADER,
+            vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+        );
+        let set = &bindings.set;
+        self.kernels.dispatch(
+            rec,
+            set,
+            0,
+            bytemuck::bytes_of(&push),
+            push.record_count + push.hitbox_count,
+        )?;
+        compute_to_compute(rec, false);
+        push.pass = 1;
+        self.kernels
+            .dispatch(rec, set, 0, bytemuck::bytes_of(&push), push.state_count)?;
+        compute_to_everything(rec);
+        Ok(UploadStats {
+            records: push.record_count,
+            state_overrides: push.state_count,
+            hitbox_overrides: push.hitbox_count,
+        })
+    }
+}
+
+/// The distinct slots of `uploads.records` (clamped to `records.len()`, as
+/// `apply_uploads` does), ascending, and their records.
+fn stage_records(
+    uploads: &Uploads,
+    records: &[InstanceRecord],
+    capacity: u32,
+) -> Result<(Vec<u32>, Vec<InstanceRecord>)> {
+    let len = u32::try_from(records.len()).unwrap_or(u32::MAX);
+    let mut slots: Vec<u32> = Vec::new();
+    let mut sorted = true;
+    for range in &uploads.records {
+        let hi = range.end.min(len);
+        let lo = range.start.min(hi);
+        if lo < hi && hi > capacity {
+            return Err(VkError::InvalidArgument(format!(
+                "upload range {lo}..{hi} reaches past the {capacity} GPU instance records"
+            )));
+        }
+        sorted &= slots.last().is_none_or(|&l| l < lo);
+        slots.extend(lo..hi);
+    }
+    if !sorted {
+        slots.sort_unstable();
+        slots.dedup();
+    }
+    let staged = slots.iter().map(|&s| records[s as usize]).collect();
+    Ok((slots, staged))
+}
+
+/// `(key, value)` pairs with keys below `capacity`, one per key (the last
+/// one given, as a sequential loop would leave it), by ascending key.
+fn last_wins(pairs: impl Iterator<Item = [u32; 2]>, capacity: u32) -> Vec<[u32; 2]> {
+    let mut v: Vec<[u32; 2]> = pairs.filter(|p| p[0] < capacity).collect();
+    v.sort_by_key(|p| p[0]); // stable: equal keys keep their order
+    let mut out: Vec<[u32; 2]> = Vec::with_capacity(v.len());
+    for p in v {
+        match out.last_mut() {
+            Some(last) if last[0] == p[0] => *last = p,
+            _ => out.push(p),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn last_wins_keeps_the_last_override_per_key() {
+        let pairs = [[5, 1], [2, 0], [5, 2], [9, 1], [2, 1], [5, 0]];
+        assert_eq!(
+            last_wins(pairs.into_iter(), 9),
+            vec![[2, 1], [5, 0]],
+            "key 9 is outside the capacity"
+        );
+    }
+
+    #[test]
+    fn staged_slots_are_distinct_and_clamped() {
+        let records = vec![InstanceRecord::default(); 10];
+        #[allow(clippy::reversed_empty_ranges)] // apply_uploads treats it as empty
+        let reversed = 8..7;
+        let uploads = Uploads {
+            records: vec![6..12, 1..3, 2..4, reversed],
+            ..Uploads::default()
+        };
+        let (slots, staged) = stage_records(&uploads, &records, 10).unwrap();
+        assert_eq!(slots, vec![1, 2, 3, 6, 7, 8, 9]);
+        assert_eq!(staged.len(), slots.len());
+        // A range inside the CPU records but past the GPU buffer is refused.
+        assert!(stage_records(&uploads, &records, 8).is_err());
+    }
+}

@@ -1,0 +1,208 @@
+//! `RecordUploader` (upload_records.comp) equals
+//! `lipac_core::culling::apply_uploads` bit for bit on random records,
+//! ranges and overrides, over several rounds on the same GPU buffers.
+
+mod common;
+
+use ash::vk;
+use common::*;
+use lipac_core::culling::{apply_uploads, Uploads};
+use lipac_core::layout::{instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+use lipac_vk::{Buffer, MemoryLocation, OneShot, RecordUploader, UploadStats, UploadTargets};
+
+/// splitmix64.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: u32) -> u32 {
+        (self.next() % u64::from(n)) as u32
+    }
+}
+
+/// Records of random bits: every state value incl. 3, NaN/inf floats, any
+/// BLAS address.
+fn random_records<T: bytemuck::Pod>(rng: &mut Rng, n: usize) -> Vec<T> {
+    let words = n * std::mem::size_of::<T>() / 4;
+    let words: Vec<u32> = (0..words).map(|_| rng.next() as u32).collect();
+    bytemuck::cast_slice(&words).to_vec()
+}
+
+fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
+    let mut records = Vec::new();
+    // Mostly sorted disjoint ranges (what the registry hands out), plus
+    // overlapping, empty, reversed and out-of-range ones.
+    let mut at = rng.below(8);
+    while at < slots {
+        let len = 1 + rng.below(12);
+        records.push(at..(at + len).min(slots));
+        at += len + rng.below(40);
+    }
+    for _ in 0..rng.below(4) {
+        let a = rng.below(slots + 20);
+        let b = rng.below(slots + 20);
+        records.push(a..b);
+    }
+    let n_states = rng.below(slots / 2 + 1);
+    let state_overrides = (0..n_states)
+        .map(|_| {
+            let state = match rng.below(3) {
+                0 => InstanceState::Inactive,
+                1 => InstanceState::Omitted,
+                _ => InstanceState::Active,
+            };
+            // Duplicates (small range) and slots past the buffer.
+            (rng.below(slots + 8), state)
+        })
+        .collect();
+    let n_hitboxes = rng.below(hitboxes + 1);
+    let hitbox_overrides = (0..n_hitboxes)
+        .map(|_| (rng.below(hitboxes + 4), rng.below(2) == 1))
+        .collect();
+    Uploads {
+        records,
+        state_overrides,
+        hitbox_overrides,
+    }
+}
+
+#[test]
+fn gpu_upload_equals_apply_uploads() {
+    let Some(h) = headless("gpu_upload_equals_apply_uploads") else {
+        return;
+    };
+    let ctx = h.context();
+    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let uploader = RecordUploader::new(ctx).unwrap();
+    let mut rng = Rng(0x5EED);
+    for (slots, hitboxes) in [(1u32, 1u32), (37, 5), (3000, 257)] {
+        let mut gpu_copy: Vec<InstanceRecord> = random_records(&mut rng, slots as usize);
+        let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);
+        let instances =
+            Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &gpu_copy).unwrap();
+        let hitbox_buf =
+            Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &gpu_hitboxes).unwrap();
+        let mut bindings = uploader
+            .bind(&UploadTargets {
+                instances: &instances,
+                hitboxes: &hitbox_buf,
+            })
+            .unwrap();
+        assert_eq!(
+            (bindings.slot_capacity(), bindings.hitbox_capacity()),
+            (slots, hitboxes)
+        );
+        for round in 0..4 {
+            let cpu_records: Vec<InstanceRecord> = random_records(&mut rng, slots as usize);
+            let uploads = if round == 3 {
+                Uploads::default()
+            } else {
+                random_uploads(&mut rng, slots, hitboxes)
+            };
+            let before = gpu_copy.clone();
+            apply_uploads(&uploads, &cpu_records, &mut gpu_copy, &mut gpu_hitboxes);
+            let stats = one_shot
+                .run(|rec| uploader.record(rec, &mut bindings, &uploads, &cpu_records))
+                .unwrap();
+            let got: Vec<InstanceRecord> = instances.read(0, slots as usize).unwrap();
+            let got_hitboxes: Vec<HitboxRecord> = hitbox_buf.read(0, hitboxes as usize).unwrap();
+            let what = format!("{slots} slots, {hitboxes} hitboxes, round {round}");
+            for (i, (g, w)) in got.iter().zip(&gpu_copy).enumerate() {
+                assert_eq!(
+                    bytemuck::bytes_of(g),
+                    bytemuck::bytes_of(w),
+                    "{what}: record {i}: {g:?} vs {w:?}"
+                );
+            }
+            for (i, (g, w)) in got_hitboxes.iter().zip(&gpu_hitboxes).enumerate() {
+                assert_eq!(
+                    bytemuck::bytes_of(g),
+                    bytemuck::bytes_of(w),
+                    "{what}: hitbox {i}"
+                );
+            }
+            // The uploads did something, and the state bits were kept where
+            // no override names the slot.
+            if round < 3 && slots > 1 {
+                assert!(stats.records > 0, "{what}");
+                let overridden: std::collections::HashSet<u32> =
+                    uploads.state_overrides.iter().map(|o| o.0).collect();
+                let mut kept = 0;
+                for (s, (g, b)) in got.iter().zip(&before).enumerate() {
+                    if !overridden.contains(&(s as u32)) {
+                        assert_eq!(
+                            g.packed & instance_bits::STATE_MASK,
+                            b.packed & instance_bits::STATE_MASK,
+                            "{what}: slot {s}"
+                        );
+                        kept += 1;
+                    }
+                }
+                assert!(kept > 0, "{what}");
+            } else if round == 3 {
+                assert_eq!(stats, UploadStats::default());
+            }
+        }
+    }
+    assert_no_validation_errors(&h);
+}
+
+#[test]
+fn upload_targets_are_checked() {
+    let Some(h) = headless("upload_targets_are_checked") else {
+        return;
+    };
+    let ctx = h.context();
+    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let uploader = RecordUploader::new(ctx).unwrap();
+    let small = Buffer::new(ctx, 64, storage, MemoryLocation::GpuOnly).unwrap();
+    let hitboxes = Buffer::new(ctx, 120, storage, MemoryLocation::GpuOnly).unwrap();
+    // 64 bytes hold no 96-byte record.
+    assert!(uploader
+        .bind(&UploadTargets {
+            instances: &small,
+            hitboxes: &hitboxes,
+        })
+        .is_err());
+    let no_storage = Buffer::new(
+        ctx,
+        960,
+        vk::BufferUsageFlags::TRANSFER_DST,
+        MemoryLocation::GpuOnly,
+    )
+    .unwrap();
+    assert!(matches!(
+        uploader.bind(&UploadTargets {
+            instances: &no_storage,
+            hitboxes: &hitboxes,
+        }),
+        Err(lipac_vk::VkError::MissingUsage(_))
+    ));
+    // A range inside the CPU records but past the GPU buffer is refused.
+    let instances = Buffer::new(ctx, 960, storage, MemoryLocation::GpuOnly).unwrap();
+    let mut bindings = uploader
+        .bind(&UploadTargets {
+            instances: &instances,
+            hitboxes: &hitboxes,
+        })
+        .unwrap();
+    let records = vec![InstanceRecord::default(); 20];
+    let uploads = Uploads {
+        records: vec![5..15, 15..15],
+        ..Uploads::default()
+    };
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let refused = one_shot.run(|rec| uploader.record(rec, &mut bindings, &uploads, &records));
+    assert!(matches!(
+        refused,
+        Err(lipac_vk::VkError::InvalidArgument(_))
+    ));
+    drop((bindings, instances));
+    assert_no_validation_errors(&h);
+}
