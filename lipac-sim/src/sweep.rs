@@ -814,8 +814,10 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
         s,
         "Data: [sweep.csv](sweep.csv); everything, with per-frame errors: [sweep.json](sweep.json).\n\n\
          Memory is modelled on lavapipe's acceleration-structure sizes (docs/MEMORY_MODEL.md). \
-         Trace times are wall-clock times of the CPU tracer on whatever else the machine ran; \
-         the full-scene strategy's is the ground truth's (its render is reused)."
+         Trace times are the CPU time (summed over threads) of the bounce and shadow rays traced \
+         against each configuration's TLAS, on whatever else the machine ran; primary hits and the \
+         rasterized-shadow fallback stand in for rasterization and are excluded. The full-scene \
+         strategy's is the ground truth's (its render is reused)."
     );
     s
 }
