@@ -51,7 +51,7 @@ use crate::camera::Camera;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, BUILD_SCRATCH_BYTES};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
-use crate::scene::{flags, Scene};
+use crate::scene::{flags, Scene, SceneInstance};
 use crate::trace::Counters;
 
 /// How an instance's BLAS is owned.
@@ -438,6 +438,25 @@ impl SetStrategy {
             wanted: vec![false; instances],
         })
     }
+    /// Marks scene instance `slot` wanted where `keep(slot, instance)` holds,
+    /// then [`SetStrategy::run`]s.
+    fn run_selected(
+        &mut self,
+        ctx: &FrameContext<'_>,
+        out: &mut Vec<TlasInstance>,
+        mut keep: impl FnMut(usize, &SceneInstance) -> bool,
+    ) -> Result<StrategyFrame, SimError> {
+        let instances = ctx.scene.instances();
+        self.wanted.clear();
+        self.wanted.extend(
+            instances
+                .iter()
+                .enumerate()
+                .map(|(slot, inst)| keep(slot, inst)),
+        );
+        self.run(ctx, out)
+    }
+
     fn run(
         &mut self,
         ctx: &FrameContext<'_>,
@@ -536,12 +555,10 @@ impl Strategy for FrustumRadius {
     ) -> Result<StrategyFrame, SimError> {
         let frustum = ctx.camera.frustum();
         let eye = ctx.camera.position;
-        let n = ctx.scene.instances().len();
-        self.set.wanted.resize(n, false);
-        for (w, inst) in self.set.wanted.iter_mut().zip(ctx.scene.instances()) {
-            *w = distance_to(eye, &inst.aabb) <= self.radius || frustum.intersects_aabb(&inst.aabb);
-        }
-        self.set.run(ctx, out)
+        let radius = self.radius;
+        self.set.run_selected(ctx, out, |_, inst| {
+            distance_to(eye, &inst.aabb) <= radius || frustum.intersects_aabb(&inst.aabb)
+        })
     }
 }
 
@@ -582,12 +599,9 @@ impl Strategy for Heuristic {
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
         let eye = ctx.camera.position;
-        let n = ctx.scene.instances().len();
-        self.set.wanted.resize(n, false);
-        for (w, inst) in self.set.wanted.iter_mut().zip(ctx.scene.instances()) {
-            *w = self.rule.accepts(eye, &inst.aabb);
-        }
-        self.set.run(ctx, out)
+        let rule = self.rule;
+        self.set
+            .run_selected(ctx, out, |_, inst| rule.accepts(eye, &inst.aabb))
     }
 }
 
@@ -626,11 +640,8 @@ impl Strategy for Oracle {
                 b: n,
             });
         }
-        self.0.wanted.resize(n, false);
-        for (w, &h) in self.0.wanted.iter_mut().zip(ctx.ground_truth_hits) {
-            *w = h > 0;
-        }
-        self.0.run(ctx, out)
+        let hits = ctx.ground_truth_hits;
+        self.0.run_selected(ctx, out, |slot, _| hits[slot] > 0)
     }
 }
 
