@@ -132,26 +132,7 @@ impl ComputeKernels {
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
             .descriptor_count(self.bindings)];
-        let info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(1)
-            .pool_sizes(&sizes);
-        // SAFETY: valid device and create info.
-        let pool =
-            unsafe { device.create_descriptor_pool(&info, None) }.ctx("vkCreateDescriptorPool")?;
-        let layouts = [self.set_layout];
-        let alloc = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(pool)
-            .set_layouts(&layouts);
-        // SAFETY: the pool has room for one set of this layout.
-        let set = match unsafe { device.allocate_descriptor_sets(&alloc) } {
-            Ok(s) if !s.is_empty() => s[0],
-            other => {
-                // SAFETY: the pool is unused.
-                unsafe { device.destroy_descriptor_pool(pool, None) };
-                let e = other.err().unwrap_or(vk::Result::ERROR_OUT_OF_POOL_MEMORY);
-                return Err(VkError::vk("vkAllocateDescriptorSets", e));
-            }
-        };
+        let (pool, set) = allocate_one_set(&self.ctx, &sizes, self.set_layout)?;
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
             .map(|b| {
@@ -253,6 +234,36 @@ impl Drop for StorageSet {
 
 /// Records `vkCmdFillBuffer(buffer, offset, size, 0)`; the buffer needs
 /// `TRANSFER_DST` usage (checked by the callers' `bind`).
+/// Creates a descriptor pool with `sizes` and allocates one set of `layout`
+/// from it; the pool is destroyed again if the allocation fails.
+pub(crate) fn allocate_one_set(
+    ctx: &DeviceContext,
+    sizes: &[vk::DescriptorPoolSize],
+    layout: vk::DescriptorSetLayout,
+) -> Result<(vk::DescriptorPool, vk::DescriptorSet)> {
+    let device = ctx.device();
+    let info = vk::DescriptorPoolCreateInfo::default()
+        .max_sets(1)
+        .pool_sizes(sizes);
+    // SAFETY: valid device and create info.
+    let pool =
+        unsafe { device.create_descriptor_pool(&info, None) }.ctx("vkCreateDescriptorPool")?;
+    let layouts = [layout];
+    let alloc = vk::DescriptorSetAllocateInfo::default()
+        .descriptor_pool(pool)
+        .set_layouts(&layouts);
+    // SAFETY: the pool has room for one set of this layout.
+    match unsafe { device.allocate_descriptor_sets(&alloc) } {
+        Ok(s) if !s.is_empty() => Ok((pool, s[0])),
+        other => {
+            // SAFETY: the pool is unused.
+            unsafe { device.destroy_descriptor_pool(pool, None) };
+            let e = other.err().unwrap_or(vk::Result::ERROR_OUT_OF_POOL_MEMORY);
+            Err(VkError::vk("vkAllocateDescriptorSets", e))
+        }
+    }
+}
+
 pub(crate) fn record_zero(rec: &mut Recorder<'_>, buffer: vk::Buffer, offset: u64, size: u64) {
     // SAFETY: recording on this device (Recorder contract); callers pass a
     // live buffer of this device (held by their bindings) with TRANSFER_DST

@@ -5,6 +5,7 @@
 
 use crate::accel::same_context;
 use crate::commands::Recorder;
+use crate::compute::allocate_one_set;
 use crate::context::DeviceContext;
 use crate::counting::CountingConfig;
 use crate::error::{Result, VkContext, VkError};
@@ -252,26 +253,7 @@ impl TracePipeline {
                 .ty(vk::DescriptorType::STORAGE_BUFFER)
                 .descriptor_count(BINDINGS - 1),
         ];
-        let info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(1)
-            .pool_sizes(&sizes);
-        // SAFETY: valid device and create info.
-        let pool =
-            unsafe { device.create_descriptor_pool(&info, None) }.ctx("vkCreateDescriptorPool")?;
-        let layouts = [self.set_layout];
-        let alloc = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(pool)
-            .set_layouts(&layouts);
-        // SAFETY: the pool has room for one set of this layout.
-        let set = match unsafe { device.allocate_descriptor_sets(&alloc) } {
-            Ok(s) if !s.is_empty() => s[0],
-            other => {
-                // SAFETY: the pool is unused.
-                unsafe { device.destroy_descriptor_pool(pool, None) };
-                let e = other.err().unwrap_or(vk::Result::ERROR_OUT_OF_POOL_MEMORY);
-                return Err(VkError::vk("vkAllocateDescriptorSets", e));
-            }
-        };
+        let (pool, set) = allocate_one_set(&self.ctx, &sizes, self.set_layout)?;
         let accels = [buffers.tlas.accel().raw()];
         let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
             .acceleration_structures(&accels);
