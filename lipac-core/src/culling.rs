@@ -668,6 +668,46 @@ impl<H: HitboxIndex> Culling<H> {
 
     // ---- instances ------------------------------------------------------
 
+    /// Reserves room for at least `additional` more instances in the
+    /// registry ([`InstanceRegistry::reserve`]) and in the per-slot buffers
+    /// and upload overrides that registration fills, so that registering a
+    /// scene of known size allocates each container once.
+    ///
+    /// ```
+    /// use glam::{Affine3A, Vec3};
+    /// use lipac_core::culling::{Culling, CullingConfig};
+    /// use lipac_core::grid::{GridConfig, HitboxGrid};
+    /// use lipac_core::instance::{InstanceDesc, MeshId};
+    /// use lipac_core::math::Aabb;
+    ///
+    /// let grid = HitboxGrid::new(GridConfig::default())?;
+    /// let mut culling = Culling::new(grid, CullingConfig::new(1))?;
+    /// culling.reserve(100);
+    /// let reserved = culling.memory_usage();
+    /// let aabb = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    /// for i in 0..100 {
+    ///     culling.register(InstanceDesc::new(MeshId(i), Affine3A::IDENTITY, aabb))?;
+    /// }
+    /// assert_eq!(culling.memory_usage(), reserved); // nothing grew
+    /// # Ok::<(), lipac_core::error::CoreError>(())
+    /// ```
+    pub fn reserve(&mut self, additional: usize) {
+        self.reserve_slots(additional);
+    }
+
+    /// [`Culling::reserve`]; returns the number of slots it covers.
+    pub(crate) fn reserve_slots(&mut self, additional: usize) -> usize {
+        let slots = self.registry.reserve_slots(additional);
+        self.instance_hits
+            .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
+        self.awaiting
+            .reserve_exact(slots.saturating_sub(self.awaiting.len()));
+        // Each registration writes a state override (until the next take).
+        let additional = additional.min(slots);
+        self.state_overrides.reserve(additional);
+        slots
+    }
+
     /// Registers an instance ([`InstanceRegistry::register`]): inactive, no
     /// BLAS. Its state write is an upload override.
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
@@ -809,13 +849,12 @@ impl<H: HitboxIndex> Culling<H> {
                 out.already_provided += 1;
             } else {
                 self.awaiting[slot as usize] = true;
-                let desc = self.registry.desc(handle)?;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
-                    mesh: desc.mesh,
-                    lod: desc.lod,
-                    flags: desc.flags,
+                    mesh: self.registry.mesh(handle)?,
+                    lod: record.lod,
+                    flags: InstanceFlags::from_bits_truncate(record.packed),
                 });
             }
         }
@@ -889,10 +928,11 @@ impl<H: HitboxIndex> Culling<H> {
             };
             let slot = c.slot as usize;
             let record = self.registry.records()[slot];
-            let Ok(desc) = self.registry.desc(handle).copied() else {
+            let Ok(mesh) = self.registry.mesh(handle) else {
                 st.dead += 1;
                 continue;
             };
+            let (lod, flags) = (record.lod, InstanceFlags::from_bits_truncate(record.packed));
             let active = record.state() == InstanceState::Active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
@@ -900,9 +940,9 @@ impl<H: HitboxIndex> Culling<H> {
             let event = |action| CommandEvent {
                 handle,
                 slot: c.slot,
-                mesh: desc.mesh,
-                lod: desc.lod,
-                flags: desc.flags,
+                mesh,
+                lod,
+                flags,
                 priority: c.priority,
                 command: c.kind,
                 action,
