@@ -104,9 +104,19 @@ fn main() {
     while n <= max {
         for (reserve, how) in [(false, "one by one"), (true, "reserve(n) first")] {
             let (mut culling, t) = build(n, reserve);
-            row(&format!("{how}, before take_uploads"), n, t, &culling.memory_usage());
+            row(
+                &format!("{how}, before take_uploads"),
+                n,
+                t,
+                &culling.memory_usage(),
+            );
             culling.take_uploads();
-            row(&format!("{how}, after take_uploads"), n, t, &culling.memory_usage());
+            row(
+                &format!("{how}, after take_uploads"),
+                n,
+                t,
+                &culling.memory_usage(),
+            );
         }
         n = n.saturating_mul(10);
     }

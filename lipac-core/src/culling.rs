@@ -527,7 +527,7 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     fed_back: bool,
     queue: CommandQueue,
     latency: Option<LatencyMitigation>,
-    state_overrides: HashMap<u32, InstanceState>,
+    state_overrides: StateOverrides,
     hitbox_overrides: HashMap<u32, bool>,
     scratch: Vec<u32>,
 }
@@ -552,7 +552,7 @@ impl<H: HitboxIndex> Culling<H> {
             fed_back: false,
             queue: CommandQueue::new(MAX_SLOTS),
             latency,
-            state_overrides: HashMap::new(),
+            state_overrides: StateOverrides::default(),
             hitbox_overrides: HashMap::new(),
             scratch: Vec::new(),
             config,
@@ -660,8 +660,7 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec_bytes::<HitboxRecord>(self.hitboxes.capacity()),
             command_buffer: self.commands.heap_bytes(),
             command_queue: self.queue.heap_bytes(),
-            overrides: hash_map_bytes(&self.state_overrides)
-                + hash_map_bytes(&self.hitbox_overrides),
+            overrides: self.state_overrides.heap_bytes() + hash_map_bytes(&self.hitbox_overrides),
             scratch: vec_bytes::<u32>(self.scratch.capacity()),
         }
     }
@@ -703,8 +702,7 @@ impl<H: HitboxIndex> Culling<H> {
         self.awaiting
             .reserve_exact(slots.saturating_sub(self.awaiting.len()));
         // Each registration writes a state override (until the next take).
-        let additional = additional.min(slots);
-        self.state_overrides.reserve(additional);
+        self.state_overrides.reserve(slots, additional.min(slots));
         slots
     }
 
@@ -758,7 +756,7 @@ impl<H: HitboxIndex> Culling<H> {
         let slot = instance.slot as usize;
         let build_was_pending = std::mem::take(&mut self.awaiting[slot]);
         self.instance_hits[slot] = 0;
-        self.state_overrides.remove(&instance.slot);
+        self.state_overrides.remove(instance.slot);
         Ok(Removal {
             instance,
             build_was_pending,
@@ -989,8 +987,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// and the CPU's state-bit writes since the last call (see
     /// [`Uploads`]). The CPU reference needs none of it.
     pub fn take_uploads(&mut self) -> Uploads {
-        let mut state_overrides: Vec<(u32, InstanceState)> = self.state_overrides.drain().collect();
-        state_overrides.sort_unstable_by_key(|&(s, _)| s);
+        let state_overrides = self.state_overrides.take();
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
@@ -1101,6 +1098,9 @@ pub fn apply_uploads(
         }
     }
 }
+
+mod state_overrides;
+use state_overrides::StateOverrides;
 
 #[cfg(test)]
 mod tests;

@@ -88,7 +88,14 @@ mod tests {
             c.iter().map(|v| v.to_bits()).collect()
         };
         let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let special = [0.0, -0.0, f32::MIN_POSITIVE / 2.0, -1e-45, f32::MAX, f32::MIN];
+        let special = [
+            0.0,
+            -0.0,
+            f32::MIN_POSITIVE / 2.0,
+            -1e-45,
+            f32::MAX,
+            f32::MIN,
+        ];
         for case in 0..10_000u32 {
             let mut r = [0f32; 12];
             for (i, v) in r.iter_mut().enumerate() {

@@ -366,8 +366,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// handle map or slot buffers (quarantined slots not counted).
     pub fn capacity(&self) -> usize {
         let unused = self.records.capacity().min(self.occupants.capacity()) - self.records.len();
-        let slots = (self.instances.len() + self.free.len() + unused)
-            .min(self.config.max_slots as usize);
+        let slots =
+            (self.instances.len() + self.free.len() + unused).min(self.config.max_slots as usize);
         self.instances.capacity().min(slots)
     }
 

@@ -446,12 +446,27 @@ fn desc_is_rebuilt_bit_exactly_from_the_record() {
     assert_eq!(got, d);
     // Equality treats 0.0 and -0.0 alike: compare the bits too.
     let bits = |d: &InstanceDesc| {
-        let mut v: Vec<u32> = d.transform.to_cols_array().iter().map(|x| x.to_bits()).collect();
-        v.extend(d.aabb.min.to_array().iter().chain(&d.aabb.max.to_array()).map(|x| x.to_bits()));
+        let mut v: Vec<u32> = d
+            .transform
+            .to_cols_array()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect();
+        v.extend(
+            d.aabb
+                .min
+                .to_array()
+                .iter()
+                .chain(&d.aabb.max.to_array())
+                .map(|x| x.to_bits()),
+        );
         v
     };
     assert_eq!(bits(&got), bits(&d));
-    assert_eq!((r.mesh(h).unwrap(), r.lod(h).unwrap(), r.flags(h).unwrap()), (d.mesh, d.lod, d.flags));
+    assert_eq!(
+        (r.mesh(h).unwrap(), r.lod(h).unwrap(), r.flags(h).unwrap()),
+        (d.mesh, d.lod, d.flags)
+    );
     // State and BLAS share the record's words with the description.
     r.set_state_of(h, InstanceState::Active).unwrap();
     r.set_blas(h, u64::MAX).unwrap();
