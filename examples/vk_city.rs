@@ -368,7 +368,7 @@ fn run() -> AnyResult<()> {
             let Some(handle) = registry.handle_at(c.slot) else {
                 continue;
             };
-            let desc = *registry.desc(handle)?;
+            let desc = registry.desc(handle)?;
             let active =
                 scheduler.current_blas(key).is_some() || scheduler.pending_lod(key).is_some();
             match c.kind {

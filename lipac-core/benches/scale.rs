@@ -9,10 +9,12 @@
 //! Scene: ~16 instances per 16 m hitbox on a square grid, 10 % needing a
 //! unique BLAS. A band of hitbox columns an eighth of the world wide is hot
 //! (2500 hits per counting box, 1500 per traced instance; elsewhere 10 and
-//! 5) and moves one column every 8 frames. Setup registers every instance
-//! through `Culling::register` (its time and the CPU memory from
-//! `Culling::memory_usage` are printed), then warms up without a budget for 16 frames or until the hot band's
-//! first activation has drained (at most 64), so it is not a backlog.
+//! 5) and moves one column every 8 frames. Setup reserves room for the `n`
+//! instances (`Culling::reserve`, as a level load of known size would) and
+//! registers them one by one through `Culling::register` (its time and the
+//! CPU memory from `Culling::memory_usage` are printed), then warms up
+//! without a budget for 16 frames or until the hot band's first activation
+//! has drained (at most 64), so it is not a backlog.
 //!
 //! `cargo bench -p lipac-core --bench scale` (`LIPAC_SCALE_MAX=1000000`
 //! leaves out 10M).
@@ -62,6 +64,7 @@ fn setup(n: u32) -> Loop {
         (rng >> 40) as f32 / (1u64 << 24) as f32
     };
     let start = Instant::now();
+    culling.reserve(n as usize);
     for i in 0..n {
         let c = Vec3::new(unit() * side as f32, 0.0, unit() * side as f32);
         let aabb = Aabb::new(c - Vec3::new(2.0, 0.0, 2.0), c + Vec3::new(2.0, 6.0, 2.0));

@@ -5,9 +5,13 @@
 //! (default 1,000,000; pass 10000000 for 10M).
 //!
 //! Scene: ~16 instances per 16 m hitbox (square world), latency mitigation
-//! on, a few frames run so every per-slot buffer exists; figures before and
-//! after the first `take_uploads` (a GPU backend takes them every frame; a
-//! CPU backend never does, so the CPU-write overrides stay allocated).
+//! on, a few frames run so every per-slot buffer exists. Each size is built
+//! twice: instances registered one by one into empty containers (which grow
+//! by doubling), and after `Culling::reserve(n)` (each container allocated
+//! once). Registration time (wall clock, one run) is printed with each row.
+//! Figures are taken before and after the first `take_uploads` (a GPU
+//! backend takes them every frame; a CPU backend never does, so the
+//! CPU-write overrides stay allocated).
 
 use glam::camera::rh::{proj, view};
 use glam::{Affine3A, Vec3};
@@ -18,7 +22,7 @@ use lipac_core::latency::Frustum;
 use lipac_core::math::Aabb;
 use lipac_core::memory::MemoryUsage;
 
-fn build(n: u32) -> Culling {
+fn build(n: u32, reserve: bool) -> (Culling, f64) {
     let w = ((f64::from(n) / 16.0).sqrt().ceil() as u32).max(1);
     let side = f64::from(w) * 16.0;
     let grid = HitboxGrid::new(GridConfig {
@@ -28,6 +32,10 @@ fn build(n: u32) -> Culling {
     })
     .expect("grid");
     let mut culling = Culling::new(grid, CullingConfig::new(0xC0BE)).expect("config");
+    let start = std::time::Instant::now();
+    if reserve {
+        culling.reserve(n as usize);
+    }
     let mut rng = 0x9E37_79B9_7F4A_7C15u64;
     let mut unit = || {
         rng ^= rng << 13;
@@ -41,6 +49,7 @@ fn build(n: u32) -> Culling {
         let d = InstanceDesc::new(MeshId(i % 64), Affine3A::from_translation(c), aabb);
         culling.register(d).expect("register");
     }
+    let registration = start.elapsed().as_secs_f64();
     let camera = Vec3::new(side as f32 * 0.5, 2.0, side as f32 * 0.5);
     let v = view::look_to_mat4(camera, Vec3::NEG_Z, Vec3::Y);
     let p = proj::vulkan::perspective(1.0, 1.7, 0.1, 1000.0);
@@ -60,13 +69,13 @@ fn build(n: u32) -> Culling {
         culling.process_feedback().expect("feedback");
         culling.take_commands();
     }
-    culling
+    (culling, registration)
 }
 
-fn row(label: &str, n: u32, m: &MemoryUsage) {
+fn row(label: &str, n: u32, registration: f64, m: &MemoryUsage) {
     let per = |b: u64| b as f64 / f64::from(n);
     println!(
-        "| {label} | {n} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} MB | {:.1} MB |",
+        "| {label} | {n} | {registration:.3} s | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} MB | {:.1} MB |",
         per(m.records),
         per(m.handles),
         per(m.slot_occupants),
@@ -89,14 +98,26 @@ fn main() {
         .unwrap_or(1_000_000);
     println!("CPU bytes per instance (from capacities; see lipac_core::memory)");
     println!();
-    println!("| when | instances | records | handles | occupants | free + dirty | hits + awaiting | latency bits | queue | overrides | scratch | **per instance** | per-slot total | hitboxes + command buffer |");
-    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+    println!("| registration, when | instances | registration time | records | handles | occupants | free + dirty | hits + awaiting | latency bits | queue | overrides | scratch | **per instance** | per-slot total | hitboxes + command buffer |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     let mut n = 10_000u32;
     while n <= max {
-        let mut culling = build(n);
-        row("before take_uploads", n, &culling.memory_usage());
-        culling.take_uploads();
-        row("after take_uploads", n, &culling.memory_usage());
+        for (reserve, how) in [(false, "one by one"), (true, "reserve(n) first")] {
+            let (mut culling, t) = build(n, reserve);
+            row(
+                &format!("{how}, before take_uploads"),
+                n,
+                t,
+                &culling.memory_usage(),
+            );
+            culling.take_uploads();
+            row(
+                &format!("{how}, after take_uploads"),
+                n,
+                t,
+                &culling.memory_usage(),
+            );
+        }
         n = n.saturating_mul(10);
     }
 }

@@ -527,7 +527,7 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     fed_back: bool,
     queue: CommandQueue,
     latency: Option<LatencyMitigation>,
-    state_overrides: HashMap<u32, InstanceState>,
+    state_overrides: StateOverrides,
     hitbox_overrides: HashMap<u32, bool>,
     scratch: Vec<u32>,
 }
@@ -552,7 +552,7 @@ impl<H: HitboxIndex> Culling<H> {
             fed_back: false,
             queue: CommandQueue::new(MAX_SLOTS),
             latency,
-            state_overrides: HashMap::new(),
+            state_overrides: StateOverrides::default(),
             hitbox_overrides: HashMap::new(),
             scratch: Vec::new(),
             config,
@@ -660,13 +660,51 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec_bytes::<HitboxRecord>(self.hitboxes.capacity()),
             command_buffer: self.commands.heap_bytes(),
             command_queue: self.queue.heap_bytes(),
-            overrides: hash_map_bytes(&self.state_overrides)
-                + hash_map_bytes(&self.hitbox_overrides),
+            overrides: self.state_overrides.heap_bytes() + hash_map_bytes(&self.hitbox_overrides),
             scratch: vec_bytes::<u32>(self.scratch.capacity()),
         }
     }
 
     // ---- instances ------------------------------------------------------
+
+    /// Reserves room for at least `additional` more instances in the
+    /// registry ([`InstanceRegistry::reserve`]) and in the per-slot buffers
+    /// and upload overrides that registration fills, so that registering a
+    /// scene of known size allocates each container once.
+    ///
+    /// ```
+    /// use glam::{Affine3A, Vec3};
+    /// use lipac_core::culling::{Culling, CullingConfig};
+    /// use lipac_core::grid::{GridConfig, HitboxGrid};
+    /// use lipac_core::instance::{InstanceDesc, MeshId};
+    /// use lipac_core::math::Aabb;
+    ///
+    /// let grid = HitboxGrid::new(GridConfig::default())?;
+    /// let mut culling = Culling::new(grid, CullingConfig::new(1))?;
+    /// culling.reserve(100);
+    /// let reserved = culling.memory_usage();
+    /// let aabb = Aabb::new(Vec3::ZERO, Vec3::ONE);
+    /// for i in 0..100 {
+    ///     culling.register(InstanceDesc::new(MeshId(i), Affine3A::IDENTITY, aabb))?;
+    /// }
+    /// assert_eq!(culling.memory_usage(), reserved); // nothing grew
+    /// # Ok::<(), lipac_core::error::CoreError>(())
+    /// ```
+    pub fn reserve(&mut self, additional: usize) {
+        self.reserve_slots(additional);
+    }
+
+    /// [`Culling::reserve`]; returns the number of slots it covers.
+    pub(crate) fn reserve_slots(&mut self, additional: usize) -> usize {
+        let slots = self.registry.reserve_slots(additional);
+        self.instance_hits
+            .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
+        self.awaiting
+            .reserve_exact(slots.saturating_sub(self.awaiting.len()));
+        // Each registration writes a state override (until the next take).
+        self.state_overrides.reserve(slots, additional.min(slots));
+        slots
+    }
 
     /// Registers an instance ([`InstanceRegistry::register`]): inactive, no
     /// BLAS. Its state write is an upload override.
@@ -718,7 +756,7 @@ impl<H: HitboxIndex> Culling<H> {
         let slot = instance.slot as usize;
         let build_was_pending = std::mem::take(&mut self.awaiting[slot]);
         self.instance_hits[slot] = 0;
-        self.state_overrides.remove(&instance.slot);
+        self.state_overrides.remove(instance.slot);
         Ok(Removal {
             instance,
             build_was_pending,
@@ -809,13 +847,12 @@ impl<H: HitboxIndex> Culling<H> {
                 out.already_provided += 1;
             } else {
                 self.awaiting[slot as usize] = true;
-                let desc = self.registry.desc(handle)?;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
-                    mesh: desc.mesh,
-                    lod: desc.lod,
-                    flags: desc.flags,
+                    mesh: self.registry.mesh(handle)?,
+                    lod: record.lod,
+                    flags: InstanceFlags::from_bits_truncate(record.packed),
                 });
             }
         }
@@ -889,10 +926,11 @@ impl<H: HitboxIndex> Culling<H> {
             };
             let slot = c.slot as usize;
             let record = self.registry.records()[slot];
-            let Ok(desc) = self.registry.desc(handle).copied() else {
+            let Ok(mesh) = self.registry.mesh(handle) else {
                 st.dead += 1;
                 continue;
             };
+            let (lod, flags) = (record.lod, InstanceFlags::from_bits_truncate(record.packed));
             let active = record.state() == InstanceState::Active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
@@ -900,9 +938,9 @@ impl<H: HitboxIndex> Culling<H> {
             let event = |action| CommandEvent {
                 handle,
                 slot: c.slot,
-                mesh: desc.mesh,
-                lod: desc.lod,
-                flags: desc.flags,
+                mesh,
+                lod,
+                flags,
                 priority: c.priority,
                 command: c.kind,
                 action,
@@ -949,8 +987,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// and the CPU's state-bit writes since the last call (see
     /// [`Uploads`]). The CPU reference needs none of it.
     pub fn take_uploads(&mut self) -> Uploads {
-        let mut state_overrides: Vec<(u32, InstanceState)> = self.state_overrides.drain().collect();
-        state_overrides.sort_unstable_by_key(|&(s, _)| s);
+        let state_overrides = self.state_overrides.take();
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
@@ -1061,6 +1098,9 @@ pub fn apply_uploads(
         }
     }
 }
+
+mod state_overrides;
+use state_overrides::StateOverrides;
 
 #[cfg(test)]
 mod tests;

@@ -42,6 +42,15 @@ impl DirtySet {
         }
     }
 
+    /// Reserves room for indices below `len` and for `additional` more
+    /// dirty indices before the next take.
+    pub fn reserve(&mut self, len: usize, additional: usize) {
+        let words = len.div_ceil(64);
+        self.bits
+            .reserve_exact(words.saturating_sub(self.bits.len()));
+        self.list.reserve(additional);
+    }
+
     /// Whether index `i` is dirty.
     pub fn contains(&self, i: u32) -> bool {
         self.bits

@@ -77,6 +77,46 @@ mod tests {
         assert_eq!(rows_to_affine(&r), a);
     }
 
+    /// The registry keeps an instance's transform only as the rows of its
+    /// GPU record and rebuilds the `Affine3A` from them, so the round trip
+    /// must be exact for every bit pattern (signed zeros, subnormals, NaN
+    /// payloads included), not just within a tolerance.
+    #[test]
+    fn rows_round_trip_is_bit_exact() {
+        let bits = |a: &Affine3A| -> Vec<u32> {
+            let c = a.to_cols_array();
+            c.iter().map(|v| v.to_bits()).collect()
+        };
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let special = [
+            0.0,
+            -0.0,
+            f32::MIN_POSITIVE / 2.0,
+            -1e-45,
+            f32::MAX,
+            f32::MIN,
+        ];
+        for case in 0..10_000u32 {
+            let mut r = [0f32; 12];
+            for (i, v) in r.iter_mut().enumerate() {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                *v = if case % 4 == 0 {
+                    special[(state % special.len() as u64) as usize]
+                } else {
+                    f32::from_bits((state >> 32) as u32 ^ i as u32)
+                };
+            }
+            let a = rows_to_affine(&r);
+            let back = affine_to_rows(&a);
+            let same: Vec<u32> = back.iter().map(|v| v.to_bits()).collect();
+            let want: Vec<u32> = r.iter().map(|v| v.to_bits()).collect();
+            assert_eq!(same, want, "rows -> affine -> rows, case {case}");
+            assert_eq!(bits(&rows_to_affine(&affine_to_rows(&a))), bits(&a));
+        }
+    }
+
     #[test]
     fn aabb_validity() {
         assert!(Aabb::new(Vec3::ZERO, Vec3::ZERO).is_valid());

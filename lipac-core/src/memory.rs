@@ -20,8 +20,8 @@ pub struct MemoryUsage {
     /// The CPU mirror of the GPU instance buffer: one 96-byte
     /// [`InstanceRecord`](crate::layout::InstanceRecord) per slot.
     pub records: u64,
-    /// Handle map (`slotmap`): the engine's description of every instance
-    /// and its slot.
+    /// Handle map (`slotmap`): every instance's slot and mesh (the rest of
+    /// its description is read back from its record).
     pub handles: u64,
     /// Per-slot occupant (handle and registration serial).
     pub slot_occupants: u64,

@@ -34,8 +34,8 @@ use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::layout::{instance_bits, InstanceRecord, InstanceState, MAX_SLOTS};
-use crate::math::{affine_to_rows, Aabb};
-use glam::Affine3A;
+use crate::math::{affine_to_rows, rows_to_affine, Aabb};
+use glam::{Affine3A, Vec3};
 use slotmap::{Key, SlotMap};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
@@ -90,10 +90,13 @@ pub struct RemovedInstance {
     pub hitbox: u32,
 }
 
-#[derive(Clone, Debug)]
+/// What the handle map keeps per instance: only what the slot's
+/// [`InstanceRecord`] does not hold (the rest of the [`InstanceDesc`] is
+/// rebuilt from the record, see [`desc_from_record`]).
+#[derive(Clone, Copy, Debug)]
 struct Entry {
-    desc: InstanceDesc,
     slot: u32,
+    mesh: MeshId,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -219,6 +222,25 @@ fn pack(desc: &InstanceDesc, state: InstanceState) -> u32 {
         | (u32::from(desc.vk_flags) << instance_bits::VK_FLAGS_SHIFT)
 }
 
+/// The description a live record was built from by [`build_record`]: every
+/// field but the mesh is stored in the record bit for bit (the transform as
+/// its rows, which [`rows_to_affine`] inverts exactly).
+fn desc_from_record(record: &InstanceRecord, mesh: MeshId) -> InstanceDesc {
+    InstanceDesc {
+        mesh,
+        lod: record.lod,
+        transform: rows_to_affine(&record.transform),
+        aabb: Aabb::new(
+            Vec3::from_array(record.aabb_min),
+            Vec3::from_array(record.aabb_max),
+        ),
+        flags: InstanceFlags::from_bits_truncate(record.packed),
+        mask: record.mask(),
+        sbt_offset: record.sbt_offset,
+        vk_flags: record.vk_flags(),
+    }
+}
+
 fn build_record(
     desc: &InstanceDesc,
     rows: [f32; 12],
@@ -288,11 +310,11 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     pub fn set_hitbox_index(&mut self, index: H) -> Result<H, CoreError> {
         let mut hitboxes = Vec::with_capacity(self.instances.len());
         for entry in self.instances.values() {
-            let hitbox = index
-                .hitbox_of(&entry.desc.aabb)
-                .ok_or(CoreError::OutsideWorld {
-                    center: entry.desc.aabb.center(),
-                })?;
+            let r = &self.records[entry.slot as usize];
+            let aabb = Aabb::new(Vec3::from_array(r.aabb_min), Vec3::from_array(r.aabb_max));
+            let hitbox = index.hitbox_of(&aabb).ok_or(CoreError::OutsideWorld {
+                center: aabb.center(),
+            })?;
             hitboxes.push((entry.slot, hitbox));
         }
         for (slot, hitbox) in hitboxes {
@@ -303,6 +325,50 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             }
         }
         Ok(std::mem::replace(&mut self.index, index))
+    }
+
+    /// Reserves room for at least `additional` more instances, so that
+    /// registering a scene of known size allocates each container once
+    /// instead of growing it by doubling (which copies it and leaves up to
+    /// half of it unused). Dead slots free for reuse count towards it;
+    /// nothing is reserved beyond [`RegistryConfig::max_slots`].
+    ///
+    /// ```
+    /// use lipac_core::grid::{GridConfig, HitboxGrid};
+    /// use lipac_core::registry::{InstanceRegistry, RegistryConfig};
+    /// let grid = HitboxGrid::new(GridConfig::default())?;
+    /// let mut reg = InstanceRegistry::new(grid, RegistryConfig::default())?;
+    /// reg.reserve(1000);
+    /// assert!(reg.capacity() >= 1000);
+    /// # Ok::<(), lipac_core::error::CoreError>(())
+    /// ```
+    pub fn reserve(&mut self, additional: usize) {
+        self.reserve_slots(additional);
+    }
+
+    /// [`InstanceRegistry::reserve`]; returns the number of slots the
+    /// reservation covers (for per-slot buffers elsewhere).
+    pub(crate) fn reserve_slots(&mut self, additional: usize) -> usize {
+        let max = self.config.max_slots as usize;
+        let additional = additional.min(max.saturating_sub(self.instances.len()));
+        let new_slots = additional
+            .saturating_sub(self.free.len())
+            .min(max.saturating_sub(self.records.len()));
+        let slots = self.records.len() + new_slots;
+        self.instances.reserve(additional);
+        self.records.reserve_exact(new_slots);
+        self.occupants.reserve_exact(new_slots);
+        self.dirty.reserve(slots, additional);
+        slots
+    }
+
+    /// Live instances the registry can hold now without reallocating its
+    /// handle map or slot buffers (quarantined slots not counted).
+    pub fn capacity(&self) -> usize {
+        let unused = self.records.capacity().min(self.occupants.capacity()) - self.records.len();
+        let slots =
+            (self.instances.len() + self.free.len() + unused).min(self.config.max_slots as usize);
+        self.instances.capacity().min(slots)
     }
 
     /// Checks `desc` and finds its hitbox; returns the transform rows and the
@@ -353,7 +419,10 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             self.records.push(InstanceRecord::default());
             self.occupants.push(SlotOccupant::default());
         }
-        let handle = self.instances.insert(Entry { desc, slot });
+        let handle = self.instances.insert(Entry {
+            slot,
+            mesh: desc.mesh,
+        });
         self.records[slot as usize] = build_record(&desc, rows, hitbox, InstanceState::Inactive, 0);
         self.occupants[slot as usize] = SlotOccupant {
             handle: Some(handle),
@@ -374,13 +443,14 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         handle: InstanceHandle,
         desc: InstanceDesc,
     ) -> Result<InstanceDesc, CoreError> {
-        let slot = self.slot(handle)?;
+        let entry = self.entry(handle)?;
         let (rows, hitbox) = self.check(&desc)?;
-        let record = &mut self.records[slot as usize];
+        let record = &mut self.records[entry.slot as usize];
+        let old = desc_from_record(record, entry.mesh);
         *record = build_record(&desc, rows, hitbox, record.state(), record.blas);
-        self.dirty.mark(slot);
-        let entry = &mut self.instances[handle];
-        Ok(std::mem::replace(&mut entry.desc, desc))
+        self.dirty.mark(entry.slot);
+        self.instances[handle].mesh = desc.mesh;
+        Ok(old)
     }
 
     /// Moves an instance: new transform and world-space AABB (its hitbox
@@ -394,7 +464,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let desc = InstanceDesc {
             transform,
             aabb,
-            ..*self.desc(handle)?
+            ..self.desc(handle)?
         };
         self.update(handle, desc).map(|_| ())
     }
@@ -404,7 +474,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     pub fn set_lod(&mut self, handle: InstanceHandle, lod: u32) -> Result<u32, CoreError> {
         let desc = InstanceDesc {
             lod,
-            ..*self.desc(handle)?
+            ..self.desc(handle)?
         };
         self.update(handle, desc).map(|old| old.lod)
     }
@@ -417,7 +487,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     ) -> Result<InstanceFlags, CoreError> {
         let desc = InstanceDesc {
             flags,
-            ..*self.desc(handle)?
+            ..self.desc(handle)?
         };
         self.update(handle, desc).map(|old| old.flags)
     }
@@ -440,7 +510,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         }
         Ok(RemovedInstance {
             slot,
-            desc: entry.desc,
+            desc: desc_from_record(&record, entry.mesh),
             blas: record.blas,
             state: record.state(),
             hitbox: record.hitbox,
@@ -508,9 +578,13 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
 
     /// The GPU slot of an instance.
     pub fn slot(&self, handle: InstanceHandle) -> Result<u32, CoreError> {
+        self.entry(handle).map(|e| e.slot)
+    }
+
+    fn entry(&self, handle: InstanceHandle) -> Result<Entry, CoreError> {
         self.instances
             .get(handle)
-            .map(|e| e.slot)
+            .copied()
             .ok_or_else(|| stale(handle))
     }
 
@@ -543,27 +617,28 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         &mut self.records
     }
 
-    /// An instance's description.
-    pub fn desc(&self, handle: InstanceHandle) -> Result<&InstanceDesc, CoreError> {
-        self.instances
-            .get(handle)
-            .map(|e| &e.desc)
-            .ok_or_else(|| stale(handle))
+    /// An instance's description, as last registered or updated. It is
+    /// rebuilt from the instance's record (which holds every field but the
+    /// mesh, bit for bit), so it is returned by value.
+    pub fn desc(&self, handle: InstanceHandle) -> Result<InstanceDesc, CoreError> {
+        let e = self.entry(handle)?;
+        Ok(desc_from_record(&self.records[e.slot as usize], e.mesh))
     }
 
     /// An instance's mesh.
     pub fn mesh(&self, handle: InstanceHandle) -> Result<MeshId, CoreError> {
-        self.desc(handle).map(|d| d.mesh)
+        self.entry(handle).map(|e| e.mesh)
     }
 
     /// An instance's LOD.
     pub fn lod(&self, handle: InstanceHandle) -> Result<u32, CoreError> {
-        self.desc(handle).map(|d| d.lod)
+        self.record(handle).map(|r| r.lod)
     }
 
     /// An instance's flags.
     pub fn flags(&self, handle: InstanceHandle) -> Result<InstanceFlags, CoreError> {
-        self.desc(handle).map(|d| d.flags)
+        self.record(handle)
+            .map(|r| InstanceFlags::from_bits_truncate(r.packed))
     }
 
     /// An instance's state (as the CPU mirror knows it).

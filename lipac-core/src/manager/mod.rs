@@ -389,6 +389,19 @@ impl<H: HitboxIndex> Manager<H> {
         self.catalog.insert(mesh, lods)
     }
 
+    /// Reserves room for at least `additional` more instances in the
+    /// command loop ([`Culling::reserve`]) and in the manager's per-slot
+    /// state, so that registering a scene of known size allocates each
+    /// container once.
+    pub fn reserve(&mut self, additional: usize) {
+        let slots = self.culling.reserve_slots(additional);
+        let more = slots.saturating_sub(self.slots.len());
+        self.slots.reserve_exact(more);
+        self.last_hits.reserve_exact(more);
+        self.data_dirty_mark.reserve_exact(more);
+        self.data_dirty.reserve(additional.min(slots));
+    }
+
     /// Registers an instance: inactive, no BLAS, a geometry-data range for
     /// its mesh's LOD `desc.lod`. Fails, changing nothing but possibly the
     /// buffer's capacity, for a mesh or LOD not in the catalog or an invalid
@@ -911,7 +924,7 @@ impl<H: HitboxIndex> Manager<H> {
         };
         let desc = InstanceDesc {
             lod: traced.into(),
-            ..*self.culling.registry().desc(s.handle)?
+            ..self.culling.registry().desc(s.handle)?
         };
         self.culling.update(s.handle, desc)?;
         if let Some(s) = self.slots[slot as usize].as_mut() {

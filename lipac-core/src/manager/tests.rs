@@ -353,3 +353,31 @@ fn an_instance_turning_inactive_releases_its_blas_through_the_scheduler() {
     let v = r.m.instance(h).unwrap();
     assert_eq!((v.traced_lod, v.data.end - v.data.start), (1, 32));
 }
+
+#[test]
+fn reserve_covers_a_scene_of_known_size() {
+    let mut rig = Rig::new(DataConfig::default());
+    let m = &mut rig.m;
+    m.reserve(64);
+    let loop_bytes = m.culling().memory_usage();
+    let caps = (
+        m.slots.capacity(),
+        m.last_hits.capacity(),
+        m.data_dirty.capacity(),
+    );
+    assert!(caps.0 >= 64 && caps.1 >= 64 && caps.2 >= 64);
+    for i in 0..64 {
+        m.register(desc(1.0 + (i % 60) as f32, 5.0, 1 + i % 2))
+            .unwrap();
+    }
+    // Nothing the registrations fill grew.
+    assert_eq!(m.culling().memory_usage(), loop_bytes);
+    assert_eq!(
+        (
+            m.slots.capacity(),
+            m.last_hits.capacity(),
+            m.data_dirty.capacity()
+        ),
+        caps
+    );
+}

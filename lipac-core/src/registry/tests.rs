@@ -78,7 +78,7 @@ fn new_instances_are_inactive_alive_and_match_their_description() {
     assert_eq!(r.mesh(h).unwrap(), MeshId(9));
     assert_eq!(r.lod(h).unwrap(), 3);
     assert_eq!(r.flags(h).unwrap(), d.flags);
-    assert_eq!(r.desc(h).unwrap(), &d);
+    assert_eq!(r.desc(h).unwrap(), d);
 }
 
 #[test]
@@ -203,7 +203,7 @@ fn invalid_input_is_rejected_and_changes_nothing() {
     assert_eq!(r.len(), 1);
     assert_eq!(r.registration_count(), 1);
     assert!(!r.has_dirty(), "a failed call marked slots dirty");
-    assert_eq!(r.desc(h).unwrap(), &desc_at(1, 8.0, 8.0));
+    assert_eq!(r.desc(h).unwrap(), desc_at(1, 8.0, 8.0));
     // The next valid registration gets the next slot: nothing was reserved.
     let n = r.register(desc_at(1, 8.0, 8.0)).unwrap();
     assert_eq!(r.slot(n).unwrap(), 1);
@@ -424,6 +424,102 @@ fn replacing_the_hitbox_index_is_all_or_nothing() {
 }
 
 #[test]
+fn desc_is_rebuilt_bit_exactly_from_the_record() {
+    let mut r = registry(0);
+    let t = Affine3A::from_scale_rotation_translation(
+        Vec3::new(1.5, -0.0, 3.0e-39),
+        glam::Quat::from_rotation_y(0.3) * glam::Quat::from_rotation_x(-1.1),
+        Vec3::new(33.3, -0.0, 77.7),
+    );
+    let d = InstanceDesc {
+        mesh: MeshId(u32::MAX),
+        lod: u32::MAX,
+        transform: t,
+        aabb: Aabb::new(Vec3::new(30.0, -0.0, 70.0), Vec3::new(36.6, 1e-40, 85.4)),
+        flags: InstanceFlags::ALL,
+        mask: 0xA5,
+        sbt_offset: MAX_SBT_OFFSET,
+        vk_flags: 0xFF,
+    };
+    let h = r.register(d).unwrap();
+    let got = r.desc(h).unwrap();
+    assert_eq!(got, d);
+    // Equality treats 0.0 and -0.0 alike: compare the bits too.
+    let bits = |d: &InstanceDesc| {
+        let mut v: Vec<u32> = d
+            .transform
+            .to_cols_array()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect();
+        v.extend(
+            d.aabb
+                .min
+                .to_array()
+                .iter()
+                .chain(&d.aabb.max.to_array())
+                .map(|x| x.to_bits()),
+        );
+        v
+    };
+    assert_eq!(bits(&got), bits(&d));
+    assert_eq!(
+        (r.mesh(h).unwrap(), r.lod(h).unwrap(), r.flags(h).unwrap()),
+        (d.mesh, d.lod, d.flags)
+    );
+    // State and BLAS share the record's words with the description.
+    r.set_state_of(h, InstanceState::Active).unwrap();
+    r.set_blas(h, u64::MAX).unwrap();
+    assert_eq!(r.desc(h).unwrap(), d);
+    let removed = r.remove(h).unwrap();
+    assert_eq!(bits(&removed.desc), bits(&d));
+    assert_eq!(removed.desc, d);
+}
+
+#[test]
+fn handle_map_does_not_hold_the_description() {
+    // The slot of the handle map holds only what the record lacks; a
+    // description alone is over 100 bytes.
+    assert!(std::mem::size_of::<InstanceDesc>() > 100);
+    assert!(std::mem::size_of::<Entry>() <= 8);
+}
+
+#[test]
+fn reserve_allocates_once_and_counts_free_slots() {
+    let mut r = registry(0);
+    r.reserve(200);
+    assert!(r.capacity() >= 200);
+    let before = r.heap_bytes();
+    let handles: Vec<_> = (0..200)
+        .map(|i| r.register(desc_at(i, 8.0 + (i % 100) as f32, 8.0)).unwrap())
+        .collect();
+    // Registering what was reserved reallocated nothing.
+    assert_eq!(r.heap_bytes(), before);
+    for h in &handles[..50] {
+        r.remove(*h).unwrap();
+    }
+    // 50 free slots: reserving 60 more adds room for 10 slots only.
+    r.reserve(60);
+    assert!(r.capacity() >= 210);
+    assert!((210..220).contains(&r.records.capacity()));
+}
+
+#[test]
+fn reserve_stops_at_the_slot_limit() {
+    let mut r = InstanceRegistry::new(
+        grid(),
+        RegistryConfig {
+            max_slots: 1000,
+            ..RegistryConfig::default()
+        },
+    )
+    .unwrap();
+    r.reserve(usize::MAX); // no capacity overflow, no huge allocation
+    assert_eq!(r.capacity(), 1000);
+    assert!(r.records.capacity() < 2000);
+}
+
+#[test]
 fn serials_distinguish_reused_slots() {
     let mut r = registry(0);
     let a = r.register(desc_at(0, 8.0, 8.0)).unwrap();
@@ -621,7 +717,7 @@ proptest! {
                     e.blas,
                 );
                 prop_assert_eq!(rec, want);
-                prop_assert_eq!(r.desc(h).unwrap(), &e.desc);
+                prop_assert_eq!(r.desc(h).unwrap(), e.desc);
             }
             prop_assert_eq!(seen.len(), live.len());
             for s in 0..r.slot_count() {
