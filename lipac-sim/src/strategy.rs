@@ -191,6 +191,42 @@ impl BlasWork {
     }
 }
 
+/// Plans this frame's BLAS work on `scheduler` under `budgets` and
+/// acknowledges every build at once with a fresh fake address (a CPU backend
+/// builds synchronously), counting the builds, refits and primitives.
+pub(crate) fn plan_and_ack(
+    scheduler: &mut BuildScheduler,
+    budgets: &BuildBudgets,
+    next_address: &mut u64,
+) -> Result<BlasWork, SimError> {
+    let plan = scheduler.plan(budgets).map_err(SimError::core)?;
+    let mut work = BlasWork {
+        frees: plan.frees.len() as u64,
+        ..BlasWork::default()
+    };
+    for u in plan.updates() {
+        match u.mode {
+            UpdateMode::Refit => {
+                work.refits += 1;
+                work.primitives_refit += u.primitives;
+            }
+            UpdateMode::Rebuild => {
+                work.builds += 1;
+                work.primitives_built += u.primitives;
+            }
+        }
+    }
+    for b in plan.builds() {
+        work.builds += 1;
+        work.primitives_built += b.primitives;
+        *next_address += 0x100;
+        scheduler
+            .ack_built(b.id, b.result_bytes, *next_address)
+            .map_err(SimError::core)?;
+    }
+    Ok(work)
+}
+
 /// Budgets that never limit a frame (the baselines' sets are always built).
 pub fn unlimited_budgets() -> BuildBudgets {
     BuildBudgets {
@@ -317,33 +353,7 @@ impl BlasAccounting {
                 )
                 .map_err(SimError::core)?;
         }
-        let plan = self.scheduler.plan(&self.budgets).map_err(SimError::core)?;
-        let mut work = BlasWork {
-            frees: plan.frees.len() as u64,
-            ..BlasWork::default()
-        };
-        for u in plan.updates() {
-            match u.mode {
-                UpdateMode::Refit => {
-                    work.refits += 1;
-                    work.primitives_refit += u.primitives;
-                }
-                UpdateMode::Rebuild => {
-                    work.builds += 1;
-                    work.primitives_built += u.primitives;
-                }
-            }
-        }
-        let builds: Vec<_> = plan.builds().copied().collect();
-        for b in builds {
-            work.builds += 1;
-            work.primitives_built += b.primitives;
-            self.next_address += 0x100;
-            self.scheduler
-                .ack_built(b.id, b.result_bytes, self.next_address)
-                .map_err(SimError::core)?;
-        }
-        Ok(work)
+        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
     }
     /// Instances whose BLAS address changed since the last call.
     pub fn take_address_changes(&mut self) -> Vec<u32> {

@@ -34,8 +34,7 @@ use std::time::Instant;
 
 use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
 use lipac_core::build_plan::{
-    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest,
-    SchedulerConfig, UpdateMode,
+    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
 use lipac_core::grid::HitboxGrid;
@@ -53,6 +52,7 @@ use crate::memory::{blas_bytes, lipac_overhead_bytes, tlas_bytes, BUILD_SCRATCH_
 use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
+use crate::strategy::plan_and_ack;
 use crate::strategy::{unlimited_budgets, BlasWork, StrategyKind};
 use crate::tlas::CountingConfig;
 use crate::trace::SlotSet;
@@ -214,33 +214,7 @@ impl Blases {
             }
         }
         let _ = frame;
-        let plan = self.scheduler.plan(&self.budgets).map_err(core)?;
-        let mut work = BlasWork {
-            frees: plan.frees.len() as u64,
-            ..BlasWork::default()
-        };
-        for u in plan.updates() {
-            match u.mode {
-                UpdateMode::Refit => {
-                    work.refits += 1;
-                    work.primitives_refit += u.primitives;
-                }
-                UpdateMode::Rebuild => {
-                    work.builds += 1;
-                    work.primitives_built += u.primitives;
-                }
-            }
-        }
-        let builds: Vec<_> = plan.builds().copied().collect();
-        for b in builds {
-            work.builds += 1;
-            work.primitives_built += b.primitives;
-            self.next_address += 0x100;
-            self.scheduler
-                .ack_built(b.id, b.result_bytes, self.next_address)
-                .map_err(core)?;
-        }
-        Ok(work)
+        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
     }
     fn address(&self, slot: u32) -> Option<u64> {
         self.scheduler.blas_address(InstanceKey(slot))
