@@ -245,11 +245,47 @@ fn reserved_block_storage_is_used_without_reallocating() {
     let mut a = TlsfAllocator::new(1 << 20);
     a.reserve_blocks(1000);
     let storage = a.nodes.as_ptr();
-    let hs: Vec<_> = (0..999).map(|_| a.allocate(16).unwrap()).collect();
-    // 999 allocations and the free tail: 1000 records, no reallocation.
-    assert_eq!(a.nodes.len(), 1000);
+    // The free tail's record and 1000 reserved ones, created up front.
+    assert_eq!(a.nodes.len(), 1001);
+    let hs: Vec<_> = (0..1000).map(|_| a.allocate(16).unwrap()).collect();
+    // 1000 allocations and the free tail: no new record, no reallocation.
+    assert_eq!(a.nodes.len(), 1001);
     assert_eq!(a.nodes.as_ptr(), storage);
+    // Reserving what is already there adds nothing.
+    a.reserve_blocks(0);
+    assert_eq!(a.nodes.len(), 1001);
     for h in &hs {
+        a.free(h.handle).unwrap();
+    }
+    a.check_invariants();
+    assert_eq!(a.stats().free_block_count, 1);
+}
+
+#[test]
+fn reserving_counts_vacant_records_and_keeps_invariants() {
+    let mut a = TlsfAllocator::new(1 << 20);
+    let hs: Vec<_> = (0..10).map(|_| a.allocate(64).unwrap()).collect();
+    // Free every other one: 5 holes, no merges, no record released.
+    for h in hs.iter().step_by(2) {
+        a.free(h.handle).unwrap();
+    }
+    // Freeing the rest merges everything back: records become vacant.
+    for h in hs.iter().skip(1).step_by(2) {
+        a.free(h.handle).unwrap();
+    }
+    a.check_invariants();
+    let (records, vacant) = (a.nodes.len(), a.nodes.len() - 1);
+    // Enough vacant records already: nothing added.
+    a.reserve_blocks(vacant);
+    assert_eq!(a.nodes.len(), records);
+    // Only the missing ones are added.
+    a.reserve_blocks(vacant + 5);
+    assert_eq!(a.nodes.len(), records + 5);
+    a.check_invariants();
+    let hs: Vec<_> = (0..vacant + 5).map(|_| a.allocate(8).unwrap()).collect();
+    assert_eq!(a.nodes.len(), records + 5);
+    a.check_invariants();
+    for h in hs {
         a.free(h.handle).unwrap();
     }
     a.check_invariants();

@@ -271,12 +271,40 @@ impl TlsfAllocator {
         this
     }
 
-    /// Reserves room for at least `additional` more block records (each
-    /// live allocation and each free block is one), so that the record
-    /// storage does not have to grow (reallocate and copy) later. Optional:
-    /// storage grows on demand without it.
+    /// Makes sure at least `additional` more block records (each live
+    /// allocation and each free block is one) exist beyond those in use, so
+    /// that the record storage does not have to grow (reallocate and copy)
+    /// later. The records are created and written now, so the first
+    /// allocations that use them do not take page faults either (what a
+    /// frame loop wants). Optional: storage grows on demand without it.
     pub fn reserve_blocks(&mut self, additional: usize) {
-        self.nodes.reserve(additional);
+        let missing = additional
+            .saturating_sub(self.vacant_count)
+            .min(MAX_NODES - self.nodes.len());
+        if missing == 0 {
+            return;
+        }
+        // Created as vacant records (written now, so the memory is touched
+        // here and not on first use), stacked lowest index on top.
+        let start = self.nodes.len();
+        self.nodes.reserve_exact(missing);
+        let below = self.vacant_head;
+        self.nodes.extend((start..start + missing).map(|i| Node {
+            offset: 0,
+            size: 0,
+            prev_phys: NIL,
+            next_phys: NIL,
+            links: [
+                VACANT,
+                if i + 1 < start + missing {
+                    (i + 1) as u32
+                } else {
+                    below
+                },
+            ],
+        }));
+        self.vacant_head = start as u32;
+        self.vacant_count += missing;
     }
 
     /// Managed bytes.
@@ -316,6 +344,7 @@ impl TlsfAllocator {
     /// [`AllocError::ZeroSize`]; [`AllocError::OutOfSpace`] with the capacity
     /// to [`grow`](Self::grow) to; [`AllocError::CapacityOverflow`];
     /// [`AllocError::TooManyBlocks`].
+    #[inline]
     pub fn allocate(&mut self, size: u64) -> Result<Allocation, AllocError> {
         self.allocate_log2(size, 0)
     }
@@ -356,6 +385,7 @@ impl TlsfAllocator {
     /// # Errors
     /// [`AllocError::StaleHandle`] (double free), [`AllocError::UnknownHandle`],
     /// [`AllocError::ForeignHandle`]; the allocator is unchanged then.
+    #[inline]
     pub fn free(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
         let i = self.validate(handle)?;
         self.used_bytes -= self.nodes[i as usize].size;
@@ -808,7 +838,7 @@ impl TlsfAllocator {
     /// `[start, start + size)` allocated with alignment `2^align_log2`,
     /// splitting off the padding before and the remainder after as free
     /// blocks. Callers ran `ensure_nodes(2)` first.
-    #[inline]
+    #[inline(always)]
     pub(super) fn take_block(
         &mut self,
         i: u32,
