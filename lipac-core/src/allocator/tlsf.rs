@@ -944,12 +944,12 @@ impl TlsfAllocator {
         }
         // The left side's links are unchanged (whoever precedes `keep`
         // already points at it); the right side's point past the merge.
-        if keep != i || next != right {
-            if next == NIL {
-                self.last = keep;
-            } else {
-                self.nodes[next as usize].prev_phys = keep;
-            }
+        // Written even without a merge (then it is the same value), which
+        // costs less than a poorly predictable branch on "merged?".
+        if next == NIL {
+            self.last = keep;
+        } else {
+            self.nodes[next as usize].prev_phys = keep;
         }
         let n = &mut self.nodes[keep as usize];
         n.offset = offset;
