@@ -8,6 +8,11 @@
 //! `1e9 / elements-per-second`.
 //!
 //! Run: `cargo bench -p lipac-core --bench allocator`
+//!
+//! Criterion measures the allocators one after the other; on a machine whose
+//! speed drifts, compare them with the paired replay too:
+//! `cargo run -p lipac-core --release --example allocator_replay -- pair all 1000`
+//! (see docs/BENCHMARKS.md).
 
 use std::hint::black_box;
 use std::time::Duration;
