@@ -281,30 +281,21 @@ impl TlsfAllocator {
         let missing = additional
             .saturating_sub(self.vacant_count)
             .min(MAX_NODES - self.nodes.len());
-        if missing == 0 {
-            return;
-        }
-        // Created as vacant records (written now, so the memory is touched
-        // here and not on first use), stacked lowest index on top.
         let start = self.nodes.len();
         self.nodes.reserve_exact(missing);
-        let below = self.vacant_head;
-        self.nodes.extend((start..start + missing).map(|i| Node {
+        let blank = Node {
             offset: 0,
             size: 0,
             prev_phys: NIL,
             next_phys: NIL,
-            links: [
-                VACANT,
-                if i + 1 < start + missing {
-                    (i + 1) as u32
-                } else {
-                    below
-                },
-            ],
-        }));
-        self.vacant_head = start as u32;
-        self.vacant_count += missing;
+            links: [NIL, NIL],
+        };
+        self.nodes.resize(start + missing, blank);
+        // Written now, so the memory is touched here and not on first use;
+        // released highest first, so the lowest index is on top.
+        for i in (start..start + missing).rev() {
+            self.release_node(i as u32);
+        }
     }
 
     /// Managed bytes.
