@@ -33,3 +33,5 @@ pub mod registry;
 pub mod state;
 pub mod thresholds;
 pub mod trace;
+
+pub use manager::{Ack, FrameBudgets, Manager, ManagerConfig, ManagerError, ManagerPlan};

@@ -68,10 +68,12 @@
 #![doc = include_str!("../../examples/manager_frame.rs")]
 //! ```
 
+mod ack;
 mod catalog;
 mod error;
 mod stats;
 
+pub use ack::Ack;
 pub use catalog::{MeshCatalog, MeshLod, MAX_LODS};
 pub use error::ManagerError;
 pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
@@ -680,6 +682,25 @@ impl<H: HitboxIndex> Manager<H> {
             data_uploads,
             data_growth,
         })
+    }
+
+    /// Takes one acknowledgement from the backend: the instances waiting for
+    /// a built or compacted BLAS get its address in their records before
+    /// this returns. An acknowledgement the manager never planned (or one
+    /// acknowledged twice) is an error and changes nothing.
+    pub fn handle_ack(&mut self, ack: Ack) -> Result<(), ManagerError> {
+        match ack {
+            Ack::Built {
+                build,
+                result_bytes,
+                address,
+            } => self.ack_built(build, result_bytes, address),
+            Ack::CompactedSize {
+                build,
+                compacted_bytes,
+            } => self.ack_compacted_size(build, compacted_bytes),
+            Ack::Compacted { op, address } => self.ack_compacted(op, address),
+        }
     }
 
     /// Acknowledges build `build` ([`BuildScheduler::ack_built`]); the
