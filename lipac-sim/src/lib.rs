@@ -13,6 +13,7 @@ pub mod memory;
 pub mod mesh;
 pub mod metrics;
 pub mod pathtrace;
+pub mod plots;
 pub mod record;
 pub mod replay;
 pub mod report;
