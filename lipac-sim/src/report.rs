@@ -1,9 +1,6 @@
 //! The comparison's outputs: a terminal table, and a report folder with
-//! `report.md`, `report.json`, `frames.csv` and SVG plots.
-//!
-//! The plots are hand-written SVG (polylines and circles, about a hundred
-//! lines here) rather than `plotters`: four simple charts do not justify its
-//! dependency tree and build time on a 2-core machine.
+//! `report.md`, `report.json`, `frames.csv` and SVG plots
+//! ([`crate::plots`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -224,19 +221,19 @@ pub fn write_report(r: &CompareReport, dir: &Path) -> Result<Vec<PathBuf>, SimEr
             PLOTS[0],
             line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
                 m.total_bytes() as f64 / MIB
-            }),
+            })?,
         ),
         (
             PLOTS[1],
-            line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64),
+            line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64)?,
         ),
         (
             PLOTS[2],
             line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
                 m.error
-            }),
+            })?,
         ),
-        (PLOTS[3], scatter_plot(r)),
+        (PLOTS[3], scatter_plot(r)?),
     ];
     let mut paths = Vec::new();
     for (name, body) in files {

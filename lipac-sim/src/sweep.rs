@@ -752,9 +752,9 @@ pub fn write_sweep(r: &SweepReport, dir: &Path) -> Result<Vec<PathBuf>, SimError
         sweep_markdown(r),
         json,
         sweep_csv(r),
-        pareto_plot(r, 0),
-        pareto_plot(r, 1),
-        pareto_plot(r, 2),
+        pareto_plot(r, 0)?,
+        pareto_plot(r, 1)?,
+        pareto_plot(r, 2)?,
     ];
     let mut paths = Vec::new();
     for (name, body) in SWEEP_FILES.iter().zip(bodies) {
