@@ -78,6 +78,8 @@ pub struct Axis {
     pub range: Range<f64>,
     /// Logarithmic (base 10).
     pub log: bool,
+    /// Whole numbers only (frames): no ticks between them.
+    pub integer: bool,
 }
 
 impl Axis {
@@ -95,6 +97,7 @@ impl Axis {
                 0.0..hi
             },
             log: false,
+            integer: false,
         }
     }
 
@@ -104,6 +107,24 @@ impl Axis {
             label: label.to_string(),
             range,
             log: false,
+            integer: false,
+        }
+    }
+
+    /// A linear axis over exactly `range` with whole-number ticks.
+    pub fn whole(label: &str, range: Range<f64>) -> Self {
+        Self {
+            integer: true,
+            ..Self::fixed(label, range)
+        }
+    }
+
+    /// How many tick labels to ask plotters for.
+    fn ticks(&self) -> usize {
+        if self.integer {
+            ((self.range.end - self.range.start).floor() as usize + 1).clamp(2, 7)
+        } else {
+            7
         }
     }
 
@@ -129,6 +150,7 @@ impl Axis {
                 label,
                 range: lo..hi,
                 log: true,
+                integer: false,
             }
         } else {
             Self::linear(label, values)
@@ -268,8 +290,8 @@ impl Plot {
                 .configure_mesh()
                 .x_desc(&self.x.label)
                 .y_desc(&self.y.label)
-                .x_labels(7)
-                .y_labels(7)
+                .x_labels(self.x.ticks())
+                .y_labels(self.y.ticks())
                 .x_label_formatter(&fmt)
                 .y_label_formatter(&fmt)
                 .light_line_style(WHITE.mix(0.0))
@@ -473,7 +495,7 @@ pub fn line_chart(
     let last = f64::from(r.frames.saturating_sub(1).max(1));
     let mut p = Plot::new(
         title,
-        Axis::fixed("frame", 0.0..last),
+        Axis::whole("frame", 0.0..last),
         Axis::auto(ylabel, &values),
     );
     for (i, st) in r.strategies.iter().enumerate() {

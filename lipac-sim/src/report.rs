@@ -1,13 +1,16 @@
 //! The comparison's outputs: a terminal table, and a report folder with
-//! `report.md`, `report.json`, `frames.csv` and SVG plots
-//! ([`crate::plots`]).
+//! `report.md`, `report.json`, `frames.csv`, SVG plots ([`crate::plots`]),
+//! `report.html` ([`crate::html`]) and, when asked, snapshot pictures
+//! ([`crate::snapshot`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::compare::CompareReport;
 use crate::error::SimError;
+use crate::html::report_html;
 use crate::plots::{line_plot, scatter_plot};
+use crate::snapshot::{write_snapshots, Snapshot};
 
 const MIB: f64 = 1024.0 * 1024.0;
 
@@ -86,8 +89,9 @@ pub fn headline(r: &CompareReport) -> Option<String> {
     (!out.is_empty()).then_some(out)
 }
 
-/// The Markdown report.
-pub fn markdown(r: &CompareReport) -> String {
+/// The Markdown report; `snapshots`: whether the report folder has
+/// `snapshots/` (mentioned with `report.html`).
+pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# lipac: culling strategies compared\n");
     let th = r.thresholds;
@@ -164,7 +168,13 @@ pub fn markdown(r: &CompareReport) -> String {
     }
     let _ = writeln!(
         s,
-        "Per-frame data: [frames.csv](frames.csv); everything: [report.json](report.json)."
+        "Per-frame data: [frames.csv](frames.csv); everything: [report.json](report.json). \
+         Open [report.html](report.html) in a browser for the plots{}.",
+        if snapshots {
+            ", the snapshot images, error heat maps and TLAS maps (files in snapshots/)"
+        } else {
+            " (run with `--snapshots 0,90,180` for images, error heat maps and TLAS maps)"
+        }
     );
     s
 }
@@ -208,38 +218,51 @@ pub fn csv(r: &CompareReport) -> String {
     s
 }
 
-/// Writes `report.md`, `report.json`, `frames.csv` and the [`PLOTS`] into
-/// `dir` (created if missing); returns the paths written.
+/// The [`PLOTS`] as SVG documents, in order.
+pub fn plots(r: &CompareReport) -> Result<Vec<String>, SimError> {
+    Ok(vec![
+        line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
+            m.total_bytes() as f64 / MIB
+        })?,
+        line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64)?,
+        line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
+            m.error
+        })?,
+        scatter_plot(r)?,
+    ])
+}
+
+/// Writes `report.md`, `report.json`, `frames.csv`, the [`PLOTS`] and
+/// `report.html` into `dir` (created if missing); returns the paths
+/// written. [`write_report_with_snapshots`] without snapshots.
 pub fn write_report(r: &CompareReport, dir: &Path) -> Result<Vec<PathBuf>, SimError> {
+    write_report_with_snapshots(r, &[], dir)
+}
+
+/// [`write_report`] plus the pictures of `snapshots`: in `report.html`,
+/// and as files under `dir/snapshots/` ([`crate::snapshot::write_snapshots`]).
+pub fn write_report_with_snapshots(
+    r: &CompareReport,
+    snapshots: &[Snapshot],
+    dir: &Path,
+) -> Result<Vec<PathBuf>, SimError> {
     std::fs::create_dir_all(dir)?;
     let json = serde_json::to_string_pretty(r).map_err(|e| SimError::Io(e.to_string()))?;
-    let files: Vec<(&str, String)> = vec![
-        ("report.md", markdown(r)),
+    let svgs = plots(r)?;
+    let html = report_html(r, &svgs, snapshots)?;
+    let mut files: Vec<(&str, String)> = vec![
+        ("report.md", markdown(r, !snapshots.is_empty())),
         ("report.json", json),
         ("frames.csv", csv(r)),
-        (
-            PLOTS[0],
-            line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
-                m.total_bytes() as f64 / MIB
-            })?,
-        ),
-        (
-            PLOTS[1],
-            line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64)?,
-        ),
-        (
-            PLOTS[2],
-            line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
-                m.error
-            })?,
-        ),
-        (PLOTS[3], scatter_plot(r)?),
     ];
+    files.extend(PLOTS.iter().copied().zip(svgs));
+    files.push(("report.html", html));
     let mut paths = Vec::new();
     for (name, body) in files {
         let p = dir.join(name);
         std::fs::write(&p, body)?;
         paths.push(p);
     }
+    paths.extend(write_snapshots(snapshots, dir)?);
     Ok(paths)
 }

@@ -218,7 +218,9 @@ fn report_files_are_well_formed() {
     let r = small(4, 32, 18, &StrategyKind::ALL, true);
     let dir = std::env::temp_dir().join(format!("lipac-report-test-{}", std::process::id()));
     let written = write_report(&r, &dir).unwrap();
-    assert_eq!(written.len(), 3 + PLOTS.len());
+    // report.md, report.json, frames.csv, the plots, report.html (no snapshots).
+    assert_eq!(written.len(), 4 + PLOTS.len());
+    assert!(dir.join("report.html").exists() && !dir.join("snapshots").exists());
 
     let json = std::fs::read_to_string(dir.join("report.json")).unwrap();
     let back: CompareReport = serde_json::from_str(&json).unwrap();
