@@ -10,8 +10,8 @@ use std::process::ExitCode;
 use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
-use lipac_sim::replay::{replay, ReplayConfig, ReplayMode, TraceInput};
-use lipac_sim::report::{headline, table, write_report};
+use lipac_sim::replay::{replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
+use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::SimError;
 
 use crate::{SceneArg, StrategyArg};
@@ -89,6 +89,10 @@ pub struct ReplayArgs {
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
+    /// Frame numbers to take pictures of, as `lipac compare --snapshots`
+    /// (geometry mode only).
+    #[arg(long, value_delimiter = ',')]
+    snapshots: Vec<u32>,
 }
 
 /// `lipac convert`.
@@ -161,17 +165,19 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
             ModeArg::HitsOnly => ReplayMode::HitsOnly,
         }),
         keep_frames: true,
+        snapshots: a.snapshots,
     };
-    let report =
-        match TraceInput::open(&a.file).and_then(|input| replay(input, &config, &mut |_| {})) {
-            Ok(r) => r,
-            Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
-        };
+    let (report, snapshots) = match TraceInput::open(&a.file)
+        .and_then(|input| replay_with_snapshots(input, &config, &mut |_| {}))
+    {
+        Ok(r) => r,
+        Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
+    };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report(&report, &a.out) {
+    match write_report_with_snapshots(&report, &snapshots, &a.out) {
         Ok(_) => {
             println!(
                 "{} frames replayed in {:.1} s; report in {}/report.md",
