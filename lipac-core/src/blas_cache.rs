@@ -56,7 +56,8 @@
 //!
 //! ```
 //! use lipac_core::blas_cache::{BlasCache, CacheConfig, Lookup};
-//! use lipac_core::blas_ids::{BlasKey, BuildId, Lod, MeshId};
+//! use lipac_core::blas_ids::{BlasKey, BuildId, Lod};
+//! use lipac_core::MeshId;
 //!
 //! let mut cache = BlasCache::new(CacheConfig { frames_in_flight: 2, ..CacheConfig::default() })?;
 //! cache.begin_frame(1)?;

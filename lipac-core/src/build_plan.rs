@@ -64,7 +64,8 @@
 //!   the uncompacted BLAS stays in use until the copy is acknowledged.
 //!
 //! ```
-//! use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+//! use lipac_core::blas_ids::{InstanceKey, Lod};
+//! use lipac_core::MeshId;
 //! use lipac_core::build_plan::*;
 //!
 //! let mut s = BuildScheduler::new(SchedulerConfig::default())?;
