@@ -2,6 +2,10 @@
 //! budgeted [`BuildBatch`]es (thesis §3.3.1: batching, compaction, unique
 //! BLAS updates, budgeted LOD switches).
 //!
+//! **Low-level**: [`crate::Manager`] owns a [`BuildScheduler`] and drives it;
+//! its plan reaches the backend as [`crate::ManagerPlan::blas`] and the
+//! acknowledgements go back through [`crate::Manager::handle_ack`].
+//!
 //! Sans-IO: [`BuildScheduler::plan`] hands out a [`FramePlan`]; the backend
 //! records it and reports back, frames later, with
 //! [`BuildScheduler::ack_built`], [`BuildScheduler::ack_compacted_size`] and

@@ -1,4 +1,6 @@
-//! Commands from hit feedback processing (Algorithm 2) to the CPU.
+//! Commands from hit feedback processing (Algorithm 2) to the CPU, and the
+//! one read-back rule ([`CommandQueue`]). Low-level: backends hand read-backs
+//! to [`crate::Manager::ingest_readback`].
 //!
 //! On the GPU, Algorithm 2 appends one `u32` per state change that needs CPU
 //! work (lines 17, 25, 31, 34) to a bounded readback buffer through an atomic

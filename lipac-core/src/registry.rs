@@ -1,6 +1,10 @@
 //! The instance registry: handles, dense GPU slots and the CPU mirror of the
 //! GPU instance buffer.
 //!
+//! **Low-level**: a part of [`crate::Manager`] (through
+//! [`crate::culling::Culling`]); engines change instances through the
+//! manager, which keeps commands, BLASes and geometry data consistent.
+//!
 //! Engines address instances by [`InstanceHandle`] (a `slotmap` key that goes
 //! stale on removal); the GPU addresses them by *slot*, a dense `u32` index
 //! into the instance buffer ([`InstanceRecord`] per slot) and the hit
