@@ -405,3 +405,37 @@ fn reserve_covers_a_scene_of_known_size() {
     assert_eq!(m.culling().memory_usage(), loop_bytes);
     assert_eq!((m.slots.capacity(), m.data_dirty.capacity()), caps);
 }
+
+#[test]
+fn plan_counts_cache_hits_as_acquired_and_builds_as_requested() {
+    let mut r = Rig::new(DataConfig::default());
+    let first = r.m.register(desc(8.0, 8.0, 1)).unwrap();
+    r.frame(); // feedback activates the hitbox and the instance
+    let p = r.frame(); // its `add`: nothing cached, a build is queued
+    assert_eq!((p.commands.acquired, p.commands.requested), (0, 1));
+    let b = p.blas.builds().next().copied().unwrap();
+    r.m.handle_ack(Ack::Built {
+        build: b.id,
+        result_bytes: b.result_bytes,
+        address: 0xB000,
+    })
+    .unwrap();
+    assert_eq!(r.m.instance(first).unwrap().blas, 0xB000);
+
+    // A second instance of the same mesh in the same (active) cell: its
+    // `add` finds the built shared BLAS in the cache.
+    let second = r.m.register(desc(10.0, 8.0, 1)).unwrap();
+    let mut served = None;
+    for _ in 0..3 {
+        let p = r.frame();
+        if p.commands.drained > 0 {
+            served = Some(p);
+            break;
+        }
+    }
+    let p = served.expect("the second instance's command is processed");
+    assert_eq!((p.commands.acquired, p.commands.requested), (1, 0));
+    assert_eq!(p.blas.builds().count(), 0);
+    let v = r.m.instance(second).unwrap();
+    assert_eq!((v.blas, v.awaiting_blas), (0xB000, false));
+}
