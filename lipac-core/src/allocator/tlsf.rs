@@ -212,12 +212,9 @@ pub struct TlsfAllocator {
     vacant_count: usize,
     /// Serial stamped on the next allocation.
     next_serial: u32,
-    /// Allocations live when an earlier serial epoch ended: record index ->
-    /// the allocator id of their epoch (see the module docs).
-    survivors: HashMap<u32, NonZeroU32>,
-    /// The ids of this allocator's earlier epochs (one per 2^32
-    /// allocations), so that their stale handles are told from foreign ones.
-    past_ids: Vec<NonZeroU32>,
+    /// What earlier serial epochs left (`None` until the first 2^32
+    /// allocations; boxed to keep the hot struct small).
+    epochs: Option<Box<PastEpochs>>,
     fl_bitmap: u64,
     sl_bitmaps: [u32; FL_COUNT],
     /// One free list per bin, by flat bin index.
@@ -230,6 +227,17 @@ pub struct TlsfAllocator {
     free_blocks: usize,
     peak_used: u64,
     high_water: u64,
+}
+
+/// What earlier serial epochs left behind (see the module docs).
+#[derive(Debug, Default)]
+struct PastEpochs {
+    /// Allocations live when an earlier epoch ended: record index -> the
+    /// allocator id of their epoch.
+    survivors: HashMap<u32, NonZeroU32>,
+    /// The ids of the earlier epochs (one per 2^32 allocations), so that
+    /// their stale handles are told from foreign ones.
+    ids: Vec<NonZeroU32>,
 }
 
 /// A bin's free list, last in first out, and its *best* block: the block
@@ -270,8 +278,7 @@ impl TlsfAllocator {
             vacant_head: NIL,
             vacant_count: 0,
             next_serial: 0,
-            survivors: HashMap::new(),
-            past_ids: Vec::new(),
+            epochs: None,
             fl_bitmap: 0,
             sl_bitmaps: [0; FL_COUNT],
             bins: Box::new([BinList::EMPTY; BIN_COUNT]),
@@ -409,14 +416,20 @@ impl TlsfAllocator {
     /// [`AllocError::ForeignHandle`]; the allocator is unchanged then.
     #[inline]
     pub fn free(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
-        let i = self.validate(handle)?;
         if handle.owner != self.id {
-            self.survivors.remove(&i);
+            return self.free_earlier_epoch(handle);
         }
+        let i = self.validate(handle)?;
+        self.release_used(i);
+        Ok(())
+    }
+
+    /// Frees used node `i`, whose handle was validated.
+    #[inline(always)]
+    fn release_used(&mut self, i: u32) {
         self.used_bytes -= self.nodes[i as usize].size;
         self.live -= 1;
         self.release_free_range(i);
-        Ok(())
     }
 
     /// The current range of a live allocation.
@@ -608,10 +621,9 @@ impl TlsfAllocator {
     /// The allocation held by used node `i`.
     pub(super) fn allocation_at(&self, i: u32) -> Allocation {
         let n = &self.nodes[i as usize];
-        let owner = if self.survivors.is_empty() {
-            self.id
-        } else {
-            self.survivors.get(&i).copied().unwrap_or(self.id)
+        let owner = match &self.epochs {
+            None => self.id,
+            Some(e) => e.survivors.get(&i).copied().unwrap_or(self.id),
         };
         Allocation {
             handle: AllocHandle {
@@ -645,14 +657,29 @@ impl TlsfAllocator {
     #[cold]
     #[inline(never)]
     fn validate_earlier_epoch(&self, h: AllocHandle) -> Result<u32, AllocError> {
-        if !self.past_ids.contains(&h.owner) {
+        let Some(epochs) = self.epochs.as_deref() else {
+            return Err(AllocError::ForeignHandle);
+        };
+        if !epochs.ids.contains(&h.owner) {
             return Err(AllocError::ForeignHandle);
         }
-        let survivor = self.survivors.get(&h.index) == Some(&h.owner);
+        let survivor = epochs.survivors.get(&h.index) == Some(&h.owner);
         match self.nodes.get(h.index as usize) {
             Some(n) if survivor && n.is_used() && n.links[NEXT] == h.serial => Ok(h.index),
             _ => Err(AllocError::StaleHandle),
         }
+    }
+
+    /// [`free`](Self::free) of a handle that is not of the current epoch.
+    #[cold]
+    #[inline(never)]
+    fn free_earlier_epoch(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
+        let i = self.validate_earlier_epoch(handle)?;
+        if let Some(e) = self.epochs.as_mut() {
+            e.survivors.remove(&i);
+        }
+        self.release_used(i);
+        Ok(())
     }
 
     /// The serial counter ran out: start a new epoch (see the module docs).
@@ -661,15 +688,16 @@ impl TlsfAllocator {
     #[inline(never)]
     fn next_epoch(&mut self) {
         let old = self.id;
+        let epochs = self.epochs.get_or_insert_with(Box::default);
         let mut cur = self.first;
         while cur != NIL {
             let n = &self.nodes[cur as usize];
             if n.is_used() {
-                self.survivors.entry(cur).or_insert(old);
+                epochs.survivors.entry(cur).or_insert(old);
             }
             cur = n.next_phys;
         }
-        self.past_ids.push(old);
+        epochs.ids.push(old);
         self.id = next_allocator_id();
         self.next_serial = 0;
     }
@@ -1189,9 +1217,10 @@ impl TlsfAllocator {
             .count();
         assert_eq!(vacant, vacant_records);
         assert_eq!(vacant + live + free_blocks, self.nodes.len());
-        for (&i, owner) in &self.survivors {
+        for (&i, owner) in self.epochs.iter().flat_map(|e| &e.survivors) {
             assert!(self.nodes[i as usize].is_used(), "survivor {i} not live");
-            assert!(self.past_ids.contains(owner) && *owner != self.id);
+            let ids = &self.epochs.as_ref().unwrap().ids;
+            assert!(ids.contains(owner) && *owner != self.id);
         }
         // Bitmaps agree with the lists; list links are consistent.
         for fl in 0..FL_COUNT {
