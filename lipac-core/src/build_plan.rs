@@ -350,7 +350,8 @@ impl FramePlan {
 /// Scheduler counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SchedulerStats {
-    /// The cache's statistics.
+    /// The cache's statistics; its pending frees also count those due and
+    /// held for the next [`BuildScheduler::plan`].
     pub cache: CacheStats,
     /// Builds waiting to be handed out.
     pub queued_builds: usize,
@@ -951,10 +952,17 @@ impl BuildScheduler {
             .collect()
     }
 
-    /// Statistics.
+    /// Statistics. The cache's pending frees include those that became due
+    /// at [`BuildScheduler::begin_frame`] and wait for the next plan (the
+    /// backend still holds them).
     pub fn stats(&self) -> SchedulerStats {
+        let mut cache = self.cache.stats();
+        cache.pending_frees += self.frees.len();
+        for f in &self.frees {
+            cache.pending_free_bytes = cache.pending_free_bytes.saturating_add(f.bytes);
+        }
         SchedulerStats {
-            cache: self.cache.stats(),
+            cache,
             queued_builds: self.queue.len(),
             in_flight: self.cache.in_flight_ops(),
             instances: self.slots.len(),
