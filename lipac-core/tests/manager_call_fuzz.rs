@@ -28,8 +28,9 @@
 //!
 //! Runs `LIPAC_FUZZ_CASES` cases (default 16) of `LIPAC_FUZZ_CALLS` calls
 //! (default 1000), about two seconds in debug. Long run, e.g.:
-//! `LIPAC_FUZZ_CASES=5000 LIPAC_FUZZ_CALLS=2000 cargo test -p lipac-core --release --test manager_call_fuzz`
-//! (release keeps overflow checks: see the workspace profiles). A failure
+//! `LIPAC_FUZZ_CASES=5000 LIPAC_FUZZ_CALLS=2000 cargo test -p lipac-core --profile release-checked --test manager_call_fuzz`
+//! (`release-checked`: optimised, with overflow checks and debug
+//! assertions; see the workspace `Cargo.toml`). A failure
 //! prints its case seed; `LIPAC_FUZZ_SEED=<seed>` replays that case alone.
 
 use std::collections::HashMap;
