@@ -195,6 +195,9 @@ struct Backend {
     delivered: Vec<Owed>,
     data_capacity: u64,
     fif: u64,
+    /// A build came out larger than its estimate: the budget may be
+    /// overrun (by design: the structure exists).
+    overran: bool,
     frees: u64,
     traced_with_blas: u64,
     ring: Option<ReadbackRing>,
@@ -271,16 +274,26 @@ impl Backend {
                 reserved,
                 compactable,
             } => {
-                let bytes = (reserved - rng.below(reserved / 4 + 1)).max(1);
+                // Mostly at or below the estimate; now and then above it
+                // (the cache then evicts, and may overrun its budget).
+                let overrun = rng.chance(5);
+                let bytes = if overrun {
+                    reserved + 1 + rng.below(reserved)
+                } else {
+                    (reserved - rng.below(reserved / 4 + 1)).max(1)
+                };
                 let address = self.next_address + 0x100;
                 let r = m.ack_built(id, bytes, address);
                 if r.is_ok() {
+                    self.overran |= overrun;
                     self.create(bytes);
                     self.in_flight.remove(&id);
                     if compactable {
+                        // Usually smaller; the cache clamps a larger answer.
+                        let compacted = 1 + rng.below(bytes + bytes / 4);
                         self.owed.push(Owed::Size {
                             id,
-                            bytes: bytes / 2 + 1,
+                            bytes: compacted,
                         });
                     }
                 }
@@ -715,7 +728,11 @@ impl Case {
                 (Ok(()), false)
             }
             96 => {
-                self.m.trim_blas_cache();
+                if self.rng.chance(50) {
+                    self.m.trim_blas_cache();
+                } else {
+                    self.m.reserve(self.rng.below(40) as usize);
+                }
                 (Ok(()), false)
             }
             _ => {
@@ -835,7 +852,9 @@ impl Case {
             held + self.be.in_flight_bytes(),
             "BLAS bytes disagree with the backend's structures"
         );
-        assert!(cache <= self.budget, "BLAS budget broken: {cache}");
+        if !self.be.overran {
+            assert!(cache <= self.budget, "BLAS budget broken: {cache}");
+        }
         assert_eq!(st.builds_in_flight, self.be.in_flight.len());
         assert_eq!(m.scheduler().stats().instances, st.instances.scheduled);
     }
