@@ -215,6 +215,11 @@ fn instance_handle_of_another_registry_is_refused() {
     assert_eq!(a.slot(ha).unwrap(), 0);
     a.remove(ha).unwrap();
     assert!(b.contains(hb));
+    // The owner costs 4 bytes: the handle stays small.
+    use lipac_core::registry::InstanceHandle;
+    assert_eq!(std::mem::size_of::<InstanceHandle>(), 12);
+    assert_eq!(std::mem::size_of::<Option<InstanceHandle>>(), 12);
+    assert!(!a.contains(InstanceHandle::default()));
 }
 
 /// The same through two managers.
