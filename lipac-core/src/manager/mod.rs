@@ -87,7 +87,7 @@ mod error;
 mod stats;
 
 pub use ack::Ack;
-pub use catalog::{MeshCatalog, MeshLod, MAX_LODS};
+pub use catalog::{MeshCatalog, MeshLod, MAX_LODS, MAX_LOD_DATA_BYTES};
 pub use error::ManagerError;
 pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
 
@@ -574,8 +574,16 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// Starts frame `frame` (strictly after the previous one). Fails,
     /// changing nothing, if frames do not increase or the last frame's
-    /// commands were not taken ([`Manager::take_commands`]).
+    /// commands were not taken ([`Manager::take_commands`]), or if `frame`
+    /// is above [`MAX_FRAME`](crate::blas_cache::MAX_FRAME).
     pub fn begin_frame(&mut self, frame: u64) -> Result<(), ManagerError> {
+        if frame > crate::blas_cache::MAX_FRAME {
+            let e = crate::blas_cache::BlasError::FrameOutOfRange {
+                frame,
+                max: crate::blas_cache::MAX_FRAME,
+            };
+            return Err(crate::build_plan::BuildPlanError::Cache(e).into());
+        }
         if let Some(prev) = self.frame {
             if frame <= prev {
                 return Err(ManagerError::CallOrder {
