@@ -53,6 +53,33 @@ use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
 
+/// The three acknowledgements as calls, each sent through
+/// [`Manager::handle_ack`] (the only acknowledgement entry point).
+trait SendAck {
+    fn send_built(&mut self, build: BuildId, bytes: u64, address: u64) -> Result<(), ManagerError>;
+    fn send_compacted_size(&mut self, build: BuildId, bytes: u64) -> Result<(), ManagerError>;
+    fn send_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError>;
+}
+
+impl SendAck for Manager {
+    fn send_built(&mut self, build: BuildId, bytes: u64, address: u64) -> Result<(), ManagerError> {
+        self.handle_ack(lipac_core::Ack::Built {
+            build,
+            result_bytes: bytes,
+            address,
+        })
+    }
+    fn send_compacted_size(&mut self, build: BuildId, bytes: u64) -> Result<(), ManagerError> {
+        self.handle_ack(lipac_core::Ack::CompactedSize {
+            build,
+            compacted_bytes: bytes,
+        })
+    }
+    fn send_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
+        self.handle_ack(lipac_core::Ack::Compacted { op, address })
+    }
+}
+
 const CUBE: u64 = 0xC0BE;
 const WORLD: f32 = 64.0;
 
@@ -283,7 +310,7 @@ impl Backend {
                     (reserved - rng.below(reserved / 4 + 1)).max(1)
                 };
                 let address = self.next_address + 0x100;
-                let r = m.ack_built(id, bytes, address);
+                let r = m.send_built(id, bytes, address);
                 if r.is_ok() {
                     self.overran |= overrun;
                     self.create(bytes);
@@ -299,10 +326,10 @@ impl Backend {
                 }
                 r
             }
-            Owed::Size { id, bytes } => m.ack_compacted_size(id, bytes),
+            Owed::Size { id, bytes } => m.send_compacted_size(id, bytes),
             Owed::Compacted { id, bytes } => {
                 let address = self.next_address + 0x100;
-                let r = m.ack_compacted(id, address);
+                let r = m.send_compacted(id, address);
                 if r.is_ok() {
                     self.create(bytes);
                     self.in_flight.remove(&id);
@@ -703,19 +730,19 @@ impl Case {
                     None => BuildId(self.rng.below(50)),
                 };
                 let r = match self.rng.below(6) {
-                    0 => self.m.ack_built(id, 0, 0x1234_0000),
+                    0 => self.m.send_built(id, 0, 0x1234_0000),
                     1 => self
                         .m
-                        .ack_built(id, MAX_BLAS_BYTES + 1 + self.rng.below(9), 0x1234_0000),
-                    2 => self.m.ack_built(id, 100, 0),
+                        .send_built(id, MAX_BLAS_BYTES + 1 + self.rng.below(9), 0x1234_0000),
+                    2 => self.m.send_built(id, 100, 0),
                     3 => self
                         .m
-                        .ack_built(BuildId(1 << 40 | self.rng.below(9)), 100, 0x1234_0000),
-                    4 => self.m.ack_compacted(BuildId(1 << 40), 0x1234_0000),
+                        .send_built(BuildId(1 << 40 | self.rng.below(9)), 100, 0x1234_0000),
+                    4 => self.m.send_compacted(BuildId(1 << 40), 0x1234_0000),
                     _ => match self.rng.pick(&self.be.delivered) {
-                        Some(Owed::Built { id, .. }) => self.m.ack_built(id, 100, 0x1234_0000),
-                        Some(Owed::Compacted { id, .. }) => self.m.ack_compacted(id, 0x1234_0000),
-                        _ => self.m.ack_compacted_size(BuildId(1 << 41), 10),
+                        Some(Owed::Built { id, .. }) => self.m.send_built(id, 100, 0x1234_0000),
+                        Some(Owed::Compacted { id, .. }) => self.m.send_compacted(id, 0x1234_0000),
+                        _ => self.m.send_compacted_size(BuildId(1 << 41), 10),
                     },
                 };
                 assert!(r.is_err(), "a corrupt acknowledgement was accepted");

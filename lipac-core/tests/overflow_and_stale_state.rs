@@ -6,7 +6,7 @@
 
 use glam::{Affine3A, Vec3};
 use lipac_core::blas_cache::{BlasCache, BlasError, CacheConfig, MAX_BLAS_BYTES, MAX_FRAME};
-use lipac_core::blas_ids::{BlasKey, BuildId, InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{BlasKey, BuildId, InstanceKey, Lod};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildPlanError, BuildScheduler, InstanceBlasRequest,
     SchedulerConfig,
@@ -19,6 +19,7 @@ use lipac_core::manager::{
 };
 use lipac_core::math::Aabb;
 use lipac_core::registry::{InstanceRegistry, RegistryConfig};
+use lipac_core::MeshId;
 
 fn grid() -> HitboxGrid {
     HitboxGrid::new(GridConfig {
