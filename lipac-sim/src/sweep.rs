@@ -336,11 +336,13 @@ pub struct SweepScene {
     pub name: String,
     /// Scene instances.
     pub instances: u64,
-    /// Mean ground-truth render time, ms.
+    /// Mean ground-truth render time, ms (merged shards: the mean over the
+    /// shards that rendered it).
     pub ground_truth_ms: f64,
     /// Mean bounce plus shadow rays of the ground truth per frame.
     pub traced_rays_per_frame: f64,
-    /// Wall time of the scene's runs, s.
+    /// Wall time of the scene's runs, s (merged shards: the sum over the
+    /// shards that ran the scene).
     pub wall_s: f64,
 }
 
@@ -361,7 +363,7 @@ pub struct SweepReport {
     pub points: Vec<SweepPoint>,
     /// Variants dropped as duplicates of an earlier one.
     pub skipped: Vec<String>,
-    /// Wall time, s.
+    /// Wall time, s (merged shards: the sum of theirs).
     pub wall_s: f64,
 }
 

@@ -194,3 +194,60 @@ fn shard_slices_are_disjoint_and_cover_the_work() {
     assert!(Shard::new(0, 1).is_err() && Shard::new(2, 1).is_err());
     assert_eq!("3/4".parse::<Shard>().unwrap().to_string(), "3/4");
 }
+
+#[test]
+fn cli_shards_and_merge_write_the_report_of_one_run() {
+    let lipac = env!("CARGO_BIN_EXE_lipac");
+    let root = temp("cli");
+    // --cells= etc.: empty lists, as the help says.
+    let sweep_flags = "sweep --scenes small --frames 1 --width 64 --height 36 --factors 1,4 \
+                       --cells= --streaks= --latency= --baselines full --threads 2 --out";
+    let run = |extra: &[&str], out: &str| {
+        std::process::Command::new(lipac)
+            .args(sweep_flags.split_whitespace())
+            .arg(root.join(out))
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    for (k, extra) in [(1, ["--shard", "1/2"]), (2, ["--shard", "2/2"])] {
+        let o = run(&extra, &format!("p{k}"));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(root
+            .join(format!("p{k}/sweep-shard-{k}-of-2.json"))
+            .is_file());
+        assert!(!root.join(format!("p{k}/sweep.json")).exists());
+    }
+    assert!(run(&[], "whole").status.success());
+    let merged = std::process::Command::new(lipac)
+        .args(["sweep", "--merge"])
+        .args([root.join("p2"), root.join("p1")])
+        .arg("--out")
+        .arg(root.join("merged"))
+        .output()
+        .unwrap();
+    assert!(
+        merged.status.success(),
+        "{}",
+        String::from_utf8_lossy(&merged.stderr)
+    );
+    let read = |d: &str| -> SweepReport {
+        serde_json::from_str(&std::fs::read_to_string(root.join(d).join("sweep.json")).unwrap())
+            .unwrap()
+    };
+    let (whole, merged) = (read("whole"), read("merged"));
+    assert_eq!(merged.points.len(), 3);
+    assert_eq!(masked(&merged), masked(&whole));
+    // One shard alone is not a sweep.
+    let alone = std::process::Command::new(lipac)
+        .args(["sweep", "--merge"])
+        .arg(root.join("p1"))
+        .arg("--out")
+        .arg(root.join("x"))
+        .output()
+        .unwrap();
+    assert!(!alone.status.success());
+    assert!(String::from_utf8_lossy(&alone.stderr).contains("missing shards 2/2"));
+    assert!(!root.join("x").exists());
+    std::fs::remove_dir_all(&root).unwrap();
+}

@@ -151,7 +151,7 @@ struct SweepArgs {
     /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
     /// lipac-sim's default, 32 m); empty for none.
     #[arg(long, value_delimiter = ',', default_value = "16,64")]
-    cells: Vec<f64>,
+    cells: Vec<String>,
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
     streaks: Vec<String>,
@@ -265,7 +265,16 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             baselines: a.baselines.iter().map(|&s| s.into()).collect(),
             factors: a.factors.clone(),
             latency,
-            cell_sizes: a.cells.clone(),
+            cell_sizes: a
+                .cells
+                .iter()
+                .filter(|s| !s.is_empty())
+                .map(|s| {
+                    s.trim()
+                        .parse()
+                        .map_err(|_| format!("cell size `{s}`: not a number"))
+                })
+                .collect::<Result<Vec<f64>, _>>()?,
             streaks,
             threads: a.threads,
         })
