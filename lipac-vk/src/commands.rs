@@ -195,6 +195,7 @@ pub struct FrameSubmitter {
     fences: Vec<vk::Fence>,
     in_flight: Vec<bool>,
     next: usize,
+    blocking_waits: u64,
 }
 
 impl FrameSubmitter {
@@ -225,6 +226,7 @@ impl FrameSubmitter {
             fences: Vec::new(),
             in_flight: vec![false; depth],
             next: 0,
+            blocking_waits: 0,
         };
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
@@ -261,6 +263,9 @@ impl FrameSubmitter {
             crate::accel::same_context(&self.ctx, s.context())?;
         }
         let i = self.next;
+        if self.would_block()? {
+            self.blocking_waits += 1;
+        }
         self.wait_slot(i)?;
         let device = self.ctx.device();
         let cmd = self.cmds[i];
@@ -313,6 +318,29 @@ impl FrameSubmitter {
         self.in_flight[i] = true;
         self.next = (i + 1) % self.cmds.len();
         Ok(value)
+    }
+
+    /// Whether the next [`FrameSubmitter::submit`] would block the host
+    /// (its command buffer's submission has not finished). Never waits.
+    ///
+    /// # Errors
+    ///
+    /// [`crate::VkError::Vulkan`] when the fence cannot be queried.
+    pub fn would_block(&self) -> Result<bool> {
+        let i = self.next;
+        if !self.in_flight[i] {
+            return Ok(false);
+        }
+        // SAFETY: the fence belongs to this device.
+        let done = unsafe { self.ctx.device().get_fence_status(self.fences[i]) }
+            .ctx("vkGetFenceStatus")?;
+        Ok(!done)
+    }
+
+    /// How many times [`FrameSubmitter::submit`] blocked the host on an
+    /// unfinished submission (`wait_idle` not counted).
+    pub fn blocking_waits(&self) -> u64 {
+        self.blocking_waits
     }
 
     fn wait_slot(&mut self, i: usize) -> Result<()> {

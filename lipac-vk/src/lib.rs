@@ -1,5 +1,9 @@
 //! # lipac-vk
 //!
+//! Start with [`LipacVk`] (and `docs/INTEGRATION.md`): one object that an
+//! engine binds to its device and drives with a `Manager`. The rest are its
+//! parts, usable on their own.
+//!
 //! The Vulkan backend of lipac, binding to an engine's own `ash` device. It
 //! executes `lipac-core`'s plans: BLAS/TLAS builds, the GPU versions of TLAS
 //! assembly (Algorithm 1) and hit-feedback processing (Algorithm 2), and the
@@ -31,8 +35,13 @@
 //!   [`lipac_core::assembly::assemble_tlas`]); GPU Algorithm 2:
 //!   [`FeedbackPipeline`] (hit feedback, equal to
 //!   [`lipac_core::feedback::process_feedback`]).
-//! * [`ReadbackRing`]: commands back to the host via a [`TimelineSemaphore`],
-//!   never waiting; [`FrameSubmitter`] submits without waiting.
+//! * [`CommandReadbackRing`]: commands back to the host via a
+//!   [`TimelineSemaphore`], never waiting; [`FrameSubmitter`] submits without
+//!   waiting.
+//! * [`LipacVk`]: the engine-facing object that executes a
+//!   [`lipac_core::manager::Manager`]'s plans in the engine's command
+//!   buffers (all of the above, per frame) and returns its
+//!   acknowledgements and read-backs ([`LipacVk::poll`]).
 //!
 //! Objects free their Vulkan resources when dropped; keep each alive until
 //! the GPU has finished the work that uses it. See `docs/VULKAN.md`.
@@ -43,6 +52,7 @@
 mod accel;
 mod as_pool;
 mod assembly;
+mod backend;
 mod blas;
 mod commands;
 mod compute;
@@ -67,6 +77,10 @@ pub use as_pool::{
 pub use assembly::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
 };
+pub use backend::{
+    FrameDiagnostics, FrameReadback, FrameSignal, InstanceDataSource, LipacVk, LipacVkConfig,
+    LipacVkStats, Polled, RecordedFrame,
+};
 pub use blas::{
     record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
     BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
@@ -85,7 +99,7 @@ pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecuto
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
-pub use readback::{Readback, ReadbackRing, ReadbackTicket};
+pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{Tlas, TlasBuildOutput};
 pub use trace::{GpuHit, GpuRay, HitboxCounting, TraceBindings, TraceBuffers, TracePipeline};
