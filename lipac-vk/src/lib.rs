@@ -27,7 +27,9 @@
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
 //!   from a buffer with it, counting hitbox hits into plain counters or
-//!   straight into the hitbox records ([`HitboxCounting`]).
+//!   straight into the hitbox records ([`HitboxCounting`]); [`CameraTracer`]
+//!   generates a frame's primary, shadow and bounce rays on the GPU, the
+//!   stand-in for an engine's own ray-query pass.
 //! * [`RecordUploader`]: the GPU version of
 //!   [`lipac_core::culling::apply_uploads`], scattering CPU-written records
 //!   into the GPU instance buffer without overwriting its state bits.
@@ -54,6 +56,7 @@ mod as_pool;
 mod assembly;
 mod backend;
 mod blas;
+mod camera_trace;
 mod commands;
 mod compute;
 mod context;
@@ -63,6 +66,7 @@ mod executor;
 mod feedback;
 mod lifetimes;
 mod memory;
+mod ray_query;
 mod readback;
 pub mod shaders;
 mod timeline;
@@ -85,6 +89,7 @@ pub use blas::{
     record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
     BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
 };
+pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, CameraView};
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
