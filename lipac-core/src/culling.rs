@@ -886,6 +886,29 @@ impl<H: HitboxIndex> Culling<H> {
         s
     }
 
+    /// For GPU backends, whose records' state bits are only a mirror of the
+    /// GPU's: first sets the mirror from the kinds of `words` (`add` →
+    /// active, `remove` → inactive; the mirror tells active from not active
+    /// only), without state overrides (the GPU's bits are never uploaded
+    /// over), then ingests them as [`Culling::ingest_readback`] does. The
+    /// reconciliation of [`Culling::process_commands`] then sees the state
+    /// the GPU had when it wrote the commands.
+    pub fn ingest_gpu_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+        let stored = (counter as usize).min(words.len());
+        let limit = self.registry.slot_count();
+        for &w in &words[..stored] {
+            if let Ok(c) = Command::decode(w, limit) {
+                let state = match c.kind {
+                    CommandKind::Add => InstanceState::Active,
+                    CommandKind::Remove => InstanceState::Inactive,
+                };
+                // A dead slot fails here and is counted by the ingestion.
+                let _ = self.registry.set_state(c.slot, state);
+            }
+        }
+        self.ingest_readback(counter, words)
+    }
+
     /// Queues `c`, replacing whatever is pending for its slot.
     fn enqueue(&mut self, c: Command, s: &mut IngestSummary) {
         match self.queue.pending(c.slot) {

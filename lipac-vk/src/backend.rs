@@ -171,7 +171,7 @@ pub struct FrameReadback {
     /// The manager's frame ([`ManagerPlan::frame`]).
     pub frame: u64,
     /// Algorithm 2's commands: hand `counter()` and `words()` to
-    /// [`Manager::ingest_readback`].
+    /// [`Manager::ingest_gpu_readback`].
     pub commands: CommandReadback,
     /// The per-slot hit counters of the trace: hand them to
     /// [`Manager::record_hits`] (build priorities).
@@ -197,8 +197,9 @@ pub struct Polled {
 
 impl Polled {
     /// Hands everything to `manager`: acknowledgements first, then each
-    /// read-back's commands ([`Manager::ingest_readback`]) and hit counters
-    /// ([`Manager::record_hits`]).
+    /// read-back's commands ([`Manager::ingest_gpu_readback`]: the GPU owns
+    /// the state bits, the commands update the manager's mirror of them) and
+    /// hit counters ([`Manager::record_hits`]).
     ///
     /// # Errors
     ///
@@ -217,7 +218,7 @@ impl Polled {
             }
         }
         for r in &self.readbacks {
-            manager.ingest_readback(r.commands.counter(), r.commands.words());
+            manager.ingest_gpu_readback(r.commands.counter(), r.commands.words());
             manager.record_hits(&r.instance_hits);
         }
         result
@@ -474,6 +475,31 @@ impl LipacVk {
     /// The timeline semaphore every frame's last submission signals.
     pub fn timeline(&self) -> &TimelineSemaphore {
         self.ring.semaphore()
+    }
+
+    /// The timeline value the next frame signals ([`FrameSignal::value`] of
+    /// its [`LipacVk::record_feedback`]): known before recording, for
+    /// submission helpers that take their signals up front.
+    pub fn next_frame_value(&self) -> u64 {
+        self.in_progress.map_or(self.ring.next_value(), |f| f.value)
+    }
+
+    /// The buffers an engine's trace binds besides the TLAS and the hitbox
+    /// records: the per-slot hit counters, the geometry data and its per-slot
+    /// offsets ([`LipacVk::instance_hits`], [`LipacVk::instance_data`],
+    /// [`LipacVk::instance_data_offsets`]).
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] before the first
+    /// [`LipacVk::record_frame`].
+    pub fn trace_targets(&self) -> Result<(&Buffer, &Buffer, &Buffer)> {
+        match (&self.tables, &self.data) {
+            (Some(t), Some(d)) => Ok((&t.instance_hits, d, &t.data_offsets)),
+            _ => Err(VkError::InvalidArgument(
+                "trace targets before the first record_frame".into(),
+            )),
+        }
     }
 
     /// The TLAS of the last [`LipacVk::record_frame`] (trace it in the same

@@ -160,6 +160,7 @@ impl OneShot {
             unsafe { device.queue_submit2(self.ctx.queue(), &submit, self.fence) }
                 .ctx("vkQueueSubmit2")?;
         }
+        self.ctx.count_host_wait();
         // SAFETY: the fence belongs to this device.
         unsafe { device.wait_for_fences(&[self.fence], true, u64::MAX) }.ctx("vkWaitForFences")?;
         // SAFETY: the fence is signalled and no longer used by a submission.
@@ -265,6 +266,7 @@ impl FrameSubmitter {
         let i = self.next;
         if self.would_block()? {
             self.blocking_waits += 1;
+            self.ctx.count_host_wait();
         }
         self.wait_slot(i)?;
         let device = self.ctx.device();
