@@ -320,8 +320,8 @@ impl City {
     }
 }
 
-/// An instance's geometry data: a colour per mesh, varied per slot.
-fn albedo(upload: &DataUpload, out: &mut [u8]) {
+/// An instance's geometry data (the `InstanceDataSource`): a colour per mesh, varied per slot.
+pub fn albedo(upload: &DataUpload, out: &mut [u8]) {
     let h = (upload.mesh.0.wrapping_mul(0x9E37_79B9) ^ upload.slot.wrapping_mul(31)) as u64;
     let c = |s: u64| 0.45 + 0.4 * ((h >> s) & 0xFF) as f32 / 255.0;
     let rgba = [c(0), c(8), c(16), 1.0f32];
@@ -330,7 +330,7 @@ fn albedo(upload: &DataUpload, out: &mut [u8]) {
     out[..n].copy_from_slice(&bytes[..n]);
 }
 
-fn view(camera: &Camera, o: &Options, frame: u64) -> CameraView {
+pub fn view(camera: &Camera, o: &Options, frame: u64) -> CameraView {
     let (right, up) = camera.basis();
     let th = (0.5 * camera.vfov).tan();
     CameraView {
@@ -469,8 +469,14 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
             );
         }
     }
-    // Shut-down (not a frame): let the GPU finish, take its last results.
+    // Shut-down (not a frame): let the GPU finish, take its last results
+    // (the timeline's last value may become visible after the fences).
     submitter.wait_idle()?;
+    let last = lipac.next_frame_value() - 1;
+    let start = std::time::Instant::now();
+    while timeline.value()? < last && start.elapsed().as_secs() < 10 {
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
     let polled = lipac.poll()?;
     polled.deliver(&mut manager)?;
     s.frames_read_back += polled.readbacks.len() as u64;
