@@ -39,7 +39,7 @@ use lipac::sim::camera::{Camera, CameraPath};
 use lipac::sim::mesh::TERRAIN_RESOLUTION;
 use lipac::sim::scene::{LodPolicy, Scene, SceneConfig, TERRAIN_MESH};
 use lipac::vk::{
-    Blas, Buffer, CameraTraceBuffers, CameraTracer, CameraView, DeviceContext, FrameSubmitter,
+    Buffer, CameraTraceBuffers, CameraTracer, CameraView, DeviceContext, FrameSubmitter, GpuBlas,
     HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, TriangleGeometry, Validation,
 };
 use std::collections::HashMap;
@@ -208,7 +208,7 @@ impl City {
         for (id, counts) in meshes {
             let mut lods = Vec::new();
             for &n in &counts {
-                let s = Blas::query_sizes(ctx, &[triangles(None, n.max(1) * 3)], flags)?;
+                let s = GpuBlas::query_sizes(ctx, &[triangles(None, n.max(1) * 3)], flags)?;
                 let estimate = BuildEstimate {
                     primitives: n as u64,
                     result_bytes: s.acceleration_structure,

@@ -1,44 +1,11 @@
-//! The engine-facing object: [`LipacVk`] executes a
-//! [`Manager`]'s [`ManagerPlan`]s on the engine's device, in the engine's
-//! command buffers, and never waits on the host.
-//!
-//! One frame (the engine records both parts into its own command buffers and
-//! submits them in this order; the last submission signals
-//! [`LipacVk::timeline`] with [`FrameSignal::value`]):
-//!
-//! ```text
-//! manager.begin_frame(f)
-//! polled = lipac.poll()            acks -> manager.handle_ack, read-backs ->
-//!                                  manager.ingest_readback + record_hits
-//! plan = manager.plan(&budgets)
-//! lipac.record_frame(rec, &plan, &manager, &geometry, &data)
-//!     slot-table growth, geometry-data growth and uploads, BLAS batches
-//!     (builds, updates, compactions), frees deferred by timeline, record
-//!     uploads, hit counters cleared, GPU Algorithm 1, TLAS build
-//! engine: its own ray-query passes with lipac_counting.glsl, reading
-//!     lipac.tlas(), counting into lipac.instance_hits() / hitbox_records()
-//! signal = lipac.record_feedback(rec)
-//!     GPU Algorithm 2, read-back copies (commands, hit counters, TLAS count)
-//! engine: submit, signalling (lipac.timeline(), signal.value)
-//! ```
-//!
-//! Acknowledgements and read-backs come from [`LipacVk::poll`], which reads
-//! the timeline's counter (`vkGetSemaphoreCounterValue`) and returns what
-//! the GPU has finished: the [`Ack`]s of builds and compactions recorded at
-//! or below that value, compacted sizes whose queries are readable, and one
-//! [`FrameReadback`] per finished frame. Objects replaced or freed (BLASes,
-//! scratch, TLAS storage, staging, slot tables) are destroyed once the GPU
-//! has passed the last frame that used them. Nothing here blocks: a resource
-//! still in use is never waited for, another one is used instead.
-//!
-//! See `docs/INTEGRATION.md` for the whole integration.
+//! The engine-facing object, [`LipacVk`] (its docs describe the frame).
 
 use crate::as_pool::AccelerationStructurePool;
 use crate::assembly::{hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline};
-use crate::blas::{Blas, BlasBatch};
+use crate::blas::{BlasBatch, GpuBlas};
 use crate::commands::{OneShot, Recorder};
 use crate::context::DeviceContext;
-use crate::counting::{CountingConfig, UnitCube};
+use crate::counting::{CountingBoxConfig, UnitCube};
 use crate::error::{Result, VkError};
 use crate::executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 use crate::feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
@@ -46,7 +13,7 @@ use crate::lifetimes::{Retirement, TlasPair};
 use crate::memory::{Buffer, MemoryLocation, ScratchBuffer};
 use crate::readback::{CommandReadback, CommandReadbackRing};
 use crate::timeline::TimelineSemaphore;
-use crate::tlas::Tlas;
+use crate::tlas::GpuTlas;
 use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
 use lipac_core::hitbox_index::HitboxIndex;
@@ -81,7 +48,7 @@ pub struct LipacVkConfig {
     pub pool_block_size: u64,
     /// SBT offsets and mask of the counting boxes (must match the manager's
     /// [`lipac_core::assembly::AssemblyConfig`]; checked every frame).
-    pub counting: CountingConfig,
+    pub counting: CountingBoxConfig,
     /// Build flags of the TLAS.
     pub tlas_flags: vk::BuildAccelerationStructureFlagsKHR,
     /// Also read back, per frame, the assembled TLAS records and the hitbox
@@ -101,7 +68,7 @@ impl Default for LipacVkConfig {
             readback_slots: 4,
             command_capacity: 65_536,
             pool_block_size: crate::as_pool::DEFAULT_POOL_BLOCK_SIZE,
-            counting: CountingConfig::default(),
+            counting: CountingBoxConfig::default(),
             tlas_flags: vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
             read_back_diagnostics: false,
         }
@@ -299,14 +266,47 @@ struct FrameInProgress {
     thresholds: Thresholds,
 }
 
-/// The engine-facing Vulkan backend; see the [module docs](self).
+/// The engine-facing object: [`LipacVk`] executes a
+/// [`Manager`]'s [`ManagerPlan`]s on the engine's device, in the engine's
+/// command buffers, and never waits on the host.
+///
+/// One frame (the engine records both parts into its own command buffers and
+/// submits them in this order; the last submission signals
+/// [`LipacVk::timeline`] with [`FrameSignal::value`]):
+///
+/// ```text
+/// manager.begin_frame(f)
+/// polled = lipac.poll()            acks -> manager.handle_ack, read-backs ->
+///                                  manager.ingest_readback + record_hits
+/// plan = manager.plan(&budgets)
+/// lipac.record_frame(rec, &plan, &manager, &geometry, &data)
+///     slot-table growth, geometry-data growth and uploads, BLAS batches
+///     (builds, updates, compactions), frees deferred by timeline, record
+///     uploads, hit counters cleared, GPU Algorithm 1, TLAS build
+/// engine: its own ray-query passes with lipac_counting.glsl, reading
+///     lipac.tlas(), counting into lipac.instance_hits() / hitbox_records()
+/// signal = lipac.record_feedback(rec)
+///     GPU Algorithm 2, read-back copies (commands, hit counters, TLAS count)
+/// engine: submit, signalling (lipac.timeline(), signal.value)
+/// ```
+///
+/// Acknowledgements and read-backs come from [`LipacVk::poll`], which reads
+/// the timeline's counter (`vkGetSemaphoreCounterValue`) and returns what
+/// the GPU has finished: the [`Ack`]s of builds and compactions recorded at
+/// or below that value, compacted sizes whose queries are readable, and one
+/// [`FrameReadback`] per finished frame. Objects replaced or freed (BLASes,
+/// scratch, TLAS storage, staging, slot tables) are destroyed once the GPU
+/// has passed the last frame that used them. Nothing here blocks: a resource
+/// still in use is never waited for, another one is used instead.
+///
+/// See `docs/INTEGRATION.md` for the whole integration.
 #[derive(Debug)]
 pub struct LipacVk {
     ctx: DeviceContext,
     config: LipacVkConfig,
     executor: PlanExecutor,
     _cube: UnitCube,
-    cube_blas: Blas,
+    cube_blas: GpuBlas,
     hitbox_count: u32,
     hitboxes: Buffer,
     bounds: Buffer,
@@ -468,7 +468,7 @@ impl LipacVk {
     }
 
     /// The counting-box configuration (the engine's shaders use the same).
-    pub fn counting(&self) -> &CountingConfig {
+    pub fn counting(&self) -> &CountingBoxConfig {
         &self.config.counting
     }
 
@@ -504,7 +504,7 @@ impl LipacVk {
 
     /// The TLAS of the last [`LipacVk::record_frame`] (trace it in the same
     /// frame).
-    pub fn tlas(&self) -> &Tlas {
+    pub fn tlas(&self) -> &GpuTlas {
         self.tlas.current()
     }
 
@@ -576,7 +576,7 @@ impl LipacVk {
         }
     }
 
-    /// What the GPU has finished (see the [module docs](self)); never waits.
+    /// What the GPU has finished (see [`LipacVk`]); never waits.
     ///
     /// # Errors
     ///
@@ -627,8 +627,7 @@ impl LipacVk {
         })
     }
 
-    /// Records the first part of the frame of `plan` (see the
-    /// [module docs](self)) into `rec`. `manager` is the manager that made
+    /// Records the first part of the frame of `plan` (see [`LipacVk`]) into `rec`. `manager` is the manager that made
     /// the plan (its records, slot count, assembly configuration and
     /// thresholds are read); `geometry` gives the BLAS inputs, `data` the
     /// instances' geometry data. Then trace, then

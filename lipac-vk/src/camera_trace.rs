@@ -1,23 +1,14 @@
-//! [`CameraTracer`]: a frame's rays generated and traced on the GPU
-//! (`camera_trace.comp`), every ray through `lipac_counting.glsl`. It stands
-//! in for an engine's own ray-query pass: one primary ray per pixel, a sun
-//! shadow ray and one diffuse bounce from each primary hit, hits counted as
-//! [`crate::LipacVk`] expects (instance boxes and committed hits into
-//! [`crate::LipacVk::instance_hits`], hitbox boxes into
-//! [`crate::LipacVk::hitbox_records`]), shading from the instances'
-//! geometry data (4 `f32`: RGB albedo and one spare, at
-//! [`crate::LipacVk::instance_data_offsets`]). Writes one RGBA8 `u32` per
-//! pixel.
+//! [`CameraTracer`]: GPU ray generation with lipac's counting.
 
 use crate::accel::same_context;
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
-use crate::counting::CountingConfig;
+use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
 use crate::shaders::CAMERA_TRACE_SPV;
-use crate::tlas::Tlas;
+use crate::tlas::GpuTlas;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
@@ -28,7 +19,7 @@ const TILE: u32 = 8;
 #[derive(Clone, Copy, Debug)]
 pub struct CameraTraceBuffers<'a> {
     /// The TLAS to trace (built, its build barrier recorded).
-    pub tlas: &'a Tlas,
+    pub tlas: &'a GpuTlas,
     /// Per-slot `u32` hit counters.
     pub instance_hits: &'a Buffer,
     /// The hitbox records (box hits are added to their counts).
@@ -101,7 +92,16 @@ struct Push {
     passes: u32,
 }
 
-/// The `camera_trace.comp` pipeline; see the [module docs](self).
+/// [`CameraTracer`]: a frame's rays generated and traced on the GPU
+/// (`camera_trace.comp`), every ray through `lipac_counting.glsl`. It stands
+/// in for an engine's own ray-query pass: one primary ray per pixel, a sun
+/// shadow ray and one diffuse bounce from each primary hit, hits counted as
+/// [`crate::LipacVk`] expects (instance boxes and committed hits into
+/// [`crate::LipacVk::instance_hits`], hitbox boxes into
+/// [`crate::LipacVk::hitbox_records`]), shading from the instances'
+/// geometry data (4 `f32`: RGB albedo and one spare, at
+/// [`crate::LipacVk::instance_data_offsets`]). Writes one RGBA8 `u32` per
+/// pixel.
 #[derive(Debug)]
 pub struct CameraTracer {
     ctx: DeviceContext,
@@ -118,7 +118,7 @@ impl CameraTracer {
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
-    pub fn new(ctx: &DeviceContext, config: &CountingConfig) -> Result<Self> {
+    pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Ok(Self {
             ctx: ctx.clone(),
             pipeline: RayQueryPipeline::new(

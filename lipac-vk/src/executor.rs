@@ -24,7 +24,7 @@
 
 use crate::as_pool::{AccelerationStructurePool, PoolStats};
 use crate::blas::record_compactions_pooled;
-use crate::blas::{Blas, BlasBatch, BlasUpdateMode, CompactionQuery, TriangleGeometry};
+use crate::blas::{BlasBatch, BlasUpdateMode, CompactionQuery, GpuBlas, TriangleGeometry};
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkError};
@@ -54,7 +54,7 @@ impl<F: Fn(&BlasOwner) -> Option<Vec<TriangleGeometry>>> BlasGeometrySource for 
 /// A live BLAS the executor created.
 #[derive(Debug)]
 struct LiveBlas {
-    blas: Blas,
+    blas: GpuBlas,
     owner: BlasOwner,
 }
 
@@ -167,13 +167,13 @@ impl PlanExecutor {
     }
 
     /// The live BLAS at `address` (what an acknowledged address names), if any.
-    pub fn blas_at(&self, address: u64) -> Option<&Blas> {
+    pub fn blas_at(&self, address: u64) -> Option<&GpuBlas> {
         let id = self.by_address.get(&address)?;
         self.live.get(id).map(|l| &l.blas)
     }
 
     /// The live BLAS created by build or compaction `op`.
-    pub fn blas_of(&self, op: BuildId) -> Option<&Blas> {
+    pub fn blas_of(&self, op: BuildId) -> Option<&GpuBlas> {
         self.live.get(&op).map(|l| &l.blas)
     }
 

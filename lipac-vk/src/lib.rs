@@ -18,7 +18,7 @@
 //!   aligned TLSF ranges of large blocks, with [`PoolStats`].
 //! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
 //!   compaction ([`CompactionQuery`], [`record_compactions`]) and in-place
-//!   updates ([`BlasUpdateMode`]); [`Tlas`]: builds from
+//!   updates ([`BlasUpdateMode`]); [`GpuTlas`]: builds from
 //!   [`lipac_core::layout::TlasInstance`] records with geometric growth;
 //!   [`TlasPair`]: a double-buffered TLAS.
 //! * [`Retirement`]: deferred destruction keyed by timeline value (never
@@ -86,8 +86,8 @@ pub use backend::{
     LipacVkStats, Polled, RecordedFrame,
 };
 pub use blas::{
-    record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
-    BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
+    record_compactions, record_compactions_pooled, BlasBatch, BlasBatchOutput, BlasUpdateMode,
+    CompactionQuery, GpuBlas, IndexFormat, TriangleGeometry,
 };
 pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, CameraView};
 pub use commands::{FrameSubmitter, OneShot, Recorder};
@@ -96,7 +96,7 @@ pub use context::{
     HeadlessContext, Validation, REQUIRED_DEVICE_EXTENSIONS,
 };
 pub use counting::{
-    counting_box_instance, CountingBoxKind, CountingConfig, UnitCube, UNIT_CUBE_INDICES,
+    counting_box_instance, CountingBoxConfig, CountingBoxKind, UnitCube, UNIT_CUBE_INDICES,
     UNIT_CUBE_VERTICES,
 };
 pub use error::{Result, VkError};
@@ -106,7 +106,7 @@ pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use timeline::TimelineSemaphore;
-pub use tlas::{Tlas, TlasBuildOutput};
+pub use tlas::{GpuTlas, TlasBuildOutput};
 pub use trace::{GpuHit, GpuRay, HitboxCounting, TraceBindings, TraceBuffers, TracePipeline};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 

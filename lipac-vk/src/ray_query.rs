@@ -4,10 +4,10 @@
 
 use crate::compute::allocate_one_set;
 use crate::context::DeviceContext;
-use crate::counting::CountingConfig;
+use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkContext, VkError};
 use crate::memory::Buffer;
-use crate::tlas::Tlas;
+use crate::tlas::GpuTlas;
 use ash::vk;
 
 /// Set layout (binding 0: the TLAS, 1..: storage buffers), pipeline layout
@@ -27,7 +27,7 @@ impl RayQueryPipeline {
     pub(crate) fn new(
         ctx: &DeviceContext,
         spv: &[u8],
-        config: &CountingConfig,
+        config: &CountingBoxConfig,
         storage_bindings: u32,
         push_size: u32,
     ) -> Result<Self> {
@@ -132,7 +132,7 @@ impl Drop for RayQueryPipeline {
 pub(crate) fn bind_ray_query_set(
     ctx: &DeviceContext,
     pipeline: &RayQueryPipeline,
-    tlas: &Tlas,
+    tlas: &GpuTlas,
     storage: &[&Buffer],
 ) -> Result<(vk::DescriptorPool, vk::DescriptorSet)> {
     crate::accel::same_context(ctx, tlas.accel().context())?;

@@ -6,12 +6,12 @@
 use crate::accel::same_context;
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
-use crate::counting::CountingConfig;
+use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
 use crate::shaders::{TRACE_COUNTING_SPV, TRACE_TEST_SPV};
-use crate::tlas::Tlas;
+use crate::tlas::GpuTlas;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
@@ -77,7 +77,7 @@ pub enum HitboxCounting {
 }
 
 /// The compiled `trace_test.comp` (or `trace_counting.comp`, see
-/// [`HitboxCounting`]) compute pipeline for one [`CountingConfig`].
+/// [`HitboxCounting`]) compute pipeline for one [`CountingBoxConfig`].
 #[derive(Debug)]
 pub struct TracePipeline {
     ctx: DeviceContext,
@@ -89,7 +89,7 @@ pub struct TracePipeline {
 #[derive(Clone, Copy, Debug)]
 pub struct TraceBuffers<'a> {
     /// The TLAS (built, with the build barrier recorded before the trace).
-    pub tlas: &'a Tlas,
+    pub tlas: &'a GpuTlas,
     /// [`GpuRay`]s (storage buffer).
     pub rays: &'a Buffer,
     /// [`GpuHit`]s, one per ray (storage buffer).
@@ -119,7 +119,7 @@ impl TracePipeline {
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
-    pub fn new(ctx: &DeviceContext, config: &CountingConfig) -> Result<Self> {
+    pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Self::with_hitbox_counting(ctx, config, HitboxCounting::Counters)
     }
 
@@ -131,7 +131,7 @@ impl TracePipeline {
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
     pub fn with_hitbox_counting(
         ctx: &DeviceContext,
-        config: &CountingConfig,
+        config: &CountingBoxConfig,
         counting: HitboxCounting,
     ) -> Result<Self> {
         let spv = match counting {

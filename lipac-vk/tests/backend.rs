@@ -19,7 +19,7 @@ use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, Mesh
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_vk::{
-    Blas, Buffer, FrameSubmitter, LipacVk, LipacVkConfig, MemoryLocation, OneShot, Polled,
+    Buffer, FrameSubmitter, GpuBlas, LipacVk, LipacVkConfig, MemoryLocation, OneShot, Polled,
     TriangleGeometry, VkError,
 };
 
@@ -64,7 +64,7 @@ fn tables_and_data_grow_and_assembly_matches_the_manager() {
     let ctx = h.context();
     let mesh = GpuMesh::new(&h, Mesh::bumpy_grid(4));
     let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    let s = Blas::query_sizes(ctx, &[mesh.geometry()], fast).unwrap();
+    let s = GpuBlas::query_sizes(ctx, &[mesh.geometry()], fast).unwrap();
     let mut catalog = MeshCatalog::new();
     let lod = MeshLod {
         estimate: BuildEstimate {

@@ -17,7 +17,7 @@ use lipac_core::build_plan::{
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE};
 use lipac_core::manager::Ack;
 use lipac_vk::{
-    AccelerationStructurePool, Blas, Buffer, FrameSubmitter, MemoryLocation, PlanExecutor,
+    AccelerationStructurePool, Buffer, FrameSubmitter, GpuBlas, MemoryLocation, PlanExecutor,
     ScratchBuffer, TimelineSemaphore, TlasPair, TriangleGeometry,
 };
 use std::collections::HashMap;
@@ -84,7 +84,7 @@ fn scheduler_plans_recorded_by_the_executor_stay_consistent() {
     };
     let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
     let estimate = |m: &GpuMesh, flags| {
-        let s = Blas::query_sizes(ctx, &[m.geometry()], fast | flags).unwrap();
+        let s = GpuBlas::query_sizes(ctx, &[m.geometry()], fast | flags).unwrap();
         BuildEstimate {
             primitives: u64::from(m.mesh.triangle_count()),
             result_bytes: s.acceleration_structure,

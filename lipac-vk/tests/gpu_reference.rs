@@ -1035,7 +1035,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
     };
     use lipac_core::layout::{InstanceState, VK_INSTANCE_CULL_DISABLE};
     use lipac_vk::{
-        BlasBatch, CountingConfig, GpuRay, ScratchBuffer, Tlas, TraceBuffers, TracePipeline,
+        BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, ScratchBuffer, TraceBuffers, TracePipeline,
         UnitCube,
     };
     let ctx = h.context();
@@ -1096,7 +1096,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
         ..Default::default()
     };
     let hitboxes = [active, active, HitboxRecord::default(), active];
-    let counting = CountingConfig::default();
+    let counting = CountingBoxConfig::default();
     let cfg = AssemblyConfig {
         unit_cube_blas: cube_blas.device_address(),
         counting_mask: counting.counting_mask,
@@ -1107,7 +1107,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
     let scene = Scene::new(ctx, &instances, &[0; 4], &hitboxes, &index, 1);
     let assembly = AssemblyPipeline::new(ctx).unwrap();
     let ab = scene.assembly_bindings(&assembly);
-    let mut tlas = Tlas::new(ctx, 2, flags).unwrap();
+    let mut tlas = GpuTlas::new(ctx, 2, flags).unwrap();
     let _retired = one_shot
         .run(|rec| {
             assembly.record(rec, &ab, &cfg, 4)?;
