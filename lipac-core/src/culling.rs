@@ -520,6 +520,10 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     /// Per slot: an `Acquire` was answered `None` (or latency mitigation
     /// requested a BLAS) and no address has come yet.
     awaiting: Vec<bool>,
+    /// Per slot: the last frame latency mitigation overrode its state (0 =
+    /// never; grown on demand). GPU read-backs older than that do not move
+    /// the state mirror ([`Culling::ingest_gpu_readback`]).
+    mitigated_at: Vec<u64>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -547,6 +551,7 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec![HitboxRecord::default(); hitbox_count],
             instance_hits: Vec::new(),
             awaiting: Vec::new(),
+            mitigated_at: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -834,6 +839,11 @@ impl<H: HitboxIndex> Culling<H> {
             };
             self.registry.set_state(slot, InstanceState::Active)?;
             self.state_overrides.insert(slot, InstanceState::Active);
+            let i = slot as usize;
+            if self.mitigated_at.len() <= i {
+                self.mitigated_at.resize(i + 1, 0);
+            }
+            self.mitigated_at[i] = self.registry.frame();
             let record = self.registry.records()[slot as usize];
             if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
                 if !h.is_active() {
@@ -887,17 +897,31 @@ impl<H: HitboxIndex> Culling<H> {
     }
 
     /// For GPU backends, whose records' state bits are only a mirror of the
-    /// GPU's: first sets the mirror from the kinds of `words` (`add` →
-    /// active, `remove` → inactive; the mirror tells active from not active
-    /// only), without state overrides (the GPU's bits are never uploaded
-    /// over), then ingests them as [`Culling::ingest_readback`] does. The
-    /// reconciliation of [`Culling::process_commands`] then sees the state
-    /// the GPU had when it wrote the commands.
-    pub fn ingest_gpu_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+    /// GPU's: first sets the mirror from the kinds of `words`, the commands
+    /// Algorithm 2 wrote in frame `frame` (`add` → active, `remove` →
+    /// inactive; the mirror tells active from not active only), without
+    /// state overrides (the GPU's bits are never uploaded over), then
+    /// ingests them as [`Culling::ingest_readback`] does. The reconciliation
+    /// of [`Culling::process_commands`] then sees the state the GPU had when
+    /// it wrote the commands. A slot whose state latency mitigation
+    /// overrode after `frame` keeps the override (the GPU had not seen it).
+    pub fn ingest_gpu_readback(
+        &mut self,
+        frame: u64,
+        counter: u32,
+        words: &[u32],
+    ) -> IngestSummary {
         let stored = (counter as usize).min(words.len());
         let limit = self.registry.slot_count();
         for &w in &words[..stored] {
             if let Ok(c) = Command::decode(w, limit) {
+                if self
+                    .mitigated_at
+                    .get(c.slot as usize)
+                    .is_some_and(|&m| m > frame)
+                {
+                    continue;
+                }
                 let state = match c.kind {
                     CommandKind::Add => InstanceState::Active,
                     CommandKind::Remove => InstanceState::Inactive,

@@ -68,7 +68,7 @@ fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
     // Frame 2: the GPU turned slots 0 and 2 active.
     m.begin_frame(2).unwrap();
     let words = [word(0, CommandKind::Add), word(2, CommandKind::Add)];
-    let s = m.ingest_gpu_readback(2, &words);
+    let s = m.ingest_gpu_readback(1, 2, &words);
     assert_eq!(s.accepted, 2);
     for (i, expected) in [
         (0, InstanceState::Active),
@@ -98,7 +98,7 @@ fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
 
     // Frame 3: the GPU removed slot 0; its BLAS reference goes.
     m.begin_frame(3).unwrap();
-    m.ingest_gpu_readback(1, &[word(0, CommandKind::Remove)]);
+    m.ingest_gpu_readback(2, 1, &[word(0, CommandKind::Remove)]);
     assert_ne!(m.instance(h[0]).unwrap().state, InstanceState::Active);
     let plan = m.plan(&FrameBudgets::default()).unwrap();
     assert_eq!(plan.commands.released, 1);
@@ -112,4 +112,42 @@ fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
     assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Inactive);
     let plan = m.plan(&FrameBudgets::default()).unwrap();
     assert_eq!(plan.commands.stale_kind, 1);
+}
+
+#[test]
+fn gpu_commands_older_than_a_mitigation_keep_its_override() {
+    use lipac_core::latency::{ActivationHeuristic, Frustum};
+    let (mut m, h) = manager();
+    // The same scene with latency mitigation on.
+    let mut config = ManagerConfig::new(0xC0BE);
+    config.culling.latency_mitigation = Some(ActivationHeuristic::default());
+    let grid = HitboxGrid::new(GridConfig {
+        min: [0.0, 0.0],
+        max: [64.0, 64.0],
+        cell_size: 16.0,
+    })
+    .unwrap();
+    let catalog = m.catalog().clone();
+    let descs: Vec<_> = h.iter().map(|&x| m.registry().desc(x).unwrap()).collect();
+    m = Manager::new(grid, config, catalog).unwrap();
+    let h: Vec<_> = descs.into_iter().map(|d| m.register(d).unwrap()).collect();
+
+    m.begin_frame(1).unwrap();
+    m.plan(&FrameBudgets::default()).unwrap();
+    m.begin_frame(2).unwrap();
+    use glam::camera::rh::{proj, view};
+    let eye = Vec3::new(32.0, 40.0, 32.0);
+    let v = view::look_to_mat4(eye, Vec3::NEG_Y, Vec3::NEG_Z);
+    let p = proj::vulkan::perspective(100f32.to_radians(), 1.0, 0.1, 500.0);
+    let frustum = Frustum::from_view_projection(p * v).unwrap();
+    let out = m.mitigate_latency(eye, &frustum).unwrap();
+    assert!(out.requests.iter().any(|r| r.slot == 1), "{out:?}");
+    assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Active);
+    // Frame 1's feedback (before the override reached the GPU) said remove:
+    // the override stands.
+    m.ingest_gpu_readback(1, 1, &[word(1, CommandKind::Remove)]);
+    assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Active);
+    // Frame 2's feedback ran after the upload: it moves the mirror.
+    m.ingest_gpu_readback(2, 1, &[word(1, CommandKind::Remove)]);
+    assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Inactive);
 }

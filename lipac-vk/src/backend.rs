@@ -185,7 +185,7 @@ impl Polled {
             }
         }
         for r in &self.readbacks {
-            manager.ingest_gpu_readback(r.commands.counter(), r.commands.words());
+            manager.ingest_gpu_readback(r.frame, r.commands.counter(), r.commands.words());
             manager.record_hits(&r.instance_hits);
         }
         result
