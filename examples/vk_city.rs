@@ -9,7 +9,7 @@
 //! `LipacVk::poll`, which never waits.
 //!
 //! ```text
-//! cargo run --release --example vk_city -- [--instances N] [--frames F]
+//! cargo run --release --features vk,sim --example vk_city -- [--instances N] [--frames F]
 //!     [--width W] [--height H] [--in-flight K] [--out FILE.png]
 //! ```
 //!
