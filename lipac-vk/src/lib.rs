@@ -120,9 +120,3 @@ pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.
 pub const TLAS_INSTANCE_BYTES: usize = std::mem::size_of::<lipac_core::layout::TlasInstance>();
-
-/// The code of `docs/INTEGRATION.md`, compiled as doc tests (only when
-/// collecting doc tests, so packaging never looks outside the crate).
-#[cfg(doctest)]
-#[doc = include_str!("../../docs/INTEGRATION.md")]
-pub struct IntegrationGuide;
