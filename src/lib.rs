@@ -28,3 +28,9 @@ pub use lipac_sim as sim;
 #[cfg(feature = "vk")]
 #[cfg_attr(docsrs, doc(cfg(feature = "vk")))]
 pub use lipac_vk as vk;
+
+/// The Rust code of `docs/INTEGRATION.md` (adding lipac to an ash engine),
+/// compiled as doc tests so that the guide stays true to the API.
+#[cfg(all(doctest, feature = "vk"))]
+#[doc = include_str!("../docs/INTEGRATION.md")]
+pub struct IntegrationGuide;

@@ -509,6 +509,10 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     /// Per slot: an `Acquire` was answered `None` (or latency mitigation
     /// requested a BLAS) and no address has come yet.
     awaiting: Vec<bool>,
+    /// Per slot: the last frame latency mitigation overrode its state (0 =
+    /// never; grown on demand). GPU read-backs older than that do not move
+    /// the state mirror ([`Culling::ingest_gpu_readback`]).
+    mitigated_at: Vec<u64>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -536,6 +540,7 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec![HitboxRecord::default(); hitbox_count],
             instance_hits: Vec::new(),
             awaiting: Vec::new(),
+            mitigated_at: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -810,6 +815,11 @@ impl<H: HitboxIndex> Culling<H> {
             };
             self.registry.set_state(slot, InstanceState::Active)?;
             self.state_overrides.insert(slot, InstanceState::Active);
+            let i = slot as usize;
+            if self.mitigated_at.len() <= i {
+                self.mitigated_at.resize(i + 1, 0);
+            }
+            self.mitigated_at[i] = self.registry.frame();
             let record = self.registry.records()[slot as usize];
             if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
                 if !h.is_active() {
@@ -847,6 +857,43 @@ impl<H: HitboxIndex> Culling<H> {
             .ingest_live(counter, words, registry.slot_count(), |slot| {
                 registry.handle_at(slot).is_some()
             })
+    }
+
+    /// For GPU backends, whose records' state bits are only a mirror of the
+    /// GPU's: first sets the mirror from the kinds of `words`, the commands
+    /// Algorithm 2 wrote in frame `frame` (`add` → active, `remove` →
+    /// inactive; the mirror tells active from not active only), without
+    /// state overrides (the GPU's bits are never uploaded over), then
+    /// ingests them as [`Culling::ingest_readback`] does. The reconciliation
+    /// of [`Culling::process_commands`] then sees the state the GPU had when
+    /// it wrote the commands. A slot whose state latency mitigation
+    /// overrode after `frame` keeps the override (the GPU had not seen it).
+    pub fn ingest_gpu_readback(
+        &mut self,
+        frame: u64,
+        counter: u32,
+        words: &[u32],
+    ) -> IngestSummary {
+        let stored = (counter as usize).min(words.len());
+        let limit = self.registry.slot_count();
+        for &w in &words[..stored] {
+            if let Ok(c) = Command::decode(w, limit) {
+                if self
+                    .mitigated_at
+                    .get(c.slot as usize)
+                    .is_some_and(|&m| m > frame)
+                {
+                    continue;
+                }
+                let state = match c.kind {
+                    CommandKind::Add => InstanceState::Active,
+                    CommandKind::Remove => InstanceState::Inactive,
+                };
+                // A dead slot fails here and is counted by the ingestion.
+                let _ = self.registry.set_state(c.slot, state);
+            }
+        }
+        self.ingest_readback(counter, words)
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and

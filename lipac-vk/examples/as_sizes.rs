@@ -4,8 +4,8 @@
 
 use ash::vk;
 use lipac_vk::{
-    Blas, BlasBatch, Buffer, HeadlessContext, IndexFormat, MemoryLocation, OneShot, ScratchBuffer,
-    Tlas, TriangleGeometry, UnitCube, Validation, VkError,
+    BlasBatch, Buffer, GpuBlas, GpuTlas, HeadlessContext, IndexFormat, MemoryLocation, OneShot,
+    ScratchBuffer, TriangleGeometry, UnitCube, Validation, VkError,
 };
 
 /// An n x n grid of quads (2 n^2 triangles) with a bumpy height.
@@ -100,13 +100,13 @@ fn main() -> Result<(), VkError> {
     println!();
     println!("| TLAS instances | size (B) | B/instance | build scratch (B) |");
     println!("| ---: | ---: | ---: | ---: |");
-    let one = Tlas::query_sizes(
+    let one = GpuTlas::query_sizes(
         ctx,
         1,
         vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
     )?;
     for n in [1u32, 16, 1024, 65_536, 1_000_000] {
-        let s = Tlas::query_sizes(
+        let s = GpuTlas::query_sizes(
             ctx,
             n,
             vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
@@ -125,7 +125,7 @@ fn main() -> Result<(), VkError> {
         );
     }
     // The TLAS object holds exactly the queried size.
-    let tlas = Tlas::new(
+    let tlas = GpuTlas::new(
         ctx,
         1024,
         vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
@@ -138,7 +138,7 @@ fn main() -> Result<(), VkError> {
     Ok(())
 }
 
-fn row(name: &str, blas: &Blas, compacted: u64) {
+fn row(name: &str, blas: &GpuBlas, compacted: u64) {
     let t = blas.triangle_count() as f64;
     println!(
         "| {name} | {} | {} | {:.1} | {} | {:.1} | {} |",

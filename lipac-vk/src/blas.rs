@@ -270,7 +270,7 @@ impl From<&TriangleGeometry> for GeometrySignature {
 
 /// A bottom-level acceleration structure over triangles.
 #[derive(Debug)]
-pub struct Blas {
+pub struct GpuBlas {
     accel: AccelerationStructure,
     triangle_count: u64,
     flags: vk::BuildAccelerationStructureFlagsKHR,
@@ -279,7 +279,7 @@ pub struct Blas {
     signature: Vec<GeometrySignature>,
 }
 
-impl Blas {
+impl GpuBlas {
     /// The sizes a build of these geometries with these flags needs.
     ///
     /// # Errors
@@ -336,7 +336,7 @@ impl Blas {
     /// [`VkError::InvalidArgument`] when the BLAS was not built with
     /// `ALLOW_COMPACTION` or the size is 0 or larger than the BLAS;
     /// [`VkError::WrongContext`]; as [`AccelerationStructure::new`].
-    pub fn record_compact(&self, rec: &mut Recorder<'_>, compacted_size: u64) -> Result<Blas> {
+    pub fn record_compact(&self, rec: &mut Recorder<'_>, compacted_size: u64) -> Result<GpuBlas> {
         let mut out = record_compactions(rec, &[(self, compacted_size)])?;
         out.pop()
             .ok_or_else(|| VkError::InvalidArgument("no compaction recorded".into()))
@@ -377,8 +377,8 @@ fn make_blas(
     geoms: &[TriangleGeometry],
     flags: vk::BuildAccelerationStructureFlagsKHR,
     sizes: AsSizes,
-) -> Blas {
-    Blas {
+) -> GpuBlas {
+    GpuBlas {
         accel,
         triangle_count: geoms.iter().map(|g| u64::from(g.triangle_count)).sum(),
         flags,
@@ -409,8 +409,11 @@ fn create_blas_storage(
 ///
 /// # Errors
 ///
-/// As [`Blas::record_compact`]; nothing is recorded on error.
-pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Result<Vec<Blas>> {
+/// As [`GpuBlas::record_compact`]; nothing is recorded on error.
+pub fn record_compactions(
+    rec: &mut Recorder<'_>,
+    items: &[(&GpuBlas, u64)],
+) -> Result<Vec<GpuBlas>> {
     compactions(rec, items, None)
 }
 
@@ -422,17 +425,17 @@ pub fn record_compactions(rec: &mut Recorder<'_>, items: &[(&Blas, u64)]) -> Res
 /// another context.
 pub fn record_compactions_pooled(
     rec: &mut Recorder<'_>,
-    items: &[(&Blas, u64)],
+    items: &[(&GpuBlas, u64)],
     pool: &AccelerationStructurePool,
-) -> Result<Vec<Blas>> {
+) -> Result<Vec<GpuBlas>> {
     compactions(rec, items, Some(pool))
 }
 
 fn compactions(
     rec: &mut Recorder<'_>,
-    items: &[(&Blas, u64)],
+    items: &[(&GpuBlas, u64)],
     pool: Option<&AccelerationStructurePool>,
-) -> Result<Vec<Blas>> {
+) -> Result<Vec<GpuBlas>> {
     let ctx = rec.context();
     for (blas, size) in items {
         same_context(ctx, blas.accel.context())?;
@@ -454,7 +457,7 @@ fn compactions(
     let mut out = Vec::with_capacity(items.len());
     for (blas, size) in items {
         let accel = create_blas_storage(ctx, pool, *size)?;
-        out.push(Blas {
+        out.push(GpuBlas {
             accel,
             triangle_count: blas.triangle_count,
             flags: blas.flags,
@@ -495,7 +498,7 @@ pub enum BlasUpdateMode {
 
 #[derive(Clone, Debug)]
 struct UpdateRequest<'a> {
-    blas: &'a Blas,
+    blas: &'a GpuBlas,
     geometries: Vec<TriangleGeometry>,
     mode: BlasUpdateMode,
 }
@@ -531,7 +534,7 @@ pub struct BlasBatch<'a> {
 #[derive(Debug)]
 pub struct BlasBatchOutput {
     /// The BLASes, in the order they were pushed (valid once the recording has executed).
-    pub blases: Vec<Blas>,
+    pub blases: Vec<GpuBlas>,
     /// Compacted-size queries of the builds with `ALLOW_COMPACTION`.
     pub compaction: Option<CompactionQuery>,
     /// A scratch buffer replaced while growing: keep it until GPU work
@@ -594,7 +597,7 @@ impl<'a> BlasBatch<'a> {
     /// format or opacity, or the same BLAS twice in one batch.
     pub fn push_update(
         &mut self,
-        blas: &'a Blas,
+        blas: &'a GpuBlas,
         geometries: &[TriangleGeometry],
         mode: BlasUpdateMode,
     ) -> Result<usize> {

@@ -160,6 +160,7 @@ impl OneShot {
             unsafe { device.queue_submit2(self.ctx.queue(), &submit, self.fence) }
                 .ctx("vkQueueSubmit2")?;
         }
+        self.ctx.count_host_wait();
         // SAFETY: the fence belongs to this device.
         unsafe { device.wait_for_fences(&[self.fence], true, u64::MAX) }.ctx("vkWaitForFences")?;
         // SAFETY: the fence is signalled and no longer used by a submission.
@@ -195,6 +196,7 @@ pub struct FrameSubmitter {
     fences: Vec<vk::Fence>,
     in_flight: Vec<bool>,
     next: usize,
+    blocking_waits: u64,
 }
 
 impl FrameSubmitter {
@@ -225,6 +227,7 @@ impl FrameSubmitter {
             fences: Vec::new(),
             in_flight: vec![false; depth],
             next: 0,
+            blocking_waits: 0,
         };
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
@@ -261,6 +264,10 @@ impl FrameSubmitter {
             crate::accel::same_context(&self.ctx, s.context())?;
         }
         let i = self.next;
+        if self.would_block()? {
+            self.blocking_waits += 1;
+            self.ctx.count_host_wait();
+        }
         self.wait_slot(i)?;
         let device = self.ctx.device();
         let cmd = self.cmds[i];
@@ -313,6 +320,29 @@ impl FrameSubmitter {
         self.in_flight[i] = true;
         self.next = (i + 1) % self.cmds.len();
         Ok(value)
+    }
+
+    /// Whether the next [`FrameSubmitter::submit`] would block the host
+    /// (its command buffer's submission has not finished). Never waits.
+    ///
+    /// # Errors
+    ///
+    /// [`crate::VkError::Vulkan`] when the fence cannot be queried.
+    pub fn would_block(&self) -> Result<bool> {
+        let i = self.next;
+        if !self.in_flight[i] {
+            return Ok(false);
+        }
+        // SAFETY: the fence belongs to this device.
+        let done = unsafe { self.ctx.device().get_fence_status(self.fences[i]) }
+            .ctx("vkGetFenceStatus")?;
+        Ok(!done)
+    }
+
+    /// How many times [`FrameSubmitter::submit`] blocked the host on an
+    /// unfinished submission (`wait_idle` not counted).
+    pub fn blocking_waits(&self) -> u64 {
+        self.blocking_waits
     }
 
     fn wait_slot(&mut self, i: usize) -> Result<()> {

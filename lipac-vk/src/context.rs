@@ -68,6 +68,7 @@ struct Inner {
     physical_device: vk::PhysicalDevice,
     queue: EngineQueue,
     queue_lock: Mutex<()>,
+    host_waits: std::sync::atomic::AtomicU64,
     accel: ash::khr::acceleration_structure::Device,
     limits: AccelerationStructureLimits,
     memory_properties: vk::PhysicalDeviceMemoryProperties,
@@ -306,6 +307,7 @@ impl DeviceContext {
                 physical_device,
                 queue,
                 queue_lock: Mutex::new(()),
+                host_waits: std::sync::atomic::AtomicU64::new(0),
                 accel,
                 limits,
                 memory_properties,
@@ -372,6 +374,22 @@ impl DeviceContext {
         Arc::ptr_eq(&self.inner, &other.inner)
     }
     /// Locks lipac's use of the queue (held while lipac submits).
+    /// How many times lipac blocked the host on this device's GPU work
+    /// ([`crate::OneShot::run`], and [`crate::FrameSubmitter::submit`] when
+    /// its command buffer was still in flight). [`crate::LipacVk`]'s frame
+    /// calls never do: the count moves only at its set-up.
+    pub fn host_waits(&self) -> u64 {
+        self.inner
+            .host_waits
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    pub(crate) fn count_host_wait(&self) {
+        self.inner
+            .host_waits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
     pub(crate) fn lock_queue(&self) -> MutexGuard<'_, ()> {
         // A poisoned lock only means another submit panicked; the queue is fine.
         self.inner

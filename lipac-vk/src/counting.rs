@@ -71,7 +71,7 @@ impl UnitCube {
 /// specialization constants of `trace_test.comp` and the macros of
 /// `lipac_counting.glsl`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct CountingConfig {
+pub struct CountingBoxConfig {
     /// SBT record offset of omitted-instance boxes (24 bits).
     pub omitted_box_sbt_offset: u32,
     /// SBT record offset of hitbox boxes (24 bits, different from the above).
@@ -80,7 +80,7 @@ pub struct CountingConfig {
     pub counting_mask: u8,
 }
 
-impl Default for CountingConfig {
+impl Default for CountingBoxConfig {
     fn default() -> Self {
         Self {
             omitted_box_sbt_offset: 1,
@@ -90,7 +90,7 @@ impl Default for CountingConfig {
     }
 }
 
-impl CountingConfig {
+impl CountingBoxConfig {
     /// Checks that the offsets fit 24 bits and differ and the mask is non-zero.
     ///
     /// # Errors
@@ -135,7 +135,7 @@ pub fn counting_box_instance(
     max: [f32; 3],
     kind: CountingBoxKind,
     custom_index: u32,
-    config: &CountingConfig,
+    config: &CountingBoxConfig,
     unit_cube_blas: vk::DeviceAddress,
 ) -> Result<TlasInstance> {
     config.validate()?;
@@ -198,7 +198,7 @@ mod tests {
 
     #[test]
     fn box_instance_maps_cube_onto_aabb() {
-        let cfg = CountingConfig::default();
+        let cfg = CountingBoxConfig::default();
         let t = counting_box_instance(
             [1.0, 2.0, 3.0],
             [3.0, 6.0, 4.0],

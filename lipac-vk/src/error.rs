@@ -64,7 +64,7 @@ pub enum VkError {
     /// plan executor.
     Scheduler(lipac_core::build_plan::BuildPlanError),
     /// A readback slot still holds an unread frame; read it
-    /// ([`crate::ReadbackRing::try_read`]) before reusing it.
+    /// ([`crate::CommandReadbackRing::try_read`]) before reusing it.
     ReadbackSlotBusy {
         /// The slot.
         slot: usize,

@@ -1,30 +1,30 @@
 //! Records lipac-core's BLAS build plans: [`PlanExecutor`].
 //!
-//! Per frame the engine calls [`lipac_core::build_plan::BuildScheduler::plan`]
-//! and hands the [`FramePlan`] to [`PlanExecutor::record`], which records
+//! Per frame the backend hands the [`FramePlan`] (the `blas` part of a
+//! [`lipac_core::manager::ManagerPlan`]) to [`PlanExecutor::record`], which
+//! records
 //!
 //! 1. every [`lipac_core::build_plan::BuildBatch`] as one [`BlasBatch`]
 //!    (builds and in-place updates in one `vkCmdBuildAccelerationStructuresKHR`,
 //!    scratch slices of one [`ScratchBuffer`] from its base, one barrier after
 //!    the batch; a batch with updates also gets a barrier before it) with the
-//!    new BLASes in an [`AccelerationStructurePool`], and acknowledges each
-//!    build with its real size and address
-//!    ([`BuildScheduler::ack_built`]);
-//! 2. the compaction copies (into the pool, one barrier) and their
-//!    acknowledgements ([`BuildScheduler::ack_compacted`]);
+//!    new BLASes in an [`AccelerationStructurePool`];
+//! 2. the compaction copies (into the pool, one barrier);
 //! 3. the frees: each freed structure goes to the [`Retirement`] queue until
 //!    this frame's timeline value.
 //!
-//! Builds are acknowledged at recording time: the BLAS is complete for
-//! every later command on the same queue (the batch barrier orders it before
-//! the TLAS build that references it). Compacted-size queries are read
-//! frames later without waiting ([`PlanExecutor::poll`]) and fed to
-//! [`BuildScheduler::ack_compacted_size`]. [`PlanExecutor::collect`]
-//! destroys what the GPU has passed.
+//! Nothing is acknowledged at recording time. [`PlanExecutor::poll`] takes
+//! the timeline value the GPU has reached (read without waiting) and returns
+//! the [`Ack`]s of the work it has passed: [`Ack::Built`] (real size and
+//! address) and [`Ack::Compacted`] for the builds and copies of frames at or
+//! below it, and [`Ack::CompactedSize`] for the compacted-size queries of
+//! those batches. Hand them to
+//! [`Manager::handle_ack`](lipac_core::manager::Manager::handle_ack), in the
+//! order given. [`PlanExecutor::collect`] destroys what the GPU has passed.
 
 use crate::as_pool::{AccelerationStructurePool, PoolStats};
 use crate::blas::record_compactions_pooled;
-use crate::blas::{Blas, BlasBatch, BlasUpdateMode, CompactionQuery, TriangleGeometry};
+use crate::blas::{BlasBatch, BlasUpdateMode, CompactionQuery, GpuBlas, TriangleGeometry};
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkError};
@@ -33,7 +33,8 @@ use crate::memory::ScratchBuffer;
 use ash::vk;
 use lipac_core::blas_cache::BlasOwner;
 use lipac_core::blas_ids::BuildId;
-use lipac_core::build_plan::{BuildScheduler, FramePlan, UpdateMode};
+use lipac_core::build_plan::{FramePlan, UpdateMode};
+use lipac_core::manager::Ack;
 use std::collections::HashMap;
 
 /// Where the executor gets the triangles of a BLAS: the engine's vertex and
@@ -53,12 +54,14 @@ impl<F: Fn(&BlasOwner) -> Option<Vec<TriangleGeometry>>> BlasGeometrySource for 
 /// A live BLAS the executor created.
 #[derive(Debug)]
 struct LiveBlas {
-    blas: Blas,
+    blas: GpuBlas,
     owner: BlasOwner,
 }
 
 #[derive(Debug)]
 struct PendingQuery {
+    /// Timeline value of the submission holding the batch.
+    value: u64,
     query: CompactionQuery,
     /// Batch index -> build.
     builds: Vec<(usize, BuildId)>,
@@ -69,11 +72,11 @@ struct PendingQuery {
 pub struct ExecutedFrame {
     /// Batches recorded.
     pub batches: usize,
-    /// Builds recorded and acknowledged.
+    /// Builds recorded (acknowledged by a later [`PlanExecutor::poll`]).
     pub builds: usize,
     /// In-place updates recorded (refits and rebuilds).
     pub updates: usize,
-    /// Compaction copies recorded and acknowledged.
+    /// Compaction copies recorded (acknowledged by a later poll).
     pub compactions: usize,
     /// Acceleration structures retired (freed once the GPU passes this frame).
     pub retired: Vec<BuildId>,
@@ -98,6 +101,8 @@ pub struct ExecutorStats {
     pub other_retired_pending: usize,
     /// Compacted-size queries not yet read.
     pub queries_pending: usize,
+    /// Acknowledgements waiting for the GPU to pass their frame.
+    pub acks_pending: usize,
     /// The pool's occupancy (live + retired structures).
     pub pool: PoolStats,
     /// Scratch buffer capacity.
@@ -115,11 +120,9 @@ pub struct PlanExecutor {
     live: HashMap<BuildId, LiveBlas>,
     by_address: HashMap<u64, BuildId>,
     queries: Vec<PendingQuery>,
+    /// (timeline value, acknowledgement) in recording order.
+    acks: Vec<(u64, Ack)>,
     base_flags: vk::BuildAccelerationStructureFlagsKHR,
-}
-
-fn plan_err(e: lipac_core::build_plan::BuildPlanError) -> VkError {
-    VkError::Scheduler(e)
 }
 
 impl PlanExecutor {
@@ -140,6 +143,7 @@ impl PlanExecutor {
             live: HashMap::new(),
             by_address: HashMap::new(),
             queries: Vec::new(),
+            acks: Vec::new(),
             base_flags: vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
         })
     }
@@ -163,13 +167,13 @@ impl PlanExecutor {
     }
 
     /// The live BLAS at `address` (what an acknowledged address names), if any.
-    pub fn blas_at(&self, address: u64) -> Option<&Blas> {
+    pub fn blas_at(&self, address: u64) -> Option<&GpuBlas> {
         let id = self.by_address.get(&address)?;
         self.live.get(id).map(|l| &l.blas)
     }
 
     /// The live BLAS created by build or compaction `op`.
-    pub fn blas_of(&self, op: BuildId) -> Option<&Blas> {
+    pub fn blas_of(&self, op: BuildId) -> Option<&GpuBlas> {
         self.live.get(&op).map(|l| &l.blas)
     }
 
@@ -181,6 +185,7 @@ impl PlanExecutor {
             retired_pending: self.retired_blases.pending(),
             other_retired_pending: self.retirement.pending(),
             queries_pending: self.queries.len(),
+            acks_pending: self.acks.len(),
             pool: self.pool.stats(),
             scratch_capacity: self.scratch.capacity(),
         }
@@ -196,25 +201,33 @@ impl PlanExecutor {
             .ok_or_else(|| VkError::InvalidArgument(format!("no geometry for {owner:?}")))
     }
 
-    /// Records `plan` (see the module docs) and acknowledges its builds and
-    /// compactions to `scheduler`. Objects freed by the plan, and scratch
-    /// replaced by growth, are retired until timeline value `frame_value`
-    /// (the value this recording's submission signals).
+    /// Records `plan` (see the module docs). Its builds and compactions are
+    /// acknowledged by the first [`PlanExecutor::poll`] that sees the GPU at
+    /// or past `frame_value` (the timeline value this recording's submission
+    /// signals, not below an earlier call's). Objects freed by the plan, and
+    /// scratch replaced by growth, are retired until `frame_value`.
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for a missing geometry or an update or
-    /// compaction of an unknown BLAS; [`VkError::Scheduler`] when an
-    /// acknowledgement is refused; recording errors. Batches recorded before
-    /// the error stay recorded and acknowledged.
+    /// [`VkError::InvalidArgument`] for a missing geometry, an update or
+    /// compaction of an unknown BLAS, or a `frame_value` below an earlier
+    /// one; recording errors. Batches recorded before the error stay
+    /// recorded and will be acknowledged: submit the recording or drop the
+    /// executor.
     pub fn record(
         &mut self,
         rec: &mut Recorder<'_>,
         plan: &FramePlan,
-        scheduler: &mut BuildScheduler,
         source: &dyn BlasGeometrySource,
         frame_value: u64,
     ) -> Result<ExecutedFrame> {
+        if let Some(&(last, _)) = self.acks.last() {
+            if frame_value < last {
+                return Err(VkError::InvalidArgument(format!(
+                    "frame value {frame_value} below an earlier recording's {last}"
+                )));
+            }
+        }
         crate::accel::same_context(rec.context(), &self.ctx)?;
         let mut report = ExecutedFrame::default();
         for batch in &plan.batches {
@@ -266,9 +279,14 @@ impl PlanExecutor {
             for (b, blas) in batch.builds.iter().zip(out.blases) {
                 report.builds += 1;
                 report.built_bytes += blas.size();
-                scheduler
-                    .ack_built(b.id, blas.size(), blas.device_address())
-                    .map_err(plan_err)?;
+                self.acks.push((
+                    frame_value,
+                    Ack::Built {
+                        build: b.id,
+                        result_bytes: blas.size(),
+                        address: blas.device_address(),
+                    },
+                ));
                 self.by_address.insert(blas.device_address(), b.id);
                 self.live.insert(
                     b.id,
@@ -280,6 +298,7 @@ impl PlanExecutor {
             }
             if let Some(query) = out.compaction {
                 self.queries.push(PendingQuery {
+                    value: frame_value,
                     query,
                     builds: query_builds,
                 });
@@ -300,9 +319,13 @@ impl PlanExecutor {
             let copies = record_compactions_pooled(rec, &items, &self.pool)?;
             for (c, blas) in plan.compactions.iter().zip(copies) {
                 report.compactions += 1;
-                scheduler
-                    .ack_compacted(c.id, blas.device_address())
-                    .map_err(plan_err)?;
+                self.acks.push((
+                    frame_value,
+                    Ack::Compacted {
+                        op: c.id,
+                        address: blas.device_address(),
+                    },
+                ));
                 let owner = self.live[&c.source_build].owner;
                 self.by_address.insert(blas.device_address(), c.id);
                 self.live.insert(c.id, LiveBlas { blas, owner });
@@ -322,28 +345,36 @@ impl PlanExecutor {
         Ok(report)
     }
 
-    /// Reads the compacted-size queries whose batches have executed (never
-    /// waits) and acknowledges them to `scheduler`; returns how many sizes
-    /// were acknowledged.
+    /// The acknowledgements of the work the GPU has passed (`completed` =
+    /// the timeline value it reached, read without waiting, e.g.
+    /// [`crate::TimelineSemaphore::value`]): builds and compactions recorded
+    /// at values up to `completed`, in recording order, then the
+    /// compacted-size queries of those batches. Never waits: a query that is
+    /// not readable yet stays for a later poll.
     ///
     /// # Errors
     ///
-    /// [`VkError::Vulkan`] when a query read fails; [`VkError::Scheduler`].
-    pub fn poll(&mut self, scheduler: &mut BuildScheduler) -> Result<usize> {
-        let mut acked = 0;
+    /// [`VkError::Vulkan`] when a query read fails.
+    pub fn poll(&mut self, completed: u64) -> Result<Vec<Ack>> {
+        let due = self.acks.partition_point(|&(v, _)| v <= completed);
+        let mut acks: Vec<Ack> = self.acks.drain(..due).map(|(_, a)| a).collect();
         let mut i = 0;
         while i < self.queries.len() {
+            if self.queries[i].value > completed {
+                i += 1;
+                continue;
+            }
             match self.queries[i].query.read_sizes() {
                 Ok(sizes) => {
-                    let q = self.queries.swap_remove(i);
+                    let q = self.queries.remove(i);
                     for (batch_index, size) in sizes {
                         if let Some(&(_, build)) =
                             q.builds.iter().find(|(bi, _)| *bi == batch_index)
                         {
-                            scheduler
-                                .ack_compacted_size(build, size)
-                                .map_err(plan_err)?;
-                            acked += 1;
+                            acks.push(Ack::CompactedSize {
+                                build,
+                                compacted_bytes: size,
+                            });
                         }
                     }
                 }
@@ -351,7 +382,7 @@ impl PlanExecutor {
                 Err(e) => return Err(e),
             }
         }
-        Ok(acked)
+        Ok(acks)
     }
 
     /// Destroys retired objects the GPU has passed (`completed` = the

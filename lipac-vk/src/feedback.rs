@@ -66,7 +66,7 @@ pub struct FeedbackBuffers<'a> {
     /// [`HitboxRecord`]s (hits accumulated, state and streak updated).
     pub hitboxes: &'a Buffer,
     /// Command words (`u32`); its size sets the capacity. Needs
-    /// `TRANSFER_SRC` for a [`crate::ReadbackRing`] copy.
+    /// `TRANSFER_SRC` for a [`crate::CommandReadbackRing`] copy.
     pub commands: &'a Buffer,
     /// One `u32`: commands requested this frame. Needs `TRANSFER_DST` (zeroed
     /// first) and `TRANSFER_SRC` for the readback copy.

@@ -1,5 +1,9 @@
 //! # lipac-vk
 //!
+//! Start with [`LipacVk`] (and `docs/INTEGRATION.md`): one object that an
+//! engine binds to its device and drives with a `Manager`. The rest are its
+//! parts, usable on their own.
+//!
 //! The Vulkan backend of lipac, binding to an engine's own `ash` device. It
 //! executes `lipac-core`'s plans: BLAS/TLAS builds, the GPU versions of TLAS
 //! assembly (Algorithm 1) and hit-feedback processing (Algorithm 2), and the
@@ -17,7 +21,7 @@
 //!   aligned TLSF ranges of large blocks, with [`PoolStats`].
 //! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
 //!   compaction ([`CompactionQuery`], [`record_compactions`]) and in-place
-//!   updates ([`BlasUpdateMode`]); [`Tlas`]: builds from
+//!   updates ([`BlasUpdateMode`]); [`GpuTlas`]: builds from
 //!   [`lipac_core::layout::TlasInstance`] records with geometric growth;
 //!   [`TlasPair`]: a double-buffered TLAS.
 //! * [`Retirement`]: deferred destruction keyed by timeline value (never
@@ -26,7 +30,9 @@
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
 //!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
 //!   from a buffer with it, counting hitbox hits into plain counters or
-//!   straight into the hitbox records ([`HitboxCounting`]).
+//!   straight into the hitbox records ([`HitboxCounting`]); [`CameraTracer`]
+//!   generates a frame's primary, shadow and bounce rays on the GPU, the
+//!   stand-in for an engine's own ray-query pass.
 //! * [`RecordUploader`]: the GPU version of
 //!   [`lipac_core::culling::apply_uploads`], scattering CPU-written records
 //!   into the GPU instance buffer without overwriting its state bits.
@@ -34,8 +40,13 @@
 //!   [`lipac_core::assembly::assemble_tlas`]); GPU Algorithm 2:
 //!   [`FeedbackPipeline`] (hit feedback, equal to
 //!   [`lipac_core::feedback::process_feedback`]).
-//! * [`ReadbackRing`]: commands back to the host via a [`TimelineSemaphore`],
-//!   never waiting; [`FrameSubmitter`] submits without waiting.
+//! * [`CommandReadbackRing`]: commands back to the host via a
+//!   [`TimelineSemaphore`], never waiting; [`FrameSubmitter`] submits without
+//!   waiting.
+//! * [`LipacVk`]: the engine-facing object that executes a
+//!   [`lipac_core::manager::Manager`]'s plans in the engine's command
+//!   buffers (all of the above, per frame) and returns its
+//!   acknowledgements and read-backs ([`LipacVk::poll`]).
 //!
 //! Objects free their Vulkan resources when dropped; keep each alive until
 //! the GPU has finished the work that uses it. See `docs/VULKAN.md`.
@@ -46,7 +57,9 @@
 mod accel;
 mod as_pool;
 mod assembly;
+mod backend;
 mod blas;
+mod camera_trace;
 mod commands;
 mod compute;
 mod context;
@@ -57,6 +70,7 @@ mod executor;
 mod feedback;
 mod lifetimes;
 mod memory;
+mod ray_query;
 mod readback;
 pub mod shaders;
 mod timeline;
@@ -71,17 +85,22 @@ pub use as_pool::{
 pub use assembly::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
 };
-pub use blas::{
-    record_compactions, record_compactions_pooled, Blas, BlasBatch, BlasBatchOutput,
-    BlasUpdateMode, CompactionQuery, IndexFormat, TriangleGeometry,
+pub use backend::{
+    FrameDiagnostics, FrameReadback, FrameSignal, InstanceDataSource, LipacVk, LipacVkConfig,
+    LipacVkStats, Polled, RecordedFrame,
 };
+pub use blas::{
+    record_compactions, record_compactions_pooled, BlasBatch, BlasBatchOutput, BlasUpdateMode,
+    CompactionQuery, GpuBlas, IndexFormat, TriangleGeometry,
+};
+pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, CameraView};
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
     HeadlessContext, Validation, REQUIRED_DEVICE_EXTENSIONS,
 };
 pub use counting::{
-    counting_box_instance, CountingBoxKind, CountingConfig, UnitCube, UNIT_CUBE_INDICES,
+    counting_box_instance, CountingBoxConfig, CountingBoxKind, UnitCube, UNIT_CUBE_INDICES,
     UNIT_CUBE_VERTICES,
 };
 pub use device_allocator::{
@@ -93,9 +112,9 @@ pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecuto
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
-pub use readback::{Readback, ReadbackRing, ReadbackTicket};
+pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use timeline::TimelineSemaphore;
-pub use tlas::{Tlas, TlasBuildOutput};
+pub use tlas::{GpuTlas, TlasBuildOutput};
 pub use trace::{GpuHit, GpuRay, HitboxCounting, TraceBindings, TraceBuffers, TracePipeline};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 

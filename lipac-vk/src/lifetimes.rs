@@ -14,7 +14,7 @@ use crate::context::DeviceContext;
 use crate::error::Result;
 use crate::memory::{Buffer, ScratchBuffer};
 use crate::timeline::TimelineSemaphore;
-use crate::tlas::Tlas;
+use crate::tlas::GpuTlas;
 use ash::vk;
 use std::any::Any;
 use std::collections::BTreeMap;
@@ -122,7 +122,7 @@ impl Retirement {
 /// Algorithm 1 refuses instance buffers over 2^24 records).
 #[derive(Debug)]
 pub struct TlasPair {
-    tlases: [Tlas; 2],
+    tlases: [GpuTlas; 2],
     current: usize,
     builds: u64,
 }
@@ -132,7 +132,7 @@ impl TlasPair {
     ///
     /// # Errors
     ///
-    /// As [`Tlas::new`].
+    /// As [`GpuTlas::new`].
     pub fn new(
         ctx: &DeviceContext,
         capacity: u32,
@@ -140,8 +140,8 @@ impl TlasPair {
     ) -> Result<Self> {
         Ok(Self {
             tlases: [
-                Tlas::new(ctx, capacity, flags)?,
-                Tlas::new(ctx, capacity, flags)?,
+                GpuTlas::new(ctx, capacity, flags)?,
+                GpuTlas::new(ctx, capacity, flags)?,
             ],
             current: 1,
             builds: 0,
@@ -149,12 +149,12 @@ impl TlasPair {
     }
 
     /// The TLAS of the last recorded build (bind it for this frame's traces).
-    pub fn current(&self) -> &Tlas {
+    pub fn current(&self) -> &GpuTlas {
         &self.tlases[self.current]
     }
 
     /// The TLAS of the build before (frames in flight may still read it).
-    pub fn previous(&self) -> &Tlas {
+    pub fn previous(&self) -> &GpuTlas {
         &self.tlases[1 - self.current]
     }
 
@@ -176,7 +176,7 @@ impl TlasPair {
     ///
     /// # Errors
     ///
-    /// As [`Tlas::record_build`]; nothing changes on error.
+    /// As [`GpuTlas::record_build`]; nothing changes on error.
     #[allow(clippy::too_many_arguments)]
     pub fn record_build(
         &mut self,

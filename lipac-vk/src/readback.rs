@@ -3,17 +3,17 @@
 //!
 //! Each of the ring's slots is a host-visible buffer of `1 + capacity` words
 //! (the command counter, then the command words). At the end of a frame,
-//! [`ReadbackRing::record_copy`] records copies of the counter and the
-//! command buffer into the next slot and returns a [`ReadbackTicket`]: the
-//! submission holding that recording must signal [`ReadbackRing::semaphore`]
-//! with the ticket's value. [`ReadbackRing::try_read`] then returns the slot's
-//! [`Readback`] once the semaphore's counter has reached that value
+//! [`CommandReadbackRing::record_copy`] records copies of the counter and the
+//! command buffer into the next slot and returns a [`CommandReadbackTicket`]: the
+//! submission holding that recording must signal [`CommandReadbackRing::semaphore`]
+//! with the ticket's value. [`CommandReadbackRing::try_read`] then returns the slot's
+//! [`CommandReadback`] once the semaphore's counter has reached that value
 //! (`vkGetSemaphoreCounterValue`; it never waits), and frees the slot.
 //!
 //! A slot is never overwritten before it was read: `record_copy` into a slot
 //! still holding an unread frame is refused ([`VkError::ReadbackSlotBusy`]),
 //! so commands are never lost. A full command buffer (`counter > capacity`)
-//! is reported by [`Readback::overflowed`]; the core's overflow rule makes it
+//! is reported by [`CommandReadback::overflowed`]; the core's overflow rule makes it
 //! harmless (those instances kept their state and ask again).
 
 use crate::commands::Recorder;
@@ -22,28 +22,28 @@ use crate::error::{Result, VkError};
 use crate::memory::{Buffer, MemoryLocation};
 use crate::timeline::TimelineSemaphore;
 use ash::vk;
-use lipac_core::command::{CommandQueue, IngestSummary};
 
 /// Where one frame's commands went: the ring slot and the timeline value the
-/// submission must signal on [`ReadbackRing::semaphore`].
+/// submission must signal on [`CommandReadbackRing::semaphore`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ReadbackTicket {
+pub struct CommandReadbackTicket {
     /// Ring slot written.
     pub slot: usize,
     /// Timeline value to signal when the copy has executed.
     pub value: u64,
 }
 
-/// One frame's commands as read back.
+/// One frame's commands as read back. Hand them to the manager as they are:
+/// [`Manager::ingest_readback(counter, words)`](lipac_core::manager::Manager::ingest_readback).
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Readback {
+pub struct CommandReadback {
     value: u64,
     counter: u32,
     words: Vec<u32>,
     capacity: u32,
 }
 
-impl Readback {
+impl CommandReadback {
     /// The timeline value (frame) it belongs to.
     pub fn value(&self) -> u64 {
         self.value
@@ -68,11 +68,6 @@ impl Readback {
     pub fn is_full(&self) -> bool {
         self.counter >= self.capacity
     }
-    /// Hands the commands to the core's queue
-    /// ([`CommandQueue::ingest`]).
-    pub fn ingest_into(&self, queue: &mut CommandQueue) -> IngestSummary {
-        queue.ingest(self.counter, &self.words)
-    }
 }
 
 #[derive(Debug)]
@@ -87,22 +82,22 @@ struct Slot {
 ///
 /// Each of the ring's slots is a host-visible buffer of `1 + capacity` words
 /// (the command counter, then the command words). At the end of a frame,
-/// [`ReadbackRing::record_copy`] records copies of the counter and the
-/// command buffer into the next slot and returns a [`ReadbackTicket`]: the
-/// submission holding that recording must signal [`ReadbackRing::semaphore`]
-/// with the ticket's value. [`ReadbackRing::try_read`] then returns the slot's
-/// [`Readback`] once the semaphore's counter has reached that value
+/// [`CommandReadbackRing::record_copy`] records copies of the counter and the
+/// command buffer into the next slot and returns a [`CommandReadbackTicket`]: the
+/// submission holding that recording must signal [`CommandReadbackRing::semaphore`]
+/// with the ticket's value. [`CommandReadbackRing::try_read`] then returns the slot's
+/// [`CommandReadback`] once the semaphore's counter has reached that value
 /// (`vkGetSemaphoreCounterValue`; it never waits), and frees the slot.
 ///
 /// A slot is never overwritten before it was read: `record_copy` into a slot
 /// still holding an unread frame is refused ([`VkError::ReadbackSlotBusy`]),
 /// so commands are never lost. A full command buffer (`counter > capacity`)
-/// is reported by [`Readback::overflowed`]; the core's overflow rule makes it
+/// is reported by [`CommandReadback::overflowed`]; the core's overflow rule makes it
 /// harmless (those instances kept their state and ask again).
 ///
 /// See also `docs/VULKAN.md`.
 #[derive(Debug)]
-pub struct ReadbackRing {
+pub struct CommandReadbackRing {
     semaphore: TimelineSemaphore,
     slots: Vec<Slot>,
     capacity: u32,
@@ -110,7 +105,7 @@ pub struct ReadbackRing {
     last_value: u64,
 }
 
-impl ReadbackRing {
+impl CommandReadbackRing {
     /// A ring of `slots` slots (1..=16; 3–4 covers the usual frames in
     /// flight) for command buffers of `capacity` words (≥ 1).
     ///
@@ -162,7 +157,13 @@ impl ReadbackRing {
         self.capacity
     }
 
-    /// The slot the next [`ReadbackRing::record_copy`] writes.
+    /// The timeline value the next [`CommandReadbackRing::record_copy`]
+    /// returns (one more than the last one).
+    pub fn next_value(&self) -> u64 {
+        self.last_value + 1
+    }
+
+    /// The slot the next [`CommandReadbackRing::record_copy`] writes.
     pub fn next_slot(&self) -> usize {
         self.next
     }
@@ -173,10 +174,10 @@ impl ReadbackRing {
     }
 
     /// Records copies of `counter` (one `u32`) and the first
-    /// [`ReadbackRing::capacity`] words of `commands` into the next slot,
+    /// [`CommandReadbackRing::capacity`] words of `commands` into the next slot,
     /// then a barrier making them visible to the host. Record it after
     /// [`crate::FeedbackPipeline::record`] (whose final barrier covers the
-    /// copy) and signal [`ReadbackRing::semaphore`] with the returned value
+    /// copy) and signal [`CommandReadbackRing::semaphore`] with the returned value
     /// in the submission that holds it. Timeline values grow by one per call;
     /// submit the recordings in that order. A recording that is never
     /// submitted leaves its slot pending, and once a later value is signalled
@@ -185,7 +186,7 @@ impl ReadbackRing {
     /// # Errors
     ///
     /// [`VkError::ReadbackSlotBusy`] when the next slot still holds an unread
-    /// frame (read it with [`ReadbackRing::try_read`] first);
+    /// frame (read it with [`CommandReadbackRing::try_read`] first);
     /// [`VkError::MissingUsage`] without `TRANSFER_SRC`;
     /// [`VkError::InvalidArgument`] when `commands` is smaller than the
     /// capacity or `counter` smaller than 4 bytes; [`VkError::WrongContext`].
@@ -194,7 +195,7 @@ impl ReadbackRing {
         rec: &mut Recorder<'_>,
         commands: &Buffer,
         counter: &Buffer,
-    ) -> Result<ReadbackTicket> {
+    ) -> Result<CommandReadbackTicket> {
         let ctx = self.semaphore.context();
         for b in [commands, counter] {
             crate::accel::same_context(ctx, b.context())?;
@@ -246,7 +247,7 @@ impl ReadbackRing {
         self.last_value += 1;
         self.slots[slot].pending = Some(self.last_value);
         self.next = (slot + 1) % self.slots.len();
-        Ok(ReadbackTicket {
+        Ok(CommandReadbackTicket {
             slot,
             value: self.last_value,
         })
@@ -260,7 +261,7 @@ impl ReadbackRing {
     ///
     /// [`VkError::InvalidArgument`] for a slot out of range;
     /// [`VkError::Vulkan`] when the semaphore cannot be queried.
-    pub fn try_read(&mut self, slot: usize) -> Result<Option<Readback>> {
+    pub fn try_read(&mut self, slot: usize) -> Result<Option<CommandReadback>> {
         let count = self.slots.len();
         let s = self
             .slots
@@ -276,7 +277,7 @@ impl ReadbackRing {
         let stored = counter.min(self.capacity) as usize;
         let words = s.buffer.read::<u32>(4, stored)?;
         s.pending = None;
-        Ok(Some(Readback {
+        Ok(Some(CommandReadback {
             value,
             counter,
             words,

@@ -30,9 +30,19 @@ pub const FEEDBACK_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback
 /// SPIR-V of `feedback_instances.comp` (Algorithm 2 lines 14–38).
 pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_instances.spv");
 
+/// SPIR-V of `camera_trace.comp`: a frame's primary, shadow and bounce rays
+/// generated on the GPU through the counting include
+/// ([`crate::CameraTracer`]).
+pub const CAMERA_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/camera_trace.spv");
+
+/// GLSL source of `camera_trace.comp`: an engine-style ray-query pass with
+/// lipac's counting (GPU ray generation, shadow and bounce rays).
+pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp");
+
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 9] = [
+pub const ALL_SPV: [(&str, &[u8]); 10] = [
+    ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
     ("upload_records", UPLOAD_RECORDS_SPV),

@@ -31,12 +31,12 @@ fn instance_geometry(address: vk::DeviceAddress) -> vk::AccelerationStructureGeo
 
 /// A top-level acceleration structure with a capacity in instances.
 ///
-/// The storage is sized for [`Tlas::capacity`] instances; a build with more
+/// The storage is sized for [`GpuTlas::capacity`] instances; a build with more
 /// grows it geometrically (at least doubling) and retires the old storage.
 /// Records whose `acceleration_structure_reference` is 0 are inactive: they
 /// occupy a slot but nothing is hit.
 #[derive(Debug)]
-pub struct Tlas {
+pub struct GpuTlas {
     ctx: DeviceContext,
     accel: AccelerationStructure,
     capacity: u32,
@@ -45,7 +45,7 @@ pub struct Tlas {
     built_count: u32,
 }
 
-/// What [`Tlas::record_build`] retired.
+/// What [`GpuTlas::record_build`] retired.
 #[derive(Debug, Default)]
 pub struct TlasBuildOutput {
     /// Storage replaced because the TLAS grew: keep it until GPU work that
@@ -55,7 +55,7 @@ pub struct TlasBuildOutput {
     pub retired_scratch: Option<Buffer>,
 }
 
-impl Tlas {
+impl GpuTlas {
     /// The sizes of a TLAS for `instance_count` instances with `flags`.
     ///
     /// # Errors
@@ -97,7 +97,7 @@ impl Tlas {
     ///
     /// # Errors
     ///
-    /// As [`Tlas::query_sizes`] and [`AccelerationStructure::new`].
+    /// As [`GpuTlas::query_sizes`] and [`AccelerationStructure::new`].
     pub fn new(
         ctx: &DeviceContext,
         capacity: u32,

@@ -5,13 +5,13 @@
 
 use crate::accel::same_context;
 use crate::commands::Recorder;
-use crate::compute::allocate_one_set;
 use crate::context::DeviceContext;
-use crate::counting::CountingConfig;
-use crate::error::{Result, VkContext, VkError};
+use crate::counting::CountingBoxConfig;
+use crate::error::{Result, VkError};
 use crate::memory::Buffer;
-use crate::shaders::{spirv_words, TRACE_COUNTING_SPV, TRACE_TEST_SPV};
-use crate::tlas::Tlas;
+use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
+use crate::shaders::{TRACE_COUNTING_SPV, TRACE_TEST_SPV};
+use crate::tlas::GpuTlas;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
@@ -77,21 +77,19 @@ pub enum HitboxCounting {
 }
 
 /// The compiled `trace_test.comp` (or `trace_counting.comp`, see
-/// [`HitboxCounting`]) compute pipeline for one [`CountingConfig`].
+/// [`HitboxCounting`]) compute pipeline for one [`CountingBoxConfig`].
 #[derive(Debug)]
 pub struct TracePipeline {
     ctx: DeviceContext,
     hitbox_counting: HitboxCounting,
-    set_layout: vk::DescriptorSetLayout,
-    layout: vk::PipelineLayout,
-    pipeline: vk::Pipeline,
+    pipeline: RayQueryPipeline,
 }
 
 /// Buffers a trace reads and writes.
 #[derive(Clone, Copy, Debug)]
 pub struct TraceBuffers<'a> {
     /// The TLAS (built, with the build barrier recorded before the trace).
-    pub tlas: &'a Tlas,
+    pub tlas: &'a GpuTlas,
     /// [`GpuRay`]s (storage buffer).
     pub rays: &'a Buffer,
     /// [`GpuHit`]s, one per ray (storage buffer).
@@ -121,7 +119,7 @@ impl TracePipeline {
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
-    pub fn new(ctx: &DeviceContext, config: &CountingConfig) -> Result<Self> {
+    pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Self::with_hitbox_counting(ctx, config, HitboxCounting::Counters)
     }
 
@@ -133,90 +131,18 @@ impl TracePipeline {
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
     pub fn with_hitbox_counting(
         ctx: &DeviceContext,
-        config: &CountingConfig,
+        config: &CountingBoxConfig,
         counting: HitboxCounting,
     ) -> Result<Self> {
-        config.validate()?;
-        let device = ctx.device();
-        let mut bindings = vec![vk::DescriptorSetLayoutBinding::default()
-            .binding(0)
-            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-            .descriptor_count(1)
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)];
-        for b in 1..BINDINGS {
-            bindings.push(
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE),
-            );
-        }
-        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        // SAFETY: valid device and create info.
-        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .ctx("vkCreateDescriptorSetLayout")?;
-        let mut this = Self {
-            ctx: ctx.clone(),
-            hitbox_counting: counting,
-            set_layout,
-            layout: vk::PipelineLayout::null(),
-            pipeline: vk::Pipeline::null(),
-        };
-        let set_layouts = [set_layout];
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .offset(0)
-            .size(12)];
-        let info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&set_layouts)
-            .push_constant_ranges(&push);
-        // SAFETY: valid device; the set layout was created above.
-        this.layout =
-            unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
-        let words = spirv_words(match counting {
+        let spv = match counting {
             HitboxCounting::Counters => TRACE_TEST_SPV,
             HitboxCounting::Records => TRACE_COUNTING_SPV,
-        })?;
-        let info = vk::ShaderModuleCreateInfo::default().code(&words);
-        // SAFETY: valid device; `words` is the embedded, validated SPIR-V.
-        let module =
-            unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
-        let spec_data: [u32; 3] = [
-            config.omitted_box_sbt_offset,
-            config.hitbox_box_sbt_offset,
-            u32::from(config.counting_mask),
-        ];
-        let entries: Vec<_> = (0..3u32)
-            .map(|i| {
-                vk::SpecializationMapEntry::default()
-                    .constant_id(i)
-                    .offset(4 * i)
-                    .size(4)
-            })
-            .collect();
-        let spec = vk::SpecializationInfo::default()
-            .map_entries(&entries)
-            .data(bytemuck::cast_slice(&spec_data));
-        let stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
-            .name(c"main")
-            .specialization_info(&spec);
-        let info = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(this.layout)];
-        // SAFETY: valid device, module and layout matching the shader's interface.
-        let created =
-            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
-        // SAFETY: the module is no longer needed once pipeline creation returned.
-        unsafe { device.destroy_shader_module(module, None) };
-        let pipelines = created.map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?;
-        this.pipeline = pipelines.first().copied().ok_or(VkError::vk(
-            "vkCreateComputePipelines",
-            vk::Result::ERROR_UNKNOWN,
-        ))?;
-        Ok(this)
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            hitbox_counting: counting,
+            pipeline: RayQueryPipeline::new(ctx, spv, config, BINDINGS - 1, 12)?,
+        })
     }
 
     /// Where this pipeline counts hitbox hits.
@@ -243,46 +169,7 @@ impl TracePipeline {
                 return Err(VkError::MissingUsage("STORAGE_BUFFER for a trace buffer"));
             }
         }
-        same_context(&self.ctx, buffers.tlas.accel().context())?;
-        let device = self.ctx.device();
-        let sizes = [
-            vk::DescriptorPoolSize::default()
-                .ty(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-                .descriptor_count(1),
-            vk::DescriptorPoolSize::default()
-                .ty(vk::DescriptorType::STORAGE_BUFFER)
-                .descriptor_count(BINDINGS - 1),
-        ];
-        let (pool, set) = allocate_one_set(&self.ctx, &sizes, self.set_layout)?;
-        let accels = [buffers.tlas.accel().raw()];
-        let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
-            .acceleration_structures(&accels);
-        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = storage
-            .iter()
-            .map(|b| {
-                [vk::DescriptorBufferInfo::default()
-                    .buffer(b.raw())
-                    .offset(0)
-                    .range(vk::WHOLE_SIZE)]
-            })
-            .collect();
-        let mut writes = vec![vk::WriteDescriptorSet::default()
-            .dst_set(set)
-            .dst_binding(0)
-            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-            .descriptor_count(1)
-            .push_next(&mut as_write)];
-        for (i, info) in infos.iter().enumerate() {
-            writes.push(
-                vk::WriteDescriptorSet::default()
-                    .dst_set(set)
-                    .dst_binding(i as u32 + 1)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .buffer_info(info),
-            );
-        }
-        // SAFETY: the set is fresh and unused; every write matches the layout.
-        unsafe { device.update_descriptor_sets(&writes, &[]) };
+        let (pool, set) = bind_ray_query_set(&self.ctx, &self.pipeline, buffers.tlas, &storage)?;
         let max_rays = (buffers.rays.size() / std::mem::size_of::<GpuRay>() as u64)
             .min(buffers.results.size() / std::mem::size_of::<GpuHit>() as u64);
         Ok(TraceBindings {
@@ -329,18 +216,22 @@ impl TracePipeline {
         // SAFETY: recording on this device (Recorder contract); pipeline, layout
         // and set are live and compatible; the push range is 12 bytes.
         unsafe {
-            device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            device.cmd_bind_pipeline(
+                rec.raw(),
+                vk::PipelineBindPoint::COMPUTE,
+                self.pipeline.pipeline,
+            );
             device.cmd_bind_descriptor_sets(
                 rec.raw(),
                 vk::PipelineBindPoint::COMPUTE,
-                self.layout,
+                self.pipeline.layout,
                 0,
                 &[bindings.set],
                 &[],
             );
             device.cmd_push_constants(
                 rec.raw(),
-                self.layout,
+                self.pipeline.layout,
                 vk::ShaderStageFlags::COMPUTE,
                 0,
                 bytemuck::cast_slice(&push),
@@ -354,19 +245,6 @@ impl TracePipeline {
             vk::AccessFlags2::HOST_READ,
         );
         Ok(())
-    }
-}
-
-impl Drop for TracePipeline {
-    fn drop(&mut self) {
-        let device = self.ctx.device();
-        // SAFETY: created on this device (null handles are ignored by Vulkan);
-        // not in use by the GPU per the crate's drop contract.
-        unsafe {
-            device.destroy_pipeline(self.pipeline, None);
-            device.destroy_pipeline_layout(self.layout, None);
-            device.destroy_descriptor_set_layout(self.set_layout, None);
-        }
     }
 }
 

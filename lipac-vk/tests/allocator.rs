@@ -12,7 +12,7 @@ use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_vk::{
     AccelerationStructurePool, AllocationRequest, AllocatorBlocks, BlasBatch, Buffer,
-    CountingConfig, DeviceAllocation, DeviceAllocator, GpuRay, HeadlessContext, MemoryLocation,
+    CountingBoxConfig, DeviceAllocation, DeviceAllocator, GpuRay, HeadlessContext, MemoryLocation,
     OneShot, ScratchBuffer, TracePipeline, Validation, VkError,
 };
 use std::collections::HashMap;
@@ -294,7 +294,7 @@ fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = TracePipeline::new(ctx, &CountingConfig::default()).unwrap();
+    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 8);
     let hit: Vec<u32> = out.hits.iter().map(|h| h.custom_index).collect();
     assert_eq!(hit, [10, 11, 12, 13]);

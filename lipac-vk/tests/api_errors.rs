@@ -5,7 +5,7 @@ mod common;
 use ash::vk;
 use common::*;
 use lipac_vk::{
-    Blas, Buffer, MemoryLocation, OneShot, ScratchBuffer, Tlas, TriangleGeometry, VkError,
+    Buffer, GpuBlas, GpuTlas, MemoryLocation, OneShot, ScratchBuffer, TriangleGeometry, VkError,
 };
 
 #[test]
@@ -62,7 +62,7 @@ fn caller_mistakes_are_errors() {
     assert!(matches!(past_end, Err(VkError::OutOfBounds { .. })));
 
     // TLAS builds check the instance buffer's usage and size; nothing is recorded.
-    let mut tlas = Tlas::new(ctx, 4, vk::BuildAccelerationStructureFlagsKHR::empty()).unwrap();
+    let mut tlas = GpuTlas::new(ctx, 4, vk::BuildAccelerationStructureFlagsKHR::empty()).unwrap();
     let mut scratch = ScratchBuffer::new(ctx);
     let mut one_shot = OneShot::new(ctx).unwrap();
     let r = one_shot.run(|rec| tlas.record_build(rec, &mapped, 0, 1, &mut scratch));
@@ -84,21 +84,21 @@ fn size_queries_match_builds_and_grow_with_content() {
     let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
     let small = GpuMesh::new(&h, Mesh::bumpy_grid(2));
     let large = GpuMesh::new(&h, Mesh::bumpy_grid(12));
-    let small_q = Blas::query_sizes(ctx, &[small.geometry()], flags).unwrap();
-    let large_q = Blas::query_sizes(ctx, &[large.geometry()], flags).unwrap();
+    let small_q = GpuBlas::query_sizes(ctx, &[small.geometry()], flags).unwrap();
+    let large_q = GpuBlas::query_sizes(ctx, &[large.geometry()], flags).unwrap();
     assert!(large_q.acceleration_structure > small_q.acceleration_structure);
     let built = build_blases(&h, &[&small, &large], flags);
     assert_eq!(built[0].size(), small_q.acceleration_structure);
     assert_eq!(built[1].size(), large_q.acceleration_structure);
     assert!(built[1].accel().memory_bytes() >= built[1].size());
 
-    let t1 = Tlas::query_sizes(ctx, 100, flags).unwrap();
-    let t2 = Tlas::query_sizes(ctx, 200, flags).unwrap();
+    let t1 = GpuTlas::query_sizes(ctx, 100, flags).unwrap();
+    let t2 = GpuTlas::query_sizes(ctx, 200, flags).unwrap();
     assert!(t2.acceleration_structure > t1.acceleration_structure);
     let too_many = u32::try_from(ctx.limits().max_instance_count.saturating_add(1));
     if let Ok(n) = too_many {
         assert!(matches!(
-            Tlas::query_sizes(ctx, n, flags),
+            GpuTlas::query_sizes(ctx, n, flags),
             Err(VkError::InvalidArgument(_))
         ));
     }

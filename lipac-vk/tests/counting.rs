@@ -8,7 +8,7 @@ use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE};
 use lipac_vk::{
-    counting_box_instance, BlasBatch, CountingBoxKind, CountingConfig, GpuRay, OneShot,
+    counting_box_instance, BlasBatch, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot,
     ScratchBuffer, TracePipeline, UnitCube,
 };
 
@@ -29,7 +29,7 @@ fn counting_boxes_count_once_and_let_rays_through() {
         return;
     };
     let ctx = h.context();
-    let cfg = CountingConfig {
+    let cfg = CountingBoxConfig {
         omitted_box_sbt_offset: 3,
         hitbox_box_sbt_offset: 5,
         counting_mask: 0x80,

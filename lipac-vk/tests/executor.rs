@@ -1,7 +1,8 @@
 //! The plan executor on a device: lipac-core's BuildScheduler plans BLAS
 //! builds, refits, rebuilds, LOD switches, compactions and frees for twelve
-//! frames; PlanExecutor records them (submissions in flight, never waiting),
-//! and every acknowledged address is a live BLAS of the acknowledged size,
+//! frames; PlanExecutor records them (submissions in flight, never waiting)
+//! and acknowledges them once the timeline passed their frame; every
+//! acknowledged address is a live BLAS of the acknowledged size,
 //! and frees come only after the frames in flight that may reference them.
 
 mod common;
@@ -14,9 +15,10 @@ use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE};
+use lipac_core::manager::Ack;
 use lipac_core::MeshId;
 use lipac_vk::{
-    AccelerationStructurePool, Blas, Buffer, FrameSubmitter, MemoryLocation, PlanExecutor,
+    AccelerationStructurePool, Buffer, FrameSubmitter, GpuBlas, MemoryLocation, PlanExecutor,
     ScratchBuffer, TimelineSemaphore, TlasPair, TriangleGeometry,
 };
 use std::collections::HashMap;
@@ -24,6 +26,31 @@ use std::collections::HashMap;
 const SHARED: MeshId = MeshId(1);
 const UNIQUE: MeshId = MeshId(2);
 const FRAMES_IN_FLIGHT: u32 = 2;
+
+/// Hands the executor's acknowledgements to the scheduler; returns how many
+/// compacted sizes came back.
+fn deliver(acks: Vec<Ack>, sched: &mut BuildScheduler) -> usize {
+    let mut sizes = 0;
+    for ack in acks {
+        match ack {
+            Ack::Built {
+                build,
+                result_bytes,
+                address,
+            } => sched.ack_built(build, result_bytes, address).unwrap(),
+            Ack::CompactedSize {
+                build,
+                compacted_bytes,
+            } => {
+                sizes += 1;
+                sched.ack_compacted_size(build, compacted_bytes).unwrap()
+            }
+            Ack::Compacted { op, address } => sched.ack_compacted(op, address).unwrap(),
+        }
+    }
+    sched.take_address_changes();
+    sizes
+}
 
 fn bytes_of(state: BlasState) -> Option<u64> {
     match state {
@@ -58,7 +85,7 @@ fn scheduler_plans_recorded_by_the_executor_stay_consistent() {
     };
     let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
     let estimate = |m: &GpuMesh, flags| {
-        let s = Blas::query_sizes(ctx, &[m.geometry()], fast | flags).unwrap();
+        let s = GpuBlas::query_sizes(ctx, &[m.geometry()], fast | flags).unwrap();
         BuildEstimate {
             primitives: u64::from(m.mesh.triangle_count()),
             result_bytes: s.acceleration_structure,
@@ -154,7 +181,7 @@ fn scheduler_plans_recorded_by_the_executor_stay_consistent() {
             sched.deactivate(unique_keys[1]).unwrap();
             active.retain(|&k| k != unique_keys[1]);
         }
-        acked_sizes += exec.poll(&mut sched).unwrap();
+        acked_sizes += deliver(exec.poll(frames.value().unwrap()).unwrap(), &mut sched);
         let plan = sched.plan(&budgets).unwrap();
         assert!(plan.oversized.is_empty() && plan.memory_blocked.is_empty());
         rebuilds += plan
@@ -171,8 +198,7 @@ fn scheduler_plans_recorded_by_the_executor_stay_consistent() {
 
         let report = submitter
             .submit(&[], &[(&frames, f)], |rec| {
-                let report = exec.record(rec, &plan, &mut sched, &source, f)?;
-                sched.take_address_changes();
+                let report = exec.record(rec, &plan, &source, f)?;
                 let mut records: Vec<TlasInstance> = active
                     .iter()
                     .filter_map(|&k| {
@@ -247,7 +273,7 @@ fn scheduler_plans_recorded_by_the_executor_stay_consistent() {
         assert!(after.retired_pending <= stats.retired_pending);
     }
     submitter.wait_idle().unwrap();
-    acked_sizes += exec.poll(&mut sched).unwrap();
+    acked_sizes += deliver(exec.poll(frames.value().unwrap()).unwrap(), &mut sched);
     exec.collect(u64::MAX);
     let stats = exec.stats();
     assert_eq!((stats.retired_pending, stats.other_retired_pending), (0, 0));

@@ -20,9 +20,9 @@ use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, TlasInstance};
 use lipac_core::thresholds::Thresholds;
 use lipac_vk::{
-    hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, Buffer, DeviceContext,
-    FeedbackBindings, FeedbackBuffers, FeedbackPipeline, FrameSubmitter, MemoryLocation, OneShot,
-    ReadbackRing, TimelineSemaphore, VkError,
+    hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, Buffer,
+    CommandReadbackRing, DeviceContext, FeedbackBindings, FeedbackBuffers, FeedbackPipeline,
+    FrameSubmitter, MemoryLocation, OneShot, TimelineSemaphore, VkError,
 };
 use std::collections::{BTreeSet, HashMap};
 
@@ -337,7 +337,7 @@ fn assert_instances_equal(gpu: &[InstanceRecord], cpu: &[InstanceRecord], what: 
 
 /// Polls `try_read` until the slot's frame is there. (lavapipe may update
 /// the semaphore's counter value a moment after the submission's fence.)
-fn read_when_ready(ring: &mut ReadbackRing, slot: usize) -> lipac_vk::Readback {
+fn read_when_ready(ring: &mut CommandReadbackRing, slot: usize) -> lipac_vk::CommandReadback {
     let start = std::time::Instant::now();
     loop {
         if let Some(r) = ring.try_read(slot).unwrap() {
@@ -647,7 +647,7 @@ fn feedback_overflow_invariants() {
         let scene = Scene::new(ctx, &instances, &hits, &hitboxes, &index, capacity);
         let fb = scene.feedback_bindings(&feedback);
         assert_eq!(fb.command_capacity(), capacity);
-        let mut ring = ReadbackRing::new(ctx, 3, capacity).unwrap();
+        let mut ring = CommandReadbackRing::new(ctx, 3, capacity).unwrap();
         let mut submitter = FrameSubmitter::new(ctx, 2).unwrap();
         let mut ticket = None;
         let signal_value = ring.semaphore().value().unwrap() + 1;
@@ -709,12 +709,12 @@ fn feedback_overflow_invariants() {
             &what,
         );
 
-        // The core's queue takes the read-back and notes the overflow.
-        let mut queue = CommandQueue::new(n as u32);
-        let stats = readback.ingest_into(&mut queue);
-        assert_eq!(stats.accepted, capacity);
-        assert_eq!(stats.overflowed, all.requested() - capacity);
-        assert_eq!(queue.len(), capacity as usize);
+        // The read-back carries the counter and the stored words as they are
+        // (for Manager::ingest_readback), overflow included.
+        assert_eq!(readback.words().len(), capacity as usize);
+        assert_eq!(readback.counter(), all.requested());
+        assert_eq!(readback.overflowed(), all.requested() - capacity);
+        assert!(readback.is_full());
     }
     assert_no_validation_errors(&h);
 }
@@ -778,9 +778,9 @@ fn readback_ring_waits_for_the_gpu_wraps_and_never_blocks() {
     };
     let ctx = h.context();
     let capacity = 8u32;
-    let mut ring = ReadbackRing::new(ctx, 3, capacity).unwrap();
-    assert!(ReadbackRing::new(ctx, 0, 8).is_err());
-    assert!(ReadbackRing::new(ctx, 3, 0).is_err());
+    let mut ring = CommandReadbackRing::new(ctx, 3, capacity).unwrap();
+    assert!(CommandReadbackRing::new(ctx, 0, 8).is_err());
+    assert!(CommandReadbackRing::new(ctx, 3, 0).is_err());
     let gate = TimelineSemaphore::new(ctx, 0).unwrap();
     let mut submitter = FrameSubmitter::new(ctx, 4).unwrap();
     let usage = STORAGE | vk::BufferUsageFlags::TRANSFER_SRC;
@@ -1035,7 +1035,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
     };
     use lipac_core::layout::{InstanceState, VK_INSTANCE_CULL_DISABLE};
     use lipac_vk::{
-        BlasBatch, CountingConfig, GpuRay, ScratchBuffer, Tlas, TraceBuffers, TracePipeline,
+        BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, ScratchBuffer, TraceBuffers, TracePipeline,
         UnitCube,
     };
     let ctx = h.context();
@@ -1096,7 +1096,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
         ..Default::default()
     };
     let hitboxes = [active, active, HitboxRecord::default(), active];
-    let counting = CountingConfig::default();
+    let counting = CountingBoxConfig::default();
     let cfg = AssemblyConfig {
         unit_cube_blas: cube_blas.device_address(),
         counting_mask: counting.counting_mask,
@@ -1107,7 +1107,7 @@ fn assembled_tlas_builds_and_counts_boxes() {
     let scene = Scene::new(ctx, &instances, &[0; 4], &hitboxes, &index, 1);
     let assembly = AssemblyPipeline::new(ctx).unwrap();
     let ab = scene.assembly_bindings(&assembly);
-    let mut tlas = Tlas::new(ctx, 2, flags).unwrap();
+    let mut tlas = GpuTlas::new(ctx, 2, flags).unwrap();
     let _retired = one_shot
         .run(|rec| {
             assembly.record(rec, &ab, &cfg, 4)?;

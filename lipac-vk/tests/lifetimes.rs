@@ -9,9 +9,9 @@ use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::layout::TlasInstance;
 use lipac_vk::{
-    AccelerationStructurePool, BlasBatch, Buffer, CountingConfig, FrameSubmitter, GpuHit, GpuRay,
-    MemoryLocation, OneShot, Retirement, ScratchBuffer, TimelineSemaphore, TlasPair, TraceBuffers,
-    TracePipeline,
+    AccelerationStructurePool, BlasBatch, Buffer, CountingBoxConfig, FrameSubmitter, GpuHit,
+    GpuRay, MemoryLocation, OneShot, Retirement, ScratchBuffer, TimelineSemaphore, TlasPair,
+    TraceBuffers, TracePipeline,
 };
 use std::time::{Duration, Instant};
 
@@ -128,7 +128,7 @@ fn double_buffered_tlas_and_deferred_destruction() {
     );
     assert_ne!(pair.current().accel().raw(), pair.previous().accel().raw());
 
-    let pipeline = TracePipeline::new(ctx, &CountingConfig::default()).unwrap();
+    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let rays = [GpuRay {
         origin: [0.1, 0.2, 0.0],

@@ -10,8 +10,8 @@ use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::layout::{hitbox_bits, HitboxRecord, TlasInstance};
 use lipac_vk::{
-    counting_box_instance, BlasBatch, Buffer, CountingBoxKind, CountingConfig, GpuHit, GpuRay,
-    HitboxCounting, MemoryLocation, OneShot, ScratchBuffer, Tlas, TraceBuffers, TracePipeline,
+    counting_box_instance, BlasBatch, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay,
+    GpuTlas, HitboxCounting, MemoryLocation, OneShot, ScratchBuffer, TraceBuffers, TracePipeline,
     UnitCube,
 };
 
@@ -56,7 +56,7 @@ fn trace_counts_into_hitbox_records_saturating() {
         return;
     };
     let ctx = h.context();
-    let cfg = CountingConfig {
+    let cfg = CountingBoxConfig {
         omitted_box_sbt_offset: 3,
         hitbox_box_sbt_offset: 5,
         counting_mask: 0x80,
@@ -194,7 +194,7 @@ fn trace_counts_into_hitbox_records_saturating() {
     let instance_hits =
         Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &[0u32; SLOTS]).unwrap();
     let hitboxes = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &initial).unwrap();
-    let mut tlas = Tlas::new(ctx, 16, flags).unwrap();
+    let mut tlas = GpuTlas::new(ctx, 16, flags).unwrap();
     let _retired = one_shot
         .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
         .unwrap();

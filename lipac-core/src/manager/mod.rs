@@ -626,6 +626,18 @@ impl<H: HitboxIndex> Manager<H> {
         self.culling.ingest_readback(counter, words)
     }
 
+    /// For GPU backends: ingests the read-back of frame `frame` and sets the
+    /// CPU's mirror of the GPU-owned states from the commands' kinds first
+    /// ([`Culling::ingest_gpu_readback`]).
+    pub fn ingest_gpu_readback(
+        &mut self,
+        frame: u64,
+        counter: u32,
+        words: &[u32],
+    ) -> IngestSummary {
+        self.culling.ingest_gpu_readback(frame, counter, words)
+    }
+
     /// For GPU backends: the per-slot hit counters of a finished frame (read
     /// back), used to prioritise builds. CPU backends get them from
     /// [`Manager::process_feedback`].

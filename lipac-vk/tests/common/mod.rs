@@ -6,8 +6,8 @@ use glam::{Affine3A, Vec3};
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::affine_to_rows;
 use lipac_vk::{
-    Blas, BlasBatch, Buffer, GpuHit, GpuRay, HeadlessContext, MemoryLocation, OneShot,
-    ScratchBuffer, Tlas, TraceBuffers, TracePipeline, TriangleGeometry, Validation,
+    BlasBatch, Buffer, GpuBlas, GpuHit, GpuRay, GpuTlas, HeadlessContext, MemoryLocation, OneShot,
+    ScratchBuffer, TraceBuffers, TracePipeline, TriangleGeometry, Validation,
 };
 
 /// Whether the environment demands a Vulkan ray-query device (CI sets it).
@@ -138,7 +138,7 @@ pub fn build_blases(
     h: &HeadlessContext,
     meshes: &[&GpuMesh],
     flags: vk::BuildAccelerationStructureFlagsKHR,
-) -> Vec<Blas> {
+) -> Vec<GpuBlas> {
     let ctx = h.context();
     let mut batch = BlasBatch::new();
     for m in meshes {
@@ -235,7 +235,7 @@ pub fn cpu_trace(scene: &[SceneInstance], ray: &GpuRay) -> Option<CpuHit> {
 }
 
 /// A TLAS record for a scene instance.
-pub fn tlas_record(inst: &SceneInstance, blas: &Blas, mask: u8) -> TlasInstance {
+pub fn tlas_record(inst: &SceneInstance, blas: &GpuBlas, mask: u8) -> TlasInstance {
     TlasInstance::new(
         affine_to_rows(&inst.transform),
         inst.custom_index,
@@ -267,7 +267,7 @@ pub fn trace(
     rays: &[GpuRay],
     cull_mask: u8,
     counters: usize,
-) -> (Tlas, TraceOutcome) {
+) -> (GpuTlas, TraceOutcome) {
     let ctx = h.context();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let instances = Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, records).unwrap();
@@ -282,7 +282,7 @@ pub fn trace(
     let zeros = vec![0u32; counters];
     let instance_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
     let hitbox_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
-    let mut tlas = Tlas::new(
+    let mut tlas = GpuTlas::new(
         ctx,
         initial_capacity,
         vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,

@@ -1,0 +1,245 @@
+//! [`CameraTracer`]: GPU ray generation with lipac's counting.
+
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::context::DeviceContext;
+use crate::counting::CountingBoxConfig;
+use crate::error::{Result, VkError};
+use crate::memory::Buffer;
+use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
+use crate::shaders::CAMERA_TRACE_SPV;
+use crate::tlas::GpuTlas;
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+
+/// Work-group size of `camera_trace.comp` (8 × 8 pixels).
+const TILE: u32 = 8;
+
+/// Buffers of one [`CameraTracer`] frame (all need `STORAGE_BUFFER`).
+#[derive(Clone, Copy, Debug)]
+pub struct CameraTraceBuffers<'a> {
+    /// The TLAS to trace (built, its build barrier recorded).
+    pub tlas: &'a GpuTlas,
+    /// Per-slot `u32` hit counters.
+    pub instance_hits: &'a Buffer,
+    /// The hitbox records (box hits are added to their counts).
+    pub hitboxes: &'a Buffer,
+    /// The geometry-data buffer.
+    pub data: &'a Buffer,
+    /// Per-slot `u32` byte offsets into `data`.
+    pub data_offsets: &'a Buffer,
+    /// `width × height` RGBA8 pixels (`u32`, row 0 at the top).
+    pub image: &'a Buffer,
+}
+
+/// A descriptor set bound to one [`CameraTraceBuffers`]; keep it and the
+/// buffers alive until the traces recorded with it have executed (e.g.
+/// [`crate::LipacVk::retire_after_frame`]).
+#[derive(Debug)]
+pub struct CameraTraceBindings {
+    ctx: DeviceContext,
+    pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+    pixels: u64,
+}
+
+impl Drop for CameraTraceBindings {
+    fn drop(&mut self) {
+        // SAFETY: created on this device; frees the set with the pool; not in
+        // use by the GPU per the crate's drop contract.
+        unsafe { self.ctx.device().destroy_descriptor_pool(self.pool, None) };
+    }
+}
+
+/// One frame's camera for [`CameraTracer::record`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraView {
+    /// Eye position.
+    pub origin: [f32; 3],
+    /// Unit view direction.
+    pub forward: [f32; 3],
+    /// Right vector scaled by `tan(vfov / 2) · aspect`.
+    pub right: [f32; 3],
+    /// Up vector scaled by `tan(vfov / 2)`.
+    pub up: [f32; 3],
+    /// Unit direction towards the sun.
+    pub sun: [f32; 3],
+    /// Largest primary-ray distance.
+    pub t_max: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Seed of the bounce directions (e.g. the frame number).
+    pub seed: u32,
+    /// Trace the sun shadow rays.
+    pub shadows: bool,
+    /// Trace one diffuse bounce.
+    pub bounce: bool,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Push {
+    origin_t_max: [f32; 4],
+    forward: [f32; 4],
+    right: [f32; 4],
+    up: [f32; 4],
+    sun: [f32; 4],
+    width: u32,
+    height: u32,
+    seed: u32,
+    passes: u32,
+}
+
+/// [`CameraTracer`]: a frame's rays generated and traced on the GPU
+/// (`camera_trace.comp`), every ray through `lipac_counting.glsl`. It stands
+/// in for an engine's own ray-query pass: one primary ray per pixel, a sun
+/// shadow ray and one diffuse bounce from each primary hit, hits counted as
+/// [`crate::LipacVk`] expects (instance boxes and committed hits into
+/// [`crate::LipacVk::instance_hits`], hitbox boxes into
+/// [`crate::LipacVk::hitbox_records`]), shading from the instances'
+/// geometry data (4 `f32`: RGB albedo and one spare, at
+/// [`crate::LipacVk::instance_data_offsets`]). Writes one RGBA8 `u32` per
+/// pixel.
+#[derive(Debug)]
+pub struct CameraTracer {
+    ctx: DeviceContext,
+    pipeline: RayQueryPipeline,
+}
+
+fn v4(v: [f32; 3], w: f32) -> [f32; 4] {
+    [v[0], v[1], v[2], w]
+}
+
+impl CameraTracer {
+    /// Creates the pipeline with `config` as specialization constants.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
+        Ok(Self {
+            ctx: ctx.clone(),
+            pipeline: RayQueryPipeline::new(
+                ctx,
+                CAMERA_TRACE_SPV,
+                config,
+                5,
+                std::mem::size_of::<Push>() as u32,
+            )?,
+        })
+    }
+
+    /// Creates a descriptor set for `buffers`.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::MissingUsage`] when a buffer lacks `STORAGE_BUFFER`,
+    /// [`VkError::WrongContext`], [`VkError::Vulkan`].
+    pub fn bind(&self, buffers: &CameraTraceBuffers<'_>) -> Result<CameraTraceBindings> {
+        let storage = [
+            buffers.instance_hits,
+            buffers.hitboxes,
+            buffers.data,
+            buffers.data_offsets,
+            buffers.image,
+        ];
+        for b in storage {
+            same_context(&self.ctx, b.context())?;
+            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
+                return Err(VkError::MissingUsage(
+                    "STORAGE_BUFFER for a camera trace buffer",
+                ));
+            }
+        }
+        let (pool, set) = bind_ray_query_set(&self.ctx, &self.pipeline, buffers.tlas, &storage)?;
+        Ok(CameraTraceBindings {
+            ctx: self.ctx.clone(),
+            pool,
+            set,
+            pixels: buffers.image.size() / 4,
+        })
+    }
+
+    /// Records the frame's trace, with a barrier before (the TLAS build and
+    /// the cleared counters) and after (counters, hitbox records and image
+    /// visible to every later command and the host).
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] when the image buffer is smaller than
+    /// `width × height` pixels or the dispatch is too large;
+    /// [`VkError::WrongContext`].
+    pub fn record(
+        &self,
+        rec: &mut Recorder<'_>,
+        bindings: &CameraTraceBindings,
+        view: &CameraView,
+    ) -> Result<()> {
+        same_context(rec.context(), &self.ctx)?;
+        same_context(rec.context(), &bindings.ctx)?;
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        let (gx, gy) = (view.width.div_ceil(TILE), view.height.div_ceil(TILE));
+        if pixels == 0 || pixels > bindings.pixels || gx > 65_535 || gy > 65_535 {
+            return Err(VkError::InvalidArgument(format!(
+                "{}x{} pixels for an image of {} pixels",
+                view.width, view.height, bindings.pixels
+            )));
+        }
+        let push = Push {
+            origin_t_max: v4(view.origin, view.t_max),
+            forward: v4(view.forward, 0.0),
+            right: v4(view.right, 0.0),
+            up: v4(view.up, 0.0),
+            sun: v4(view.sun, 0.0),
+            width: view.width,
+            height: view.height,
+            seed: view.seed,
+            passes: u32::from(view.shadows) | (u32::from(view.bounce) << 1),
+        };
+        rec.memory_barrier(
+            vk::PipelineStageFlags2::ALL_COMMANDS,
+            vk::AccessFlags2::MEMORY_WRITE,
+            vk::PipelineStageFlags2::COMPUTE_SHADER,
+            vk::AccessFlags2::SHADER_STORAGE_READ
+                | vk::AccessFlags2::SHADER_STORAGE_WRITE
+                | vk::AccessFlags2::ACCELERATION_STRUCTURE_READ_KHR,
+        );
+        let device = self.ctx.device();
+        // SAFETY: recording on this device (Recorder contract); pipeline, layout
+        // and set are live and compatible; the push block matches the layout.
+        unsafe {
+            device.cmd_bind_pipeline(
+                rec.raw(),
+                vk::PipelineBindPoint::COMPUTE,
+                self.pipeline.pipeline,
+            );
+            device.cmd_bind_descriptor_sets(
+                rec.raw(),
+                vk::PipelineBindPoint::COMPUTE,
+                self.pipeline.layout,
+                0,
+                &[bindings.set],
+                &[],
+            );
+            device.cmd_push_constants(
+                rec.raw(),
+                self.pipeline.layout,
+                vk::ShaderStageFlags::COMPUTE,
+                0,
+                bytemuck::bytes_of(&push),
+            );
+            device.cmd_dispatch(rec.raw(), gx, gy, 1);
+        }
+        rec.memory_barrier(
+            vk::PipelineStageFlags2::COMPUTE_SHADER,
+            vk::AccessFlags2::SHADER_STORAGE_WRITE,
+            vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST,
+            vk::AccessFlags2::MEMORY_READ
+                | vk::AccessFlags2::MEMORY_WRITE
+                | vk::AccessFlags2::HOST_READ,
+        );
+        Ok(())
+    }
+}
