@@ -41,7 +41,7 @@ mod model;
 mod validate;
 
 pub use binary::{TraceReader, TraceWriter, PREAMBLE_BYTES};
-pub use convert::{binary_to_jsonl, jsonl_to_binary, TraceFormat};
+pub use convert::{binary_to_jsonl, jsonl_to_binary, Peeked, TraceFormat, MAX_DETECT_WHITESPACE};
 pub use error::{TraceError, TraceErrorKind, TraceLocation};
 pub use jsonl::{JsonlReader, JsonlWriter, JSONL_FORMAT_NAME};
 pub use model::{
