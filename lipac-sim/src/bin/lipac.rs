@@ -8,6 +8,8 @@
 //! cargo run --release -p lipac-sim --bin lipac -- sweep --frames 60
 //! ```
 
+#[path = "../cli/output.rs"]
+mod output;
 #[path = "../cli/trace_cmds.rs"]
 mod trace_cmds;
 
@@ -17,7 +19,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
-use lipac_sim::compare::{run_choice, CompareConfig, SceneChoice};
+use lipac_sim::compare::{check_image_size, run_choice, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report};
 use lipac_sim::strategy::StrategyKind;
 use lipac_sim::sweep::{self, SweepConfig};
@@ -191,11 +193,14 @@ fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Resu
 }
 
 fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
+    output::check_not_input(out, &[from])?;
     let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
     let mut report: sweep::SweepReport =
         serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
     sweep::mark_fronts(&mut report);
-    sweep::write_sweep(&report, out).map_err(|e| e.to_string())?;
+    output::publish_dir(out, &[from], |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| e.to_string())
+    })?;
     println!("sweep in {}/sweep.md", out.display());
     Ok(())
 }
@@ -242,7 +247,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             threads: a.threads,
         })
     })();
-    let config = match parsed {
+    let config = match parsed.and_then(|c| {
+        check_image_size(c.width, c.height).map_err(|e| e.to_string())?;
+        Ok(c)
+    }) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("lipac sweep: {e}");
@@ -269,7 +277,9 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         }
     };
     print!("{}", sweep::sweep_markdown(&report));
-    match sweep::write_sweep(&report, &a.out) {
+    match output::publish_dir(&a.out, &[], |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| e.to_string())
+    }) {
         Ok(_) => {
             println!("\nsweep in {}/sweep.md", a.out.display());
             ExitCode::SUCCESS
@@ -296,6 +306,14 @@ fn main() -> ExitCode {
     } else {
         strategies.into_iter().map(Into::into).collect()
     };
+    if let Err(e) = check_image_size(common.width, common.height) {
+        eprintln!("lipac: {e}");
+        return ExitCode::FAILURE;
+    }
+    if common.frames == Some(0) {
+        eprintln!("lipac: --frames 0: nothing to render (give at least 1)");
+        return ExitCode::FAILURE;
+    }
     let config = CompareConfig {
         frames: common.frames,
         width: common.width,
@@ -331,7 +349,9 @@ fn main() -> ExitCode {
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report(&report, &common.out) {
+    match output::publish_dir(&common.out, &[], |dir| {
+        write_report(&report, dir).map_err(|e| e.to_string())
+    }) {
         Ok(_) => {
             println!(
                 "{} frames in {:.1} s; report in {}/report.md",
