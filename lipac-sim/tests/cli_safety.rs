@@ -319,7 +319,11 @@ fn replay_errors_name_file_frame_location_and_value() {
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(e.contains("aspect.lipactrace"), "{e}");
-    assert!(e.contains("frame record 1 (frame number 7) at byte"), "{e}");
+    // Frame 1's record: preamble 20 + header 95 + frame 0 record 163.
+    assert!(
+        e.contains("frame record 1 (frame number 7) at byte 278"),
+        "{e}"
+    );
     assert!(e.contains("aspect 1e-45"), "{e}");
 
     // An instance far outside the world: printed as given, not as the
