@@ -166,7 +166,22 @@ impl Drop for OutputFile {
     }
 }
 
-/// Writes a report folder: `write` fills a fresh temporary folder beside
+/// The files under `root/rel`, as paths relative to `root`.
+fn collect_files(root: &Path, rel: &Path, out: &mut Vec<PathBuf>) -> Result<(), String> {
+    let here = root.join(rel);
+    for entry in fs::read_dir(&here).map_err(|e| io_err(&here, e))? {
+        let entry = entry.map_err(|e| io_err(&here, e))?;
+        let rel = rel.join(entry.file_name());
+        if entry.file_type().map_err(|e| io_err(&here, e))?.is_dir() {
+            collect_files(root, &rel, out)?;
+        } else {
+            out.push(rel);
+        }
+    }
+    Ok(())
+}
+
+/// Writes a report folder (subfolders included): `write` fills a fresh temporary folder beside
 /// `dir`; on success `dir` is created if missing and each written file is
 /// renamed into it (replacing only files of the same names, earlier
 /// outputs of the same command); then the temporary folder is removed.
@@ -191,15 +206,13 @@ pub fn publish_dir<T>(
         .map_err(|e| io_err(dir, format!("cannot create a folder beside it: {e}")))?;
     let result = write(&tmp).and_then(|out| {
         fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
-        let mut names = Vec::new();
-        for entry in fs::read_dir(&tmp).map_err(|e| io_err(&tmp, e))? {
-            names.push(entry.map_err(|e| io_err(&tmp, e))?.file_name());
-        }
-        names.sort();
+        let mut files = Vec::new();
+        collect_files(&tmp, Path::new(""), &mut files)?;
+        files.sort();
         // Every target checked before the first one is replaced.
-        let mut moves = Vec::with_capacity(names.len());
-        for name in names {
-            let to = resolve_target(&dir.join(&name));
+        let mut moves = Vec::with_capacity(files.len());
+        for rel in files {
+            let to = resolve_target(&dir.join(&rel));
             if to.is_dir() {
                 return Err(io_err(
                     &to,
@@ -207,9 +220,12 @@ pub fn publish_dir<T>(
                 ));
             }
             check_not_input(&to, inputs)?;
-            moves.push((tmp.join(&name), to));
+            moves.push((tmp.join(&rel), to));
         }
         for (from, to) in moves {
+            if let Some(parent) = to.parent() {
+                fs::create_dir_all(parent).map_err(|e| io_err(parent, e))?;
+            }
             fs::rename(&from, &to).map_err(|e| io_err(&to, e))?;
         }
         Ok(out)
