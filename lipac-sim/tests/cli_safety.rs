@@ -1,6 +1,7 @@
 //! The `lipac` binary never destroys a user's file, reads every input once
 //! (FIFOs, standard input), refuses sizes it cannot allocate, and names
-//! where a replay failed (issue 12).
+//! where a replay failed (issue 12). Unix only (symbolic links, FIFOs).
+#![cfg(unix)]
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
