@@ -57,6 +57,9 @@ pub enum SimError {
     /// A valid trace that cannot be replayed as asked (e.g. a strategy that
     /// needs geometry on a hits-only trace).
     Replay(String),
+    /// Sweep shards that do not merge into one sweep (missing, repeated,
+    /// from other settings).
+    Shard(String),
 }
 
 impl fmt::Display for SimError {
@@ -88,6 +91,7 @@ impl fmt::Display for SimError {
             Self::Io(what) => write!(f, "i/o: {what}"),
             Self::Trace(e) => write!(f, "{e}"),
             Self::Replay(what) => write!(f, "cannot replay: {what}"),
+            Self::Shard(what) => write!(f, "cannot merge sweep shards: {what}"),
         }
     }
 }
