@@ -225,7 +225,10 @@ fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
     let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
     let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
     print!("{}", sweep::sweep_markdown(&report));
-    sweep::write_sweep(&report, out).map_err(|e| format!("writing the report: {e}"))?;
+    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
+    output::publish_dir(out, &inputs, |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| format!("writing the report: {e}"))
+    })?;
     println!(
         "\n{} shards merged; sweep in {}/sweep.md",
         shards.len(),
@@ -314,7 +317,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         let result = sweep::shard::run_shard(&config, shard, &mut progress);
         bar.finish_and_clear();
         return done(result.map_err(|e| e.to_string()).and_then(|part| {
-            let path = sweep::shard::write_shard(&part, &a.out).map_err(|e| e.to_string())?;
+            let written = output::publish_dir(&a.out, &[], |dir| {
+                sweep::shard::write_shard(&part, dir).map_err(|e| e.to_string())
+            })?;
+            let path = a.out.join(written.file_name().unwrap_or_default());
             println!(
                 "shard {shard}: {} of the sweep's {} (scene, configuration) runs, on {} scene(s), in {:.1} s; results in {}",
                 part.points.len(),
