@@ -46,6 +46,12 @@ pub const fn hit_feedback_bytes(instance_slots: u32) -> u64 {
     instance_slots as u64 * HIT_FEEDBACK_BYTES_PER_INSTANCE
 }
 
+/// A sensible cap on the cells of a grid that something will allocate per
+/// cell (hitbox records, per-cell state): 2^24 cells, i.e. 192 MiB of
+/// hitbox records at [`HITBOX_BYTES`] each, a 4096 × 4096 grid (65 km
+/// square at the paper's 16 m cells). See [`HitboxGrid::with_max_cells`].
+pub const DEFAULT_MAX_GRID_CELLS: u64 = 1 << 24;
+
 /// Parameters of a [`HitboxGrid`], in metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GridConfig {
@@ -146,6 +152,39 @@ impl HitboxGrid {
             inv_cell: cell_size.recip(),
             dims,
         })
+    }
+
+    /// As [`HitboxGrid::new`], also rejecting grids of more than `max_cells`
+    /// cells, with an error naming the dimensions, the cell count, the
+    /// hitbox bytes it would take and the limit. For grids from untrusted
+    /// input (a trace header, a configuration file) whose consumers allocate
+    /// per cell; [`DEFAULT_MAX_GRID_CELLS`] is a sensible `max_cells`.
+    ///
+    /// ```
+    /// use lipac_core::grid::{GridConfig, HitboxGrid, DEFAULT_MAX_GRID_CELLS};
+    /// // 65535 x 65535 one-metre cells: 51.5 GB of hitbox records.
+    /// let huge = GridConfig { min: [0.0, 0.0], max: [65535.0, 65535.0], cell_size: 1.0 };
+    /// assert!(HitboxGrid::new(huge).is_ok()); // only its size is stored
+    /// let e = HitboxGrid::with_max_cells(huge, DEFAULT_MAX_GRID_CELLS).unwrap_err();
+    /// assert!(e.to_string().contains("4294836225 cells"), "{e}");
+    /// ```
+    pub fn with_max_cells(config: GridConfig, max_cells: u64) -> Result<Self, CoreError> {
+        let grid = Self::new(config)?;
+        let cells = u64::from(grid.len());
+        if cells > max_cells {
+            let (nx, nz) = grid.dims();
+            return Err(CoreError::InvalidConfig {
+                what: format!(
+                    "grid of {nx} x {nz} = {cells} cells ({} bytes of hitbox records; \
+                     world {:?}..{:?}, cell size {}) exceeds the limit of {max_cells} cells",
+                    cells * HITBOX_BYTES,
+                    config.min,
+                    config.max,
+                    config.cell_size
+                ),
+            });
+        }
+        Ok(grid)
     }
 
     /// Cells along x and z.
@@ -464,6 +503,26 @@ mod tests {
         // Just below the limit is fine: 65535 x 65537 = u32::MAX cells.
         let g = grid([0.0, 0.0], [65_535.0, 65_537.0], 1.0);
         assert_eq!(g.len(), u32::MAX);
+    }
+
+    #[test]
+    fn cell_cap_rejects_large_grids_naming_the_count() {
+        let config = |n: f64| GridConfig {
+            min: [0.0, 0.0],
+            max: [n, n],
+            cell_size: 1.0,
+        };
+        assert!(HitboxGrid::with_max_cells(config(4096.0), DEFAULT_MAX_GRID_CELLS).is_ok());
+        match HitboxGrid::with_max_cells(config(4097.0), DEFAULT_MAX_GRID_CELLS) {
+            Err(CoreError::InvalidConfig { what }) => {
+                assert!(what.contains("4097 x 4097 = 16785409 cells"), "{what}");
+                assert!(what.contains("201424908 bytes"), "{what}");
+                assert!(what.contains("limit of 16777216 cells"), "{what}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(HitboxGrid::with_max_cells(config(10.0), 99).is_err());
+        assert!(HitboxGrid::with_max_cells(config(10.0), 100).is_ok());
     }
 
     #[test]

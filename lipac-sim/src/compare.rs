@@ -345,6 +345,24 @@ impl std::fmt::Debug for Comparison {
     }
 }
 
+/// Most pixels an image may have (`width * height`): 2^24, a 4096 x 4096
+/// image (the tracer keeps several buffers per pixel; 100000 x 100000 would
+/// ask for about 120 GB).
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+
+/// Checks an image size: both sides at least 1 and at most
+/// [`MAX_IMAGE_PIXELS`] pixels in all; the error names the values given.
+pub fn check_image_size(width: u32, height: u32) -> Result<(), SimError> {
+    let pixels = u64::from(width) * u64::from(height);
+    if width == 0 || height == 0 || pixels > MAX_IMAGE_PIXELS {
+        return Err(SimError::BadValue(format!(
+            "image size {width} x {height} ({pixels} pixels): width and height must be at \
+             least 1 and width x height at most {MAX_IMAGE_PIXELS} pixels (e.g. 4096 x 4096)"
+        )));
+    }
+    Ok(())
+}
+
 impl Comparison {
     /// Sets up the strategies of `config` on `scene` (its instance set is
     /// fixed from now on; only animated transforms change between frames).
@@ -370,6 +388,7 @@ impl Comparison {
                 return Err(SimError::BadConfig("two strategies share a report name"));
             }
         }
+        check_image_size(config.width, config.height)?;
         let rays_per_frame = u64::from(config.width) * u64::from(config.height);
         let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
         let pt = PathTraceConfig {

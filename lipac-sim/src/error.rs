@@ -38,6 +38,8 @@ pub enum SimError {
     NotUnique(u32),
     /// A configuration value out of its range.
     BadConfig(&'static str),
+    /// A configuration value out of its range, naming the value as given.
+    BadValue(String),
     /// Two images (or buffers) that must match in size do not.
     SizeMismatch {
         /// Length of the first.
@@ -83,6 +85,7 @@ impl fmt::Display for SimError {
                 write!(f, "instance {i} shares its mesh; it has no unique geometry")
             }
             Self::BadConfig(what) => write!(f, "bad configuration: {what}"),
+            Self::BadValue(what) => write!(f, "bad configuration: {what}"),
             Self::SizeMismatch { a, b } => write!(f, "sizes differ: {a} vs {b}"),
             Self::Core(what) => write!(f, "lipac-core: {what}"),
             Self::Io(what) => write!(f, "i/o: {what}"),

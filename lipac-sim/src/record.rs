@@ -162,13 +162,25 @@ pub fn to_trace_camera(c: &Camera) -> trace::Camera {
 /// forward vector (roll is dropped).
 pub fn from_trace_camera(c: &trace::Camera) -> Result<Camera, SimError> {
     let f = c.forward();
-    Camera::new(
+    let camera = Camera::new(
         c.position,
         f.x.atan2(f.z),
         f.y.clamp(-1.0, 1.0).asin(),
         c.vertical_fov,
         c.aspect,
-    )
+    )?;
+    // Valid trace values can still make no usable projection (an aspect of
+    // 1e-45 overflows it): say which values, as given.
+    if !camera.view_proj().is_finite() {
+        return Err(SimError::BadValue(format!(
+            "camera (position {:?}, vertical_fov {:?}, aspect {:?}) gives a non-finite \
+             view-projection matrix",
+            c.position.to_array(),
+            c.vertical_fov,
+            c.aspect
+        )));
+    }
+    Ok(camera)
 }
 
 /// The hitbox grid LiPaC uses for a scene with `bounds`

@@ -26,17 +26,22 @@
 //! The trace is read frame by frame ([`TraceInput::next_frame_into`] reuses
 //! one [`Frame`]); apart from the per-frame metrics kept for the report (see
 //! [`ReplayConfig::keep_frames`]), memory follows the live instances, not the
-//! trace's length.
+//! trace's length. Every error names where: the trace's own errors their
+//! byte offset or line, frame and event; any other error the frame read
+//! last ([`TraceInput::position`]).
 
 pub mod hits;
 
 use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::Read;
 use std::path::Path;
 
 use glam::{Quat, Vec3};
+use lipac_core::grid::HitboxGrid;
+use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::trace::{
-    self, Frame, InstanceEvent, JsonlReader, TraceError, TraceFormat, TraceHeader, TraceReader,
+    self, Frame, InstanceEvent, JsonlReader, Peeked, TraceError, TraceErrorKind, TraceFormat,
+    TraceHeader, TraceLocation, TraceReader,
 };
 
 use crate::compare::{CompareConfig, CompareReport, Comparison};
@@ -102,19 +107,35 @@ pub enum TraceInput<R: Read> {
     Jsonl(JsonlReader<R>),
 }
 
-impl TraceInput<BufReader<File>> {
-    /// Opens the trace at `path`, detecting its encoding.
+impl TraceInput<Peeked<File>> {
+    /// Opens the trace at `path` (once: FIFOs work), detecting its
+    /// encoding.
     pub fn open(path: &Path) -> Result<Self, SimError> {
         let io = |e: std::io::Error| SimError::Io(format!("{}: {e}", path.display()));
-        let mut prefix = Vec::with_capacity(64);
-        File::open(path)
-            .map_err(io)?
-            .take(64)
-            .read_to_end(&mut prefix)
-            .map_err(io)?;
-        let format = TraceFormat::detect(&prefix).unwrap_or(TraceFormat::Binary);
-        let file = BufReader::new(File::open(path).map_err(io)?);
-        Self::new(format, file)
+        Self::detect(File::open(path).map_err(io)?)
+    }
+}
+
+impl<R: Read> TraceInput<Peeked<R>> {
+    /// Reads the header of the trace `r` (a file, a pipe, standard input),
+    /// detecting its encoding from its first bytes: the stream is read
+    /// once, from the start (no second open, no seek). Input that is
+    /// neither encoding is read as binary, whose error names the bytes found.
+    pub fn detect(r: R) -> Result<Self, SimError> {
+        let (format, r) = TraceFormat::detect_stream(r).map_err(|e| {
+            SimError::Trace(Box::new(TraceError::at(
+                TraceLocation::Byte(0),
+                io_kind(&e),
+            )))
+        })?;
+        Self::new(format.unwrap_or(TraceFormat::Binary), r)
+    }
+}
+
+fn io_kind(e: &std::io::Error) -> TraceErrorKind {
+    TraceErrorKind::Io {
+        kind: e.kind(),
+        message: e.to_string(),
     }
 }
 
@@ -135,23 +156,110 @@ impl<R: Read> TraceInput<R> {
     }
     /// Reads the next frame into `frame` (reusing its buffers for binary
     /// traces); `false` after the end.
+    ///
+    /// Besides the readers' checks, every instance's AABB centre must lie in
+    /// the header's world grid (replay registers each instance with it):
+    /// an error names the event, its location and the box as given.
     pub fn next_frame_into(&mut self, frame: &mut Frame) -> Result<bool, TraceError> {
-        match self {
-            Self::Binary(r) => r.next_frame_into(frame),
+        let more = match self {
+            Self::Binary(r) => r.next_frame_into(frame)?,
             Self::Jsonl(r) => match r.next_frame()? {
                 Some(f) => {
                     *frame = f;
-                    Ok(true)
+                    true
                 }
-                None => Ok(false),
+                None => false,
             },
+        };
+        if more {
+            self.check_in_world(frame)?;
         }
+        Ok(more)
+    }
+    fn check_in_world(&self, frame: &Frame) -> Result<(), TraceError> {
+        let Ok(grid) = HitboxGrid::new(self.header().world.grid_config()) else {
+            return Ok(()); // (the readers checked the grid)
+        };
+        for (i, e) in frame.events.iter().enumerate() {
+            let pose = match e {
+                InstanceEvent::Add(a) => &a.pose,
+                InstanceEvent::Update(u) => match &u.pose {
+                    Some(p) => p,
+                    None => continue,
+                },
+                InstanceEvent::Remove { .. } => continue,
+            };
+            if grid.hitbox_of(&pose.aabb).is_some() {
+                continue;
+            }
+            let (lo, hi) = (pose.aabb.min, pose.aabb.max);
+            let centre = |a: f32, b: f32| (f64::from(a) + f64::from(b)) / 2.0;
+            let (min, max) = (grid.min(), grid.max());
+            return Err(TraceError {
+                location: match self {
+                    Self::Binary(r) => {
+                        TraceLocation::Byte(r.event_offset(i).unwrap_or(r.record_offset()))
+                    }
+                    Self::Jsonl(r) => TraceLocation::Line(r.line()),
+                },
+                frame_index: Some(self.frames_read().saturating_sub(1)),
+                frame_number: Some(frame.number),
+                event: Some(i as u32),
+                kind: TraceErrorKind::InvalidAabb {
+                    what: "instance AABB",
+                    min: lo.to_array(),
+                    max: hi.to_array(),
+                    reason: format!(
+                        "instance {}: its centre (x {:?}, z {:?}) lies outside the world grid \
+                         x {:?}..{:?}, z {:?}..{:?} of the header; replay needs every instance \
+                         inside it",
+                        e.id(),
+                        centre(lo.x, hi.x),
+                        centre(lo.z, hi.z),
+                        min[0],
+                        max[0],
+                        min[1],
+                        max[1]
+                    ),
+                },
+            });
+        }
+        Ok(())
     }
     /// Instances live after the frames read (the validator's set).
     pub fn live_instances(&self) -> usize {
         match self {
             Self::Binary(r) => r.validator().live_instances(),
             Self::Jsonl(r) => r.validator().live_instances(),
+        }
+    }
+    /// Frames read so far.
+    pub fn frames_read(&self) -> u64 {
+        match self {
+            Self::Binary(r) => r.frames_read(),
+            Self::Jsonl(r) => r.frames_read(),
+        }
+    }
+    /// Where the last frame read is (binary: the offset of its record;
+    /// JSON lines: its line), and its frame number, as text for errors:
+    /// `"frame record 3 (frame number 7) at byte 1234"`, or `"before the
+    /// first frame"`.
+    pub fn position(&self) -> String {
+        let (at, number) = match self {
+            Self::Binary(r) => (
+                TraceLocation::Byte(r.record_offset()),
+                r.validator().last_frame_number(),
+            ),
+            Self::Jsonl(r) => (
+                TraceLocation::Line(r.line()),
+                r.validator().last_frame_number(),
+            ),
+        };
+        match (self.frames_read(), number) {
+            (0, _) | (_, None) => format!("before the first frame ({at})"),
+            (n, Some(number)) => {
+                format!("frame record {} (frame number {number}) at {at}", n - 1)
+            }
         }
     }
 }
@@ -200,7 +308,8 @@ pub fn replay_with_snapshots<R: Read>(
     config: &ReplayConfig,
     progress: &mut dyn FnMut(u64),
 ) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
-    match mode_for(input.header(), config) {
+    crate::compare::check_image_size(config.width, config.height)?;
+    let result = match mode_for(input.header(), config) {
         ReplayMode::Geometry => replay_geometry(&mut input, config, progress),
         ReplayMode::HitsOnly if !config.snapshots.is_empty() => Err(SimError::Replay(
             "snapshots need geometry mode: a hits-only replay renders no images".into(),
@@ -208,7 +317,14 @@ pub fn replay_with_snapshots<R: Read>(
         ReplayMode::HitsOnly => {
             hits::replay_hits(&mut input, config, progress).map(|r| (r, Vec::new()))
         }
-    }
+    };
+    // Errors of the trace name their own location; any other comes from the
+    // frame read last: say which, and where.
+    result.map_err(|e| match e {
+        SimError::Trace(_) => e,
+        SimError::Replay(what) => SimError::Replay(format!("{}: {what}", input.position())),
+        other => SimError::Replay(format!("{}: {other}", input.position())),
+    })
 }
 
 fn replay_geometry<R: Read>(
@@ -248,12 +364,8 @@ fn replay_geometry<R: Read>(
     let mut path = None;
     let mut read = 0u64;
     while input.next_frame_into(&mut frame)? {
-        let bad = |what: String| {
-            SimError::Replay(format!(
-                "frame record {read} (frame number {}): {what}",
-                frame.number
-            ))
-        };
+        // (`replay` adds the frame and its location.)
+        let bad = SimError::Replay;
         let number =
             u32::try_from(frame.number).map_err(|_| bad("frame number above 2^32 - 1".into()))?;
         scene.set_frame(number);

@@ -476,7 +476,7 @@ fn decode_header(c: &mut Cur<'_>, limits: &TraceLimits) -> Result<(TraceHeader, 
         max: [w[2], w[3]],
         cell_size: w[4],
     };
-    c.check(world_at, check_world(&world))?;
+    c.check(world_at, check_world(&world, limits))?;
     let n = c.count("mesh count", MIN_MESH_BYTES, |n| {
         check_mesh_count(n, limits)
     })?;
@@ -553,9 +553,14 @@ struct FrameOffsets {
     in_event: Option<u32>,
 }
 
+/// Decodes a frame record into `frame`, passing each part through
+/// `validator` as soon as it is decoded: a bad event is reported before the
+/// events after it are decoded, so rejecting a record never costs more than
+/// its bytes and the events before the fault.
 fn decode_frame(
     c: &mut Cur<'_>,
     limits: &TraceLimits,
+    validator: &mut TraceValidator,
     frame: &mut Frame,
     offsets: &mut FrameOffsets,
 ) -> Result<(), Fault> {
@@ -576,6 +581,15 @@ fn decode_frame(
         vertical_fov: c.f32("camera vertical_fov")?,
         aspect: c.f32("camera aspect")?,
     };
+    validator
+        .begin_frame(frame.number, &frame.camera)
+        .map_err(|FrameFault { kind, .. }| {
+            let at = match kind {
+                TraceErrorKind::FrameOrder { .. } => offsets.payload,
+                _ => offsets.camera,
+            };
+            (at, kind)
+        })?;
     let n = c.count("event count", MIN_EVENT_BYTES, |n| {
         check_event_count(n, limits)
     })?;
@@ -673,6 +687,9 @@ fn decode_frame(
                 ))
             }
         };
+        validator
+            .check_next_event(i as u32, &e)
+            .map_err(|f| (at, f.kind))?;
         frame.events.push(e);
     }
     offsets.in_event = None;
@@ -700,7 +717,13 @@ fn decode_frame(
             ))
         }
     }
-    c.finish("frame")
+    c.finish("frame")?;
+    if let Some(hits) = &frame.hits {
+        validator
+            .check_hits(hits)
+            .map_err(|f| (offsets.hits, f.kind))?;
+    }
+    Ok(())
 }
 
 /// Reads up to `n` more bytes from `r` onto `buf`, in bounded steps so that
@@ -757,6 +780,7 @@ pub struct TraceReader<R: Read> {
     header: TraceHeader,
     validator: TraceValidator,
     offset: u64,
+    record_at: u64,
     buf: Vec<u8>,
     offsets: FrameOffsets,
     state: ReadState,
@@ -853,6 +877,7 @@ impl<R: Read> TraceReader<R> {
             header,
             validator: TraceValidator::with_meshes(meshes, limits),
             offset: PREAMBLE_BYTES + header_len,
+            record_at: PREAMBLE_BYTES + header_len,
             buf,
             offsets: FrameOffsets::default(),
             state: ReadState::Frames,
@@ -882,6 +907,18 @@ impl<R: Read> TraceReader<R> {
     /// Bytes consumed so far (the offset of the next record).
     pub fn offset(&self) -> u64 {
         self.offset
+    }
+
+    /// Offset of the last frame record read (its length field), for
+    /// errors found by the caller in the frame it got; the first record's
+    /// offset before any was read.
+    pub fn record_offset(&self) -> u64 {
+        self.record_at
+    }
+
+    /// Offset of event `i` of the last frame decoded, if it has one.
+    pub fn event_offset(&self, i: usize) -> Option<u64> {
+        self.offsets.events.get(i).copied()
     }
 
     /// The next frame, or `None` after the end marker.
@@ -935,6 +972,7 @@ impl<R: Read> TraceReader<R> {
 
     fn read_record(&mut self, frame: Option<&mut Frame>) -> Result<Option<u64>, TraceError> {
         let record_at = self.offset;
+        self.record_at = record_at;
         let index = self.validator.frames();
         let mut number = None;
         let err = |at: u64, number: Option<u64>, event: Option<u32>, kind| TraceError {
@@ -1040,28 +1078,14 @@ impl<R: Read> TraceReader<R> {
             pos: 0,
             base: payload_at,
         };
-        decode_frame(&mut c, &self.limits, frame, &mut self.offsets)
-            .map_err(|(at, k)| err(at, number, self.offsets.in_event, k))?;
-        self.validator
-            .check_frame(frame)
-            .map_err(|FrameFault { event, kind }| {
-                let at = match (event, &kind) {
-                    (Some(i), _) => self
-                        .offsets
-                        .events
-                        .get(i as usize)
-                        .copied()
-                        .unwrap_or(payload_at),
-                    (
-                        None,
-                        TraceErrorKind::UnknownInstance { .. }
-                        | TraceErrorKind::DuplicateHits { .. },
-                    ) => self.offsets.hits,
-                    (None, TraceErrorKind::FrameOrder { .. }) => self.offsets.payload,
-                    (None, _) => self.offsets.camera,
-                };
-                err(at, number, event, kind)
-            })?;
+        decode_frame(
+            &mut c,
+            &self.limits,
+            &mut self.validator,
+            frame,
+            &mut self.offsets,
+        )
+        .map_err(|(at, k)| err(at, number, self.offsets.in_event, k))?;
         Ok(Some(frame.number))
     }
 

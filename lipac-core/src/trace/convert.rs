@@ -5,7 +5,7 @@ use super::error::TraceError;
 use super::jsonl::{JsonlReader, JsonlWriter};
 use super::model::TraceLimits;
 use super::TRACE_MAGIC;
-use std::io::{Read, Write};
+use std::io::{self, Read, Write};
 
 /// The two encodings of a trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,7 +37,65 @@ impl TraceFormat {
             _ => None,
         }
     }
+
+    /// Detects the encoding of the stream `r` by reading its first bytes
+    /// (as [`TraceFormat::detect`], with any leading whitespace up to
+    /// [`MAX_DETECT_WHITESPACE`] skipped), and returns a reader that yields
+    /// all of `r` from its first byte: the bytes read are put back in front.
+    /// The input is opened and read once, so pipes, FIFOs and standard
+    /// input work. `None`: neither encoding (the reader is returned anyway).
+    ///
+    /// ```
+    /// use lipac_core::trace::TraceFormat;
+    /// use std::io::Read;
+    /// let text = format!("{}{{\"format\":\"lipac-trace\"}}", " ".repeat(100));
+    /// let (format, mut r) = TraceFormat::detect_stream(text.as_bytes())?;
+    /// assert_eq!(format, Some(TraceFormat::Jsonl));
+    /// let mut all = String::new();
+    /// r.read_to_string(&mut all)?;
+    /// assert_eq!(all, text);
+    /// # Ok::<(), std::io::Error>(())
+    /// ```
+    pub fn detect_stream<R: Read>(mut r: R) -> io::Result<(Option<Self>, Peeked<R>)> {
+        let mut seen: Vec<u8> = Vec::new();
+        let mut chunk = [0u8; 512];
+        // Bytes of `seen` known to be whitespace (scanned once each).
+        let mut blank = 0;
+        let format = loop {
+            blank += seen[blank..]
+                .iter()
+                .take_while(|b| b.is_ascii_whitespace())
+                .count();
+            if blank < seen.len() {
+                // The first byte that is not whitespace is in: decide, once
+                // a possible magic is complete.
+                if blank > 0 || seen[0] != TRACE_MAGIC[0] || seen.len() >= TRACE_MAGIC.len() {
+                    break Self::detect(&seen);
+                }
+            } else if blank > MAX_DETECT_WHITESPACE {
+                break None;
+            }
+            let n = match r.read(&mut chunk) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            };
+            if n == 0 {
+                break Self::detect(&seen);
+            }
+            seen.extend_from_slice(&chunk[..n]);
+        };
+        Ok((format, io::Cursor::new(seen).chain(r)))
+    }
 }
+
+/// Leading whitespace [`TraceFormat::detect_stream`] reads past before it
+/// gives up (1 MiB): it keeps what it read in memory.
+pub const MAX_DETECT_WHITESPACE: usize = 1 << 20;
+
+/// A stream whose first bytes were read by [`TraceFormat::detect_stream`],
+/// with those bytes put back in front.
+pub type Peeked<R> = io::Chain<io::Cursor<Vec<u8>>, R>;
 
 /// Converts a binary trace into JSON lines, one frame at a time (memory
 /// bounded by the largest frame); returns the sink. Every frame is checked

@@ -62,7 +62,15 @@ impl fmt::Display for TraceError {
             (Some(i), Some(n)) => write!(f, " (frame record {i}, frame number {n}")?,
             (Some(i), None) => write!(f, " (frame record {i}")?,
             (None, Some(n)) => write!(f, " (frame number {n}")?,
-            (None, None) => write!(f, " (header")?,
+            (None, None) => match &self.kind {
+                TraceErrorKind::TrailingData => write!(f, " (after the end marker")?,
+                TraceErrorKind::FrameCountMismatch { .. }
+                | TraceErrorKind::Truncated {
+                    what: "end marker frame count",
+                    ..
+                } => write!(f, " (end marker")?,
+                _ => write!(f, " (header")?,
+            },
         }
         if let Some(e) = self.event {
             write!(f, ", event {e}")?;

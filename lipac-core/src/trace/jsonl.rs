@@ -79,8 +79,9 @@ struct GeometryDto {
     indices: Vec<u32>,
 }
 
-#[derive(Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
+/// A frame or end line as written (reading goes through [`LineSeed`], which
+/// checks counts while it parses).
+#[derive(Serialize, Default)]
 struct LineDto {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     frame: Option<u64>,
@@ -314,74 +315,247 @@ fn frame_dto(f: &Frame) -> LineDto {
     }
 }
 
-/// A frame line's content, or the fault (event index, kind) that keeps it
-/// from being one.
-fn frame_of(
-    number: u64,
-    camera: CameraDto,
-    events: Vec<EventDto>,
-    hits: Option<Vec<HitDto>>,
-) -> Result<Frame, FrameFault> {
-    let mut out = Vec::with_capacity(events.len());
-    for (i, e) in events.into_iter().enumerate() {
-        out.push(match e {
-            EventDto::Add(a) => InstanceEvent::Add(AddInstance {
-                id: a.id,
-                mesh: MeshId(a.mesh),
-                lod: a.lod,
-                flags: names_to_flags(&a.flags),
-                mask: a.mask,
-                pose: Pose {
-                    transform: a.transform,
-                    aabb: aabb_of(&a.aabb),
-                },
-            }),
-            EventDto::Update(u) => {
-                let pose = match (u.transform, u.aabb) {
-                    (Some(transform), Some(aabb)) => Some(Pose {
-                        transform,
-                        aabb: aabb_of(&aabb),
-                    }),
-                    (None, None) => None,
-                    _ => {
-                        return Err(FrameFault {
-                            event: Some(i as u32),
-                            kind: TraceErrorKind::InvalidValue {
-                                what: "update".into(),
-                                reason: "\"transform\" and \"aabb\" must be given together".into(),
-                            },
-                        })
-                    }
-                };
-                InstanceEvent::Update(UpdateInstance {
-                    id: u.id,
-                    pose,
-                    lod: u.lod,
-                    flags: u.flags.as_deref().map(names_to_flags),
-                    mask: u.mask,
-                })
-            }
-            EventDto::Remove(r) => InstanceEvent::Remove { id: r.id },
-        });
-    }
-    Ok(Frame {
-        number,
-        camera: Camera {
-            position: Vec3::from_array(camera.position),
-            orientation: Quat::from_array(camera.orientation),
-            vertical_fov: camera.vertical_fov,
-            aspect: camera.aspect,
-        },
-        events: out,
-        hits: hits.map(|hs| {
-            hs.into_iter()
-                .map(|h| InstanceHits {
-                    id: h.id,
-                    hits: h.hits,
-                })
-                .collect()
+/// Event `i` of a frame line, or the fault that keeps it from being one.
+fn event_of(i: u32, e: EventDto) -> Result<InstanceEvent, FrameFault> {
+    Ok(match e {
+        EventDto::Add(a) => InstanceEvent::Add(AddInstance {
+            id: a.id,
+            mesh: MeshId(a.mesh),
+            lod: a.lod,
+            flags: names_to_flags(&a.flags),
+            mask: a.mask,
+            pose: Pose {
+                transform: a.transform,
+                aabb: aabb_of(&a.aabb),
+            },
         }),
+        EventDto::Update(u) => {
+            let pose = match (u.transform, u.aabb) {
+                (Some(transform), Some(aabb)) => Some(Pose {
+                    transform,
+                    aabb: aabb_of(&aabb),
+                }),
+                (None, None) => None,
+                _ => {
+                    return Err(FrameFault {
+                        event: Some(i),
+                        kind: TraceErrorKind::InvalidValue {
+                            what: "update".into(),
+                            reason: "\"transform\" and \"aabb\" must be given together".into(),
+                        },
+                    })
+                }
+            };
+            InstanceEvent::Update(UpdateInstance {
+                id: u.id,
+                pose,
+                lod: u.lod,
+                flags: u.flags.as_deref().map(names_to_flags),
+                mask: u.mask,
+            })
+        }
+        EventDto::Remove(r) => InstanceEvent::Remove { id: r.id },
     })
+}
+
+// ---------------------------------------------------------------------------
+// Line parsing with limits checked while parsing
+
+/// The keys of a frame or end line.
+#[derive(Deserialize)]
+#[serde(field_identifier, rename_all = "snake_case")]
+enum LineKey {
+    Frame,
+    Camera,
+    Events,
+    Hits,
+    End,
+}
+
+/// What a line held, with its events and hits already converted.
+#[derive(Default)]
+struct LineParts {
+    frame: Option<u64>,
+    camera: Option<CameraDto>,
+    has_events: bool,
+    hits: Option<Vec<InstanceHits>>,
+    end: Option<EndDto>,
+}
+
+/// Parses one line, converting events and hit counts as they are parsed and
+/// stopping at the first one past its limit (or the first event that cannot
+/// be converted): memory stays at the line's bytes plus the events allowed,
+/// however many the line holds. The fault that stopped parsing is left in
+/// `stop` (serde's error then only says parsing was stopped).
+struct LineSeed<'a> {
+    limits: &'a TraceLimits,
+    events: &'a mut Vec<InstanceEvent>,
+    stop: &'a mut Option<FrameFault>,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for LineSeed<'_> {
+    type Value = LineParts;
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<LineParts, D::Error> {
+        d.deserialize_map(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for LineSeed<'_> {
+    type Value = LineParts;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a frame line or the end line (a JSON object)")
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut m: A) -> Result<LineParts, A::Error> {
+        use serde::de::Error;
+        let mut parts = LineParts::default();
+        let (mut seen_frame, mut seen_camera, mut seen_hits, mut seen_end) =
+            (false, false, false, false);
+        let once = |seen: &mut bool, name: &'static str| {
+            if std::mem::replace(seen, true) {
+                Err(A::Error::duplicate_field(name))
+            } else {
+                Ok(())
+            }
+        };
+        while let Some(key) = m.next_key::<LineKey>()? {
+            match key {
+                LineKey::Frame => {
+                    once(&mut seen_frame, "frame")?;
+                    parts.frame = m.next_value()?;
+                }
+                LineKey::Camera => {
+                    once(&mut seen_camera, "camera")?;
+                    parts.camera = m.next_value()?;
+                }
+                LineKey::Events => {
+                    once(&mut parts.has_events, "events")?;
+                    m.next_value_seed(EventsSeed {
+                        limit: self.limits.max_events_per_frame,
+                        events: &mut *self.events,
+                        stop: &mut *self.stop,
+                    })?;
+                }
+                LineKey::Hits => {
+                    once(&mut seen_hits, "hits")?;
+                    parts.hits = m.next_value_seed(HitsSeed {
+                        limit: self.limits.max_hits_per_frame,
+                        stop: &mut *self.stop,
+                    })?;
+                }
+                LineKey::End => {
+                    once(&mut seen_end, "end")?;
+                    parts.end = m.next_value()?;
+                }
+            }
+        }
+        Ok(parts)
+    }
+}
+
+/// The fault for a count past its limit while parsing (`value` is the count
+/// reached when parsing stopped: the line holds at least that many).
+fn over_limit(what: &'static str, limit: u32) -> FrameFault {
+    FrameFault {
+        event: None,
+        kind: TraceErrorKind::LimitExceeded {
+            what,
+            value: u64::from(limit) + 1,
+            limit: limit.into(),
+        },
+    }
+}
+
+struct EventsSeed<'a> {
+    limit: u32,
+    events: &'a mut Vec<InstanceEvent>,
+    stop: &'a mut Option<FrameFault>,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for EventsSeed<'_> {
+    type Value = ();
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_option(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for EventsSeed<'_> {
+    type Value = ();
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("an array of events")
+    }
+    fn visit_none<E>(self) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_unit<E>(self) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_some<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_seq(self)
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        use serde::de::Error;
+        while let Some(dto) = seq.next_element::<EventDto>()? {
+            let i = self.events.len();
+            if i as u64 >= u64::from(self.limit) {
+                *self.stop = Some(over_limit("events in frame", self.limit));
+                return Err(A::Error::custom("stopped: too many events"));
+            }
+            match event_of(i as u32, dto) {
+                Ok(e) => self.events.push(e),
+                Err(f) => {
+                    *self.stop = Some(f);
+                    return Err(A::Error::custom("stopped: invalid event"));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+struct HitsSeed<'a> {
+    limit: u32,
+    stop: &'a mut Option<FrameFault>,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for HitsSeed<'_> {
+    type Value = Option<Vec<InstanceHits>>;
+    fn deserialize<D: serde::Deserializer<'de>>(
+        self,
+        d: D,
+    ) -> Result<Option<Vec<InstanceHits>>, D::Error> {
+        d.deserialize_option(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for HitsSeed<'_> {
+    type Value = Option<Vec<InstanceHits>>;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("an array of hit counts")
+    }
+    fn visit_none<E>(self) -> Result<Self::Value, E> {
+        Ok(None)
+    }
+    fn visit_unit<E>(self) -> Result<Self::Value, E> {
+        Ok(None)
+    }
+    fn visit_some<D: serde::Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
+        d.deserialize_seq(self)
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+        use serde::de::Error;
+        let mut hits = Vec::new();
+        while let Some(h) = seq.next_element::<HitDto>()? {
+            if hits.len() as u64 >= u64::from(self.limit) {
+                *self.stop = Some(over_limit("hit counts in frame", self.limit));
+                return Err(A::Error::custom("stopped: too many hit counts"));
+            }
+            hits.push(InstanceHits {
+                id: h.id,
+                hits: h.hits,
+            });
+        }
+        Ok(Some(hits))
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -760,8 +934,28 @@ impl<R: Read> JsonlReader<R> {
                 },
             ));
         }
-        let dto: LineDto =
-            serde_json::from_slice(&self.buf).map_err(|e| err(None, None, json_err(&e)))?;
+        let mut events = Vec::new();
+        let mut stop = None;
+        let parsed = {
+            let mut de = serde_json::Deserializer::from_slice(&self.buf);
+            serde::de::DeserializeSeed::deserialize(
+                LineSeed {
+                    limits: &self.limits,
+                    events: &mut events,
+                    stop: &mut stop,
+                },
+                &mut de,
+            )
+            .and_then(|parts| de.end().map(|()| parts))
+        };
+        let parts = match (parsed, stop) {
+            (Ok(parts), _) => parts,
+            (Err(_), Some(FrameFault { event, kind })) => {
+                let number = peek_frame_number(&self.buf);
+                return Err(err(number, event, kind));
+            }
+            (Err(e), None) => return Err(err(None, None, json_err(&e))),
+        };
         let shape_err = |number, reason: &str| {
             err(
                 number,
@@ -772,12 +966,12 @@ impl<R: Read> JsonlReader<R> {
                 },
             )
         };
-        match dto {
-            LineDto {
+        match parts {
+            LineParts {
                 end: Some(end),
                 frame: None,
                 camera: None,
-                events: None,
+                has_events: false,
                 hits: None,
             } => {
                 let e = |kind| TraceError::at(TraceLocation::Line(line), kind);
@@ -798,31 +992,52 @@ impl<R: Read> JsonlReader<R> {
                 }
                 Ok(None)
             }
-            LineDto {
+            LineParts {
                 end: Some(_),
                 frame,
                 ..
             } => Err(shape_err(frame, "an end line holds only \"end\"")),
-            LineDto {
+            LineParts {
                 frame: Some(number),
                 camera: Some(camera),
-                events,
                 hits,
                 end: None,
+                ..
             } => {
-                let frame = frame_of(number, camera, events.unwrap_or_default(), hits)
-                    .map_err(|FrameFault { event, kind }| err(Some(number), event, kind))?;
+                let frame = Frame {
+                    number,
+                    camera: Camera {
+                        position: Vec3::from_array(camera.position),
+                        orientation: Quat::from_array(camera.orientation),
+                        vertical_fov: camera.vertical_fov,
+                        aspect: camera.aspect,
+                    },
+                    events,
+                    hits,
+                };
                 self.validator
                     .check_frame(&frame)
                     .map_err(|FrameFault { event, kind }| err(Some(number), event, kind))?;
                 Ok(Some(frame))
             }
-            LineDto { frame, .. } => Err(shape_err(
+            LineParts { frame, .. } => Err(shape_err(
                 frame,
                 "a frame line needs \"frame\" and \"camera\" (or the line is {\"end\": ...})",
             )),
         }
     }
+}
+
+/// The `"frame"` number of a line whose parsing was stopped, for the error
+/// (found by a second, skipping parse that keeps nothing but the number).
+fn peek_frame_number(line: &[u8]) -> Option<u64> {
+    #[derive(Deserialize)]
+    struct Number {
+        frame: Option<u64>,
+    }
+    // Every other field is skipped by serde (`IgnoredAny`), allocating
+    // nothing per event.
+    serde_json::from_slice::<Number>(line).ok()?.frame
 }
 
 #[cfg(test)]

@@ -28,7 +28,10 @@
 //! Readers never panic and never allocate by an untrusted count: every count
 //! is capped by a configurable [`TraceLimits`] *and* by the bytes left in its
 //! length-prefixed record, and record payloads are read in bounded steps, so
-//! memory follows the bytes actually present. Every frame passes through a
+//! memory follows the bytes actually present. Frames are checked while they
+//! are decoded (binary) or parsed (JSON lines), so a record that is rejected
+//! costs no more than its own bytes. [`TraceFormat::detect_stream`] detects
+//! the encoding in one pass over any stream. Every frame passes through a
 //! [`TraceValidator`] (finite values, valid boxes, declared meshes and LODs,
 //! live-instance bookkeeping, frame order). Every [`TraceError`] names the
 //! byte offset (binary) or line (JSON lines), the frame and what was wrong.
@@ -41,7 +44,7 @@ mod model;
 mod validate;
 
 pub use binary::{TraceReader, TraceWriter, PREAMBLE_BYTES};
-pub use convert::{binary_to_jsonl, jsonl_to_binary, TraceFormat};
+pub use convert::{binary_to_jsonl, jsonl_to_binary, Peeked, TraceFormat, MAX_DETECT_WHITESPACE};
 pub use error::{TraceError, TraceErrorKind, TraceLocation};
 pub use jsonl::{JsonlReader, JsonlWriter, JSONL_FORMAT_NAME};
 pub use model::{

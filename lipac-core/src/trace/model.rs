@@ -2,7 +2,7 @@
 //! every reader and writer applies to them.
 
 use super::error::TraceErrorKind;
-use crate::grid::{GridConfig, HitboxGrid};
+use crate::grid::{GridConfig, HitboxGrid, DEFAULT_MAX_GRID_CELLS};
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::math::{rows_to_affine, Aabb};
 use glam::{Mat3, Quat, Vec3};
@@ -42,6 +42,10 @@ pub struct TraceLimits {
     /// [`RegistryConfig::max_aabb_extent`](crate::registry::RegistryConfig::max_aabb_extent)).
     /// Default 1e6.
     pub max_aabb_extent: f32,
+    /// Most cells in the header's world grid (replay allocates state per
+    /// cell: 12 bytes of hitbox record and more per LiPaC strategy).
+    /// Default [`DEFAULT_MAX_GRID_CELLS`] = 2^24 (a 4096 × 4096 grid).
+    pub max_grid_cells: u64,
 }
 
 impl Default for TraceLimits {
@@ -58,6 +62,7 @@ impl Default for TraceLimits {
             max_hits_per_frame: 1 << 24,
             max_live_instances: crate::layout::MAX_SLOTS,
             max_aabb_extent: 1.0e6,
+            max_grid_cells: DEFAULT_MAX_GRID_CELLS,
         }
     }
 }
@@ -388,8 +393,8 @@ pub(crate) fn check_camera(c: &Camera) -> Result<(), TraceErrorKind> {
     Ok(())
 }
 
-pub(crate) fn check_world(w: &WorldInfo) -> Result<(), TraceErrorKind> {
-    HitboxGrid::new(w.grid_config())
+pub(crate) fn check_world(w: &WorldInfo, limits: &TraceLimits) -> Result<(), TraceErrorKind> {
+    HitboxGrid::with_max_cells(w.grid_config(), limits.max_grid_cells)
         .map(|_| ())
         .map_err(|e| TraceErrorKind::InvalidValue {
             what: "world grid".into(),
@@ -513,7 +518,7 @@ pub(crate) fn check_header(
     limits: &TraceLimits,
 ) -> Result<MeshTable, TraceErrorKind> {
     check_scene_name(h.scene_name.len() as u64, limits)?;
-    check_world(&h.world)?;
+    check_world(&h.world, limits)?;
     check_mesh_count(h.meshes.len() as u64, limits)?;
     let mut table = MeshTable::default();
     for m in &h.meshes {

@@ -2,8 +2,8 @@
 
 use super::error::TraceErrorKind;
 use super::model::{
-    check_camera, check_event, check_event_count, check_header, check_hit_count, Frame,
-    InstanceEvent, MeshTable, TraceHeader, TraceLimits,
+    check_camera, check_event, check_event_count, check_header, check_hit_count, Camera, Frame,
+    InstanceEvent, InstanceHits, MeshTable, TraceHeader, TraceLimits,
 };
 use crate::instance::MeshId;
 use std::collections::{HashMap, HashSet};
@@ -142,6 +142,11 @@ impl TraceValidator {
         self.live.contains_key(&id)
     }
 
+    /// The number of the last frame checked or skipped, if any.
+    pub fn last_frame_number(&self) -> Option<u64> {
+        self.last_frame
+    }
+
     /// Frames checked or skipped so far.
     pub fn frames(&self) -> u64 {
         self.frames
@@ -149,39 +154,59 @@ impl TraceValidator {
 
     /// Checks the next frame of the stream and applies its events.
     pub fn check_frame(&mut self, frame: &Frame) -> Result<(), FrameFault> {
-        self.check_order(frame.number).map_err(FrameFault::frame)?;
-        check_camera(&frame.camera).map_err(FrameFault::frame)?;
+        self.begin_frame(frame.number, &frame.camera)?;
         check_event_count(frame.events.len() as u64, &self.limits).map_err(FrameFault::frame)?;
         for (i, e) in frame.events.iter().enumerate() {
-            let at = |kind| FrameFault {
-                event: Some(i as u32),
-                kind,
-            };
-            check_event(e, &self.meshes, &self.limits).map_err(at)?;
-            if self.track_live {
-                self.apply(e).map_err(at)?;
+            self.check_next_event(i as u32, e)?;
+        }
+        match &frame.hits {
+            Some(hits) => self.check_hits(hits),
+            None => Ok(()),
+        }
+    }
+
+    /// The first step of [`TraceValidator::check_frame`], for a reader that
+    /// checks a frame while decoding it: frame order and camera.
+    pub(crate) fn begin_frame(&mut self, number: u64, camera: &Camera) -> Result<(), FrameFault> {
+        self.check_order(number).map_err(FrameFault::frame)?;
+        check_camera(camera).map_err(FrameFault::frame)
+    }
+
+    /// Checks and applies event `i` of the frame begun last, so that a
+    /// reader rejects a bad event before decoding the ones after it.
+    pub(crate) fn check_next_event(&mut self, i: u32, e: &InstanceEvent) -> Result<(), FrameFault> {
+        let at = |kind| FrameFault {
+            event: Some(i),
+            kind,
+        };
+        check_event(e, &self.meshes, &self.limits).map_err(at)?;
+        if self.track_live {
+            self.apply(e).map_err(at)?;
+        }
+        Ok(())
+    }
+
+    /// The last step of [`TraceValidator::check_frame`]: the frame's hit
+    /// counts, after all its events.
+    pub(crate) fn check_hits(&mut self, hits: &[InstanceHits]) -> Result<(), FrameFault> {
+        check_hit_count(hits.len() as u64, &self.limits).map_err(FrameFault::frame)?;
+        self.hit_ids.clear();
+        for h in hits {
+            if self.track_live && !self.live.contains_key(&h.id) {
+                return Err(FrameFault::frame(TraceErrorKind::UnknownInstance {
+                    op: "hits",
+                    id: h.id,
+                }));
+            }
+            if !self.hit_ids.insert(h.id) {
+                return Err(FrameFault::frame(TraceErrorKind::DuplicateHits {
+                    id: h.id,
+                }));
             }
         }
-        if let Some(hits) = &frame.hits {
-            check_hit_count(hits.len() as u64, &self.limits).map_err(FrameFault::frame)?;
-            self.hit_ids.clear();
-            for h in hits {
-                if self.track_live && !self.live.contains_key(&h.id) {
-                    return Err(FrameFault::frame(TraceErrorKind::UnknownInstance {
-                        op: "hits",
-                        id: h.id,
-                    }));
-                }
-                if !self.hit_ids.insert(h.id) {
-                    return Err(FrameFault::frame(TraceErrorKind::DuplicateHits {
-                        id: h.id,
-                    }));
-                }
-            }
-            // Keep memory bounded by the largest frame, not the whole trace.
-            if self.hit_ids.capacity() > 4 * hits.len().max(1024) {
-                self.hit_ids = HashSet::new();
-            }
+        // Keep memory bounded by the largest frame, not the whole trace.
+        if self.hit_ids.capacity() > 4 * hits.len().max(1024) {
+            self.hit_ids = HashSet::new();
         }
         Ok(())
     }

@@ -10,6 +10,8 @@
 //! cargo run --release -p lipac-sim --bin lipac -- sweep --merge part-1 part-2 part-3
 //! ```
 
+#[path = "../cli/output.rs"]
+mod output;
 #[path = "../cli/trace_cmds.rs"]
 mod trace_cmds;
 
@@ -19,7 +21,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
-use lipac_sim::compare::{run_choice_with_snapshots, CompareConfig, SceneChoice};
+use lipac_sim::compare::{check_image_size, run_choice_with_snapshots, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::StrategyKind;
 use lipac_sim::sweep::{self, SweepConfig};
@@ -207,11 +209,14 @@ fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Resu
 }
 
 fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
+    output::check_not_input(out, &[from])?;
     let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
     let mut report: sweep::SweepReport =
         serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
     sweep::mark_fronts(&mut report);
-    sweep::write_sweep(&report, out).map_err(|e| e.to_string())?;
+    output::publish_dir(out, &[from], |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| e.to_string())
+    })?;
     println!("sweep in {}/sweep.md", out.display());
     Ok(())
 }
@@ -220,7 +225,10 @@ fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
     let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
     let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
     print!("{}", sweep::sweep_markdown(&report));
-    sweep::write_sweep(&report, out).map_err(|e| format!("writing the report: {e}"))?;
+    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
+    output::publish_dir(out, &inputs, |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| format!("writing the report: {e}"))
+    })?;
     println!(
         "\n{} shards merged; sweep in {}/sweep.md",
         shards.len(),
@@ -284,7 +292,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             threads: a.threads,
         })
     })();
-    let config = match parsed {
+    let config = match parsed.and_then(|c| {
+        check_image_size(c.width, c.height).map_err(|e| e.to_string())?;
+        Ok(c)
+    }) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("lipac sweep: {e}");
@@ -306,7 +317,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         let result = sweep::shard::run_shard(&config, shard, &mut progress);
         bar.finish_and_clear();
         return done(result.map_err(|e| e.to_string()).and_then(|part| {
-            let path = sweep::shard::write_shard(&part, &a.out).map_err(|e| e.to_string())?;
+            let written = output::publish_dir(&a.out, &[], |dir| {
+                sweep::shard::write_shard(&part, dir).map_err(|e| e.to_string())
+            })?;
+            let path = a.out.join(written.file_name().unwrap_or_default());
             println!(
                 "shard {shard}: {} of the sweep's {} (scene, configuration) runs, on {} scene(s), in {:.1} s; results in {}",
                 part.points.len(),
@@ -328,7 +342,9 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         }
     };
     print!("{}", sweep::sweep_markdown(&report));
-    match sweep::write_sweep(&report, &a.out) {
+    match output::publish_dir(&a.out, &[], |dir| {
+        sweep::write_sweep(&report, dir).map_err(|e| e.to_string())
+    }) {
         Ok(_) => {
             println!("\nsweep in {}/sweep.md", a.out.display());
             ExitCode::SUCCESS
@@ -355,6 +371,14 @@ fn main() -> ExitCode {
     } else {
         strategies.into_iter().map(Into::into).collect()
     };
+    if let Err(e) = check_image_size(common.width, common.height) {
+        eprintln!("lipac: {e}");
+        return ExitCode::FAILURE;
+    }
+    if common.frames == Some(0) {
+        eprintln!("lipac: --frames 0: nothing to render (give at least 1)");
+        return ExitCode::FAILURE;
+    }
     let config = CompareConfig {
         frames: common.frames,
         width: common.width,
@@ -391,7 +415,9 @@ fn main() -> ExitCode {
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report_with_snapshots(&report, &snapshots, &common.out) {
+    match output::publish_dir(&common.out, &[], |dir| {
+        write_report_with_snapshots(&report, &snapshots, dir).map_err(|e| e.to_string())
+    }) {
         Ok(_) => {
             println!(
                 "{} frames in {:.1} s; report in {}/report.md and {}/report.html ({} snapshots)",

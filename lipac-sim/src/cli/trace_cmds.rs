@@ -2,18 +2,18 @@
 //! traces on the command line (logic in `lipac_sim::record` and
 //! `lipac_sim::replay`).
 
-use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
+use lipac_sim::compare::check_image_size;
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
 use lipac_sim::replay::{replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::SimError;
 
+use crate::output::{check_not_input, io_err, open_input, publish_dir, OutputFile};
 use crate::{SceneArg, StrategyArg};
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -69,7 +69,7 @@ pub struct RecordArgs {
 /// `lipac replay`.
 #[derive(Args)]
 pub struct ReplayArgs {
-    /// The trace (binary or JSON lines, detected).
+    /// The trace (binary or JSON lines, detected; `-` = standard input).
     file: PathBuf,
     /// Strategies (default: every one the mode supports).
     #[arg(long, value_enum, value_delimiter = ',')]
@@ -93,14 +93,20 @@ pub struct ReplayArgs {
     /// (geometry mode only).
     #[arg(long, value_delimiter = ',')]
     snapshots: Vec<u32>,
+    /// Keep every frame's metrics in the report (hits-only mode: the
+    /// per-frame plots and frames.csv). Without it the summaries still cover
+    /// every frame and memory does not grow with the trace's length.
+    #[arg(long)]
+    keep_frames: bool,
 }
 
 /// `lipac convert`.
 #[derive(Args)]
 pub struct ConvertArgs {
-    /// Input trace (encoding detected).
+    /// Input trace (encoding detected; `-` = standard input).
     input: PathBuf,
-    /// Output trace (the other encoding).
+    /// Output trace (the other encoding); written beside, then renamed into
+    /// place; never the input.
     output: PathBuf,
 }
 
@@ -109,11 +115,19 @@ fn fail(e: impl std::fmt::Display) -> ExitCode {
     ExitCode::FAILURE
 }
 
-fn io_at(path: &Path) -> impl Fn(std::io::Error) -> SimError + '_ {
-    move |e| SimError::Io(format!("{}: {e}", path.display()))
+pub fn run_record(a: RecordArgs) -> ExitCode {
+    match record_main(&a) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => fail(e),
+    }
 }
 
-pub fn run_record(a: RecordArgs) -> ExitCode {
+fn record_main(a: &RecordArgs) -> Result<(), String> {
+    // Arguments first: nothing is created for a command that cannot run.
+    if a.frames == Some(0) {
+        return Err("--frames 0: nothing to record (give at least 1)".into());
+    }
+    check_image_size(a.width, a.height).map_err(|e| e.to_string())?;
     let format = match a.format {
         Some(FormatArg::Binary) => TraceFormat::Binary,
         Some(FormatArg::Jsonl) => TraceFormat::Jsonl,
@@ -129,34 +143,36 @@ pub fn run_record(a: RecordArgs) -> ExitCode {
             CameraArg::Static => CameraChoice::Static,
         },
         frames: a.frames,
-        aspect: a.width as f32 / a.height.max(1) as f32,
+        aspect: a.width as f32 / a.height as f32,
         geometry: a.geometry,
     };
-    let result = File::create(&a.out)
-        .map_err(io_at(&a.out))
-        .and_then(|f| record(&config, format, BufWriter::new(f)))
-        .and_then(|(mut w, s)| {
-            w.flush().map_err(io_at(&a.out))?;
-            Ok(s)
-        });
-    match result {
-        Ok(s) => {
-            println!(
-                "{} frames, {} instances, {} updates -> {}",
-                s.frames,
-                s.instances,
-                s.updates,
-                a.out.display()
-            );
-            ExitCode::SUCCESS
-        }
+    let mut out = OutputFile::create(&a.out, &[])?;
+    let (_, s) = record(&config, format, out.writer()).map_err(|e| e.to_string())?;
+    out.commit()?;
+    println!(
+        "{} frames, {} instances, {} updates -> {}",
+        s.frames,
+        s.instances,
+        s.updates,
+        a.out.display()
+    );
+    Ok(())
+}
+
+pub fn run_replay(a: ReplayArgs) -> ExitCode {
+    match replay_main(&a) {
+        Ok(()) => ExitCode::SUCCESS,
         Err(e) => fail(e),
     }
 }
 
-pub fn run_replay(a: ReplayArgs) -> ExitCode {
+fn replay_main(a: &ReplayArgs) -> Result<(), String> {
+    check_image_size(a.width, a.height).map_err(|e| e.to_string())?;
+    // The report folder must not be (or hold) the trace: checked before
+    // the (possibly long) replay.
+    check_not_input(&a.out, &[&a.file])?;
     let config = ReplayConfig {
-        strategies: a.strategies.into_iter().map(Into::into).collect(),
+        strategies: a.strategies.iter().map(|&s| s.into()).collect(),
         width: a.width,
         height: a.height,
         threads: a.threads,
@@ -164,59 +180,32 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
             ModeArg::Geometry => ReplayMode::Geometry,
             ModeArg::HitsOnly => ReplayMode::HitsOnly,
         }),
-        keep_frames: true,
-        snapshots: a.snapshots,
+        keep_frames: a.keep_frames,
+        snapshots: a.snapshots.clone(),
     };
-    let (report, snapshots) = match TraceInput::open(&a.file)
-        .and_then(|input| replay_with_snapshots(input, &config, &mut |_| {}))
-    {
-        Ok(r) => r,
-        Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
-    };
+    let at_file = |e: SimError| format!("{}: {e}", a.file.display());
+    let input = TraceInput::detect(open_input(&a.file)?).map_err(at_file)?;
+    let (report, snapshots) =
+        replay_with_snapshots(input, &config, &mut |_| {}).map_err(at_file)?;
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report_with_snapshots(&report, &snapshots, &a.out) {
-        Ok(_) => {
-            println!(
-                "{} frames replayed in {:.1} s; report in {}/report.md",
-                report.frames,
-                report.wall_s,
-                a.out.display()
-            );
-            ExitCode::SUCCESS
-        }
-        Err(e) => fail(format_args!("writing the report: {e}")),
-    }
+    publish_dir(&a.out, &[&a.file], |dir| {
+        write_report_with_snapshots(&report, &snapshots, dir)
+            .map_err(|e| format!("writing the report: {e}"))
+    })?;
+    println!(
+        "{} frames replayed in {:.1} s; report in {}/report.md",
+        report.frames,
+        report.wall_s,
+        a.out.display()
+    );
+    Ok(())
 }
 
 pub fn run_convert(a: ConvertArgs) -> ExitCode {
-    let result = (|| -> Result<TraceFormat, SimError> {
-        let mut prefix = Vec::new();
-        File::open(&a.input)
-            .map_err(io_at(&a.input))?
-            .take(64)
-            .read_to_end(&mut prefix)
-            .map_err(io_at(&a.input))?;
-        let from = TraceFormat::detect(&prefix).ok_or_else(|| {
-            SimError::Io(format!(
-                "{}: neither a binary trace nor JSON lines",
-                a.input.display()
-            ))
-        })?;
-        let input = BufReader::new(File::open(&a.input).map_err(io_at(&a.input))?);
-        let output = BufWriter::new(File::create(&a.output).map_err(io_at(&a.output))?);
-        let limits = TraceLimits::default();
-        let mut w = match from {
-            TraceFormat::Binary => binary_to_jsonl(input, output, limits),
-            TraceFormat::Jsonl => jsonl_to_binary(input, output, limits),
-        }
-        .map_err(|e| SimError::Io(format!("{}: {e}", a.input.display())))?;
-        w.flush().map_err(io_at(&a.output))?;
-        Ok(from)
-    })();
-    match result {
+    match convert_main(&a) {
         Ok(from) => {
             let to = match from {
                 TraceFormat::Binary => "JSON lines",
@@ -225,10 +214,29 @@ pub fn run_convert(a: ConvertArgs) -> ExitCode {
             println!("{} -> {} ({to})", a.input.display(), a.output.display());
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            // Do not leave a half-written output behind.
-            let _ = std::fs::remove_file(&a.output);
-            fail(e)
-        }
+        Err(e) => fail(e),
     }
+}
+
+fn convert_main(a: &ConvertArgs) -> Result<TraceFormat, String> {
+    // Refused before anything is opened for writing: converting a file onto
+    // itself would truncate it before it is read.
+    check_not_input(&a.output, &[&a.input])?;
+    let input = open_input(&a.input)?;
+    let (from, input) = TraceFormat::detect_stream(input).map_err(|e| io_err(&a.input, e))?;
+    let from = from.ok_or_else(|| {
+        format!(
+            "{}: neither a binary trace nor JSON lines",
+            a.input.display()
+        )
+    })?;
+    let mut out = OutputFile::create(&a.output, &[&a.input])?;
+    let limits = TraceLimits::default();
+    match from {
+        TraceFormat::Binary => binary_to_jsonl(input, out.writer(), limits).map(|_| ()),
+        TraceFormat::Jsonl => jsonl_to_binary(input, out.writer(), limits).map(|_| ()),
+    }
+    .map_err(|e| format!("{}: {e}", a.input.display()))?;
+    out.commit()?;
+    Ok(from)
 }
