@@ -415,6 +415,17 @@ impl<H: HitboxIndex> Manager<H> {
         Ok(*self.registry().record(handle)?)
     }
 
+    /// The hitbox records (read-only; states and this frame's hits).
+    pub fn hitboxes(&self) -> &[HitboxRecord] {
+        self.culling.hitboxes()
+    }
+
+    /// Instance slots in use or quarantined: the length of the GPU's
+    /// instance-record and hit-counter buffers.
+    pub fn slot_count(&self) -> u32 {
+        self.registry().slot_count()
+    }
+
     /// The hitbox records, for the tracer's counting-box hits.
     pub fn hitboxes_mut(&mut self) -> &mut [HitboxRecord] {
         self.culling.hitboxes_mut()

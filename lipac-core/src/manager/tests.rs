@@ -459,4 +459,8 @@ fn unique_static_instances_get_own_blases_that_are_never_refit() {
     d.mask = 0x0F;
     r.m.update(handles[0], d).unwrap();
     assert_eq!(r.m.record(handles[0]).unwrap().blas, blas[0]);
+    assert_eq!(r.m.slot_count(), 3);
+    assert_eq!(r.m.hitboxes().len(), 16);
+    let hitbox = r.m.record(handles[0]).unwrap().hitbox as usize;
+    assert!(r.m.hitboxes()[hitbox].is_active());
 }
