@@ -37,6 +37,8 @@
 
 pub mod lipac;
 
+use std::collections::HashMap;
+
 use glam::Vec3;
 use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
 use lipac_core::build_plan::{
@@ -45,11 +47,12 @@ use lipac_core::build_plan::{
 };
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
+use lipac_core::manager::MeshCatalog;
 use lipac_core::math::Aabb;
 
 use crate::camera::Camera;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, BUILD_SCRATCH_BYTES};
+use crate::memory::{build_estimate, mesh_lod};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
 use crate::scene::{flags, Scene, SceneInstance};
 use crate::trace::Counters;
@@ -155,13 +158,33 @@ impl InstanceCatalog {
     }
     /// Build sizes of instance `slot` at `lod` ([`crate::memory`]).
     pub fn estimate(&self, slot: u32, lod: usize) -> BuildEstimate {
-        let tris = u64::from(self.triangles(slot, lod));
-        BuildEstimate {
-            primitives: tris,
-            result_bytes: blas_bytes(tris),
-            build_scratch_bytes: BUILD_SCRATCH_BYTES,
-            update_scratch_bytes: BUILD_SCRATCH_BYTES,
+        build_estimate(u64::from(self.triangles(slot, lod)))
+    }
+    /// The Manager's mesh catalog: every mesh of the scene with its
+    /// [`LOD_COUNT`] LODs ([`crate::memory::mesh_lod`]). Fails if two
+    /// instances of one mesh disagree on a triangle count.
+    pub fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
+        let mut first: HashMap<MeshId, usize> = HashMap::new();
+        for (slot, &mesh) in self.meshes.iter().enumerate() {
+            let f = *first.entry(mesh).or_insert(slot);
+            if self.triangles[f] != self.triangles[slot] {
+                return Err(SimError::Core(format!(
+                    "mesh {} has different triangle counts in slots {f} and {slot}",
+                    mesh.0
+                )));
+            }
         }
+        let mut meshes: Vec<(MeshId, usize)> = first.into_iter().collect();
+        meshes.sort_unstable();
+        let mut catalog = MeshCatalog::new();
+        for (mesh, slot) in meshes {
+            let lods = self.triangles[slot]
+                .iter()
+                .map(|&t| mesh_lod(u64::from(t)))
+                .collect();
+            catalog.insert(mesh, lods).map_err(SimError::core)?;
+        }
+        Ok(catalog)
     }
 }
 

@@ -11,9 +11,11 @@
 //!    [`crate::strategy::lipac`].
 //! 2. The frame's events: `add` registers, `update` moves (or re-describes),
 //!    `remove` removes (the BLAS is released).
-//! 3. Latency mitigation (optional), commands under the budget, BLAS builds
-//!    under the budgets (a [`BuildScheduler`] with the header's triangle
-//!    counts at the recorded LODs), Algorithm 1.
+//! 3. LiPaC runs on one [`CpuBackend`] (a
+//!    [`lipac_core::manager::Manager`] with the header's meshes, triangle
+//!    counts per LOD): latency mitigation (optional), commands under the
+//!    budget, BLAS builds under the budgets at the recorded LODs,
+//!    Algorithm 1.
 //! 4. Metrics: TLAS records, memory (same model as `compare`), BLAS work,
 //!    state changes and cycles; latency and needed-but-missing against the
 //!    instances the frame's recorded hits name (the engine's paths needed
@@ -24,9 +26,12 @@
 //!
 //! The `full` baseline keeps every live instance, with unlimited budgets.
 //!
-//! BLAS ownership follows the flags: `unique_blas` and `static` — one static
-//! BLAS per instance; `unique_blas` alone — an animated BLAS (refit every
-//! frame); otherwise shared per (mesh, LOD).
+//! BLAS ownership follows the flags (the Manager's rule): `unique_blas` and
+//! `static` — one static BLAS per instance; `unique_blas` alone — an
+//! animated BLAS (refit every frame); otherwise shared per (mesh, LOD), one
+//! BLAS for `static` instances and one for the rest. An update that changes
+//! `unique_blas` or `static` re-registers the instance in LiPaC (the
+//! Manager ties the BLAS kind to the registration).
 
 use std::collections::HashMap;
 use std::io::Read;
@@ -36,19 +41,20 @@ use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
-use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::{InstanceDesc, InstanceFlags};
 use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::manager::MeshCatalog;
 use lipac_core::math::rows_to_affine;
-use lipac_core::registry::{InstanceHandle, RegistryConfig};
+use lipac_core::registry::InstanceHandle;
 use lipac_core::trace::{InstanceEvent, TraceHeader};
 
 use super::{empty_frame, ReplayConfig, TraceInput};
 use crate::camera::Camera;
 use crate::compare::{CompareReport, StrategyRun};
+use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, lipac_overhead_bytes, tlas_bytes, BUILD_SCRATCH_BYTES};
+use crate::memory::{blas_bytes, build_estimate, lipac_overhead_bytes, mesh_lod, tlas_bytes};
 use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
@@ -137,12 +143,19 @@ impl World {
             .and_then(|t| t.get(l.lod as usize))
             .copied()
             .map_or(0, u64::from);
-        BuildEstimate {
-            primitives: tris,
-            result_bytes: blas_bytes(tris),
-            build_scratch_bytes: BUILD_SCRATCH_BYTES,
-            update_scratch_bytes: BUILD_SCRATCH_BYTES,
+        build_estimate(tris)
+    }
+    /// The Manager's catalog: the header's meshes, one
+    /// [`crate::memory::mesh_lod`] per LOD.
+    fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
+        let mut meshes: Vec<(&u32, &Vec<u32>)> = self.triangles.iter().collect();
+        meshes.sort_unstable();
+        let mut catalog = MeshCatalog::new();
+        for (&mesh, lods) in meshes {
+            let lods = lods.iter().map(|&t| mesh_lod(u64::from(t))).collect();
+            catalog.insert(MeshId(mesh), lods).map_err(core)?;
         }
+        Ok(catalog)
     }
     /// The capacity of every per-instance structure (for bounded-memory
     /// checks).
@@ -154,7 +167,8 @@ impl World {
     }
 }
 
-/// A BLAS scheduler over dense slots whose builds are acknowledged at once.
+/// The `full` baseline's BLAS scheduler over dense slots, whose builds are
+/// acknowledged at once.
 #[derive(Debug)]
 struct Blases {
     scheduler: BuildScheduler,
@@ -230,19 +244,15 @@ struct FullReplay {
     blas: Blases,
 }
 
-/// LiPaC on recorded hits.
+/// LiPaC on recorded hits, on one [`CpuBackend`].
 #[derive(Debug)]
 struct LipacReplay {
-    latency: bool,
-    culling: Culling<HitboxGrid>,
-    ring: ReadbackRing,
+    backend: CpuBackend,
     /// Handle per dense slot.
     handles: Vec<Option<InstanceHandle>>,
     /// Dense slot per registry slot.
     dense: Vec<u32>,
-    blas: Blases,
     records: Vec<TlasInstance>,
-    started: bool,
 }
 
 #[derive(Debug)]
@@ -339,6 +349,7 @@ pub fn replay_hits_with<R: Read>(
     };
     let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?;
     let grid = HitboxGrid::new(header.world.grid_config()).map_err(core)?;
+    let mut world = World::new(&header);
     let mut runs = Vec::with_capacity(kinds.len());
     for k in &kinds {
         let runner = match k {
@@ -351,7 +362,11 @@ pub fn replay_hits_with<R: Read>(
                 } else {
                     lipac_config.clone().with_latency_mitigation()
                 };
-                Runner::Lipac(Box::new(LipacReplay::new(grid.clone(), &c)?))
+                Runner::Lipac(Box::new(LipacReplay::new(
+                    grid.clone(),
+                    &c,
+                    world.mesh_catalog()?,
+                )?))
             }
             other => {
                 return Err(SimError::Replay(format!(
@@ -369,7 +384,6 @@ pub fn replay_hits_with<R: Read>(
             totals: FrameTotals::default(),
         });
     }
-    let mut world = World::new(&header);
     let mut frame = empty_frame();
     let mut prev_hits: Vec<(u32, u32)> = Vec::new();
     let mut fp = HitsFootprint::default();
@@ -414,7 +428,7 @@ pub fn replay_hits_with<R: Read>(
             };
             let geometry = match &mut run.runner {
                 Runner::Full(f) => f.frame(&world, number, &mut m)?,
-                Runner::Lipac(l) => l.frame(&world, number, &camera, &counting, &mut m)?,
+                Runner::Lipac(l) => l.frame(number, &camera, &counting, &mut m)?,
             };
             m.strategy_ms = t.elapsed().as_secs_f64() * 1e3;
             m.tlas_bytes = tlas_bytes(m.tlas_instances);
@@ -438,10 +452,7 @@ pub fn replay_hits_with<R: Read>(
                         + match &r.runner {
                             Runner::Full(f) => f.blas.active.capacity(),
                             Runner::Lipac(l) => {
-                                l.handles.capacity()
-                                    + l.dense.capacity()
-                                    + l.blas.active.capacity()
-                                    + l.records.capacity()
+                                l.handles.capacity() + l.dense.capacity() + l.records.capacity()
                             }
                         }
                 })
@@ -557,7 +568,7 @@ fn apply_event(
                 run.tracker.reset(slot);
                 match &mut run.runner {
                     Runner::Full(f) => f.blas.activate(world, slot)?,
-                    Runner::Lipac(lp) => lp.register(slot, l.desc)?,
+                    Runner::Lipac(lp) => lp.register(slot, LipacReplay::desc(&l))?,
                 }
             }
         }
@@ -566,6 +577,7 @@ fn apply_event(
                 "update of unknown instance {}",
                 u.id
             )))?;
+            let old_flags = l.desc.flags;
             let mut redescribe = false;
             if let Some(p) = &u.pose {
                 l.desc.transform = rows_to_affine(&p.transform);
@@ -583,9 +595,15 @@ fn apply_event(
                 l.desc.mask = m;
             }
             let l = *l;
+            let change = Change {
+                moved: u.pose.is_some(),
+                redescribe,
+                lod: u.lod.is_some(),
+                blas_kind: blas_kind(old_flags) != blas_kind(l.desc.flags),
+            };
             for run in runs.iter_mut() {
                 if let Runner::Lipac(lp) = &mut run.runner {
-                    lp.update(&l, u.pose.is_some(), redescribe)?;
+                    lp.update(&l, change)?;
                 }
             }
         }
@@ -641,36 +659,41 @@ fn fill_work(m: &mut FrameMetrics, w: &BlasWork) {
     m.primitives_refit = w.primitives_refit;
 }
 
+/// What an `update` event changed.
+#[derive(Clone, Copy, Debug)]
+struct Change {
+    moved: bool,
+    redescribe: bool,
+    lod: bool,
+    /// `unique_blas` or `static` changed.
+    blas_kind: bool,
+}
+
+fn blas_kind(f: InstanceFlags) -> InstanceFlags {
+    f & (InstanceFlags::UNIQUE_BLAS | InstanceFlags::STATIC)
+}
+
 impl LipacReplay {
-    fn new(grid: HitboxGrid, config: &LipacConfig) -> Result<Self, SimError> {
-        let unit_cube = crate::blas::BlasStore::new().unit_cube().reference();
-        let cc = CullingConfig {
-            registry: RegistryConfig {
-                quarantine_frames: config.readback_latency + 2,
-                ..RegistryConfig::default()
-            },
-            thresholds: config.thresholds,
-            command_capacity: config.command_capacity,
-            command_budget: config.command_budget,
-            latency_mitigation: config.latency,
-            readback_latency: config.readback_latency,
-            ..CullingConfig::new(unit_cube)
-        };
+    fn new(grid: HitboxGrid, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
         Ok(Self {
-            latency: config.latency.is_some(),
-            culling: Culling::new(grid, cc).map_err(core)?,
-            ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
+            backend: CpuBackend::new(grid, config, catalog)?,
             handles: Vec::new(),
             dense: Vec::new(),
-            blas: Blases::new(config.build_budgets)?,
             records: Vec::new(),
-            started: false,
         })
     }
 
+    /// The instance's description as LiPaC gets it (the recorded LOD).
+    fn desc(l: &Live) -> InstanceDesc {
+        InstanceDesc {
+            lod: l.lod,
+            ..l.desc
+        }
+    }
+
     fn register(&mut self, slot: u32, desc: InstanceDesc) -> Result<(), SimError> {
-        let h = self.culling.register(desc).map_err(core)?;
-        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
+        let h = self.backend.register(desc)?;
+        let reg = self.backend.instance(h)?.slot as usize;
         if self.handles.len() <= slot as usize {
             self.handles.resize(slot as usize + 1, None);
         }
@@ -690,129 +713,70 @@ impl LipacReplay {
             .ok_or(SimError::UnknownInstance(slot))
     }
 
-    fn update(&mut self, l: &Live, moved: bool, redescribe: bool) -> Result<(), SimError> {
+    fn update(&mut self, l: &Live, change: Change) -> Result<(), SimError> {
         let h = self.handle(l.slot)?;
-        if redescribe {
-            self.culling.update(h, l.desc).map_err(core)?;
-        } else if moved {
-            self.culling
-                .set_transform(h, l.desc.transform, l.desc.aabb)
-                .map_err(core)?;
+        if change.blas_kind {
+            self.remove(l.slot)?;
+            return self.register(l.slot, Self::desc(l));
+        }
+        if change.redescribe {
+            self.backend.update(h, Self::desc(l))?;
+        } else {
+            if change.moved {
+                self.backend
+                    .set_transform(h, l.desc.transform, l.desc.aabb)?;
+            }
+            if change.lod {
+                self.backend.set_lod(h, l.lod)?;
+            }
         }
         Ok(())
     }
 
     fn remove(&mut self, slot: u32) -> Result<(), SimError> {
         let h = self.handle(slot)?;
-        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
-        self.culling.remove(h).map_err(core)?;
+        let reg = self.backend.instance(h)?.slot as usize;
+        self.backend.remove(h)?;
         self.handles[slot as usize] = None;
         if let Some(d) = self.dense.get_mut(reg) {
             *d = u32::MAX;
         }
-        self.blas.deactivate(slot)
+        Ok(())
     }
 
     /// Algorithm 2 on the hits recorded with the previous frame (dense slot,
     /// hits).
     fn feedback(&mut self, hits: &[(u32, u32)]) -> Result<(), SimError> {
-        if !self.started {
+        if !self.backend.frame_open() {
             return Ok(());
         }
-        self.culling.instance_hits_mut().fill(0);
+        self.backend.instance_hits_mut().fill(0);
         for &(slot, n) in hits {
             let Some(Some(h)) = self.handles.get(slot as usize).copied() else {
                 continue;
             };
-            let reg = self.culling.registry().slot(h).map_err(core)?;
-            let record = self
-                .culling
-                .registry()
-                .record_at(reg)
-                .copied()
-                .ok_or(SimError::UnknownInstance(reg))?;
+            let reg = self.backend.instance(h)?.slot;
+            let record = self.backend.record(h)?;
             if record.state() == InstanceState::Inactive {
-                if let Some(b) = self.culling.hitboxes_mut().get_mut(record.hitbox as usize) {
+                if let Some(b) = self.backend.hitboxes_mut().get_mut(record.hitbox as usize) {
                     b.add_hits(n);
                 }
-            } else if let Some(c) = self.culling.instance_hits_mut().get_mut(reg as usize) {
+            } else if let Some(c) = self.backend.instance_hits_mut().get_mut(reg as usize) {
                 *c = n;
             }
         }
-        self.culling.process_feedback().map_err(core)?;
-        if let Some(r) = self.culling.take_commands() {
-            self.ring.push(r).map_err(core)?;
-        }
-        Ok(())
+        self.backend.end_frame()
     }
 
     fn frame(
         &mut self,
-        world: &World,
         frame: u32,
         camera: &Camera,
         counting: &CountingConfig,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {
-        self.started = true;
-        let f = u64::from(frame);
-        self.culling.begin_frame(f).map_err(core)?;
-        self.blas.scheduler.begin_frame(f + 1).map_err(core)?;
-        if self.latency {
-            let frustum = lipac_core::latency::Frustum::from_view_projection(camera.view_proj())
-                .map_err(core)?;
-            let outcome = self
-                .culling
-                .mitigate_latency(camera.position, &frustum)
-                .map_err(core)?;
-            for r in outcome.requests {
-                let slot = self.dense_of(r.slot)?;
-                self.blas.activate(world, slot)?;
-                if let Some(address) = self.blas.address(slot) {
-                    self.culling.set_blas(r.handle, address).map_err(core)?;
-                }
-            }
-        }
-        while let Some(r) = self.ring.pop_ready(f) {
-            self.culling.ingest_readback(r.counter, &r.words);
-        }
-        let (blas, dense) = (&mut self.blas, &self.dense);
-        let mut failure = None;
-        self.culling.process_frame_commands(&mut |event| {
-            let slot = match dense.get(event.slot as usize) {
-                Some(&s) if s != u32::MAX => s,
-                _ => {
-                    failure.get_or_insert(SimError::UnknownInstance(event.slot));
-                    return None;
-                }
-            };
-            let result = match event.action {
-                BlasAction::Acquire => blas.activate(world, slot).map(|_| blas.address(slot)),
-                BlasAction::Release { .. } | BlasAction::CancelBuild => {
-                    blas.deactivate(slot).map(|_| None)
-                }
-            };
-            match result {
-                Ok(a) => a,
-                Err(e) => {
-                    failure.get_or_insert(e);
-                    None
-                }
-            }
-        });
-        if let Some(e) = failure {
-            return Err(e);
-        }
-        let work = self.blas.build(world, f)?;
-        for key in self.blas.scheduler.take_address_changes() {
-            let slot = key.0;
-            let address = self.blas.address(slot).unwrap_or(0);
-            if let Ok(h) = self.handle(slot) {
-                self.culling.set_blas(h, address).map_err(core)?;
-            }
-        }
-        self.culling.take_uploads();
-        self.culling.assemble(&mut self.records).map_err(core)?;
+        self.backend.begin_frame(frame)?;
+        let f = self.backend.run(camera, &mut self.records)?;
         let geometry = SlotSet::from_geometry_records(&self.records, counting);
         let mut slots = Vec::new();
         for r in &self.records {
@@ -825,20 +789,12 @@ impl LipacReplay {
                 }
             }
         }
-        fill_work(m, &work);
+        fill_work(m, &f.work);
         m.tlas_instances = self.records.len() as u64;
         m.counting_boxes = self.records.len() as u64 - slots.len() as u64;
-        let hitboxes = self.culling.hitboxes().len() as u64;
-        m.blas_bytes = self.blas.memory_bytes() + blas_bytes(12);
-        m.overhead_bytes =
-            lipac_overhead_bytes(hitboxes, u64::from(self.culling.registry().slot_count()));
+        let hitboxes = self.backend.hitboxes().len() as u64;
+        m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
+        m.overhead_bytes = lipac_overhead_bytes(hitboxes, u64::from(self.backend.slot_count()));
         Ok(slots)
-    }
-
-    fn dense_of(&self, reg: u32) -> Result<u32, SimError> {
-        match self.dense.get(reg as usize) {
-            Some(&s) if s != u32::MAX => Ok(s),
-            _ => Err(SimError::UnknownInstance(reg)),
-        }
     }
 }
