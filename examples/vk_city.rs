@@ -107,7 +107,7 @@ struct GpuLod {
 /// Uploads a mesh LOD's triangles (or `None` when it has none).
 fn upload(
     ctx: &lipac::vk::DeviceContext,
-    mesh: &lipac::sim::mesh::MeshLod,
+    mesh: &lipac::sim::mesh::LodTriangles,
 ) -> AnyResult<Option<GpuLod>> {
     let positions: Vec<[f32; 3]> = mesh
         .triangles
@@ -232,7 +232,7 @@ fn run() -> AnyResult<()> {
     // Unique instances (terrain tiles, terrain-adapted buildings, units) get
     // their own geometry when they first become active.
     let mut unique_lods: HashMap<u32, GpuLod> = HashMap::new();
-    let mut unique_mesh = lipac::sim::mesh::MeshLod::default();
+    let mut unique_mesh = lipac::sim::mesh::LodTriangles::default();
 
     // ---- GPU state --------------------------------------------------------
     let mut one_shot = OneShot::new(ctx)?;

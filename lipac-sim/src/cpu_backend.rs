@@ -56,7 +56,7 @@ use crate::camera::Camera;
 use crate::error::SimError;
 use crate::strategy::lipac::LipacConfig;
 use crate::strategy::BlasWork;
-use crate::tlas::CountingConfig;
+use crate::tlas::CountingBoxes;
 
 fn core<E: std::fmt::Display>(e: E) -> SimError {
     SimError::core(e)
@@ -106,7 +106,7 @@ impl CpuBackend {
     /// `config` (thresholds, latency mitigation, command capacity and budget,
     /// read-back latency, build budgets and priorities). Fails for an
     /// invalid configuration, or if the Manager's counting boxes differ from
-    /// the tracer's ([`CountingConfig`]).
+    /// the tracer's ([`CountingBoxes`]).
     pub fn new(
         grid: HitboxGrid,
         config: &LipacConfig,
@@ -132,7 +132,7 @@ impl CpuBackend {
             readback_latency: config.readback_latency,
             ..CullingConfig::new(unit_cube)
         };
-        let counting = CountingConfig::default();
+        let counting = CountingBoxes::default();
         if culling.assembly.omitted_box_sbt_offset != counting.instance_box_sbt
             || culling.assembly.hitbox_sbt_offset != counting.hitbox_box_sbt
             || culling.assembly.counting_mask != counting.counting_mask
@@ -399,7 +399,7 @@ mod tests {
 
     /// One frame with `heat` hits on every traced record.
     fn frame(b: &mut CpuBackend, f: u32, out: &mut Vec<TlasInstance>) -> BackendFrame {
-        let counting = CountingConfig::default();
+        let counting = CountingBoxes::default();
         for t in out.clone() {
             let i = t.custom_index() as usize;
             if t.sbt_offset() == counting.hitbox_box_sbt {
@@ -437,7 +437,7 @@ mod tests {
         assert!(ingested > 0);
         // Both built once (a shared and an own static BLAS), never refit.
         assert_eq!((work.builds, work.refits), (2, 0), "{work:?}");
-        let counting = CountingConfig::default();
+        let counting = CountingBoxes::default();
         for h in [shared, own] {
             let v = b.instance(h).unwrap();
             assert_ne!(v.blas, 0);

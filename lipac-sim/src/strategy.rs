@@ -59,7 +59,7 @@ use crate::trace::Counters;
 
 /// How an instance's BLAS is owned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BlasKind {
+pub enum BlasOwnership {
     /// Shared by every instance of its (mesh, LOD).
     Shared,
     /// The instance's own, static (terrain tile, terrain-adapted building):
@@ -74,7 +74,7 @@ pub enum BlasKind {
 #[derive(Clone, Debug)]
 pub struct InstanceCatalog {
     triangles: Vec<[u32; LOD_COUNT]>,
-    kinds: Vec<BlasKind>,
+    kinds: Vec<BlasOwnership>,
     meshes: Vec<MeshId>,
 }
 
@@ -87,11 +87,11 @@ impl InstanceCatalog {
         let mut meshes = Vec::with_capacity(n);
         for inst in scene.instances() {
             let kind = if inst.is_animated() {
-                BlasKind::Animated
+                BlasOwnership::Animated
             } else if inst.is_unique() {
-                BlasKind::OwnStatic
+                BlasOwnership::OwnStatic
             } else {
-                BlasKind::Shared
+                BlasOwnership::Shared
             };
             let mut t = [0u32; LOD_COUNT];
             for (lod, c) in t.iter_mut().enumerate() {
@@ -128,7 +128,7 @@ impl InstanceCatalog {
             .unwrap_or(0)
     }
     /// BLAS ownership of instance `slot`.
-    pub fn kind(&self, slot: u32) -> Option<BlasKind> {
+    pub fn kind(&self, slot: u32) -> Option<BlasOwnership> {
         self.kinds.get(slot as usize).copied()
     }
     /// The scheduler request for instance `slot` at `lod`.
@@ -136,17 +136,17 @@ impl InstanceCatalog {
         let kind = self.kind(slot).ok_or(SimError::UnknownInstance(slot))?;
         let mesh = self.meshes[slot as usize];
         let geometry = match kind {
-            BlasKind::Shared => BlasGeometry::Shared {
+            BlasOwnership::Shared => BlasGeometry::Shared {
                 mesh,
                 variant: 0,
                 compactable: false,
             },
-            BlasKind::OwnStatic => BlasGeometry::Shared {
+            BlasOwnership::OwnStatic => BlasGeometry::Shared {
                 mesh,
                 variant: slot + 1,
                 compactable: false,
             },
-            BlasKind::Animated => BlasGeometry::Unique { mesh },
+            BlasOwnership::Animated => BlasGeometry::Unique { mesh },
         };
         Ok(InstanceBlasRequest {
             geometry,
@@ -586,7 +586,7 @@ impl Strategy for FrustumRadius {
         _previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        let frustum = ctx.camera.frustum();
+        let frustum = ctx.camera.frustum()?;
         let eye = ctx.camera.position;
         let radius = self.radius;
         self.set.run_selected(ctx, out, |_, inst| {

@@ -60,7 +60,7 @@ use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
 use crate::strategy::plan_and_ack;
 use crate::strategy::{unlimited_budgets, BlasWork, StrategyKind};
-use crate::tlas::CountingConfig;
+use crate::tlas::CountingBoxes;
 use crate::trace::SlotSet;
 
 /// Rays per frame the LiPaC thresholds are scaled to in hits-only mode:
@@ -389,7 +389,7 @@ pub fn replay_hits_with<R: Read>(
     let mut fp = HitsFootprint::default();
     let mut read = 0u64;
     let mut with_hits = 0u64;
-    let counting = CountingConfig::default();
+    let counting = CountingBoxes::default();
     while input.next_frame_into(&mut frame)? {
         let number = u32::try_from(frame.number).map_err(|_| {
             SimError::Replay(format!(
@@ -772,7 +772,7 @@ impl LipacReplay {
         &mut self,
         frame: u32,
         camera: &Camera,
-        counting: &CountingConfig,
+        counting: &CountingBoxes,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {
         self.backend.begin_frame(frame)?;

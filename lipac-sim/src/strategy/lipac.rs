@@ -34,7 +34,7 @@ use crate::error::SimError;
 use crate::memory::{blas_bytes, lipac_overhead_bytes};
 use crate::scene::{flags, Scene};
 use crate::scene_blas::instance_mask;
-use crate::tlas::CountingConfig;
+use crate::tlas::CountingBoxes;
 use crate::trace::Counters;
 
 /// Settings of [`Lipac`].
@@ -300,7 +300,7 @@ impl Strategy for Lipac {
         self.stats.commands_pending = f.commands_pending;
         self.stats.latency_activations = f.latency_activations;
         // Geometry records get this frame's BLAS.
-        let counting = CountingConfig::default();
+        let counting = CountingBoxes::default();
         for r in out.iter_mut() {
             let sbt = r.sbt_offset();
             if sbt != counting.instance_box_sbt && sbt != counting.hitbox_box_sbt {
