@@ -127,7 +127,6 @@ impl CpuBackend {
             },
             thresholds: config.thresholds,
             command_capacity: config.command_capacity,
-            command_budget: config.command_budget,
             latency_mitigation: config.latency,
             readback_latency: config.readback_latency,
             ..CullingConfig::new(unit_cube)
@@ -201,9 +200,15 @@ impl CpuBackend {
     pub fn instance(&self, handle: InstanceHandle) -> Result<InstanceView, SimError> {
         self.manager.instance(handle).map_err(core)
     }
-    /// One instance's GPU record ([`Manager::record`]).
+    /// One instance's GPU record (state, hitbox, BLAS, LOD; a copy of
+    /// [`Manager::records`] at its slot).
     pub fn record(&self, handle: InstanceHandle) -> Result<InstanceRecord, SimError> {
-        self.manager.record(handle).map_err(core)
+        let slot = self.instance(handle)?.slot;
+        self.manager
+            .records()
+            .get(slot as usize)
+            .copied()
+            .ok_or(SimError::UnknownInstance(slot))
     }
 
     // ---- hits -------------------------------------------------------------
@@ -222,7 +227,7 @@ impl CpuBackend {
     }
     /// Instance slots (live, dead or quarantined): LiPaC's per-slot buffers.
     pub fn slot_count(&self) -> u32 {
-        self.manager.slot_count()
+        self.manager.records().len() as u32
     }
     /// Bytes of every BLAS the Manager holds (built, building, cached,
     /// compacted).

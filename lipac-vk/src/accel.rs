@@ -32,7 +32,7 @@ impl From<vk::AccelerationStructureBuildSizesInfoKHR<'_>> for AsSizes {
 /// Where an acceleration structure's bytes live.
 #[derive(Debug)]
 enum Storage {
-    /// A buffer (and memory) of its own.
+    /// A buffer of its own (memory from the context's allocator).
     Dedicated(Buffer),
     /// A range of an [`crate::AccelerationStructurePool`] block.
     Pooled(PoolRange),
@@ -82,8 +82,9 @@ impl AccelerationStructure {
                 "acceleration structure of size 0".into(),
             ));
         }
-        let buffer = Buffer::new(
+        let buffer = Buffer::named(
             ctx,
+            "lipac acceleration structure",
             size,
             vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
             MemoryLocation::GpuOnly,

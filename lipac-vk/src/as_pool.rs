@@ -1,7 +1,8 @@
 //! Acceleration-structure storage sub-allocated from large buffers.
 //!
 //! A [`AccelerationStructurePool`] owns a few large `GpuOnly` buffers
-//! ("blocks", each with its own `VkDeviceMemory`), hands out 256-byte aligned
+//! ("blocks", each with memory from the context's
+//! [`DeviceAllocator`](crate::DeviceAllocator)), hands out 256-byte aligned
 //! ranges inside them with lipac-core's [`TlsfAllocator`] (one allocator per
 //! block), and creates `VkAccelerationStructureKHR` objects at those offsets.
 //! When no block has room, a new block is added (`block_size` bytes, or the
@@ -9,9 +10,9 @@
 //! [`AccelerationStructure`] destroys the object and returns its range.
 //! Empty blocks are released by [`AccelerationStructurePool::trim`].
 //!
-//! Many small BLASes then cost a few allocations instead of one
-//! `vkAllocateMemory` each (`maxMemoryAllocationCount` is 4096 on many
-//! drivers), and the pool reports its occupancy ([`PoolStats`]).
+//! Many small BLASes then cost a few allocator calls instead of one each,
+//! structures share blocks without the device allocator's per-allocation
+//! bookkeeping, and the pool reports its occupancy ([`PoolStats`]).
 
 use crate::accel::AccelerationStructure;
 use crate::context::DeviceContext;
@@ -80,7 +81,7 @@ impl Drop for PoolRange {
 /// Occupancy of an [`AccelerationStructurePool`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PoolStats {
-    /// Blocks (buffers with their own device memory).
+    /// Blocks (buffers with memory from the context's allocator).
     pub blocks: usize,
     /// Bytes of all blocks.
     pub capacity_bytes: u64,
@@ -218,8 +219,9 @@ impl AccelerationStructurePool {
         let block_bytes = align_up(size, AS_OFFSET_ALIGNMENT)
             .ok_or_else(|| VkError::InvalidArgument(format!("structure of {size} bytes")))?
             .max(self.shared.block_size);
-        let buffer = Buffer::new(
+        let buffer = Buffer::named(
             &self.shared.ctx,
+            "lipac acceleration-structure pool block",
             block_bytes,
             vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
             MemoryLocation::GpuOnly,
@@ -272,7 +274,9 @@ impl AccelerationStructurePool {
         s
     }
 
-    /// Bytes of device memory the blocks hold.
+    /// Bytes of device memory the blocks hold (their buffers' memory
+    /// requirements, exact; the allocator's own blocks are in
+    /// [`DeviceContext::memory_stats`]).
     pub fn memory_bytes(&self) -> u64 {
         let state = self.shared.lock();
         state

@@ -1,6 +1,7 @@
 //! Binding to an engine's Vulkan device ([`DeviceContext`]) and a small
 //! self-contained device for examples and tests ([`HeadlessContext`]).
 
+use crate::device_allocator::{DeviceAllocator, DeviceMemoryStats, GpuAllocator, MemoryCounters};
 use crate::error::{Result, VkContext, VkError};
 use ash::vk;
 use std::ffi::{c_void, CStr};
@@ -47,8 +48,9 @@ const REQUIRED_DEVICE_FUNCTIONS: [&CStr; 6] = [
 ];
 
 /// lipac's handle on a Vulkan device: the engine's instance and device, the
-/// queue lipac submits to, the loaded `VK_KHR_acceleration_structure`
-/// function table, and the device limits lipac needs.
+/// queue lipac submits to, the [`DeviceAllocator`] its buffers' memory comes
+/// from, the loaded `VK_KHR_acceleration_structure` function table, and the
+/// device limits lipac needs.
 ///
 /// Cheap to clone (reference counted). Every lipac object (buffers,
 /// acceleration structures, pipelines) holds a clone and destroys its Vulkan
@@ -70,30 +72,38 @@ struct Inner {
     limits: AccelerationStructureLimits,
     memory_properties: vk::PhysicalDeviceMemoryProperties,
     device_name: String,
-    owned: Option<Owned>,
+    memory: MemoryCounters,
+    /// Dropped before `_owned` (field order): frees its blocks while the
+    /// device still exists.
+    allocator: Arc<dyn DeviceAllocator>,
+    /// Only held to be dropped last (destroys a headless device).
+    _owned: Option<Owned>,
 }
 
-/// Handles a [`HeadlessContext`] created and destroys with the context.
+/// Handles a [`HeadlessContext`] created; destroyed when the context is
+/// (after its allocator), or on an error path of `HeadlessContext::new`.
 struct Owned {
     _entry: ash::Entry,
+    instance: ash::Instance,
+    device: ash::Device,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     _log: Arc<Mutex<Vec<String>>>,
 }
 
-impl Drop for Inner {
+impl Drop for Owned {
     fn drop(&mut self) {
-        if let Some(owned) = self.owned.take() {
-            // SAFETY: the context created this device and instance; every lipac
-            // object holds an Arc of this Inner, so none is left. Waiting for idle
-            // first makes sure no submitted work still uses the device.
-            unsafe {
-                let _ = self.device.device_wait_idle();
-                self.device.destroy_device(None);
-                if let Some((loader, messenger)) = &owned.messenger {
-                    loader.destroy_debug_utils_messenger(*messenger, None);
-                }
-                self.instance.destroy_instance(None);
+        // SAFETY: the headless context created this device and instance. The
+        // `Owned` is dropped last of the context's parts, after every lipac
+        // object (each holds an Arc of the context) and after the allocator
+        // freed its memory. Waiting for idle first makes sure no submitted
+        // work still uses the device.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            self.device.destroy_device(None);
+            if let Some((loader, messenger)) = &self.messenger {
+                loader.destroy_debug_utils_messenger(*messenger, None);
             }
+            self.instance.destroy_instance(None);
         }
     }
 }
@@ -147,7 +157,10 @@ impl DeviceContext {
     /// given, a graphics+compute queue otherwise. Checks that the device
     /// functions lipac calls are loaded (Vulkan 1.3 with `synchronization2`,
     /// `VK_KHR_acceleration_structure`, buffer device address) and loads the
-    /// acceleration-structure function table.
+    /// acceleration-structure function table. lipac's buffers take their
+    /// memory from a [`GpuAllocator`] of its own (gpu-allocator); to use the
+    /// engine's allocator instead, bind with
+    /// [`DeviceContext::from_engine_with_allocator`].
     ///
     /// # Safety
     ///
@@ -163,7 +176,8 @@ impl DeviceContext {
     /// # Errors
     ///
     /// [`VkError::MissingDeviceFunction`] when a needed function is not
-    /// loaded, [`VkError::NoComputeQueue`] when no queue supports compute.
+    /// loaded, [`VkError::NoComputeQueue`] when no queue supports compute,
+    /// [`VkError::Allocator`] when gpu-allocator cannot be created.
     ///
     /// ```no_run
     /// # fn bind(instance: &ash::Instance, device: &ash::Device, pd: ash::vk::PhysicalDevice,
@@ -183,17 +197,59 @@ impl DeviceContext {
         physical_device: vk::PhysicalDevice,
         queues: &[EngineQueue],
     ) -> Result<Self> {
+        // SAFETY: forwarded from this function's contract (which includes
+        // bufferDeviceAddress and the device outliving lipac's objects, hence
+        // the allocator the context owns).
+        let allocator = unsafe { GpuAllocator::new(instance, device, physical_device) }?;
+        // SAFETY: forwarded from this function's contract; the allocator
+        // allocates from `device`.
+        unsafe {
+            Self::bind(
+                instance,
+                device,
+                physical_device,
+                queues,
+                Arc::new(allocator),
+                None,
+            )
+        }
+    }
+
+    /// Binds lipac to an engine's existing device, taking every buffer's
+    /// memory from the engine's `allocator` instead of a [`GpuAllocator`] of
+    /// lipac's own (see [`DeviceAllocator`] for what to implement).
+    ///
+    /// lipac keeps the `Arc` until the last object of this context is
+    /// dropped; every allocation it made is freed by then.
+    ///
+    /// # Safety
+    ///
+    /// As [`DeviceContext::from_engine`]; besides, `allocator` must allocate
+    /// from `device`.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::MissingDeviceFunction`], [`VkError::NoComputeQueue`] as
+    /// for [`DeviceContext::from_engine`].
+    pub unsafe fn from_engine_with_allocator(
+        instance: &ash::Instance,
+        device: &ash::Device,
+        physical_device: vk::PhysicalDevice,
+        queues: &[EngineQueue],
+        allocator: Arc<dyn DeviceAllocator>,
+    ) -> Result<Self> {
         // SAFETY: forwarded from this function's contract.
-        unsafe { Self::bind(instance, device, physical_device, queues, None) }
+        unsafe { Self::bind(instance, device, physical_device, queues, allocator, None) }
     }
 
     /// # Safety
-    /// As [`DeviceContext::from_engine`].
+    /// As [`DeviceContext::from_engine_with_allocator`].
     unsafe fn bind(
         instance: &ash::Instance,
         device: &ash::Device,
         physical_device: vk::PhysicalDevice,
         queues: &[EngineQueue],
+        allocator: Arc<dyn DeviceAllocator>,
         owned: Option<Owned>,
     ) -> Result<Self> {
         for name in REQUIRED_DEVICE_FUNCTIONS {
@@ -254,7 +310,9 @@ impl DeviceContext {
                 limits,
                 memory_properties,
                 device_name,
-                owned,
+                memory: MemoryCounters::default(),
+                allocator,
+                _owned: owned,
             }),
         })
     }
@@ -295,6 +353,19 @@ impl DeviceContext {
     /// The device's name (e.g. `llvmpipe (LLVM 15.0.6, 256 bits)`).
     pub fn device_name(&self) -> &str {
         &self.inner.device_name
+    }
+    /// The allocator every buffer of this context takes its memory from.
+    pub fn allocator(&self) -> &dyn DeviceAllocator {
+        &*self.inner.allocator
+    }
+    /// The device memory this context's buffers hold: live buffers and the
+    /// exact bytes of their memory requirements, with the allocator's blocks
+    /// when it reports them.
+    pub fn memory_stats(&self) -> DeviceMemoryStats {
+        self.inner.memory.snapshot(self.inner.allocator.blocks())
+    }
+    pub(crate) fn memory_counters(&self) -> &MemoryCounters {
+        &self.inner.memory
     }
     /// Whether two contexts are the same binding.
     pub fn same_as(&self, other: &DeviceContext) -> bool {
@@ -461,6 +532,32 @@ impl HeadlessContext {
     /// [`Validation::Required`] without the layer, [`VkError::Vulkan`] when a
     /// creation call fails.
     pub fn new(validation: Validation) -> Result<Self> {
+        Self::with_allocator(validation, |instance, device, physical_device| {
+            // SAFETY: the handles belong together and the device has
+            // bufferDeviceAddress enabled; the context owns the allocator and
+            // drops it before destroying the device.
+            let a = unsafe { GpuAllocator::new(instance, device, physical_device) }?;
+            Ok(Box::new(a))
+        })
+    }
+
+    /// As [`HeadlessContext::new`], with every buffer's memory from the
+    /// allocator `make_allocator` creates on the new device (tests of
+    /// custom [`DeviceAllocator`]s). The context owns the allocator and
+    /// drops it, after the last lipac object and before destroying the
+    /// device.
+    ///
+    /// # Errors
+    ///
+    /// As [`HeadlessContext::new`]; the error of `make_allocator`.
+    pub fn with_allocator(
+        validation: Validation,
+        make_allocator: impl FnOnce(
+            &ash::Instance,
+            &ash::Device,
+            vk::PhysicalDevice,
+        ) -> Result<Box<dyn DeviceAllocator>>,
+    ) -> Result<Self> {
         // SAFETY: loading the system's Vulkan loader library; ash keeps it loaded
         // for the Entry's lifetime and the Entry lives in the context.
         let entry =
@@ -622,13 +719,26 @@ impl HeadlessContext {
         };
         // SAFETY: queue 0 of the family was requested at device creation.
         let queue = unsafe { device.get_device_queue(candidate.family, 0) };
+        // From here `owned` destroys the device and instance when dropped
+        // (on an error path, or with the context).
         let owned = Owned {
             _entry: entry,
+            instance: instance.clone(),
+            device: device.clone(),
             messenger,
             _log: log.clone(),
         };
+        let allocator: Arc<dyn DeviceAllocator> =
+            match make_allocator(&instance, &device, candidate.physical_device) {
+                Ok(a) => Arc::from(a),
+                Err(e) => {
+                    drop(owned);
+                    return Err(e);
+                }
+            };
         // SAFETY: handles were just created together, with lipac's extensions
-        // and features; `owned` makes the context destroy them last.
+        // and features; the allocator was made for this device; `owned` makes
+        // the context destroy them last, after the allocator.
         let context = unsafe {
             DeviceContext::bind(
                 &instance,
@@ -638,6 +748,7 @@ impl HeadlessContext {
                     queue,
                     family_index: candidate.family,
                 }],
+                allocator,
                 Some(owned),
             )
         }?;

@@ -38,6 +38,9 @@ pub enum VkError {
         /// Property flags that were required.
         required: vk::MemoryPropertyFlags,
     },
+    /// The device allocator failed or returned memory that does not fit the
+    /// buffer (its message; see [`crate::DeviceAllocator`]).
+    Allocator(String),
     /// The buffer is not host-visible (mapped), so the CPU cannot read or write it.
     NotMapped,
     /// A read or write past the end of a buffer.
@@ -112,6 +115,7 @@ impl fmt::Display for VkError {
                 f,
                 "no memory type in bits {type_bits:#x} has properties {required:?}"
             ),
+            Self::Allocator(s) => write!(f, "device allocator: {s}"),
             Self::NotMapped => write!(f, "the buffer is not host-visible"),
             Self::OutOfBounds { offset, len, size } => write!(
                 f,

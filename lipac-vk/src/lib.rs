@@ -10,6 +10,9 @@
 //! * [`DeviceContext`]: lipac's binding to an engine's instance, device and
 //!   queues; [`HeadlessContext`]: a device of its own for tests and examples.
 //! * [`Buffer`] (device addresses, mapped upload/readback), [`ScratchBuffer`];
+//!   memory from the context's [`DeviceAllocator`] ([`GpuAllocator`] on
+//!   gpu-allocator by default, or the engine's own), counted exactly
+//!   ([`DeviceMemoryStats`]);
 //!   [`AccelerationStructurePool`]: acceleration structures at 256-byte
 //!   aligned TLSF ranges of large blocks, with [`PoolStats`].
 //! * [`BlasBatch`]: batched triangle BLAS builds by device address, with
@@ -48,6 +51,7 @@ mod commands;
 mod compute;
 mod context;
 mod counting;
+mod device_allocator;
 mod error;
 mod executor;
 mod feedback;
@@ -79,6 +83,10 @@ pub use context::{
 pub use counting::{
     counting_box_instance, CountingBoxKind, CountingConfig, UnitCube, UNIT_CUBE_INDICES,
     UNIT_CUBE_VERTICES,
+};
+pub use device_allocator::{
+    AllocationRequest, AllocatorBlocks, DeviceAllocation, DeviceAllocator, DeviceMemoryStats,
+    GpuAllocator, GPU_ALLOCATOR_DEVICE_BLOCK_BYTES, GPU_ALLOCATOR_HOST_BLOCK_BYTES,
 };
 pub use error::{Result, VkError};
 pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};

@@ -1,15 +1,18 @@
 //! Buffers with device addresses, and host-visible upload/readback.
 //!
-//! lipac allocates its own memory, one dedicated `VkDeviceMemory` per
-//! [`Buffer`]. lipac's buffers are few and large (acceleration-structure
-//! storage, scratch, instance and counter arrays), the sizes it reports are
-//! then exactly what it holds, and no allocator dependency is needed. (A
-//! suballocator for many small BLASes is the natural next step; the
-//! [`MemoryLocation`] interface does not change with it.)
+//! Every [`Buffer`] takes its memory from the context's
+//! [`DeviceAllocator`](crate::DeviceAllocator) ([`crate::GpuAllocator`] on
+//! gpu-allocator unless the engine plugged in its own), bound at the offset
+//! the allocator returns. The sizes lipac reports are the buffers' memory
+//! requirements, exact whatever the allocator's blocks look like
+//! ([`crate::DeviceContext::memory_stats`]).
 
 use crate::context::DeviceContext;
+use crate::device_allocator::{AllocationRequest, DeviceAllocation};
 use crate::error::{Result, VkContext, VkError};
 use ash::vk;
+#[cfg(test)]
+use ash::vk::Handle;
 use bytemuck::Pod;
 
 /// Where a buffer's memory lives.
@@ -24,15 +27,18 @@ pub enum MemoryLocation {
     GpuToCpu,
 }
 
-/// A `VkBuffer` with its own memory and a device address.
+/// A `VkBuffer` with device memory from the context's allocator and a
+/// device address.
 ///
 /// Every buffer is created with `SHADER_DEVICE_ADDRESS` usage (added to what
-/// the caller asks for). Dropping it frees the buffer and its memory: keep it
-/// alive until the GPU has finished every submission that uses it.
+/// the caller asks for). Dropping it destroys the buffer and returns its
+/// memory to the allocator: keep it alive until the GPU has finished every
+/// submission that uses it.
 pub struct Buffer {
     ctx: DeviceContext,
     raw: vk::Buffer,
-    memory: vk::DeviceMemory,
+    /// `Some` until dropped.
+    allocation: Option<DeviceAllocation>,
     size: u64,
     allocation_size: u64,
     address: vk::DeviceAddress,
@@ -43,7 +49,7 @@ pub struct Buffer {
 
 // SAFETY: the mapped pointer is only dereferenced through `&mut self` (writes)
 // or `&self` (reads of plain bytes); Vulkan handles are plain identifiers that
-// may be used from any thread.
+// may be used from any thread; the allocator is `Send + Sync`.
 unsafe impl Send for Buffer {}
 // SAFETY: see `Send`; shared references only read.
 unsafe impl Sync for Buffer {}
@@ -59,35 +65,66 @@ impl std::fmt::Debug for Buffer {
     }
 }
 
-fn find_memory_type(
-    props: &vk::PhysicalDeviceMemoryProperties,
-    type_bits: u32,
-    required: vk::MemoryPropertyFlags,
-    preferred: vk::MemoryPropertyFlags,
-) -> Result<u32> {
-    let count = (props.memory_type_count as usize).min(props.memory_types.len());
-    let fits = |i: usize, flags: vk::MemoryPropertyFlags| {
-        type_bits & (1 << i) != 0 && props.memory_types[i].property_flags.contains(flags)
-    };
-    (0..count)
-        .find(|&i| fits(i, required | preferred))
-        .or_else(|| (0..count).find(|&i| fits(i, required)))
-        .map(|i| i as u32)
-        .ok_or(VkError::NoMemoryType {
-            type_bits,
-            required,
-        })
+/// Checks an allocator's answer against the request (the parts lipac can
+/// check; see the [`crate::DeviceAllocator`] contract).
+fn check_allocation(
+    a: &DeviceAllocation,
+    req: &vk::MemoryRequirements,
+    location: MemoryLocation,
+    name: &str,
+) -> Result<()> {
+    if a.memory == vk::DeviceMemory::null() {
+        return Err(VkError::Allocator(format!("{name}: null memory")));
+    }
+    if req.alignment > 1 && a.offset % req.alignment != 0 {
+        return Err(VkError::Allocator(format!(
+            "{name}: offset {} is not a multiple of the alignment {}",
+            a.offset, req.alignment
+        )));
+    }
+    if a.size < req.size {
+        return Err(VkError::Allocator(format!(
+            "{name}: {} bytes for a requirement of {}",
+            a.size, req.size
+        )));
+    }
+    if location != MemoryLocation::GpuOnly && a.mapped.is_none() {
+        return Err(VkError::Allocator(format!(
+            "{name}: {location:?} memory without a mapping"
+        )));
+    }
+    Ok(())
 }
 
 impl Buffer {
-    /// Creates a buffer of `size` bytes (`size > 0`).
+    /// Creates a buffer of `size` bytes (`size > 0`), named `"lipac buffer"`
+    /// in the allocator.
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for size 0, [`VkError::NoMemoryType`],
-    /// [`VkError::Vulkan`] when creation, allocation or mapping fails.
+    /// As [`Buffer::named`].
     pub fn new(
         ctx: &DeviceContext,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<Self> {
+        Self::named(ctx, "lipac buffer", size, usage, location)
+    }
+
+    /// Creates a buffer of `size` bytes (`size > 0`) with memory from the
+    /// context's allocator, which sees `name` (debugging tools, allocator
+    /// reports).
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] for size 0; [`VkError::Vulkan`] when
+    /// creation or binding fails; the allocator's error
+    /// ([`VkError::NoMemoryType`], [`VkError::Vulkan`] out of memory,
+    /// [`VkError::Allocator`]).
+    pub fn named(
+        ctx: &DeviceContext,
+        name: &str,
         size: u64,
         usage: vk::BufferUsageFlags,
         location: MemoryLocation,
@@ -105,88 +142,52 @@ impl Buffer {
         let raw = unsafe { device.create_buffer(&info, None) }.ctx("vkCreateBuffer")?;
         // From here, destroy `raw` on every error path.
         let destroy_buffer = || {
-            // SAFETY: `raw` was created above and is not bound or used yet.
+            // SAFETY: `raw` was created above; the GPU never used it.
             unsafe { device.destroy_buffer(raw, None) }
         };
         // SAFETY: `raw` is a valid buffer of `device`.
         let req = unsafe { device.get_buffer_memory_requirements(raw) };
-        let (required, preferred) = match location {
-            MemoryLocation::GpuOnly => (
-                vk::MemoryPropertyFlags::empty(),
-                vk::MemoryPropertyFlags::DEVICE_LOCAL,
-            ),
-            MemoryLocation::CpuToGpu => (
-                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-                vk::MemoryPropertyFlags::empty(),
-            ),
-            MemoryLocation::GpuToCpu => (
-                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-                vk::MemoryPropertyFlags::HOST_CACHED,
-            ),
+        let allocator = ctx.allocator();
+        let request = AllocationRequest {
+            name,
+            buffer: raw,
+            usage,
+            requirements: req,
+            location,
         };
-        let type_index = match find_memory_type(
-            ctx.memory_properties(),
-            req.memory_type_bits,
-            required,
-            preferred,
-        ) {
-            Ok(i) => i,
+        let allocation = match allocator.allocate(&request) {
+            Ok(a) => a,
             Err(e) => {
                 destroy_buffer();
                 return Err(e);
             }
         };
-        let mut flags =
-            vk::MemoryAllocateFlagsInfo::default().flags(vk::MemoryAllocateFlags::DEVICE_ADDRESS);
-        let alloc = vk::MemoryAllocateInfo::default()
-            .allocation_size(req.size)
-            .memory_type_index(type_index)
-            .push_next(&mut flags);
-        // SAFETY: valid device; the memory type index comes from the device's
-        // own memory properties; bufferDeviceAddress is enabled (context contract).
-        let memory = match unsafe { device.allocate_memory(&alloc, None) } {
-            Ok(m) => m,
-            Err(e) => {
-                destroy_buffer();
-                return Err(VkError::vk("vkAllocateMemory", e));
-            }
-        };
-        let free_all = || {
-            // SAFETY: both objects were created above and are not in use.
-            unsafe {
-                device.destroy_buffer(raw, None);
-                device.free_memory(memory, None);
-            }
-        };
-        // SAFETY: fresh memory of a type the buffer allows, offset 0, size from
-        // the buffer's requirements.
-        if let Err(e) = unsafe { device.bind_buffer_memory(raw, memory, 0) } {
-            free_all();
-            return Err(VkError::vk("vkBindBufferMemory", e));
+        let bound = check_allocation(&allocation, &req, location, name).and_then(|()| {
+            // SAFETY: by the allocator's contract (and the checks above) the
+            // range is memory of this device, of a type the buffer allows,
+            // aligned, at least `req.size` bytes and used by nothing else.
+            unsafe { device.bind_buffer_memory(raw, allocation.memory, allocation.offset) }
+                .ctx("vkBindBufferMemory")
+        });
+        if let Err(e) = bound {
+            destroy_buffer();
+            allocator.free(allocation);
+            return Err(e);
         }
-        let mapped = if location == MemoryLocation::GpuOnly {
-            std::ptr::null_mut()
-        } else {
-            // SAFETY: host-visible memory, not mapped yet, whole range.
-            match unsafe {
-                device.map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())
-            } {
-                Ok(p) => p.cast::<u8>(),
-                Err(e) => {
-                    free_all();
-                    return Err(VkError::vk("vkMapMemory", e));
-                }
-            }
+        let mapped = match (location, allocation.mapped) {
+            (MemoryLocation::GpuOnly, _) | (_, None) => std::ptr::null_mut(),
+            (_, Some(p)) => p.as_ptr(),
         };
         // SAFETY: the buffer has SHADER_DEVICE_ADDRESS usage and bound memory
-        // allocated with the DEVICE_ADDRESS flag.
+        // allocated with the DEVICE_ADDRESS flag (allocator contract).
         let address = unsafe {
             device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(raw))
         };
+        ctx.memory_counters().add(req.size);
         Ok(Self {
             ctx: ctx.clone(),
             raw,
-            memory,
+            allocation: Some(allocation),
             size,
             allocation_size: req.size,
             address,
@@ -225,7 +226,8 @@ impl Buffer {
     pub fn size(&self) -> u64 {
         self.size
     }
-    /// Bytes of device memory the buffer holds (its memory requirement).
+    /// Bytes of device memory the buffer holds: its memory requirement
+    /// (the allocator's range may be larger, its block much larger).
     pub fn allocation_size(&self) -> u64 {
         self.allocation_size
     }
@@ -323,13 +325,14 @@ impl Buffer {
 
 impl Drop for Buffer {
     fn drop(&mut self) {
-        let device = self.ctx.device();
-        // SAFETY: the buffer and memory belong to this device and, by the type's
-        // contract, the GPU no longer uses them. Freeing memory unmaps it.
-        unsafe {
-            device.destroy_buffer(self.raw, None);
-            device.free_memory(self.memory, None);
+        // SAFETY: the buffer belongs to this device and, by the type's
+        // contract, the GPU no longer uses it.
+        unsafe { self.ctx.device().destroy_buffer(self.raw, None) };
+        if let Some(allocation) = self.allocation.take() {
+            // The buffer bound to the range is gone: return it, exactly once.
+            self.ctx.allocator().free(allocation);
         }
+        self.ctx.memory_counters().remove(self.allocation_size);
     }
 }
 
@@ -400,8 +403,9 @@ impl ScratchBuffer {
         let size = grown
             .checked_add(self.alignment)
             .ok_or_else(|| VkError::InvalidArgument(format!("scratch of {bytes} bytes")))?;
-        let new = Buffer::new(
+        let new = Buffer::named(
             &self.ctx,
+            "lipac acceleration-structure build scratch",
             size,
             vk::BufferUsageFlags::STORAGE_BUFFER,
             MemoryLocation::GpuOnly,
@@ -425,21 +429,40 @@ mod tests {
     }
 
     #[test]
-    fn memory_type_prefers_then_falls_back() {
-        let mut props = vk::PhysicalDeviceMemoryProperties {
-            memory_type_count: 3,
-            ..Default::default()
+    fn allocations_that_break_the_contract_are_refused() {
+        let req = vk::MemoryRequirements {
+            size: 1000,
+            alignment: 256,
+            memory_type_bits: 1,
         };
-        props.memory_types[0].property_flags = vk::MemoryPropertyFlags::DEVICE_LOCAL;
-        props.memory_types[1].property_flags =
-            vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-        props.memory_types[2].property_flags = vk::MemoryPropertyFlags::HOST_VISIBLE
-            | vk::MemoryPropertyFlags::HOST_COHERENT
-            | vk::MemoryPropertyFlags::HOST_CACHED;
-        let hv = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-        let cached = vk::MemoryPropertyFlags::HOST_CACHED;
-        assert_eq!(find_memory_type(&props, 0b111, hv, cached), Ok(2));
-        assert_eq!(find_memory_type(&props, 0b011, hv, cached), Ok(1));
-        assert!(find_memory_type(&props, 0b001, hv, cached).is_err());
+        let good = |offset, size, mapped: bool| DeviceAllocation {
+            memory: vk::DeviceMemory::from_raw(7),
+            offset,
+            size,
+            mapped: mapped.then(std::ptr::NonNull::<u8>::dangling),
+            id: 0,
+        };
+        let host = MemoryLocation::CpuToGpu;
+        assert_eq!(
+            check_allocation(&good(512, 1000, true), &req, host, "b"),
+            Ok(())
+        );
+        assert_eq!(
+            check_allocation(&good(0, 1000, false), &req, MemoryLocation::GpuOnly, "b"),
+            Ok(())
+        );
+        for bad in [
+            good(100, 1000, true),
+            good(0, 999, true),
+            good(0, 1000, false),
+        ] {
+            assert!(matches!(
+                check_allocation(&bad, &req, host, "b"),
+                Err(VkError::Allocator(_))
+            ));
+        }
+        let mut null = good(0, 1000, true);
+        null.memory = vk::DeviceMemory::null();
+        assert!(check_allocation(&null, &req, host, "b").is_err());
     }
 }

@@ -37,12 +37,12 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::time::Instant;
 
-use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac_core::grid::HitboxGrid;
-use lipac_core::instance::{InstanceDesc, InstanceFlags};
+use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::manager::MeshCatalog;
 use lipac_core::math::rows_to_affine;
