@@ -218,7 +218,7 @@ impl BlasWork {
 /// Plans this frame's BLAS work on `scheduler` under `budgets` and
 /// acknowledges every build at once with a fresh fake address (a CPU backend
 /// builds synchronously), counting the builds, refits and primitives.
-pub(crate) fn plan_and_ack(
+fn plan_and_ack(
     scheduler: &mut BuildScheduler,
     budgets: &BuildBudgets,
     next_address: &mut u64,
@@ -263,9 +263,11 @@ pub fn unlimited_budgets() -> BuildBudgets {
     }
 }
 
-/// A strategy's BLASes: a [`BuildScheduler`] whose builds are acknowledged
-/// immediately, with addresses that are tokens (the tracer substitutes the
-/// frame's geometry, see the module docs).
+/// A baseline's BLASes (the set strategies here, the hits-only replay's
+/// `full`): a [`BuildScheduler`] whose builds are acknowledged immediately,
+/// with addresses that are tokens (the tracer substitutes the frame's
+/// geometry, see the module docs). LiPaC's BLASes are its Manager's
+/// ([`crate::cpu_backend`]).
 #[derive(Debug)]
 pub struct BlasAccounting {
     scheduler: BuildScheduler,
@@ -312,17 +314,55 @@ impl BlasAccounting {
         slot: u32,
         lod: usize,
     ) -> Result<(), SimError> {
-        let a = self
-            .active
-            .get_mut(slot as usize)
-            .ok_or(SimError::UnknownInstance(slot))?;
-        if *a {
+        if slot as usize >= self.active.len() {
+            return Err(SimError::UnknownInstance(slot));
+        }
+        if self.is_active(slot) {
             return Ok(());
         }
-        *a = true;
+        self.activate_with(slot, catalog.request(slot, lod)?)
+    }
+    /// Requests a BLAS for `slot` as `request` says (no-op if it already has
+    /// one); slots beyond the current count are added (replays whose
+    /// instances come and go).
+    pub fn activate_with(
+        &mut self,
+        slot: u32,
+        request: InstanceBlasRequest,
+    ) -> Result<(), SimError> {
+        if self.is_active(slot) {
+            return Ok(());
+        }
+        if self.active.len() <= slot as usize {
+            self.active.resize(slot as usize + 1, false);
+        }
+        self.active[slot as usize] = true;
         self.scheduler
-            .activate(InstanceKey(slot), catalog.request(slot, lod)?)
+            .activate(InstanceKey(slot), request)
             .map_err(SimError::core)
+    }
+    /// Requests LOD `lod` for an active `slot` (no-op otherwise).
+    pub fn request_lod(
+        &mut self,
+        slot: u32,
+        lod: Lod,
+        estimate: BuildEstimate,
+    ) -> Result<(), SimError> {
+        if !self.is_active(slot) {
+            return Ok(());
+        }
+        self.scheduler
+            .request_lod(InstanceKey(slot), lod, estimate)
+            .map_err(SimError::core)
+    }
+    /// Plans the frame and acknowledges every build at once (after this
+    /// frame's [`Self::request_lod`]s). Returns the work done.
+    pub fn plan(&mut self) -> Result<BlasWork, SimError> {
+        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
+    }
+    /// Capacity of the per-slot tables (bounded-memory checks).
+    pub fn capacity(&self) -> usize {
+        self.active.capacity() + self.active_list.capacity()
     }
     /// Releases the BLAS of `slot` (no-op if it has none).
     pub fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
@@ -367,17 +407,12 @@ impl BlasAccounting {
                 .filter(|(_, &a)| a)
                 .map(|(s, _)| s as u32),
         );
-        for &slot in &self.active_list {
+        for i in 0..self.active_list.len() {
+            let slot = self.active_list[i];
             let lod = usize::from(lods.get(slot as usize).copied().unwrap_or(0));
-            self.scheduler
-                .request_lod(
-                    InstanceKey(slot),
-                    Lod(lod as u8),
-                    catalog.estimate(slot, lod),
-                )
-                .map_err(SimError::core)?;
+            self.request_lod(slot, Lod(lod as u8), catalog.estimate(slot, lod))?;
         }
-        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
+        self.plan()
     }
     /// Instances whose BLAS address changed since the last call.
     pub fn take_address_changes(&mut self) -> Vec<u32> {

@@ -37,10 +37,8 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::time::Instant;
 
-use lipac_core::blas_ids::{InstanceKey, Lod};
-use lipac_core::build_plan::{
-    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
-};
+use lipac_core::blas_ids::Lod;
+use lipac_core::build_plan::{BlasGeometry, BuildEstimate, InstanceBlasRequest};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
@@ -58,8 +56,7 @@ use crate::memory::{blas_bytes, build_estimate, lipac_overhead_bytes, mesh_lod, 
 use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
-use crate::strategy::plan_and_ack;
-use crate::strategy::{unlimited_budgets, BlasWork, StrategyKind};
+use crate::strategy::{unlimited_budgets, BlasAccounting, BlasWork, StrategyKind};
 use crate::tlas::CountingBoxes;
 use crate::trace::SlotSet;
 
@@ -167,81 +164,10 @@ impl World {
     }
 }
 
-/// The `full` baseline's BLAS scheduler over dense slots, whose builds are
-/// acknowledged at once.
-#[derive(Debug)]
-struct Blases {
-    scheduler: BuildScheduler,
-    budgets: BuildBudgets,
-    active: Vec<bool>,
-    next_address: u64,
-}
-
-impl Blases {
-    fn new(budgets: BuildBudgets) -> Result<Self, SimError> {
-        let mut config = SchedulerConfig::default();
-        config.cache.memory_budget = u64::MAX / 4;
-        config.cache.max_unused_frames = 8;
-        config.lod_hysteresis_frames = 8;
-        Ok(Self {
-            scheduler: BuildScheduler::new(config).map_err(core)?,
-            budgets,
-            active: Vec::new(),
-            next_address: 0x1000,
-        })
-    }
-    fn is_active(&self, slot: u32) -> bool {
-        self.active.get(slot as usize).copied().unwrap_or(false)
-    }
-    fn activate(&mut self, world: &World, slot: u32) -> Result<(), SimError> {
-        if self.is_active(slot) {
-            return Ok(());
-        }
-        let id = world
-            .slot_ids
-            .get(slot as usize)
-            .copied()
-            .flatten()
-            .ok_or(SimError::UnknownInstance(slot))?;
-        let l = *world.live.get(&id).ok_or(SimError::UnknownInstance(slot))?;
-        if self.active.len() <= slot as usize {
-            self.active.resize(slot as usize + 1, false);
-        }
-        self.active[slot as usize] = true;
-        self.scheduler
-            .activate(InstanceKey(slot), world.request(&l))
-            .map_err(core)
-    }
-    fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
-        if !self.is_active(slot) {
-            return Ok(());
-        }
-        self.active[slot as usize] = false;
-        self.scheduler.deactivate(InstanceKey(slot)).map_err(core)
-    }
-    fn build(&mut self, world: &World, frame: u64) -> Result<BlasWork, SimError> {
-        for l in world.live.values() {
-            if self.is_active(l.slot) {
-                self.scheduler
-                    .request_lod(InstanceKey(l.slot), Lod(l.lod as u8), world.estimate(l))
-                    .map_err(core)?;
-            }
-        }
-        let _ = frame;
-        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
-    }
-    fn address(&self, slot: u32) -> Option<u64> {
-        self.scheduler.blas_address(InstanceKey(slot))
-    }
-    fn memory_bytes(&self) -> u64 {
-        self.scheduler.stats().cache.live_bytes()
-    }
-}
-
 /// The `full` baseline: every live instance.
 #[derive(Debug)]
 struct FullReplay {
-    blas: Blases,
+    blas: BlasAccounting,
 }
 
 /// LiPaC on recorded hits, on one [`CpuBackend`].
@@ -354,7 +280,7 @@ pub fn replay_hits_with<R: Read>(
     for k in &kinds {
         let runner = match k {
             StrategyKind::Full => Runner::Full(Box::new(FullReplay {
-                blas: Blases::new(unlimited_budgets())?,
+                blas: BlasAccounting::new(0, unlimited_budgets())?,
             })),
             StrategyKind::Lipac | StrategyKind::LipacLatency => {
                 let c = if *k == StrategyKind::Lipac {
@@ -450,7 +376,7 @@ pub fn replay_hits_with<R: Read>(
                 .map(|r| {
                     r.tracker.capacity()
                         + match &r.runner {
-                            Runner::Full(f) => f.blas.active.capacity(),
+                            Runner::Full(f) => f.blas.capacity(),
                             Runner::Lipac(l) => {
                                 l.handles.capacity() + l.dense.capacity() + l.records.capacity()
                             }
@@ -567,7 +493,7 @@ fn apply_event(
                 run.tracker.resize(world.slot_ids.len());
                 run.tracker.reset(slot);
                 match &mut run.runner {
-                    Runner::Full(f) => f.blas.activate(world, slot)?,
+                    Runner::Full(f) => f.blas.activate_with(slot, world.request(&l))?,
                     Runner::Lipac(lp) => lp.register(slot, LipacReplay::desc(&l))?,
                 }
             }
@@ -633,12 +559,13 @@ impl FullReplay {
         frame: u32,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {
-        self.blas
-            .scheduler
-            .begin_frame(u64::from(frame) + 1)
-            .map_err(core)?;
-        let work = self.blas.build(world, u64::from(frame))?;
-        self.blas.scheduler.take_address_changes();
+        self.blas.begin_frame(frame)?;
+        for l in world.live.values() {
+            self.blas
+                .request_lod(l.slot, Lod(l.lod as u8), world.estimate(l))?;
+        }
+        let work = self.blas.plan()?;
+        self.blas.take_address_changes();
         let geometry: Vec<u32> = world
             .live
             .values()
