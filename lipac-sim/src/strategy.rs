@@ -16,14 +16,15 @@
 //!
 //! # BLAS accounting
 //!
-//! Every strategy keeps its BLASes in its own
-//! [`lipac_core::build_plan::BuildScheduler`] ([`BlasAccounting`]): shared
-//! per (mesh, LOD), unique for animated units (refit every frame, rebuilt
-//! every 16th, only while the instance is in the set), and per-instance
-//! static BLASes for terrain tiles and terrain-adapted buildings (shared
-//! keys with the slot as variant: built once, never refit). Builds are
-//! acknowledged immediately: the CPU backend builds synchronously. Sizes
-//! come from [`crate::memory`]. The baselines get unlimited per-frame build
+//! Every baseline keeps its BLASes in its own
+//! [`lipac_core::build_plan::BuildScheduler`] ([`BlasAccounting`]); LiPaC's
+//! are its Manager's scheduler ([`crate::cpu_backend`]), with the same
+//! settings. Both share BLASes per (mesh, LOD), give animated units unique
+//! BLASes (refit every frame, rebuilt every 16th, only while the instance is
+//! in the set), and terrain tiles and terrain-adapted buildings per-instance
+//! static BLASes (shared keys with a per-instance variant: built once, never
+//! refit). Builds are acknowledged immediately: the CPU backend builds
+//! synchronously. Sizes come from [`crate::memory`]. The baselines get unlimited per-frame build
 //! budgets (their set is always complete); LiPaC gets the budgets an engine
 //! would set.
 //!
