@@ -144,7 +144,7 @@ const BUILD_INPUT: vk::BufferUsageFlags =
 /// Geometry data per instance: RGB albedo and one spare `f32`.
 const DATA_BYTES: u64 = 16;
 
-fn positions(mesh: &lipac::sim::mesh::MeshLod) -> Vec<[f32; 3]> {
+fn positions(mesh: &lipac::sim::mesh::LodTriangles) -> Vec<[f32; 3]> {
     let t = mesh.triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]);
     t.map(|v| v.to_array()).collect()
 }
@@ -293,7 +293,7 @@ impl City {
                     if self.unique.contains_key(&instance.0) {
                         continue;
                     }
-                    let mut m = lipac::sim::mesh::MeshLod::default();
+                    let mut m = lipac::sim::mesh::LodTriangles::default();
                     let slot = self.scene_slots[instance.0 as usize];
                     self.scene.unique_geometry(slot, lod.0.into(), 0, &mut m)?;
                     (Ok(instance.0), m)

@@ -12,13 +12,13 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::{Vec3, Vec3A};
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::{rows_to_affine, Aabb};
-use lipac_sim::blas::{box_transform, BlasId, BlasStore};
+use lipac_sim::blas::{box_transform, BlasStore, BvhBlasId};
 use lipac_sim::camera::CameraPath;
 use lipac_sim::mesh::leaf_opaque;
 use lipac_sim::pathtrace::{render, FrameScene, PathTraceConfig};
 use lipac_sim::scene::{LodPolicy, Scene, SceneConfig};
 use lipac_sim::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
-use lipac_sim::tlas::{masks, CountingConfig, Tlas};
+use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
 use lipac_sim::trace::{trace, Counters, Ray, SlotSet};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray as BvhRay, RayHit};
@@ -36,7 +36,7 @@ struct Flat {
 fn flatten(
     store: &BlasStore,
     records: &[TlasInstance],
-    geoms: &[(u64, lipac_sim::mesh::MeshLod)],
+    geoms: &[(u64, lipac_sim::mesh::LodTriangles)],
 ) -> Flat {
     let mut tris = Vec::new();
     let mut alpha = Vec::new();
@@ -121,13 +121,13 @@ fn bench(c: &mut Criterion) {
     )
     .expect("records");
     let t_blas = t1.elapsed();
-    let counting = CountingConfig::default();
+    let counting = CountingBoxes::default();
     let t2 = Instant::now();
-    let tlas = Tlas::build(&store, &records, &counting).expect("tlas");
+    let tlas = CpuTlas::build(&store, &records, &counting).expect("tlas");
     let t_tlas = t2.elapsed();
 
     // Geometry per reference, for flattening (regenerated from the scene).
-    let mut geoms: Vec<(u64, lipac_sim::mesh::MeshLod)> = Vec::new();
+    let mut geoms: Vec<(u64, lipac_sim::mesh::LodTriangles)> = Vec::new();
     {
         let mut seen = std::collections::HashMap::new();
         for (slot, r) in records.iter().enumerate() {
@@ -137,7 +137,7 @@ fn bench(c: &mut Criterion) {
             }
             let inst = scene.instances()[slot];
             let lod = LodPolicy::default().lod(eye, &inst.aabb);
-            let mut g = lipac_sim::mesh::MeshLod::default();
+            let mut g = lipac_sim::mesh::LodTriangles::default();
             if inst.is_unique() {
                 scene
                     .unique_geometry(slot as u32, lod, frame, &mut g)
@@ -227,7 +227,7 @@ fn bench(c: &mut Criterion) {
             ));
         }
     }
-    let tlas_boxed = Tlas::build(&store, &boxed, &counting).expect("tlas");
+    let tlas_boxed = CpuTlas::build(&store, &boxed, &counting).expect("tlas");
     let flat_tris = flat.tris.len();
     eprintln!(
         "tracer bench setup: {} instances, {} BLASes, {} flattened triangles, {} rays ({} primary), agree {:.4}\n  \
@@ -244,7 +244,7 @@ fn bench(c: &mut Criterion) {
         t_flat,
         store.memory_bytes() as f64 / (1 << 20) as f64,
     );
-    let _: BlasId = store.unit_cube();
+    let _: BvhBlasId = store.unit_cube();
 
     let mut g = c.benchmark_group("tracer");
     g.sample_size(10)
@@ -302,7 +302,7 @@ fn bench(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(4))
         .warm_up_time(Duration::from_secs(1));
     g.bench_function("tlas_build_city", |b| {
-        b.iter(|| Tlas::build(&store, &records, &counting).expect("tlas"))
+        b.iter(|| CpuTlas::build(&store, &records, &counting).expect("tlas"))
     });
     let slots = SlotSet::from_geometry_records(&records, &counting);
     let fs = FrameScene {

@@ -2,9 +2,9 @@
 //! (CWBVH) per triangle set, a store that hands out generation-checked
 //! handles, and the one static unit-cube BLAS that counting boxes use.
 //!
-//! A [`BlasId`] maps to the `acceleration_structure_reference` of a
+//! A [`BvhBlasId`] maps to the `acceleration_structure_reference` of a
 //! [`lipac_core::layout::TlasInstance`] as `((generation << 32) | index) + 1`
-//! ([`BlasId::reference`]); reference 0 marks an inactive record.
+//! ([`BvhBlasId::reference`]); reference 0 marks an inactive record.
 //!
 //! BLASes built with `refittable = true` keep their binary BVH so that
 //! [`BlasStore::refit`] can update node bounds for moved vertices (same
@@ -22,7 +22,7 @@ use obvhs::rt_triangle::RtTriangle;
 use obvhs::BvhBuildParams;
 
 use crate::error::SimError;
-use crate::mesh::MeshLod;
+use crate::mesh::LodTriangles;
 
 /// The unit cube that counting boxes are made of: `[0, 1]^3` in object space.
 /// A box instance's transform maps it onto the box it stands for
@@ -47,12 +47,12 @@ pub fn box_transform(aabb: &Aabb) -> [f32; 12] {
 
 /// Handle of a BLAS in a [`BlasStore`]; stale handles are rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct BlasId {
+pub struct BvhBlasId {
     index: u32,
     generation: u32,
 }
 
-impl BlasId {
+impl BvhBlasId {
     /// The TLAS `acceleration_structure_reference` naming this BLAS (never 0).
     pub fn reference(self) -> u64 {
         ((u64::from(self.generation) << 32) | u64::from(self.index)) + 1
@@ -80,7 +80,7 @@ pub enum BuildQuality {
     Good,
     /// TLAS: good tree, one instance per leaf (instances are expensive to
     /// enter, so leaves should not group them).
-    Tlas,
+    CpuTlas,
 }
 
 impl BuildQuality {
@@ -88,7 +88,7 @@ impl BuildQuality {
         match self {
             Self::Fast => BvhBuildParams::very_fast_build(),
             Self::Good => BvhBuildParams::fast_build(),
-            Self::Tlas => BvhBuildParams {
+            Self::CpuTlas => BvhBuildParams {
                 max_prims_per_leaf: 1,
                 ..BvhBuildParams::fast_build()
             },
@@ -122,7 +122,7 @@ pub(crate) fn build_cwbvh<T: obvhs::Boundable>(
 
 /// What a BLAS holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BlasKind {
+pub enum BvhBlasKind {
     /// Triangles.
     Triangles,
     /// The unit cube of counting boxes (no triangles; intersected as a box).
@@ -131,8 +131,8 @@ pub enum BlasKind {
 
 /// One BLAS: a CWBVH and its triangles in BVH order.
 #[derive(Clone)]
-pub struct Blas {
-    pub(crate) kind: BlasKind,
+pub struct BvhBlas {
+    pub(crate) kind: BvhBlasKind,
     pub(crate) bvh: CwBvh,
     /// Triangles in BVH primitive order.
     pub(crate) tris: Vec<RtTriangle>,
@@ -147,9 +147,9 @@ pub struct Blas {
     bvh2: Option<Bvh2>,
 }
 
-impl std::fmt::Debug for Blas {
+impl std::fmt::Debug for BvhBlas {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Blas")
+        f.debug_struct("BvhBlas")
             .field("kind", &self.kind)
             .field("triangles", &self.tris.len())
             .field("nodes", &self.bvh.nodes.len())
@@ -159,9 +159,9 @@ impl std::fmt::Debug for Blas {
     }
 }
 
-impl Blas {
+impl BvhBlas {
     /// What it holds.
-    pub fn kind(&self) -> BlasKind {
+    pub fn kind(&self) -> BvhBlasKind {
         self.kind
     }
     /// Number of triangles.
@@ -189,7 +189,7 @@ impl Blas {
 
     fn unit_cube() -> Self {
         Self {
-            kind: BlasKind::UnitCube,
+            kind: BvhBlasKind::UnitCube,
             bvh: CwBvh::default(),
             tris: Vec::new(),
             prim: Vec::new(),
@@ -202,14 +202,14 @@ impl Blas {
     }
 
     fn from_geometry(
-        geom: &MeshLod,
+        geom: &LodTriangles,
         quality: BuildQuality,
         refittable: bool,
     ) -> Result<Self, SimError> {
         check_geometry(geom)?;
         let (bvh, bvh2) = build_cwbvh(&geom.triangles, quality);
         let mut b = Self {
-            kind: BlasKind::Triangles,
+            kind: BvhBlasKind::Triangles,
             bvh,
             tris: Vec::new(),
             prim: Vec::new(),
@@ -224,7 +224,7 @@ impl Blas {
     }
 
     /// Lays triangles and attributes out in BVH primitive order.
-    fn reorder(&mut self, geom: &MeshLod) {
+    fn reorder(&mut self, geom: &LodTriangles) {
         let order = &self.bvh.primitive_indices;
         self.prim.clear();
         self.prim.extend_from_slice(order);
@@ -251,7 +251,7 @@ impl Blas {
     }
 }
 
-fn check_geometry(geom: &MeshLod) -> Result<(), SimError> {
+fn check_geometry(geom: &LodTriangles) -> Result<(), SimError> {
     let finite = geom
         .triangles
         .iter()
@@ -276,22 +276,22 @@ pub struct BuildStats {
     pub primitives_refit: u64,
 }
 
-/// Owns every BLAS; hands out generation-checked [`BlasId`]s.
+/// Owns every BLAS; hands out generation-checked [`BvhBlasId`]s.
 ///
 /// ```
-/// use lipac_sim::blas::{BlasStore, BuildQuality, BlasId};
+/// use lipac_sim::blas::{BlasStore, BuildQuality, BvhBlasId};
 /// use lipac_sim::mesh;
 /// let mut store = BlasStore::new();
 /// let tree = mesh::tree();
 /// let id = store.build(&tree.lods[0], BuildQuality::Good, false).unwrap();
-/// assert_eq!(BlasId::from_reference(id.reference()), Some(id));
+/// assert_eq!(BvhBlasId::from_reference(id.reference()), Some(id));
 /// assert_eq!(store.get(id).unwrap().triangle_count(), tree.lods[0].len());
 /// store.remove(id).unwrap();
 /// assert!(store.get(id).is_err());
 /// ```
 #[derive(Clone, Debug)]
 pub struct BlasStore {
-    slots: Vec<(u32, Option<Blas>)>,
+    slots: Vec<(u32, Option<BvhBlas>)>,
     free: Vec<u32>,
     stats: BuildStats,
 }
@@ -306,14 +306,14 @@ impl BlasStore {
     /// A store holding only the unit cube (at [`BlasStore::unit_cube`]).
     pub fn new() -> Self {
         Self {
-            slots: vec![(0, Some(Blas::unit_cube()))],
+            slots: vec![(0, Some(BvhBlas::unit_cube()))],
             free: Vec::new(),
             stats: BuildStats::default(),
         }
     }
     /// The static unit-cube BLAS of counting boxes.
-    pub fn unit_cube(&self) -> BlasId {
-        BlasId {
+    pub fn unit_cube(&self) -> BvhBlasId {
+        BvhBlasId {
             index: 0,
             generation: 0,
         }
@@ -322,67 +322,67 @@ impl BlasStore {
     /// `refittable` keeps the binary BVH so that [`Self::refit`] works.
     pub fn build(
         &mut self,
-        geom: &MeshLod,
+        geom: &LodTriangles,
         quality: BuildQuality,
         refittable: bool,
-    ) -> Result<BlasId, SimError> {
-        let blas = Blas::from_geometry(geom, quality, refittable)?;
+    ) -> Result<BvhBlasId, SimError> {
+        let blas = BvhBlas::from_geometry(geom, quality, refittable)?;
         self.stats.builds += 1;
         self.stats.primitives_built += geom.len() as u64;
         Ok(self.insert(blas))
     }
-    fn insert(&mut self, blas: Blas) -> BlasId {
+    fn insert(&mut self, blas: BvhBlas) -> BvhBlasId {
         if let Some(index) = self.free.pop() {
             let slot = &mut self.slots[index as usize];
             slot.0 = (slot.0 + 1) & 0x7FFF_FFFF;
             slot.1 = Some(blas);
-            BlasId {
+            BvhBlasId {
                 index,
                 generation: slot.0,
             }
         } else {
             self.slots.push((0, Some(blas)));
-            BlasId {
+            BvhBlasId {
                 index: (self.slots.len() - 1) as u32,
                 generation: 0,
             }
         }
     }
     /// The BLAS `id`.
-    pub fn get(&self, id: BlasId) -> Result<&Blas, SimError> {
+    pub fn get(&self, id: BvhBlasId) -> Result<&BvhBlas, SimError> {
         match self.slots.get(id.index as usize) {
             Some((g, Some(b))) if *g == id.generation => Ok(b),
             _ => Err(SimError::StaleBlas),
         }
     }
-    fn get_mut(&mut self, id: BlasId) -> Result<&mut Blas, SimError> {
+    fn get_mut(&mut self, id: BvhBlasId) -> Result<&mut BvhBlas, SimError> {
         match self.slots.get_mut(id.index as usize) {
             Some((g, Some(b))) if *g == id.generation => Ok(b),
             _ => Err(SimError::StaleBlas),
         }
     }
     /// Resolves a TLAS reference (0 and stale references give `None`).
-    pub(crate) fn resolve(&self, reference: u64) -> Option<(u32, &Blas)> {
-        let id = BlasId::from_reference(reference)?;
+    pub(crate) fn resolve(&self, reference: u64) -> Option<(u32, &BvhBlas)> {
+        let id = BvhBlasId::from_reference(reference)?;
         self.get(id).ok().map(|b| (id.index, b))
     }
     /// The BLAS in slot `index` (used by traversal after a TLAS build has
     /// validated the handles).
-    pub(crate) fn slot(&self, index: u32) -> Option<&Blas> {
+    pub(crate) fn slot(&self, index: u32) -> Option<&BvhBlas> {
         self.slots.get(index as usize).and_then(|s| s.1.as_ref())
     }
     /// Rebuilds `id` from new geometry (any triangle count).
     pub fn rebuild(
         &mut self,
-        id: BlasId,
-        geom: &MeshLod,
+        id: BvhBlasId,
+        geom: &LodTriangles,
         quality: BuildQuality,
     ) -> Result<(), SimError> {
         let refittable = self.get(id)?.is_refittable();
-        if self.get(id)?.kind == BlasKind::UnitCube {
+        if self.get(id)?.kind == BvhBlasKind::UnitCube {
             return Err(SimError::BadConfig("the unit cube BLAS is static"));
         }
-        let blas = Blas::from_geometry(geom, quality, refittable)?;
+        let blas = BvhBlas::from_geometry(geom, quality, refittable)?;
         *self.get_mut(id)? = blas;
         self.stats.builds += 1;
         self.stats.primitives_built += geom.len() as u64;
@@ -390,7 +390,7 @@ impl BlasStore {
     }
     /// Refits `id` to moved vertices: same triangle count and order as the
     /// build; node bounds are recomputed, the tree topology is kept.
-    pub fn refit(&mut self, id: BlasId, geom: &MeshLod) -> Result<(), SimError> {
+    pub fn refit(&mut self, id: BvhBlasId, geom: &LodTriangles) -> Result<(), SimError> {
         check_geometry(geom)?;
         let blas = self.get_mut(id)?;
         let expected = blas.tris.len();
@@ -418,7 +418,7 @@ impl BlasStore {
         Ok(())
     }
     /// Frees `id`; the handle becomes stale. The unit cube cannot be removed.
-    pub fn remove(&mut self, id: BlasId) -> Result<(), SimError> {
+    pub fn remove(&mut self, id: BvhBlasId) -> Result<(), SimError> {
         if id == self.unit_cube() {
             return Err(SimError::BadConfig("the unit cube BLAS is static"));
         }
@@ -440,7 +440,7 @@ impl BlasStore {
         self.slots
             .iter()
             .filter_map(|s| s.1.as_ref())
-            .map(Blas::memory_bytes)
+            .map(BvhBlas::memory_bytes)
             .sum()
     }
     /// Work counted since creation or the last [`Self::reset_stats`].
@@ -461,12 +461,12 @@ mod tests {
 
     #[test]
     fn references_round_trip_and_zero_is_inactive() {
-        assert_eq!(BlasId::from_reference(0), None);
-        let id = BlasId {
+        assert_eq!(BvhBlasId::from_reference(0), None);
+        let id = BvhBlasId {
             index: 5,
             generation: 3,
         };
-        assert_eq!(BlasId::from_reference(id.reference()), Some(id));
+        assert_eq!(BvhBlasId::from_reference(id.reference()), Some(id));
         assert_ne!(id.reference(), 0);
     }
 
@@ -518,7 +518,7 @@ mod tests {
 
     #[test]
     fn non_finite_geometry_is_rejected() {
-        let mut g = MeshLod::default();
+        let mut g = LodTriangles::default();
         g.triangles.push(Triangle {
             v0: Vec3A::ZERO,
             v1: Vec3A::X,

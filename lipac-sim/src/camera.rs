@@ -2,8 +2,8 @@
 //! start) and static views. A camera generates primary rays and a
 //! view-projection matrix for frustum tests.
 
-use glam::{Mat4, Vec3, Vec4};
-use lipac_core::math::Aabb;
+use glam::{Mat4, Vec3};
+use lipac_core::latency::Frustum;
 
 use crate::error::SimError;
 use crate::scene::{Scene, FPS};
@@ -102,34 +102,8 @@ impl Camera {
         let view = glam::camera::rh::view::look_to_mat4(self.position, self.forward(), Vec3::Y);
         glam::camera::rh::proj::vulkan::perspective(self.vfov, self.aspect, NEAR, FAR) * view
     }
-    /// The view frustum of [`Self::view_proj`].
-    pub fn frustum(&self) -> Frustum {
-        Frustum::from_view_proj(&self.view_proj())
-    }
-}
-
-/// Six planes of a view frustum (`a*x + b*y + c*z + d >= 0` inside).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Frustum {
-    planes: [Vec4; 6],
-}
-
-impl Frustum {
-    /// Extracts the planes of a view-projection matrix with depth `0..1`.
-    pub fn from_view_proj(m: &Mat4) -> Self {
-        let r = [m.row(0), m.row(1), m.row(2), m.row(3)];
-        Self {
-            planes: [
-                r[3] + r[0],
-                r[3] - r[0],
-                r[3] + r[1],
-                r[3] - r[1],
-                r[2],
-                r[3] - r[2],
-            ],
-        }
-    }
-    /// Whether `aabb` may intersect the frustum (conservative).
+    /// The view frustum of [`Self::view_proj`] (lipac-core's conservative
+    /// plane test, the one latency mitigation uses).
     ///
     /// ```
     /// use lipac_sim::camera::Camera;
@@ -138,15 +112,12 @@ impl Frustum {
     /// let cam = Camera::new(Vec3::ZERO, 0.0, 0.0, 1.0, 1.0).unwrap();
     /// let ahead = Aabb::new(Vec3::new(-1.0, -1.0, 9.0), Vec3::new(1.0, 1.0, 11.0));
     /// let behind = Aabb::new(Vec3::new(-1.0, -1.0, -11.0), Vec3::new(1.0, 1.0, -9.0));
-    /// assert!(cam.frustum().intersects_aabb(&ahead));
-    /// assert!(!cam.frustum().intersects_aabb(&behind));
+    /// let frustum = cam.frustum().unwrap();
+    /// assert!(frustum.intersects_aabb(&ahead));
+    /// assert!(!frustum.intersects_aabb(&behind));
     /// ```
-    pub fn intersects_aabb(&self, aabb: &Aabb) -> bool {
-        self.planes.iter().all(|p| {
-            let n = p.truncate();
-            let v = Vec3::select(n.cmpge(Vec3::ZERO), aabb.max, aabb.min);
-            n.dot(v) + p.w >= 0.0
-        })
+    pub fn frustum(&self) -> Result<Frustum, SimError> {
+        Frustum::from_view_projection(self.view_proj()).map_err(SimError::core)
     }
 }
 

@@ -30,7 +30,7 @@ use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::{
     FrameContext, FrustumRadius, Full, Heuristic, InstanceCatalog, Oracle, Strategy, StrategyKind,
 };
-use crate::tlas::{CountingConfig, Tlas};
+use crate::tlas::{CountingBoxes, CpuTlas};
 use crate::tlas_map::TlasMap;
 use crate::trace::{Counters, SlotSet};
 use lipac_core::layout::TlasInstance;
@@ -316,13 +316,13 @@ pub struct Comparison {
     previous: Vec<Option<Counters>>,
     last_geometry: Vec<Vec<u32>>,
     policy: LodPolicy,
-    counting: CountingConfig,
+    counting: CountingBoxes,
     store: BlasStore,
     unit_cube: u64,
     blases: SceneBlases,
     full_records: Vec<TlasInstance>,
-    full_tlas: Tlas,
-    tlas: Tlas,
+    full_tlas: CpuTlas,
+    tlas: CpuTlas,
     records: Vec<TlasInstance>,
     lods: Vec<u8>,
     all: SlotSet,
@@ -422,13 +422,13 @@ impl Comparison {
             previous: (0..k).map(|_| None).collect(),
             last_geometry: (0..k).map(|_| Vec::new()).collect(),
             policy: LodPolicy::default(),
-            counting: CountingConfig::default(),
+            counting: CountingBoxes::default(),
             store,
             unit_cube,
             blases: SceneBlases::new(),
             full_records: Vec::new(),
-            full_tlas: Tlas::default(),
-            tlas: Tlas::default(),
+            full_tlas: CpuTlas::default(),
+            tlas: CpuTlas::default(),
             records: Vec::new(),
             lods: vec![0u8; n],
             all,

@@ -8,6 +8,7 @@
 pub mod blas;
 pub mod camera;
 pub mod compare;
+pub mod cpu_backend;
 pub mod error;
 pub mod html;
 pub mod memory;

@@ -14,7 +14,9 @@
 //! comparison reports the model, which is what a Vulkan backend on lavapipe
 //! would allocate for the same BLASes and TLAS records.
 
+use lipac_core::build_plan::BuildEstimate;
 use lipac_core::grid::{HITBOX_BYTES, HIT_FEEDBACK_BYTES_PER_INSTANCE};
+use lipac_core::manager::MeshLod;
 
 /// Bytes per BLAS triangle.
 pub const BLAS_BYTES_PER_TRIANGLE: u64 = 104;
@@ -60,4 +62,36 @@ pub fn tlas_bytes(instances: u64) -> u64 {
 /// ```
 pub fn lipac_overhead_bytes(hitboxes: u64, instance_slots: u64) -> u64 {
     hitboxes * HITBOX_BYTES + instance_slots * HIT_FEEDBACK_BYTES_PER_INSTANCE
+}
+
+/// Bytes of geometry-instance data one instance needs in the Manager's
+/// geometry-data buffer (one record of material and vertex/index offsets the
+/// hit shaders read). Not part of the comparison's memory figures, which
+/// count acceleration structures and LiPaC's own buffers.
+pub const GEOMETRY_DATA_BYTES: u64 = 64;
+
+/// The build sizes of a BLAS of `triangles` triangles ([`blas_bytes`],
+/// [`BUILD_SCRATCH_BYTES`] for builds and updates).
+///
+/// ```
+/// use lipac_sim::memory::{blas_bytes, build_estimate};
+/// let e = build_estimate(12);
+/// assert_eq!((e.primitives, e.result_bytes), (12, blas_bytes(12)));
+/// ```
+pub fn build_estimate(triangles: u64) -> BuildEstimate {
+    BuildEstimate {
+        primitives: triangles,
+        result_bytes: blas_bytes(triangles),
+        build_scratch_bytes: BUILD_SCRATCH_BYTES,
+        update_scratch_bytes: BUILD_SCRATCH_BYTES,
+    }
+}
+
+/// One LOD of a mesh for the Manager's catalog: [`build_estimate`] and
+/// [`GEOMETRY_DATA_BYTES`].
+pub fn mesh_lod(triangles: u64) -> MeshLod {
+    MeshLod {
+        estimate: build_estimate(triangles),
+        data_bytes: GEOMETRY_DATA_BYTES,
+    }
 }

@@ -108,7 +108,7 @@ pub enum MeshKind {
 
 /// One LOD of a mesh: triangles in object space and per-triangle attributes.
 #[derive(Clone, Debug, Default)]
-pub struct MeshLod {
+pub struct LodTriangles {
     /// Triangles in object space.
     pub triangles: Vec<Triangle>,
     /// Material byte per triangle (see [`material`]).
@@ -119,7 +119,7 @@ pub struct MeshLod {
     pub parts: Vec<u8>,
 }
 
-impl MeshLod {
+impl LodTriangles {
     /// Number of triangles.
     pub fn len(&self) -> usize {
         self.triangles.len()
@@ -221,14 +221,14 @@ pub struct Mesh {
     /// What it represents.
     pub kind: MeshKind,
     /// LOD 0 (finest) to LOD 2 (coarsest).
-    pub lods: [MeshLod; LOD_COUNT],
+    pub lods: [LodTriangles; LOD_COUNT],
     /// Object-space bounds of the union of all LODs (for units: of the
     /// whole animation).
     pub bounds: Aabb,
 }
 
 impl Mesh {
-    fn from_lods(kind: MeshKind, lods: [MeshLod; LOD_COUNT]) -> Self {
+    fn from_lods(kind: MeshKind, lods: [LodTriangles; LOD_COUNT]) -> Self {
         let mut b = lods[0].bounds();
         for l in &lods[1..] {
             if !l.is_empty() {
@@ -248,9 +248,9 @@ impl Mesh {
 }
 
 /// Identifier of a mesh in a [`MeshLibrary`].
-pub type MeshId = u32;
+pub type MeshIndex = u32;
 
-/// Shared meshes, addressed by [`MeshId`].
+/// Shared meshes, addressed by [`MeshIndex`].
 #[derive(Clone, Debug, Default)]
 pub struct MeshLibrary {
     meshes: Vec<Mesh>,
@@ -262,9 +262,9 @@ impl MeshLibrary {
         Self::default()
     }
     /// Adds a mesh, returning its id.
-    pub fn add(&mut self, mesh: Mesh) -> MeshId {
+    pub fn add(&mut self, mesh: Mesh) -> MeshIndex {
         self.meshes.push(mesh);
-        (self.meshes.len() - 1) as MeshId
+        (self.meshes.len() - 1) as MeshIndex
     }
     /// Number of meshes.
     pub fn len(&self) -> usize {
@@ -275,29 +275,29 @@ impl MeshLibrary {
         self.meshes.is_empty()
     }
     /// The mesh `id`.
-    pub fn mesh(&self, id: MeshId) -> Result<&Mesh, SimError> {
+    pub fn mesh(&self, id: MeshIndex) -> Result<&Mesh, SimError> {
         self.meshes
             .get(id as usize)
             .ok_or(SimError::UnknownMesh(id))
     }
     /// LOD `lod` of mesh `id`.
-    pub fn lod(&self, id: MeshId, lod: usize) -> Result<&MeshLod, SimError> {
+    pub fn lod(&self, id: MeshIndex, lod: usize) -> Result<&LodTriangles, SimError> {
         self.mesh(id)?.lods.get(lod).ok_or(SimError::BadLod(lod))
     }
     /// Triangle count of LOD `lod` of mesh `id`.
-    pub fn triangle_count(&self, id: MeshId, lod: usize) -> Result<usize, SimError> {
+    pub fn triangle_count(&self, id: MeshIndex, lod: usize) -> Result<usize, SimError> {
         Ok(self.lod(id, lod)?.len())
     }
     /// Object-space bounds of mesh `id` (all LODs).
-    pub fn bounds(&self, id: MeshId) -> Result<Aabb, SimError> {
+    pub fn bounds(&self, id: MeshIndex) -> Result<Aabb, SimError> {
         Ok(self.mesh(id)?.bounds)
     }
     /// All meshes in id order.
-    pub fn iter(&self) -> impl Iterator<Item = (MeshId, &Mesh)> {
+    pub fn iter(&self) -> impl Iterator<Item = (MeshIndex, &Mesh)> {
         self.meshes
             .iter()
             .enumerate()
-            .map(|(i, m)| (i as MeshId, m))
+            .map(|(i, m)| (i as MeshIndex, m))
     }
 }
 
@@ -368,7 +368,7 @@ fn tiers_of(p: &BuildingParams) -> Vec<Tier> {
 
 /// One facade with recessed windows: origin `o` (left bottom), horizontal
 /// axis `u` (unit), outward normal `n`, `width` along `u`, heights `y0..y1`.
-fn facade(out: &mut MeshLod, o: Vec3, u: Vec3, n: Vec3, width: f32, y0: f32, y1: f32) {
+fn facade(out: &mut LodTriangles, o: Vec3, u: Vec3, n: Vec3, width: f32, y0: f32, y1: f32) {
     let p = |a: f32, v: f32, d: f32| o + u * a + Vec3::Y * v - n * d;
     let wall = material::WALL;
     let floors = ((y1 - y0) / FLOOR_HEIGHT).floor().max(0.0) as usize;
@@ -478,7 +478,7 @@ fn facade(out: &mut MeshLod, o: Vec3, u: Vec3, n: Vec3, width: f32, y0: f32, y1:
     }
 }
 
-fn plain_sides(out: &mut MeshLod, min: Vec3, max: Vec3, mat: u8) {
+fn plain_sides(out: &mut LodTriangles, min: Vec3, max: Vec3, mat: u8) {
     let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
     out.quad(
         [
@@ -526,7 +526,7 @@ fn plain_sides(out: &mut MeshLod, min: Vec3, max: Vec3, mat: u8) {
     );
 }
 
-fn top_quad(out: &mut MeshLod, min: Vec3, max: Vec3, mat: u8) {
+fn top_quad(out: &mut LodTriangles, min: Vec3, max: Vec3, mat: u8) {
     let y = max.y;
     out.quad(
         [
@@ -541,7 +541,7 @@ fn top_quad(out: &mut MeshLod, min: Vec3, max: Vec3, mat: u8) {
     );
 }
 
-fn roof(out: &mut MeshLod, top: &Tier, roof: Roof) {
+fn roof(out: &mut LodTriangles, top: &Tier, roof: Roof) {
     let (min, max) = (top.min, top.max);
     match roof {
         Roof::Flat => top_quad(out, min, max, material::ROOF),
@@ -714,7 +714,7 @@ pub fn building(p: BuildingParams) -> Mesh {
     let plinth_min = Vec3::new(base.x, -FOUNDATION_DEPTH, base.z);
     let plinth_max = Vec3::new(tiers[0].max.x, 0.0, tiers[0].max.z);
 
-    let mut lod0 = MeshLod::default();
+    let mut lod0 = LodTriangles::default();
     plain_sides(&mut lod0, plinth_min, plinth_max, material::WALL);
     for (i, t) in tiers.iter().enumerate() {
         let (a, b) = (t.min, t.max);
@@ -761,7 +761,7 @@ pub fn building(p: BuildingParams) -> Mesh {
     }
     roof(&mut lod0, &tiers[tiers.len() - 1], roof_kind);
 
-    let mut lod1 = MeshLod::default();
+    let mut lod1 = LodTriangles::default();
     plain_sides(&mut lod1, plinth_min, plinth_max, material::WALL);
     for (i, t) in tiers.iter().enumerate() {
         plain_sides(&mut lod1, t.min, t.max, material::WALL);
@@ -771,7 +771,7 @@ pub fn building(p: BuildingParams) -> Mesh {
     }
     roof(&mut lod1, &tiers[tiers.len() - 1], roof_kind);
 
-    let mut lod2 = MeshLod::default();
+    let mut lod2 = LodTriangles::default();
     let top = tiers[tiers.len() - 1].max.y;
     lod2.cuboid(
         plinth_min,
@@ -818,7 +818,7 @@ pub fn leaf_opaque(p: Vec3) -> bool {
 /// A tree: trunk plus alpha-tested crossed quads (LOD 0: four vertical and
 /// one horizontal quad; LOD 1: two; LOD 2: two, no trunk).
 pub fn tree() -> Mesh {
-    let trunk = |l: &mut MeshLod| {
+    let trunk = |l: &mut LodTriangles| {
         l.cuboid(
             Vec3::new(-0.2, -0.5, -0.2),
             Vec3::new(0.2, 3.5, 0.2),
@@ -826,7 +826,7 @@ pub fn tree() -> Mesh {
             None,
         )
     };
-    let crossed = |l: &mut MeshLod, n: usize| {
+    let crossed = |l: &mut LodTriangles, n: usize| {
         let (r, y0, y1) = (
             CROWN_RADII.x,
             CROWN_CENTER.y - CROWN_RADII.y,
@@ -848,7 +848,7 @@ pub fn tree() -> Mesh {
             );
         }
     };
-    let mut lod0 = MeshLod::default();
+    let mut lod0 = LodTriangles::default();
     trunk(&mut lod0);
     crossed(&mut lod0, 4);
     let (r, y) = (CROWN_RADII.x, CROWN_CENTER.y);
@@ -863,10 +863,10 @@ pub fn tree() -> Mesh {
         true,
         None,
     );
-    let mut lod1 = MeshLod::default();
+    let mut lod1 = LodTriangles::default();
     trunk(&mut lod1);
     crossed(&mut lod1, 2);
-    let mut lod2 = MeshLod::default();
+    let mut lod2 = LodTriangles::default();
     crossed(&mut lod2, 2);
     Mesh::from_lods(MeshKind::Tree, [lod0, lod1, lod2])
 }
@@ -880,7 +880,7 @@ const SHOULDER: Vec3 = Vec3::new(0.0, 1.45, 0.0);
 /// 3/4 arms (LOD 0: six boxes; LOD 1: body, two legs; LOD 2: one box).
 pub fn unit() -> Mesh {
     let m = material::UNIT;
-    let mut lod0 = MeshLod::default();
+    let mut lod0 = LodTriangles::default();
     lod0.cuboid(
         Vec3::new(-0.25, 0.9, -0.15),
         Vec3::new(0.25, 1.5, 0.15),
@@ -917,7 +917,7 @@ pub fn unit() -> Mesh {
         m,
         Some(4),
     );
-    let mut lod1 = MeshLod::default();
+    let mut lod1 = LodTriangles::default();
     lod1.cuboid(
         Vec3::new(-0.3, 0.9, -0.15),
         Vec3::new(0.3, 1.8, 0.15),
@@ -936,7 +936,7 @@ pub fn unit() -> Mesh {
         m,
         Some(2),
     );
-    let mut lod2 = MeshLod::default();
+    let mut lod2 = LodTriangles::default();
     lod2.cuboid(
         Vec3::new(-0.3, 0.0, -0.15),
         Vec3::new(0.3, 1.8, 0.15),
@@ -949,7 +949,7 @@ pub fn unit() -> Mesh {
 /// Deforms a unit LOD into `out` for walk-cycle phase `phase` (radians):
 /// legs and arms swing about the x axis, the body bobs. Triangle order and
 /// attributes are kept, so a deformed LOD can refit the rest pose's BVH.
-pub fn deform_unit(rest: &MeshLod, phase: f32, out: &mut MeshLod) {
+pub fn deform_unit(rest: &LodTriangles, phase: f32, out: &mut LodTriangles) {
     out.clear();
     let swing = 0.5 * phase.sin();
     let bob = Vec3A::new(0.0, 0.03 * phase.sin().abs(), 0.0);
@@ -983,7 +983,7 @@ pub fn deform_unit(rest: &MeshLod, phase: f32, out: &mut MeshLod) {
 /// A mirroring block: a box `size` wide/deep/high standing on `y = 0`
 /// (reaching [`FOUNDATION_DEPTH`] below); identical at every LOD.
 pub fn mirror_block(size: Vec3) -> Mesh {
-    let mut l = MeshLod::default();
+    let mut l = LodTriangles::default();
     l.cuboid(
         Vec3::new(-0.5 * size.x, -FOUNDATION_DEPTH, -0.5 * size.z),
         Vec3::new(0.5 * size.x, size.y, 0.5 * size.z),
@@ -1005,7 +1005,7 @@ pub fn mirror_block(size: Vec3) -> Mesh {
 /// assert_eq!(m.bounds.max, Vec3::new(4.0, 2.0, 1.0));
 /// ```
 pub fn cuboid(min: Vec3, max: Vec3, material: u8) -> Mesh {
-    let mut l = MeshLod::default();
+    let mut l = LodTriangles::default();
     l.cuboid(min, max, material, None);
     Mesh::from_lods(MeshKind::Building, [l.clone(), l.clone(), l])
 }
@@ -1022,7 +1022,7 @@ pub fn terrain_tile(
     size: f32,
     res: u32,
     height: impl Fn(f32, f32) -> f32,
-    out: &mut MeshLod,
+    out: &mut LodTriangles,
 ) {
     out.clear();
     let res = res.max(1);
@@ -1056,7 +1056,7 @@ mod tests {
             tiers: 2,
             roof: Roof::Parapet,
         });
-        let n: Vec<usize> = m.lods.iter().map(MeshLod::len).collect();
+        let n: Vec<usize> = m.lods.iter().map(LodTriangles::len).collect();
         assert!(n[0] > n[1] && n[1] > n[2], "{n:?}");
         assert_eq!(n[2], 12);
         // LOD 0 has window panes, LOD 1 none.
@@ -1091,7 +1091,7 @@ mod tests {
     #[test]
     fn unit_deformation_keeps_order_and_stays_in_bounds() {
         let m = unit();
-        let mut out = MeshLod::default();
+        let mut out = LodTriangles::default();
         for k in 0..16 {
             let phase = k as f32 * 0.4;
             deform_unit(&m.lods[0], phase, &mut out);

@@ -34,7 +34,7 @@ use crate::camera::Camera;
 use crate::error::SimError;
 use crate::mesh::material as material_of;
 use crate::rng::sample;
-use crate::tlas::{masks, Tlas};
+use crate::tlas::{masks, CpuTlas};
 use crate::trace::{occluded_by, trace, Counters, Ray, SlotSet, TraceResult};
 
 /// Settings of [`render`].
@@ -107,9 +107,9 @@ pub struct FrameScene<'a> {
     /// The BLASes both TLASes reference.
     pub store: &'a BlasStore,
     /// The full (unculled) scene: primary hits and rasterized shadows.
-    pub full: &'a Tlas,
+    pub full: &'a CpuTlas,
     /// The culled TLAS that bounce and shadow rays trace.
-    pub traced: &'a Tlas,
+    pub traced: &'a CpuTlas,
     /// Custom indices (instance slots, as in `full`) whose geometry is in
     /// `traced` ([`SlotSet::from_geometry_records`]).
     pub traced_slots: &'a SlotSet,

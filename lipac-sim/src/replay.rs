@@ -17,8 +17,9 @@
 //!   materials come from the generator, not from the trace). LODs are the
 //!   distance policy's, as recorded.
 //! * **Hits only** ([`hits`]): any trace whose frames all carry hit counts.
-//!   No geometry is traced: LiPaC's state machine
-//!   ([`lipac_core::culling::Culling`]) is driven by the recorded hits, and
+//!   No geometry is traced: LiPaC's state machine (a
+//!   [`lipac_core::manager::Manager`] in [`crate::cpu_backend`]) is driven
+//!   by the recorded hits, and
 //!   the full scene serves as the baseline. Memory, builds, state changes and
 //!   latency are reported; the error is not available (`NaN` in the
 //!   report, `null` in its JSON).

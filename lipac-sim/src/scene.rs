@@ -13,14 +13,14 @@ use glam::{Affine3A, Quat, Vec2, Vec3};
 use lipac_core::math::Aabb;
 
 use crate::error::SimError;
-use crate::mesh::{self, BuildingParams, MeshId, MeshLibrary, MeshLod, Roof, LOD_COUNT};
+use crate::mesh::{self, BuildingParams, LodTriangles, MeshIndex, MeshLibrary, Roof, LOD_COUNT};
 use crate::rng::SplitMix64;
 
 /// Frames per second of scene time (units move `speed / FPS` per frame).
 pub const FPS: f32 = 30.0;
 
 /// `mesh` of terrain tiles, which have no library mesh.
-pub const TERRAIN_MESH: MeshId = u32::MAX;
+pub const TERRAIN_MESH: MeshIndex = u32::MAX;
 
 /// Bits of [`SceneInstance::flags`].
 pub mod flags {
@@ -48,7 +48,7 @@ pub struct SceneInstance {
     /// World-space bounds (covering every LOD and animation pose).
     pub aabb: Aabb,
     /// Library mesh ([`TERRAIN_MESH`] for terrain tiles).
-    pub mesh: MeshId,
+    pub mesh: MeshIndex,
     /// See [`flags`].
     pub flags: u8,
 }
@@ -293,7 +293,7 @@ pub struct Scene {
     library: MeshLibrary,
     instances: Vec<SceneInstance>,
     units: Vec<UnitPath>,
-    unit_mesh: MeshId,
+    unit_mesh: MeshIndex,
     frame: u32,
     busy: (u8, f32),
 }
@@ -590,7 +590,7 @@ impl Scene {
     pub fn custom(
         config: SceneConfig,
         library: MeshLibrary,
-        placed: &[(MeshId, Affine3A, u8)],
+        placed: &[(MeshIndex, Affine3A, u8)],
     ) -> Result<Self, SimError> {
         let mut instances = Vec::with_capacity(placed.len());
         for (i, &(mesh, transform, f)) in placed.iter().enumerate() {
@@ -696,7 +696,7 @@ impl Scene {
         slot: u32,
         lod: usize,
         frame: u32,
-        out: &mut MeshLod,
+        out: &mut LodTriangles,
     ) -> Result<(), SimError> {
         if lod >= LOD_COUNT {
             return Err(SimError::BadLod(lod));
@@ -801,7 +801,7 @@ mod tests {
     fn unique_geometry_is_refused_for_shared_instances() {
         let s = Scene::generate(&SceneConfig::small()).unwrap();
         let shared = s.instances().iter().position(|i| !i.is_unique()).unwrap() as u32;
-        let mut out = MeshLod::default();
+        let mut out = LodTriangles::default();
         assert_eq!(
             s.unique_geometry(shared, 0, 0, &mut out),
             Err(SimError::NotUnique(shared))

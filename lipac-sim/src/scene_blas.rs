@@ -10,9 +10,9 @@ use glam::Vec3;
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::affine_to_rows;
 
-use crate::blas::{BlasId, BlasStore, BuildQuality};
+use crate::blas::{BlasStore, BuildQuality, BvhBlasId};
 use crate::error::SimError;
-use crate::mesh::{MeshId, MeshLibrary, MeshLod, LOD_COUNT};
+use crate::mesh::{LodTriangles, MeshIndex, MeshLibrary, LOD_COUNT};
 use crate::scene::{LodPolicy, Scene, SceneInstance};
 use crate::tlas::masks;
 
@@ -29,7 +29,7 @@ pub enum UniqueUpdate {
 
 #[derive(Clone, Copy, Debug)]
 struct UniqueBlas {
-    id: BlasId,
+    id: BvhBlasId,
     lod: usize,
     frame: u32,
 }
@@ -37,9 +37,9 @@ struct UniqueBlas {
 /// The BLASes of one scene in a [`BlasStore`].
 #[derive(Clone, Debug, Default)]
 pub struct SceneBlases {
-    shared: HashMap<MeshId, [Option<BlasId>; LOD_COUNT]>,
+    shared: HashMap<MeshIndex, [Option<BvhBlasId>; LOD_COUNT]>,
     unique: HashMap<u32, UniqueBlas>,
-    scratch: MeshLod,
+    scratch: LodTriangles,
 }
 
 impl SceneBlases {
@@ -53,9 +53,9 @@ impl SceneBlases {
         &mut self,
         store: &mut BlasStore,
         library: &MeshLibrary,
-        mesh: MeshId,
+        mesh: MeshIndex,
         lod: usize,
-    ) -> Result<BlasId, SimError> {
+    ) -> Result<BvhBlasId, SimError> {
         let geom = library.lod(mesh, lod)?;
         let entry = self.shared.entry(mesh).or_insert([None; LOD_COUNT]);
         if let Some(id) = entry[lod] {
@@ -79,7 +79,7 @@ impl SceneBlases {
         lod: usize,
         frame: u32,
         update: UniqueUpdate,
-    ) -> Result<BlasId, SimError> {
+    ) -> Result<BvhBlasId, SimError> {
         let inst = *scene.instance(slot)?;
         if !inst.is_unique() {
             return Err(SimError::NotUnique(slot));
@@ -130,7 +130,7 @@ impl SceneBlases {
         lod: usize,
         frame: u32,
         update: UniqueUpdate,
-    ) -> Result<BlasId, SimError> {
+    ) -> Result<BvhBlasId, SimError> {
         let inst = scene.instance(slot)?;
         if inst.is_unique() {
             self.unique(store, scene, slot, lod, frame, update)
@@ -164,7 +164,7 @@ pub fn instance_mask(inst: &SceneInstance) -> u8 {
 
 /// The TLAS record of instance `slot` as real geometry with BLAS `blas`
 /// (custom index = slot, SBT offset 0).
-pub fn geometry_record(inst: &SceneInstance, slot: u32, blas: BlasId) -> TlasInstance {
+pub fn geometry_record(inst: &SceneInstance, slot: u32, blas: BvhBlasId) -> TlasInstance {
     TlasInstance::new(
         affine_to_rows(&inst.transform),
         slot,

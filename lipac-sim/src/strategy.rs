@@ -16,14 +16,15 @@
 //!
 //! # BLAS accounting
 //!
-//! Every strategy keeps its BLASes in its own
-//! [`lipac_core::build_plan::BuildScheduler`] ([`BlasAccounting`]): shared
-//! per (mesh, LOD), unique for animated units (refit every frame, rebuilt
-//! every 16th, only while the instance is in the set), and per-instance
-//! static BLASes for terrain tiles and terrain-adapted buildings (shared
-//! keys with the slot as variant: built once, never refit). Builds are
-//! acknowledged immediately: the CPU backend builds synchronously. Sizes
-//! come from [`crate::memory`]. The baselines get unlimited per-frame build
+//! Every baseline keeps its BLASes in its own
+//! [`lipac_core::build_plan::BuildScheduler`] ([`BlasAccounting`]); LiPaC's
+//! are its Manager's scheduler ([`crate::cpu_backend`]), with the same
+//! settings. Both share BLASes per (mesh, LOD), give animated units unique
+//! BLASes (refit every frame, rebuilt every 16th, only while the instance is
+//! in the set), and terrain tiles and terrain-adapted buildings per-instance
+//! static BLASes (shared keys with a per-instance variant: built once, never
+//! refit). Builds are acknowledged immediately: the CPU backend builds
+//! synchronously. Sizes come from [`crate::memory`]. The baselines get unlimited per-frame build
 //! budgets (their set is always complete); LiPaC gets the budgets an engine
 //! would set.
 //!
@@ -37,6 +38,8 @@
 
 pub mod lipac;
 
+use std::collections::HashMap;
+
 use glam::Vec3;
 use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
@@ -45,19 +48,20 @@ use lipac_core::build_plan::{
 };
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
+use lipac_core::manager::MeshCatalog;
 use lipac_core::math::Aabb;
 use lipac_core::MeshId;
 
 use crate::camera::Camera;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, BUILD_SCRATCH_BYTES};
+use crate::memory::{build_estimate, mesh_lod};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
 use crate::scene::{flags, Scene, SceneInstance};
 use crate::trace::Counters;
 
 /// How an instance's BLAS is owned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BlasKind {
+pub enum BlasOwnership {
     /// Shared by every instance of its (mesh, LOD).
     Shared,
     /// The instance's own, static (terrain tile, terrain-adapted building):
@@ -72,7 +76,7 @@ pub enum BlasKind {
 #[derive(Clone, Debug)]
 pub struct InstanceCatalog {
     triangles: Vec<[u32; LOD_COUNT]>,
-    kinds: Vec<BlasKind>,
+    kinds: Vec<BlasOwnership>,
     meshes: Vec<MeshId>,
 }
 
@@ -85,11 +89,11 @@ impl InstanceCatalog {
         let mut meshes = Vec::with_capacity(n);
         for inst in scene.instances() {
             let kind = if inst.is_animated() {
-                BlasKind::Animated
+                BlasOwnership::Animated
             } else if inst.is_unique() {
-                BlasKind::OwnStatic
+                BlasOwnership::OwnStatic
             } else {
-                BlasKind::Shared
+                BlasOwnership::Shared
             };
             let mut t = [0u32; LOD_COUNT];
             for (lod, c) in t.iter_mut().enumerate() {
@@ -126,7 +130,7 @@ impl InstanceCatalog {
             .unwrap_or(0)
     }
     /// BLAS ownership of instance `slot`.
-    pub fn kind(&self, slot: u32) -> Option<BlasKind> {
+    pub fn kind(&self, slot: u32) -> Option<BlasOwnership> {
         self.kinds.get(slot as usize).copied()
     }
     /// The scheduler request for instance `slot` at `lod`.
@@ -134,17 +138,17 @@ impl InstanceCatalog {
         let kind = self.kind(slot).ok_or(SimError::UnknownInstance(slot))?;
         let mesh = self.meshes[slot as usize];
         let geometry = match kind {
-            BlasKind::Shared => BlasGeometry::Shared {
+            BlasOwnership::Shared => BlasGeometry::Shared {
                 mesh,
                 variant: 0,
                 compactable: false,
             },
-            BlasKind::OwnStatic => BlasGeometry::Shared {
+            BlasOwnership::OwnStatic => BlasGeometry::Shared {
                 mesh,
                 variant: slot + 1,
                 compactable: false,
             },
-            BlasKind::Animated => BlasGeometry::Unique { mesh },
+            BlasOwnership::Animated => BlasGeometry::Unique { mesh },
         };
         Ok(InstanceBlasRequest {
             geometry,
@@ -156,13 +160,33 @@ impl InstanceCatalog {
     }
     /// Build sizes of instance `slot` at `lod` ([`crate::memory`]).
     pub fn estimate(&self, slot: u32, lod: usize) -> BuildEstimate {
-        let tris = u64::from(self.triangles(slot, lod));
-        BuildEstimate {
-            primitives: tris,
-            result_bytes: blas_bytes(tris),
-            build_scratch_bytes: BUILD_SCRATCH_BYTES,
-            update_scratch_bytes: BUILD_SCRATCH_BYTES,
+        build_estimate(u64::from(self.triangles(slot, lod)))
+    }
+    /// The Manager's mesh catalog: every mesh of the scene with its
+    /// [`LOD_COUNT`] LODs ([`crate::memory::mesh_lod`]). Fails if two
+    /// instances of one mesh disagree on a triangle count.
+    pub fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
+        let mut first: HashMap<MeshId, usize> = HashMap::new();
+        for (slot, &mesh) in self.meshes.iter().enumerate() {
+            let f = *first.entry(mesh).or_insert(slot);
+            if self.triangles[f] != self.triangles[slot] {
+                return Err(SimError::Core(format!(
+                    "mesh {} has different triangle counts in slots {f} and {slot}",
+                    mesh.0
+                )));
+            }
         }
+        let mut meshes: Vec<(MeshId, usize)> = first.into_iter().collect();
+        meshes.sort_unstable();
+        let mut catalog = MeshCatalog::new();
+        for (mesh, slot) in meshes {
+            let lods = self.triangles[slot]
+                .iter()
+                .map(|&t| mesh_lod(u64::from(t)))
+                .collect();
+            catalog.insert(mesh, lods).map_err(SimError::core)?;
+        }
+        Ok(catalog)
     }
 }
 
@@ -195,7 +219,7 @@ impl BlasWork {
 /// Plans this frame's BLAS work on `scheduler` under `budgets` and
 /// acknowledges every build at once with a fresh fake address (a CPU backend
 /// builds synchronously), counting the builds, refits and primitives.
-pub(crate) fn plan_and_ack(
+fn plan_and_ack(
     scheduler: &mut BuildScheduler,
     budgets: &BuildBudgets,
     next_address: &mut u64,
@@ -240,9 +264,11 @@ pub fn unlimited_budgets() -> BuildBudgets {
     }
 }
 
-/// A strategy's BLASes: a [`BuildScheduler`] whose builds are acknowledged
-/// immediately, with addresses that are tokens (the tracer substitutes the
-/// frame's geometry, see the module docs).
+/// A baseline's BLASes (the set strategies here, the hits-only replay's
+/// `full`): a [`BuildScheduler`] whose builds are acknowledged immediately,
+/// with addresses that are tokens (the tracer substitutes the frame's
+/// geometry, see the module docs). LiPaC's BLASes are its Manager's
+/// ([`crate::cpu_backend`]).
 #[derive(Debug)]
 pub struct BlasAccounting {
     scheduler: BuildScheduler,
@@ -289,17 +315,55 @@ impl BlasAccounting {
         slot: u32,
         lod: usize,
     ) -> Result<(), SimError> {
-        let a = self
-            .active
-            .get_mut(slot as usize)
-            .ok_or(SimError::UnknownInstance(slot))?;
-        if *a {
+        if slot as usize >= self.active.len() {
+            return Err(SimError::UnknownInstance(slot));
+        }
+        if self.is_active(slot) {
             return Ok(());
         }
-        *a = true;
+        self.activate_with(slot, catalog.request(slot, lod)?)
+    }
+    /// Requests a BLAS for `slot` as `request` says (no-op if it already has
+    /// one); slots beyond the current count are added (replays whose
+    /// instances come and go).
+    pub fn activate_with(
+        &mut self,
+        slot: u32,
+        request: InstanceBlasRequest,
+    ) -> Result<(), SimError> {
+        if self.is_active(slot) {
+            return Ok(());
+        }
+        if self.active.len() <= slot as usize {
+            self.active.resize(slot as usize + 1, false);
+        }
+        self.active[slot as usize] = true;
         self.scheduler
-            .activate(InstanceKey(slot), catalog.request(slot, lod)?)
+            .activate(InstanceKey(slot), request)
             .map_err(SimError::core)
+    }
+    /// Requests LOD `lod` for an active `slot` (no-op otherwise).
+    pub fn request_lod(
+        &mut self,
+        slot: u32,
+        lod: Lod,
+        estimate: BuildEstimate,
+    ) -> Result<(), SimError> {
+        if !self.is_active(slot) {
+            return Ok(());
+        }
+        self.scheduler
+            .request_lod(InstanceKey(slot), lod, estimate)
+            .map_err(SimError::core)
+    }
+    /// Plans the frame and acknowledges every build at once (after this
+    /// frame's [`Self::request_lod`]s). Returns the work done.
+    pub fn plan(&mut self) -> Result<BlasWork, SimError> {
+        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
+    }
+    /// Capacity of the per-slot tables (bounded-memory checks).
+    pub fn capacity(&self) -> usize {
+        self.active.capacity() + self.active_list.capacity()
     }
     /// Releases the BLAS of `slot` (no-op if it has none).
     pub fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
@@ -344,17 +408,12 @@ impl BlasAccounting {
                 .filter(|(_, &a)| a)
                 .map(|(s, _)| s as u32),
         );
-        for &slot in &self.active_list {
+        for i in 0..self.active_list.len() {
+            let slot = self.active_list[i];
             let lod = usize::from(lods.get(slot as usize).copied().unwrap_or(0));
-            self.scheduler
-                .request_lod(
-                    InstanceKey(slot),
-                    Lod(lod as u8),
-                    catalog.estimate(slot, lod),
-                )
-                .map_err(SimError::core)?;
+            self.request_lod(slot, Lod(lod as u8), catalog.estimate(slot, lod))?;
         }
-        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
+        self.plan()
     }
     /// Instances whose BLAS address changed since the last call.
     pub fn take_address_changes(&mut self) -> Vec<u32> {
@@ -564,7 +623,7 @@ impl Strategy for FrustumRadius {
         _previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        let frustum = ctx.camera.frustum();
+        let frustum = ctx.camera.frustum()?;
         let eye = ctx.camera.position;
         let radius = self.radius;
         self.set.run_selected(ctx, out, |_, inst| {

@@ -3,8 +3,8 @@
 //! the paper's GPU-assembled TLAS.
 //!
 //! Each record names its BLAS by `acceleration_structure_reference`
-//! ([`crate::blas::BlasId::reference`]; 0 = inactive, skipped). Records
-//! whose SBT offset is one of [`CountingConfig`]'s two counting offsets
+//! ([`crate::blas::BvhBlasId::reference`]; 0 = inactive, skipped). Records
+//! whose SBT offset is one of [`CountingBoxes`]'s two counting offsets
 //! become *counting boxes* (the BLAS's bounds, normally the unit cube, under
 //! the record's transform); all others are real geometry. Records with mask 0
 //! can never be hit and are dropped.
@@ -15,7 +15,7 @@ use lipac_core::math::rows_to_affine;
 use obvhs::aabb::Aabb as BvhAabb;
 use obvhs::cwbvh::CwBvh;
 
-use crate::blas::{build_cwbvh, BlasKind, BlasStore, BuildQuality};
+use crate::blas::{build_cwbvh, BlasStore, BuildQuality, BvhBlasKind};
 use crate::error::SimError;
 
 /// Visibility mask bits used by the laboratory.
@@ -32,7 +32,7 @@ pub mod masks {
 
 /// Which SBT offsets mark counting boxes, and their mask bit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct CountingConfig {
+pub struct CountingBoxes {
     /// SBT offset of boxes standing for *omitted* instances: a hit counts
     /// into the instance counter at the record's custom index.
     pub instance_box_sbt: u32,
@@ -43,7 +43,7 @@ pub struct CountingConfig {
     pub counting_mask: u8,
 }
 
-impl Default for CountingConfig {
+impl Default for CountingBoxes {
     fn default() -> Self {
         Self {
             instance_box_sbt: 1,
@@ -79,7 +79,7 @@ pub(crate) struct TlasEntry {
 /// ```
 /// use lipac_core::layout::TlasInstance;
 /// use lipac_sim::blas::{BlasStore, BuildQuality};
-/// use lipac_sim::tlas::{CountingConfig, Tlas};
+/// use lipac_sim::tlas::{CountingBoxes, CpuTlas};
 /// use lipac_sim::mesh;
 /// let mut store = BlasStore::new();
 /// let b = store.build(&mesh::unit().lods[2], BuildQuality::Fast, false).unwrap();
@@ -88,25 +88,25 @@ pub(crate) struct TlasEntry {
 ///     TlasInstance::new(id, 7, 0xFF, 0, 0, b.reference()),
 ///     TlasInstance::new(id, 8, 0xFF, 0, 0, 0), // inactive record: skipped
 /// ];
-/// let tlas = Tlas::build(&store, &records, &CountingConfig::default()).unwrap();
+/// let tlas = CpuTlas::build(&store, &records, &CountingBoxes::default()).unwrap();
 /// assert_eq!(tlas.len(), 1);
 /// ```
 #[derive(Clone, Debug, Default)]
-pub struct Tlas {
+pub struct CpuTlas {
     pub(crate) bvh: CwBvh,
     pub(crate) entries: Vec<TlasEntry>,
     records: usize,
     boxes: usize,
 }
 
-impl Tlas {
+impl CpuTlas {
     /// Builds a TLAS over `records`. Fails on a reference to a removed or
     /// unknown BLAS, a non-finite or singular transform, or a unit-cube BLAS
     /// used without a counting SBT offset.
     pub fn build(
         store: &BlasStore,
         records: &[TlasInstance],
-        counting: &CountingConfig,
+        counting: &CountingBoxes,
     ) -> Result<Self, SimError> {
         let mut t = Self::default();
         t.rebuild(store, records, counting)?;
@@ -119,7 +119,7 @@ impl Tlas {
         &mut self,
         store: &BlasStore,
         records: &[TlasInstance],
-        counting: &CountingConfig,
+        counting: &CountingBoxes,
     ) -> Result<(), SimError> {
         self.entries.clear();
         self.bvh = CwBvh::default();
@@ -152,7 +152,7 @@ impl Tlas {
                 EntryKind::InstanceBox
             } else if sbt == counting.hitbox_box_sbt {
                 EntryKind::HitboxBox
-            } else if blas.kind() == BlasKind::UnitCube {
+            } else if blas.kind() == BvhBlasKind::UnitCube {
                 return Err(SimError::BadConfig(
                     "the unit-cube BLAS needs a counting SBT offset",
                 ));
@@ -185,7 +185,7 @@ impl Tlas {
                 opacity,
             });
         }
-        let (bvh, _) = build_cwbvh(&aabbs, BuildQuality::Tlas);
+        let (bvh, _) = build_cwbvh(&aabbs, BuildQuality::CpuTlas);
         self.entries
             .extend(bvh.primitive_indices.iter().map(|&p| entries[p as usize]));
         self.bvh = bvh;
@@ -240,7 +240,7 @@ mod tests {
         let b = store
             .build(&mesh::unit().lods[2], BuildQuality::Fast, false)
             .unwrap();
-        let c = CountingConfig::default();
+        let c = CountingBoxes::default();
         let mut nan = ID;
         nan[3] = f32::NAN;
         let r = [
@@ -248,21 +248,21 @@ mod tests {
             TlasInstance::new(nan, 1, 1, 0, 0, b.reference()),
         ];
         assert_eq!(
-            Tlas::build(&store, &r, &c).unwrap_err(),
+            CpuTlas::build(&store, &r, &c).unwrap_err(),
             SimError::BadTransform { record: 1 }
         );
         let mut flat = ID;
         flat[5] = 0.0;
         let r = [TlasInstance::new(flat, 0, 1, 0, 0, b.reference())];
         assert_eq!(
-            Tlas::build(&store, &r, &c).unwrap_err(),
+            CpuTlas::build(&store, &r, &c).unwrap_err(),
             SimError::BadTransform { record: 0 }
         );
         let stale = b.reference();
         store.remove(b).unwrap();
         let r = [TlasInstance::new(ID, 0, 1, 0, 0, stale)];
         assert_eq!(
-            Tlas::build(&store, &r, &c).unwrap_err(),
+            CpuTlas::build(&store, &r, &c).unwrap_err(),
             SimError::UnknownBlasReference {
                 record: 0,
                 reference: stale
@@ -270,13 +270,13 @@ mod tests {
         );
         let cube = store.unit_cube().reference();
         let r = [TlasInstance::new(ID, 0, 1, 0, 0, cube)];
-        assert!(Tlas::build(&store, &r, &c).is_err());
+        assert!(CpuTlas::build(&store, &r, &c).is_err());
     }
 
     #[test]
     fn boxes_are_classified_by_sbt_and_mask_zero_dropped() {
         let store = BlasStore::new();
-        let c = CountingConfig::default();
+        let c = CountingBoxes::default();
         let cube = store.unit_cube().reference();
         let t = box_transform(&Aabb::new(Vec3::ZERO, Vec3::splat(2.0)));
         let r = [
@@ -284,7 +284,7 @@ mod tests {
             TlasInstance::new(t, 1, masks::COUNTING, c.hitbox_box_sbt, 0, cube),
             TlasInstance::new(t, 2, 0, c.hitbox_box_sbt, 0, cube),
         ];
-        let tlas = Tlas::build(&store, &r, &c).unwrap();
+        let tlas = CpuTlas::build(&store, &r, &c).unwrap();
         assert_eq!(
             (tlas.len(), tlas.box_count(), tlas.record_count()),
             (2, 2, 3)

@@ -29,7 +29,7 @@ use crate::camera::Camera;
 use crate::error::SimError;
 use crate::scene::{flags, Scene};
 use crate::snapshot::encode_png;
-use crate::tlas::CountingConfig;
+use crate::tlas::CountingBoxes;
 use crate::trace::Counters;
 
 /// What the TLAS holds for an instance.
@@ -98,7 +98,7 @@ impl TlasMap {
     pub fn new(
         scene: &Scene,
         records: &[TlasInstance],
-        counting: &CountingConfig,
+        counting: &CountingBoxes,
         counters: &Counters,
         camera: &Camera,
     ) -> Result<Self, SimError> {

@@ -1,4 +1,4 @@
-//! Two-level ray traversal: closest hit over a [`Tlas`] with masks,
+//! Two-level ray traversal: closest hit over a [`CpuTlas`] with masks,
 //! alpha-tested vegetation and pass-through counting boxes; an any-hit
 //! occlusion query; and the hit counters.
 //!
@@ -40,13 +40,13 @@ use obvhs::cwbvh::Traversal;
 use obvhs::ray::Ray as BvhRay;
 use obvhs::traverse;
 
-use crate::blas::{Blas, BlasStore};
+use crate::blas::{BlasStore, BvhBlas};
 use crate::error::SimError;
 use crate::mesh::leaf_opaque;
-use crate::tlas::{EntryKind, Tlas};
+use crate::tlas::{CpuTlas, EntryKind};
 use lipac_core::layout::TlasInstance;
 
-pub use crate::tlas::{masks, CountingConfig};
+pub use crate::tlas::{masks, CountingBoxes};
 
 /// A ray segment `origin + t * direction`, `t` in `[tmin, tmax]`, with an
 /// 8-bit mask matched against instance masks (`ray.mask & inst.mask != 0`).
@@ -217,7 +217,7 @@ impl SlotSet {
     }
     /// Custom indices of the real-geometry records (active, non-box) in
     /// `records`: the instances a TLAS built from them traces.
-    pub fn from_geometry_records(records: &[TlasInstance], counting: &CountingConfig) -> Self {
+    pub fn from_geometry_records(records: &[TlasInstance], counting: &CountingBoxes) -> Self {
         let mut s = Self::new();
         for r in records {
             let sbt = r.sbt_offset();
@@ -237,7 +237,7 @@ impl SlotSet {
 /// [`leaf_opaque`] says transparent (the any-hit test), unless `force_opaque`.
 #[inline]
 fn blas_closest(
-    blas: &Blas,
+    blas: &BvhBlas,
     ray: &BvhRay,
     force_opaque: bool,
     state: &mut Traversal,
@@ -271,7 +271,7 @@ fn blas_closest(
 
 /// Whether anything opaque lies in one BLAS along the ray.
 #[inline]
-fn blas_any(blas: &Blas, r: &BvhRay, force_opaque: bool, state: &mut Traversal) -> bool {
+fn blas_any(blas: &BvhBlas, r: &BvhRay, force_opaque: bool, state: &mut Traversal) -> bool {
     if blas.bvh.nodes.is_empty() {
         return false;
     }
@@ -320,7 +320,7 @@ fn box_entry(min: Vec3A, max: Vec3A, r: &BvhRay) -> f32 {
 /// Closest hit with pass-through counting boxes (see the module docs).
 ///
 /// `skip`: custom indices to ignore (e.g. instances handled elsewhere).
-pub fn trace(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) -> TraceResult {
+pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) -> TraceResult {
     let (o, d) = (ray.origin, ray.direction);
     let mut tray = BvhRay::new(o, d, ray.tmin, ray.tmax);
     let mut best: Option<(usize, usize)> = None;
@@ -396,7 +396,7 @@ pub fn trace(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) 
 
 /// Any-hit occlusion: whether real geometry (not boxes) blocks the segment.
 /// Counts nothing.
-pub fn occluded(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) -> bool {
+pub fn occluded(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet>) -> bool {
     let mask = ray.mask;
     occluded_by(tlas, store, ray, |custom, m| {
         m & mask != 0 && skip.is_none_or(|s| !s.contains(custom))
@@ -406,7 +406,7 @@ pub fn occluded(tlas: &Tlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
 /// Any-hit occlusion over the real-geometry entries that `keep(custom
 /// index, mask)` accepts (the ray's own mask is not applied).
 pub fn occluded_by(
-    tlas: &Tlas,
+    tlas: &CpuTlas,
     store: &BlasStore,
     ray: &Ray,
     keep: impl Fn(u32, u8) -> bool,

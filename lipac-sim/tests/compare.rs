@@ -184,7 +184,10 @@ fn lipac_activates_an_instance_seen_only_in_a_mirror() {
     ];
     let mut scene = Scene::custom(SceneConfig::small(), lib, &placed).unwrap();
     let cam = Camera::new(Vec3::new(0.0, 5.0, 0.0), 0.0, 0.0, 1.0, 16.0 / 9.0).unwrap();
-    assert!(!cam.frustum().intersects_aabb(&scene.instances()[2].aabb));
+    assert!(!cam
+        .frustum()
+        .unwrap()
+        .intersects_aabb(&scene.instances()[2].aabb));
     let path = CameraPath::fixed(cam, 16);
     let mut cfg = config(16);
     cfg.strategies.push(StrategyKind::Frustum);

@@ -9,14 +9,14 @@ use lipac_sim::camera::CameraPath;
 use lipac_sim::pathtrace::{relative_rmse, render, FrameOutput, FrameScene, PathTraceConfig};
 use lipac_sim::scene::{flags, LodPolicy, Scene, SceneConfig};
 use lipac_sim::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
-use lipac_sim::tlas::{masks, CountingConfig, Tlas};
+use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
 use lipac_sim::trace::SlotSet;
 
 struct Setup {
     scene: Scene,
     store: BlasStore,
     records: Vec<TlasInstance>,
-    full: Tlas,
+    full: CpuTlas,
     all: SlotSet,
     path: CameraPath,
     frame: u32,
@@ -41,8 +41,8 @@ fn setup(frame: u32) -> Setup {
         &mut records,
     )
     .unwrap();
-    let counting = CountingConfig::default();
-    let full = Tlas::build(&store, &records, &counting).unwrap();
+    let counting = CountingBoxes::default();
+    let full = CpuTlas::build(&store, &records, &counting).unwrap();
     let all = SlotSet::from_geometry_records(&records, &counting);
     Setup {
         scene,
@@ -64,7 +64,13 @@ fn config(threads: usize) -> PathTraceConfig {
     }
 }
 
-fn draw(s: &Setup, traced: &Tlas, slots: &SlotSet, threads: usize, hitboxes: usize) -> FrameOutput {
+fn draw(
+    s: &Setup,
+    traced: &CpuTlas,
+    slots: &SlotSet,
+    threads: usize,
+    hitboxes: usize,
+) -> FrameOutput {
     let fs = FrameScene {
         store: &s.store,
         full: &s.full,
@@ -109,7 +115,7 @@ fn unculled_tlas_with_extra_counting_boxes_equals_ground_truth() {
     let gt = draw(&s, &s.full, &s.all, 2, 0);
     // Add a grid of inactive-hitbox boxes over the whole city: they count
     // rays but never change light transport.
-    let counting = CountingConfig::default();
+    let counting = CountingBoxes::default();
     let mut recs = s.records.clone();
     let ext = s.scene.config().extent;
     let cells = 8u32;
@@ -128,7 +134,7 @@ fn unculled_tlas_with_extra_counting_boxes_equals_ground_truth() {
             ));
         }
     }
-    let traced = Tlas::build(&s.store, &recs, &counting).unwrap();
+    let traced = CpuTlas::build(&s.store, &recs, &counting).unwrap();
     let out = draw(&s, &traced, &s.all, 2, (cells * cells) as usize);
     assert_eq!(relative_rmse(&out.indirect, &gt.indirect).unwrap(), 0.0);
     assert_eq!(out.direct, gt.direct);
@@ -145,7 +151,7 @@ fn unculled_tlas_with_extra_counting_boxes_equals_ground_truth() {
 fn culling_changes_only_indirect_light_and_counts_only_traced_instances() {
     let s = setup(200);
     let gt = draw(&s, &s.full, &s.all, 2, 0);
-    let counting = CountingConfig::default();
+    let counting = CountingBoxes::default();
     // Cull every other building and all trees from ray tracing.
     let culled: Vec<bool> = s
         .scene
@@ -171,7 +177,7 @@ fn culling_changes_only_indirect_light_and_counts_only_traced_instances() {
             }
         })
         .collect();
-    let traced = Tlas::build(&s.store, &recs, &counting).unwrap();
+    let traced = CpuTlas::build(&s.store, &recs, &counting).unwrap();
     let slots = SlotSet::from_geometry_records(&recs, &counting);
     assert!(slots.len() < s.all.len());
     let out = draw(&s, &traced, &slots, 2, 0);

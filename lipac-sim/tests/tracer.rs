@@ -4,10 +4,10 @@
 use glam::{Affine3A, Quat, Vec3, Vec3A};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_FORCE_OPAQUE};
 use lipac_core::math::{affine_to_rows, rows_to_affine, Aabb};
-use lipac_sim::blas::{box_transform, BlasId, BlasStore, BuildQuality};
-use lipac_sim::mesh::{self, leaf_opaque, MeshLod};
+use lipac_sim::blas::{box_transform, BlasStore, BuildQuality, BvhBlasId};
+use lipac_sim::mesh::{self, leaf_opaque, LodTriangles};
 use lipac_sim::rng::SplitMix64;
-use lipac_sim::tlas::{masks, CountingConfig, Tlas};
+use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
 use lipac_sim::trace::{occluded, trace, BoxKind, Counters, Ray};
 use obvhs::ray::Ray as BvhRay;
 use obvhs::rt_triangle::RtTriangle;
@@ -20,8 +20,8 @@ fn translate(v: Vec3) -> [f32; 12] {
 }
 
 /// A 10 x 10 wall in the plane z = 0 (object space), centred on x/y = 0.
-fn wall() -> MeshLod {
-    let mut m = MeshLod::default();
+fn wall() -> LodTriangles {
+    let mut m = LodTriangles::default();
     let p = |x: f32, y: f32| Vec3A::new(x, y, 0.0);
     m.triangles.push(Triangle {
         v0: p(-5.0, -5.0),
@@ -42,7 +42,7 @@ fn wall() -> MeshLod {
 /// TLAS does, alpha tested; returns (t, custom index).
 fn brute_force(
     records: &[TlasInstance],
-    geoms: &[(BlasId, MeshLod)],
+    geoms: &[(BvhBlasId, LodTriangles)],
     ray: &Ray,
 ) -> Option<(f32, u32)> {
     let mut best: Option<(f32, u32)> = None;
@@ -95,7 +95,7 @@ fn two_level_tracer_matches_brute_force_on_random_scenes() {
             &house.lods[0],
             &house.lods[1],
         ];
-        let geoms: Vec<(BlasId, MeshLod)> = sources
+        let geoms: Vec<(BvhBlasId, LodTriangles)> = sources
             .iter()
             .map(|g| {
                 (
@@ -146,7 +146,7 @@ fn two_level_tracer_matches_brute_force_on_random_scenes() {
                 reference,
             ));
         }
-        let tlas = Tlas::build(&store, &records, &CountingConfig::default()).unwrap();
+        let tlas = CpuTlas::build(&store, &records, &CountingBoxes::default()).unwrap();
         for _ in 0..600 {
             let origin = Vec3::new(
                 rng.range(-45.0, 45.0),
@@ -201,8 +201,8 @@ fn two_level_tracer_matches_brute_force_on_random_scenes() {
 
 struct BoxScene {
     store: BlasStore,
-    cfg: CountingConfig,
-    wall: BlasId,
+    cfg: CountingBoxes,
+    wall: BvhBlasId,
 }
 
 impl BoxScene {
@@ -211,7 +211,7 @@ impl BoxScene {
         let wall = store.build(&wall(), BuildQuality::Good, false).unwrap();
         Self {
             store,
-            cfg: CountingConfig::default(),
+            cfg: CountingBoxes::default(),
             wall,
         }
     }
@@ -240,8 +240,8 @@ impl BoxScene {
             self.store.unit_cube().reference(),
         )
     }
-    fn tlas(&self, records: &[TlasInstance]) -> Tlas {
-        Tlas::build(&self.store, records, &self.cfg).unwrap()
+    fn tlas(&self, records: &[TlasInstance]) -> CpuTlas {
+        CpuTlas::build(&self.store, records, &self.cfg).unwrap()
     }
 }
 

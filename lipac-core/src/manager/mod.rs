@@ -42,6 +42,17 @@
 //! builds cancelled): a new instance in a reused slot starts with no BLAS
 //! state at all.
 //!
+//! # Which BLAS an instance uses
+//!
+//! The instance's flags decide, once at [`Manager::register`]:
+//!
+//! | flags | BLAS |
+//! | --- | --- |
+//! | neither `UNIQUE_BLAS` nor `STATIC` | shared per (mesh, LOD) |
+//! | `STATIC` | shared per (mesh, LOD), compactable (a separate BLAS from the non-static one) |
+//! | `UNIQUE_BLAS` | the instance's own, refit every frame and rebuilt periodically (animated, deformed) |
+//! | `UNIQUE_BLAS \| STATIC` | the instance's own, static (terrain tile, terrain-adapted building): built once per LOD, never refit, compactable |
+//!
 //! # BLAS addresses follow acknowledgements
 //!
 //! Whenever the scheduler reports address changes (first BLAS built, a LOD
@@ -290,11 +301,33 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     /// The command loop's BLAS work of the current plan (kept for its
     /// allocation).
     events: Vec<CommandEvent>,
+    /// The variant of the next own static BLAS ([`geometry_of`]).
+    next_own_variant: u32,
 }
 
-fn geometry_of(mesh: MeshId, flags: InstanceFlags) -> BlasGeometry {
+/// The first variant of an instance's own static BLAS (`UNIQUE_BLAS |
+/// STATIC`); variants 0 and 1 are the mesh's shared BLASes.
+const OWN_STATIC_VARIANT: u32 = 2;
+
+/// The BLAS an instance uses. `own` is the variant of its own static BLAS
+/// (at least [`OWN_STATIC_VARIANT`], one per registration), used only for
+/// `UNIQUE_BLAS | STATIC`.
+fn geometry_of(mesh: MeshId, flags: InstanceFlags, own: u32) -> BlasGeometry {
     if flags.contains(InstanceFlags::UNIQUE_BLAS) {
-        BlasGeometry::Unique { mesh }
+        if flags.contains(InstanceFlags::STATIC) {
+            // Its own geometry that never moves or deforms (a terrain tile,
+            // a terrain-adapted building): built once per LOD, never refit,
+            // compactable. A cache key of its own (the variant is unique
+            // per registration) so that no other instance shares it.
+            BlasGeometry::Shared {
+                mesh,
+                variant: own.max(OWN_STATIC_VARIANT),
+                compactable: true,
+            }
+        } else {
+            // Animated or deformed: refit every frame, rebuilt periodically.
+            BlasGeometry::Unique { mesh }
+        }
     } else {
         let compactable = flags.contains(InstanceFlags::STATIC);
         // Static and non-static instances of a mesh use different shared
@@ -345,6 +378,7 @@ impl<H: HitboxIndex> Manager<H> {
             frame: None,
             planned: None,
             events: Vec::new(),
+            next_own_variant: OWN_STATIC_VARIANT,
         })
     }
 
@@ -465,13 +499,24 @@ impl<H: HitboxIndex> Manager<H> {
         entry.instance = Some(Slot {
             handle,
             mesh: desc.mesh,
-            geometry: geometry_of(desc.mesh, desc.flags),
+            geometry: geometry_of(desc.mesh, desc.flags, self.next_own_variant),
             requested_lod: lod,
             traced_lod: lod,
             range,
             scheduled: false,
         });
         entry.last_hits = 0;
+        if desc
+            .flags
+            .contains(InstanceFlags::UNIQUE_BLAS | InstanceFlags::STATIC)
+        {
+            // Wraps after 2^32 - 2 own static registrations; a reused
+            // variant only matters if the old BLAS is still cached then.
+            self.next_own_variant = self
+                .next_own_variant
+                .checked_add(1)
+                .unwrap_or(OWN_STATIC_VARIANT);
+        }
         self.mark_data(slot);
         Ok(handle)
     }
@@ -489,7 +534,11 @@ impl<H: HitboxIndex> Manager<H> {
         if desc.mesh != s.mesh {
             return Err(ManagerError::GeometryChange { what: "the mesh" });
         }
-        if geometry_of(desc.mesh, desc.flags) != s.geometry {
+        let own = match s.geometry {
+            BlasGeometry::Shared { variant, .. } => variant,
+            BlasGeometry::Unique { .. } => OWN_STATIC_VARIANT,
+        };
+        if geometry_of(desc.mesh, desc.flags, own) != s.geometry {
             return Err(ManagerError::GeometryChange {
                 what: "the UNIQUE_BLAS or STATIC flag",
             });
@@ -849,8 +898,7 @@ impl<H: HitboxIndex> Manager<H> {
                 hitbox_bytes: self.culling.hitboxes().len() as u64
                     * std::mem::size_of::<HitboxRecord>() as u64,
                 feedback_bytes: slot_count * 4,
-                instance_record_bytes: slot_count
-                    * std::mem::size_of::<crate::layout::InstanceRecord>() as u64,
+                instance_record_bytes: slot_count * std::mem::size_of::<InstanceRecord>() as u64,
             },
             instances: inst,
             commands_pending: self.culling.pending_commands(),

@@ -439,3 +439,82 @@ fn plan_counts_cache_hits_as_acquired_and_builds_as_requested() {
     let v = r.m.instance(second).unwrap();
     assert_eq!((v.blas, v.awaiting_blas), (0xB000, false));
 }
+
+#[test]
+fn unique_static_instances_get_own_blases_that_are_never_refit() {
+    let mut r = Rig::new(DataConfig::default());
+    let own = InstanceFlags::UNIQUE_BLAS | InstanceFlags::STATIC;
+    let mut handles = Vec::new();
+    for (x, flags) in [(8.0, own), (9.0, own), (10.0, InstanceFlags::UNIQUE_BLAS)] {
+        let mut d = desc(x, 8.0, 2);
+        d.flags = flags;
+        handles.push(r.m.register(d).unwrap());
+    }
+    let mut builds = Vec::new();
+    let hitbox_sbt = r.m.culling().config().assembly.hitbox_sbt_offset;
+    // Unique instances pass through the omitted state first (its box's hits
+    // are the instance's own).
+    let frame = |r: &mut Rig| {
+        r.frame += 1;
+        r.m.begin_frame(r.frame).unwrap();
+        while let Some(rb) = r.ring.pop_ready(r.frame) {
+            r.m.ingest_readback(rb.counter, &rb.words);
+        }
+        let plan = r.m.plan(&FrameBudgets::default()).unwrap();
+        for b in plan.blas.builds() {
+            r.m.handle_ack(Ack::Built {
+                build: b.id,
+                result_bytes: b.result_bytes,
+                address: 0xB000 + 0x100 * b.id.0,
+            })
+            .unwrap();
+        }
+        r.m.assemble(&mut r.tlas).unwrap();
+        for t in r.tlas.clone() {
+            let i = t.custom_index() as usize;
+            if t.sbt_offset() == hitbox_sbt {
+                r.m.hitboxes_mut()[i].add_hits(r.heat);
+            } else {
+                r.m.instance_hits_mut()[i] += r.heat;
+            }
+        }
+        r.m.process_feedback().unwrap();
+        r.ring.push(r.m.take_commands().unwrap()).unwrap();
+        plan
+    };
+    for _ in 0..20 {
+        let p = frame(&mut r);
+        builds.extend(p.blas.builds().copied());
+    }
+    // Three BLASes for three instances of one mesh: the two static ones do
+    // not share theirs, and theirs may be compacted.
+    assert_eq!(builds.len(), 3, "{builds:?}");
+    let blas: Vec<u64> = handles
+        .iter()
+        .map(|&h| r.m.instance(h).unwrap().blas)
+        .collect();
+    assert!(blas.iter().all(|&b| b != 0), "{blas:?}");
+    assert!(blas[0] != blas[1] && blas[1] != blas[2]);
+    assert_eq!(builds.iter().filter(|b| b.allow_compaction).count(), 2);
+    // Later frames refit the animated one only.
+    let before = builds.len();
+    for _ in 0..4 {
+        let p = frame(&mut r);
+        let refit: Vec<u32> = p.blas.updates().map(|u| u.instance.0).collect();
+        let animated = r.m.instance(handles[2]).unwrap().slot;
+        assert_eq!(refit, vec![animated]);
+        assert!(p.blas.builds().next().is_none());
+    }
+    assert_eq!(builds.len(), before);
+    // The own static BLAS is part of the instance's identity.
+    let mut d = r.m.registry().desc(handles[0]).unwrap();
+    d.flags = InstanceFlags::STATIC;
+    assert!(matches!(
+        r.m.update(handles[0], d),
+        Err(ManagerError::GeometryChange { .. })
+    ));
+    d.flags = own;
+    d.mask = 0x0F;
+    r.m.update(handles[0], d).unwrap();
+    assert_eq!(r.m.instance(handles[0]).unwrap().blas, blas[0]);
+}

@@ -11,9 +11,11 @@
 //!    [`crate::strategy::lipac`].
 //! 2. The frame's events: `add` registers, `update` moves (or re-describes),
 //!    `remove` removes (the BLAS is released).
-//! 3. Latency mitigation (optional), commands under the budget, BLAS builds
-//!    under the budgets (a [`BuildScheduler`] with the header's triangle
-//!    counts at the recorded LODs), Algorithm 1.
+//! 3. LiPaC runs on one [`CpuBackend`] (a
+//!    [`lipac_core::manager::Manager`] with the header's meshes, triangle
+//!    counts per LOD): latency mitigation (optional), commands under the
+//!    budget, BLAS builds under the budgets at the recorded LODs,
+//!    Algorithm 1.
 //! 4. Metrics: TLAS records, memory (same model as `compare`), BLAS work,
 //!    state changes and cycles; latency and needed-but-missing against the
 //!    instances the frame's recorded hits name (the engine's paths needed
@@ -24,37 +26,38 @@
 //!
 //! The `full` baseline keeps every live instance, with unlimited budgets.
 //!
-//! BLAS ownership follows the flags: `unique_blas` and `static` — one static
-//! BLAS per instance; `unique_blas` alone — an animated BLAS (refit every
-//! frame); otherwise shared per (mesh, LOD).
+//! BLAS ownership follows the flags (the Manager's rule): `unique_blas` and
+//! `static` — one static BLAS per instance; `unique_blas` alone — an
+//! animated BLAS (refit every frame); otherwise shared per (mesh, LOD), one
+//! BLAS for `static` instances and one for the rest. An update that changes
+//! `unique_blas` or `static` re-registers the instance in LiPaC (the
+//! Manager ties the BLAS kind to the registration).
 
 use std::collections::HashMap;
 use std::io::Read;
 use std::time::Instant;
 
-use lipac_core::blas_ids::{InstanceKey, Lod};
-use lipac_core::build_plan::{
-    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
-};
-use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+use lipac_core::blas_ids::Lod;
+use lipac_core::build_plan::{BlasGeometry, BuildEstimate, InstanceBlasRequest};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::manager::MeshCatalog;
 use lipac_core::math::rows_to_affine;
-use lipac_core::registry::{InstanceHandle, RegistryConfig};
+use lipac_core::registry::InstanceHandle;
 use lipac_core::trace::{InstanceEvent, TraceHeader};
 
 use super::{empty_frame, ReplayConfig, TraceInput};
 use crate::camera::Camera;
 use crate::compare::{CompareReport, StrategyRun};
+use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, lipac_overhead_bytes, tlas_bytes, BUILD_SCRATCH_BYTES};
+use crate::memory::{blas_bytes, build_estimate, lipac_overhead_bytes, mesh_lod, tlas_bytes};
 use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
-use crate::strategy::plan_and_ack;
-use crate::strategy::{unlimited_budgets, BlasWork, StrategyKind};
-use crate::tlas::CountingConfig;
+use crate::strategy::{unlimited_budgets, BlasAccounting, BlasWork, StrategyKind};
+use crate::tlas::CountingBoxes;
 use crate::trace::SlotSet;
 
 /// Rays per frame the LiPaC thresholds are scaled to in hits-only mode:
@@ -137,12 +140,19 @@ impl World {
             .and_then(|t| t.get(l.lod as usize))
             .copied()
             .map_or(0, u64::from);
-        BuildEstimate {
-            primitives: tris,
-            result_bytes: blas_bytes(tris),
-            build_scratch_bytes: BUILD_SCRATCH_BYTES,
-            update_scratch_bytes: BUILD_SCRATCH_BYTES,
+        build_estimate(tris)
+    }
+    /// The Manager's catalog: the header's meshes, one
+    /// [`crate::memory::mesh_lod`] per LOD.
+    fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
+        let mut meshes: Vec<(&u32, &Vec<u32>)> = self.triangles.iter().collect();
+        meshes.sort_unstable();
+        let mut catalog = MeshCatalog::new();
+        for (&mesh, lods) in meshes {
+            let lods = lods.iter().map(|&t| mesh_lod(u64::from(t))).collect();
+            catalog.insert(MeshId(mesh), lods).map_err(core)?;
         }
+        Ok(catalog)
     }
     /// The capacity of every per-instance structure (for bounded-memory
     /// checks).
@@ -154,96 +164,21 @@ impl World {
     }
 }
 
-/// A BLAS scheduler over dense slots whose builds are acknowledged at once.
-#[derive(Debug)]
-struct Blases {
-    scheduler: BuildScheduler,
-    budgets: BuildBudgets,
-    active: Vec<bool>,
-    next_address: u64,
-}
-
-impl Blases {
-    fn new(budgets: BuildBudgets) -> Result<Self, SimError> {
-        let mut config = SchedulerConfig::default();
-        config.cache.memory_budget = u64::MAX / 4;
-        config.cache.max_unused_frames = 8;
-        config.lod_hysteresis_frames = 8;
-        Ok(Self {
-            scheduler: BuildScheduler::new(config).map_err(core)?,
-            budgets,
-            active: Vec::new(),
-            next_address: 0x1000,
-        })
-    }
-    fn is_active(&self, slot: u32) -> bool {
-        self.active.get(slot as usize).copied().unwrap_or(false)
-    }
-    fn activate(&mut self, world: &World, slot: u32) -> Result<(), SimError> {
-        if self.is_active(slot) {
-            return Ok(());
-        }
-        let id = world
-            .slot_ids
-            .get(slot as usize)
-            .copied()
-            .flatten()
-            .ok_or(SimError::UnknownInstance(slot))?;
-        let l = *world.live.get(&id).ok_or(SimError::UnknownInstance(slot))?;
-        if self.active.len() <= slot as usize {
-            self.active.resize(slot as usize + 1, false);
-        }
-        self.active[slot as usize] = true;
-        self.scheduler
-            .activate(InstanceKey(slot), world.request(&l))
-            .map_err(core)
-    }
-    fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
-        if !self.is_active(slot) {
-            return Ok(());
-        }
-        self.active[slot as usize] = false;
-        self.scheduler.deactivate(InstanceKey(slot)).map_err(core)
-    }
-    fn build(&mut self, world: &World, frame: u64) -> Result<BlasWork, SimError> {
-        for l in world.live.values() {
-            if self.is_active(l.slot) {
-                self.scheduler
-                    .request_lod(InstanceKey(l.slot), Lod(l.lod as u8), world.estimate(l))
-                    .map_err(core)?;
-            }
-        }
-        let _ = frame;
-        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
-    }
-    fn address(&self, slot: u32) -> Option<u64> {
-        self.scheduler.blas_address(InstanceKey(slot))
-    }
-    fn memory_bytes(&self) -> u64 {
-        self.scheduler.stats().cache.live_bytes()
-    }
-}
-
 /// The `full` baseline: every live instance.
 #[derive(Debug)]
 struct FullReplay {
-    blas: Blases,
+    blas: BlasAccounting,
 }
 
-/// LiPaC on recorded hits.
+/// LiPaC on recorded hits, on one [`CpuBackend`].
 #[derive(Debug)]
 struct LipacReplay {
-    latency: bool,
-    command_budget: usize,
-    culling: Culling<HitboxGrid>,
-    ring: ReadbackRing,
+    backend: CpuBackend,
     /// Handle per dense slot.
     handles: Vec<Option<InstanceHandle>>,
     /// Dense slot per registry slot.
     dense: Vec<u32>,
-    blas: Blases,
     records: Vec<TlasInstance>,
-    started: bool,
 }
 
 #[derive(Debug)]
@@ -340,11 +275,12 @@ pub fn replay_hits_with<R: Read>(
     };
     let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?;
     let grid = HitboxGrid::new(header.world.grid_config()).map_err(core)?;
+    let mut world = World::new(&header);
     let mut runs = Vec::with_capacity(kinds.len());
     for k in &kinds {
         let runner = match k {
             StrategyKind::Full => Runner::Full(Box::new(FullReplay {
-                blas: Blases::new(unlimited_budgets())?,
+                blas: BlasAccounting::new(0, unlimited_budgets())?,
             })),
             StrategyKind::Lipac | StrategyKind::LipacLatency => {
                 let c = if *k == StrategyKind::Lipac {
@@ -352,7 +288,11 @@ pub fn replay_hits_with<R: Read>(
                 } else {
                     lipac_config.clone().with_latency_mitigation()
                 };
-                Runner::Lipac(Box::new(LipacReplay::new(grid.clone(), &c)?))
+                Runner::Lipac(Box::new(LipacReplay::new(
+                    grid.clone(),
+                    &c,
+                    world.mesh_catalog()?,
+                )?))
             }
             other => {
                 return Err(SimError::Replay(format!(
@@ -370,13 +310,12 @@ pub fn replay_hits_with<R: Read>(
             totals: FrameTotals::default(),
         });
     }
-    let mut world = World::new(&header);
     let mut frame = empty_frame();
     let mut prev_hits: Vec<(u32, u32)> = Vec::new();
     let mut fp = HitsFootprint::default();
     let mut read = 0u64;
     let mut with_hits = 0u64;
-    let counting = CountingConfig::default();
+    let counting = CountingBoxes::default();
     while input.next_frame_into(&mut frame)? {
         let number = u32::try_from(frame.number).map_err(|_| {
             SimError::Replay(format!(
@@ -415,7 +354,7 @@ pub fn replay_hits_with<R: Read>(
             };
             let geometry = match &mut run.runner {
                 Runner::Full(f) => f.frame(&world, number, &mut m)?,
-                Runner::Lipac(l) => l.frame(&world, number, &camera, &counting, &mut m)?,
+                Runner::Lipac(l) => l.frame(number, &camera, &counting, &mut m)?,
             };
             m.strategy_ms = t.elapsed().as_secs_f64() * 1e3;
             m.tlas_bytes = tlas_bytes(m.tlas_instances);
@@ -437,12 +376,9 @@ pub fn replay_hits_with<R: Read>(
                 .map(|r| {
                     r.tracker.capacity()
                         + match &r.runner {
-                            Runner::Full(f) => f.blas.active.capacity(),
+                            Runner::Full(f) => f.blas.capacity(),
                             Runner::Lipac(l) => {
-                                l.handles.capacity()
-                                    + l.dense.capacity()
-                                    + l.blas.active.capacity()
-                                    + l.records.capacity()
+                                l.handles.capacity() + l.dense.capacity() + l.records.capacity()
                             }
                         }
                 })
@@ -557,8 +493,8 @@ fn apply_event(
                 run.tracker.resize(world.slot_ids.len());
                 run.tracker.reset(slot);
                 match &mut run.runner {
-                    Runner::Full(f) => f.blas.activate(world, slot)?,
-                    Runner::Lipac(lp) => lp.register(slot, l.desc)?,
+                    Runner::Full(f) => f.blas.activate_with(slot, world.request(&l))?,
+                    Runner::Lipac(lp) => lp.register(slot, LipacReplay::desc(&l))?,
                 }
             }
         }
@@ -567,6 +503,7 @@ fn apply_event(
                 "update of unknown instance {}",
                 u.id
             )))?;
+            let old_flags = l.desc.flags;
             let mut redescribe = false;
             if let Some(p) = &u.pose {
                 l.desc.transform = rows_to_affine(&p.transform);
@@ -584,9 +521,15 @@ fn apply_event(
                 l.desc.mask = m;
             }
             let l = *l;
+            let change = Change {
+                moved: u.pose.is_some(),
+                redescribe,
+                lod: u.lod.is_some(),
+                blas_kind: blas_kind(old_flags) != blas_kind(l.desc.flags),
+            };
             for run in runs.iter_mut() {
                 if let Runner::Lipac(lp) = &mut run.runner {
-                    lp.update(&l, u.pose.is_some(), redescribe)?;
+                    lp.update(&l, change)?;
                 }
             }
         }
@@ -616,12 +559,13 @@ impl FullReplay {
         frame: u32,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {
-        self.blas
-            .scheduler
-            .begin_frame(u64::from(frame) + 1)
-            .map_err(core)?;
-        let work = self.blas.build(world, u64::from(frame))?;
-        self.blas.scheduler.take_address_changes();
+        self.blas.begin_frame(frame)?;
+        for l in world.live.values() {
+            self.blas
+                .request_lod(l.slot, Lod(l.lod as u8), world.estimate(l))?;
+        }
+        let work = self.blas.plan()?;
+        self.blas.take_address_changes();
         let geometry: Vec<u32> = world
             .live
             .values()
@@ -642,36 +586,41 @@ fn fill_work(m: &mut FrameMetrics, w: &BlasWork) {
     m.primitives_refit = w.primitives_refit;
 }
 
+/// What an `update` event changed.
+#[derive(Clone, Copy, Debug)]
+struct Change {
+    moved: bool,
+    redescribe: bool,
+    lod: bool,
+    /// `unique_blas` or `static` changed.
+    blas_kind: bool,
+}
+
+fn blas_kind(f: InstanceFlags) -> InstanceFlags {
+    f & (InstanceFlags::UNIQUE_BLAS | InstanceFlags::STATIC)
+}
+
 impl LipacReplay {
-    fn new(grid: HitboxGrid, config: &LipacConfig) -> Result<Self, SimError> {
-        let unit_cube = crate::blas::BlasStore::new().unit_cube().reference();
-        let cc = CullingConfig {
-            registry: RegistryConfig {
-                quarantine_frames: config.readback_latency + 2,
-                ..RegistryConfig::default()
-            },
-            thresholds: config.thresholds,
-            command_capacity: config.command_capacity,
-            latency_mitigation: config.latency,
-            readback_latency: config.readback_latency,
-            ..CullingConfig::new(unit_cube)
-        };
+    fn new(grid: HitboxGrid, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
         Ok(Self {
-            latency: config.latency.is_some(),
-            command_budget: config.command_budget,
-            culling: Culling::new(grid, cc).map_err(core)?,
-            ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
+            backend: CpuBackend::new(grid, config, catalog)?,
             handles: Vec::new(),
             dense: Vec::new(),
-            blas: Blases::new(config.build_budgets)?,
             records: Vec::new(),
-            started: false,
         })
     }
 
+    /// The instance's description as LiPaC gets it (the recorded LOD).
+    fn desc(l: &Live) -> InstanceDesc {
+        InstanceDesc {
+            lod: l.lod,
+            ..l.desc
+        }
+    }
+
     fn register(&mut self, slot: u32, desc: InstanceDesc) -> Result<(), SimError> {
-        let h = self.culling.register(desc).map_err(core)?;
-        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
+        let h = self.backend.register(desc)?;
+        let reg = self.backend.instance(h)?.slot as usize;
         if self.handles.len() <= slot as usize {
             self.handles.resize(slot as usize + 1, None);
         }
@@ -691,122 +640,70 @@ impl LipacReplay {
             .ok_or(SimError::UnknownInstance(slot))
     }
 
-    fn update(&mut self, l: &Live, moved: bool, redescribe: bool) -> Result<(), SimError> {
+    fn update(&mut self, l: &Live, change: Change) -> Result<(), SimError> {
         let h = self.handle(l.slot)?;
-        if redescribe {
-            self.culling.update(h, l.desc).map_err(core)?;
-        } else if moved {
-            self.culling
-                .set_transform(h, l.desc.transform, l.desc.aabb)
-                .map_err(core)?;
+        if change.blas_kind {
+            self.remove(l.slot)?;
+            return self.register(l.slot, Self::desc(l));
+        }
+        if change.redescribe {
+            self.backend.update(h, Self::desc(l))?;
+        } else {
+            if change.moved {
+                self.backend
+                    .set_transform(h, l.desc.transform, l.desc.aabb)?;
+            }
+            if change.lod {
+                self.backend.set_lod(h, l.lod)?;
+            }
         }
         Ok(())
     }
 
     fn remove(&mut self, slot: u32) -> Result<(), SimError> {
         let h = self.handle(slot)?;
-        let reg = self.culling.registry().slot(h).map_err(core)? as usize;
-        self.culling.remove(h).map_err(core)?;
+        let reg = self.backend.instance(h)?.slot as usize;
+        self.backend.remove(h)?;
         self.handles[slot as usize] = None;
         if let Some(d) = self.dense.get_mut(reg) {
             *d = u32::MAX;
         }
-        self.blas.deactivate(slot)
+        Ok(())
     }
 
     /// Algorithm 2 on the hits recorded with the previous frame (dense slot,
     /// hits).
     fn feedback(&mut self, hits: &[(u32, u32)]) -> Result<(), SimError> {
-        if !self.started {
+        if !self.backend.frame_open() {
             return Ok(());
         }
-        self.culling.instance_hits_mut().fill(0);
+        self.backend.instance_hits_mut().fill(0);
         for &(slot, n) in hits {
             let Some(Some(h)) = self.handles.get(slot as usize).copied() else {
                 continue;
             };
-            let reg = self.culling.registry().slot(h).map_err(core)?;
-            let record = self
-                .culling
-                .registry()
-                .record_at(reg)
-                .copied()
-                .ok_or(SimError::UnknownInstance(reg))?;
+            let reg = self.backend.instance(h)?.slot;
+            let record = self.backend.record(h)?;
             if record.state() == InstanceState::Inactive {
-                if let Some(b) = self.culling.hitboxes_mut().get_mut(record.hitbox as usize) {
+                if let Some(b) = self.backend.hitboxes_mut().get_mut(record.hitbox as usize) {
                     b.add_hits(n);
                 }
-            } else if let Some(c) = self.culling.instance_hits_mut().get_mut(reg as usize) {
+            } else if let Some(c) = self.backend.instance_hits_mut().get_mut(reg as usize) {
                 *c = n;
             }
         }
-        self.culling.process_feedback().map_err(core)?;
-        if let Some(r) = self.culling.take_commands() {
-            self.ring.push(r).map_err(core)?;
-        }
-        Ok(())
+        self.backend.end_frame()
     }
 
     fn frame(
         &mut self,
-        world: &World,
         frame: u32,
         camera: &Camera,
-        counting: &CountingConfig,
+        counting: &CountingBoxes,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {
-        self.started = true;
-        let f = u64::from(frame);
-        self.culling.begin_frame(f).map_err(core)?;
-        self.blas.scheduler.begin_frame(f + 1).map_err(core)?;
-        if self.latency {
-            let frustum = lipac_core::latency::Frustum::from_view_projection(camera.view_proj())
-                .map_err(core)?;
-            let outcome = self
-                .culling
-                .mitigate_latency(camera.position, &frustum)
-                .map_err(core)?;
-            for r in outcome.requests {
-                let slot = self.dense_of(r.slot)?;
-                self.blas.activate(world, slot)?;
-                if let Some(address) = self.blas.address(slot) {
-                    self.culling.set_blas(r.handle, address).map_err(core)?;
-                }
-            }
-        }
-        while let Some(r) = self.ring.pop_ready(f) {
-            self.culling.ingest_readback(r.counter, &r.words);
-        }
-        let mut events = Vec::new();
-        self.culling
-            .process_commands(self.command_budget, &mut events);
-        for event in events {
-            let slot = match self.dense.get(event.slot as usize) {
-                Some(&s) if s != u32::MAX => s,
-                _ => return Err(SimError::UnknownInstance(event.slot)),
-            };
-            match event.action {
-                BlasAction::Acquire => {
-                    self.blas.activate(world, slot)?;
-                    if let Some(address) = self.blas.address(slot).filter(|&a| a != 0) {
-                        self.culling.set_blas(event.handle, address).map_err(core)?;
-                    }
-                }
-                BlasAction::Release { .. } | BlasAction::CancelBuild => {
-                    self.blas.deactivate(slot)?;
-                }
-            }
-        }
-        let work = self.blas.build(world, f)?;
-        for key in self.blas.scheduler.take_address_changes() {
-            let slot = key.0;
-            let address = self.blas.address(slot).unwrap_or(0);
-            if let Ok(h) = self.handle(slot) {
-                self.culling.set_blas(h, address).map_err(core)?;
-            }
-        }
-        self.culling.take_uploads();
-        self.culling.assemble(&mut self.records).map_err(core)?;
+        self.backend.begin_frame(frame)?;
+        let f = self.backend.run(camera, &mut self.records)?;
         let geometry = SlotSet::from_geometry_records(&self.records, counting);
         let mut slots = Vec::new();
         for r in &self.records {
@@ -819,20 +716,12 @@ impl LipacReplay {
                 }
             }
         }
-        fill_work(m, &work);
+        fill_work(m, &f.work);
         m.tlas_instances = self.records.len() as u64;
         m.counting_boxes = self.records.len() as u64 - slots.len() as u64;
-        let hitboxes = self.culling.hitboxes().len() as u64;
-        m.blas_bytes = self.blas.memory_bytes() + blas_bytes(12);
-        m.overhead_bytes =
-            lipac_overhead_bytes(hitboxes, u64::from(self.culling.registry().slot_count()));
+        let hitboxes = self.backend.hitboxes().len() as u64;
+        m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
+        m.overhead_bytes = lipac_overhead_bytes(hitboxes, u64::from(self.backend.slot_count()));
         Ok(slots)
-    }
-
-    fn dense_of(&self, reg: u32) -> Result<u32, SimError> {
-        match self.dense.get(reg as usize) {
-            Some(&s) if s != u32::MAX => Ok(s),
-            _ => Err(SimError::UnknownInstance(reg)),
-        }
     }
 }

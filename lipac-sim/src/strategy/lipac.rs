@@ -1,45 +1,40 @@
-//! LiPaC driven as an engine drives a GPU backend: one
-//! [`lipac_core::culling::Culling`] per-frame loop, a [`ReadbackRing`] of
-//! `k` frames, and a [`BlasAccounting`] build scheduler as the backend's BLAS
-//! manager.
+//! LiPaC driven as an engine drives a GPU backend: the scene's instances
+//! registered in one [`CpuBackend`] (a [`lipac_core::manager::Manager`], its
+//! read-back ring of `k` frames and the plan execution).
 //!
 //! Per frame `f`, in order:
 //!
-//! 1. **End of frame `f − 1`**: the tracer's counters of frame `f − 1` are
-//!    written into the loop's hit buffers, [`Culling::process_feedback`]
-//!    runs Algorithm 2 and [`Culling::take_commands`] goes into the ring.
-//! 2. [`Culling::begin_frame`]; animated units' transforms.
-//! 3. [`Culling::mitigate_latency`] (optional, paper §3.6): its BLAS
-//!    requests go to the scheduler.
-//! 4. [`Culling::ingest_readback`] of the commands of frame `f − k`, then
-//!    [`Culling::process_commands`] under the command budget; its events
-//!    request BLASes from the scheduler (or release them).
-//! 5. The scheduler plans this frame's builds under its budgets; they are
-//!    acknowledged at once (the CPU backend builds synchronously), and the
-//!    addresses go back through [`Culling::set_blas`].
-//! 6. [`Culling::assemble`] (Algorithm 1). Geometry records get this frame's
-//!    BLAS from the shared geometry; the caller traces the records (counting
-//!    boxes count by custom index: slot or hitbox index) and hands the
-//!    counters back as `previous` next frame.
+//! 1. **End of frame `f − 1`**: the tracer's counters of frame `f − 1` go
+//!    into the Manager's hit buffers, [`CpuBackend::end_frame`] runs
+//!    Algorithm 2 and puts its commands into the ring.
+//! 2. [`CpuBackend::begin_frame`]; animated units' transforms; the frame's
+//!    distance LOD of every instance whose LOD changed
+//!    ([`lipac_core::manager::Manager::set_lod`]).
+//! 3. [`CpuBackend::run`]: latency mitigation (optional, paper §3.6), the
+//!    commands of frame `f − k` under the command budget, the BLAS builds
+//!    under the build budgets (acknowledged at once), Algorithm 1. Geometry
+//!    records get this frame's BLAS from the shared geometry; the caller
+//!    traces the records (counting boxes count by custom index: slot or
+//!    hitbox index) and hands the counters back as `previous` next frame.
 //!
 //! Registry slots are assigned in scene order and checked to equal scene
 //! slots, so custom indices, counters and commands all speak scene slots.
 
-use lipac_core::build_plan::BuildBudgets;
-use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
-use lipac_core::latency::{ActivationHeuristic, Frustum};
-use lipac_core::layout::{InstanceRecord, InstanceState, TlasInstance};
-use lipac_core::registry::{InstanceHandle, RegistryConfig};
+use lipac_core::latency::ActivationHeuristic;
+use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
 
-use super::{BlasAccounting, FrameContext, Strategy, StrategyFrame};
+use super::{FrameContext, InstanceCatalog, Strategy, StrategyFrame};
+use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, lipac_overhead_bytes};
 use crate::scene::{flags, Scene};
 use crate::scene_blas::instance_mask;
-use crate::tlas::CountingConfig;
+use crate::tlas::CountingBoxes;
 use crate::trace::Counters;
 
 /// Settings of [`Lipac`].
@@ -61,6 +56,8 @@ pub struct LipacConfig {
     pub readback_latency: u32,
     /// BLAS build budgets per frame.
     pub build_budgets: BuildBudgets,
+    /// Build priorities of the BLAS scheduler.
+    pub build_priority: PriorityConfig,
 }
 
 impl LipacConfig {
@@ -77,7 +74,10 @@ impl LipacConfig {
 
     /// Paper settings for `rays_per_frame` camera rays: scaled thresholds,
     /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, 4096 commands per frame,
-    /// the scheduler's default build budgets (64 builds, 4 Mi triangles).
+    /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
+    /// no compaction copies (lavapipe's compaction gains nothing,
+    /// [`crate::memory`]), and builds ordered by waiting time alone
+    /// ([`Self::age_only_priority`]).
     pub fn for_rays_per_frame(rays_per_frame: u64) -> Result<Self, SimError> {
         Ok(Self {
             thresholds: Thresholds::for_rays_per_frame(rays_per_frame as f64)
@@ -87,8 +87,22 @@ impl LipacConfig {
             command_budget: 4096,
             command_capacity: 1 << 16,
             readback_latency: 2,
-            build_budgets: BuildBudgets::default(),
+            build_budgets: BuildBudgets {
+                max_compactions: 0,
+                ..BuildBudgets::default()
+            },
+            build_priority: Self::age_only_priority(),
         })
+    }
+    /// Build priorities by waiting time alone: the comparison's measured
+    /// configuration (docs/EVALUATION.md). [`PriorityConfig::default`] also
+    /// ranks waiting builds by their instances' hits and frustum visibility.
+    pub fn age_only_priority() -> PriorityConfig {
+        PriorityConfig {
+            hit_cap: 0,
+            frustum_bonus: 0,
+            ..PriorityConfig::default()
+        }
     }
     /// The same with latency mitigation (lipac-core's default heuristic).
     pub fn with_latency_mitigation(mut self) -> Self {
@@ -117,29 +131,18 @@ pub struct LipacFrameStats {
 pub struct Lipac {
     name: &'static str,
     config: LipacConfig,
-    culling: Culling<HitboxGrid>,
-    ring: ReadbackRing,
+    backend: CpuBackend,
     handles: Vec<InstanceHandle>,
+    /// The LOD requested for each slot.
+    lods: Vec<u8>,
     units: Vec<u32>,
-    blas: BlasAccounting,
     stats: LipacFrameStats,
-    started: bool,
-}
-
-fn core<E: std::fmt::Display>(e: E) -> SimError {
-    SimError::core(e)
 }
 
 impl Lipac {
     /// Registers every instance of `scene` (frame 0 state) in a
-    /// [`Culling`] loop whose hitbox grid covers the scene.
+    /// [`CpuBackend`] whose hitbox grid covers the scene.
     pub fn new(scene: &Scene, config: LipacConfig) -> Result<Self, SimError> {
-        config.thresholds.validate().map_err(core)?;
-        if config.readback_latency == 0 || config.command_budget == 0 {
-            return Err(SimError::BadConfig(
-                "readback latency and command budget must be positive",
-            ));
-        }
         let b = scene.bounds();
         let c = config.cell_size;
         let grid = HitboxGrid::new(GridConfig {
@@ -153,31 +156,12 @@ impl Lipac {
             ],
             cell_size: c,
         })
-        .map_err(core)?;
-        // The tracer's unit cube: BlasStore::new() puts it at index 0.
-        let unit_cube = crate::blas::BlasStore::new().unit_cube().reference();
-        let cc = CullingConfig {
-            registry: RegistryConfig {
-                quarantine_frames: config.readback_latency + 2,
-                ..RegistryConfig::default()
-            },
-            thresholds: config.thresholds,
-            command_capacity: config.command_capacity,
-            latency_mitigation: config.latency,
-            readback_latency: config.readback_latency,
-            ..CullingConfig::new(unit_cube)
-        };
-        let counting = CountingConfig::default();
-        if cc.assembly.omitted_box_sbt_offset != counting.instance_box_sbt
-            || cc.assembly.hitbox_sbt_offset != counting.hitbox_box_sbt
-            || cc.assembly.counting_mask != counting.counting_mask
-        {
-            return Err(SimError::BadConfig(
-                "assembly and tracer disagree on counting boxes",
-            ));
-        }
-        let mut culling = Culling::new(grid, cc).map_err(core)?;
-        let mut handles = Vec::with_capacity(scene.instances().len());
+        .map_err(SimError::core)?;
+        let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
+        let mut backend = CpuBackend::new(grid, &config, catalog)?;
+        let n = scene.instances().len();
+        backend.reserve(n);
+        let mut handles = Vec::with_capacity(n);
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
             let mut f = InstanceFlags::empty();
@@ -198,10 +182,10 @@ impl Lipac {
                 mask: instance_mask(inst),
                 ..InstanceDesc::new(MeshId(inst.mesh), inst.transform, inst.aabb)
             };
-            let h = culling.register(desc).map_err(core)?;
+            let h = backend.register(desc)?;
             // Registry slots must equal scene slots: counters, custom indices
             // and commands are all indexed by them.
-            let got = culling.registry().slot(h).map_err(core)?;
+            let got = backend.instance(h)?.slot;
             if got != slot as u32 {
                 return Err(SimError::Core(format!(
                     "registry slot {got} for scene slot {slot}"
@@ -209,21 +193,18 @@ impl Lipac {
             }
             handles.push(h);
         }
-        let n = handles.len();
         Ok(Self {
             name: if config.latency.is_some() {
                 "lipac-latency"
             } else {
                 "lipac"
             },
-            ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
-            blas: BlasAccounting::new(n, config.build_budgets)?,
             config,
-            culling,
+            backend,
+            lods: vec![0; handles.len()],
             handles,
             units,
             stats: LipacFrameStats::default(),
-            started: false,
         })
     }
 
@@ -233,14 +214,12 @@ impl Lipac {
     }
     /// The state of instance `slot`.
     pub fn state(&self, slot: u32) -> Option<InstanceState> {
-        self.culling
-            .registry()
-            .record_at(slot)
-            .map(InstanceRecord::state)
+        let h = *self.handles.get(slot as usize)?;
+        self.backend.instance(h).ok().map(|v| v.state)
     }
-    /// The per-frame loop (registry, hitboxes, commands).
-    pub fn culling(&self) -> &Culling<HitboxGrid> {
-        &self.culling
+    /// The backend (its Manager: statistics, instance views).
+    pub fn backend(&self) -> &CpuBackend {
+        &self.backend
     }
     /// Counts of the last frame.
     pub fn last_stats(&self) -> LipacFrameStats {
@@ -250,7 +229,7 @@ impl Lipac {
     /// Step 1: the hits of the previous frame, Algorithm 2, its commands
     /// into the ring.
     fn feedback(&mut self, previous: &Counters) -> Result<(), SimError> {
-        let hits = self.culling.instance_hits_mut();
+        let hits = self.backend.instance_hits_mut();
         if previous.instances.len() != hits.len() {
             return Err(SimError::SizeMismatch {
                 a: previous.instances.len(),
@@ -259,18 +238,14 @@ impl Lipac {
         }
         hits.copy_from_slice(&previous.instances);
         for (h, &c) in self
-            .culling
+            .backend
             .hitboxes_mut()
             .iter_mut()
             .zip(&previous.hitboxes)
         {
             h.add_hits(c);
         }
-        self.culling.process_feedback().map_err(core)?;
-        if let Some(r) = self.culling.take_commands() {
-            self.ring.push(r).map_err(core)?;
-        }
-        Ok(())
+        self.backend.end_frame()
     }
 }
 
@@ -279,7 +254,7 @@ impl Strategy for Lipac {
         self.name
     }
     fn hitboxes(&self) -> usize {
-        self.culling.hitboxes().len()
+        self.backend.hitboxes().len()
     }
     fn frame(
         &mut self,
@@ -287,93 +262,45 @@ impl Strategy for Lipac {
         previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        if ctx.full_records.len() != self.handles.len() {
+        let n = self.handles.len();
+        if ctx.full_records.len() != n || ctx.lods.len() != n {
             return Err(SimError::SizeMismatch {
-                a: ctx.full_records.len(),
-                b: self.handles.len(),
+                a: ctx.full_records.len().min(ctx.lods.len()),
+                b: n,
             });
         }
         self.stats = LipacFrameStats::default();
-        if self.started {
+        if self.backend.frame_open() {
             // A frame whose counters are missing still runs Algorithm 2
             // (with no hits) so that the loop's call order holds.
             match previous {
                 Some(p) => self.feedback(p)?,
-                None => self.feedback(&Counters::new(self.handles.len(), 0))?,
+                None => self.feedback(&Counters::new(n, 0))?,
             }
         }
-        self.started = true;
 
-        // 2. Frame start, animated units.
-        let frame = u64::from(ctx.frame);
-        self.culling.begin_frame(frame).map_err(core)?;
-        self.blas.begin_frame(ctx.frame)?;
+        // 2. Frame start, animated units, LODs.
+        self.backend.begin_frame(ctx.frame)?;
         for &slot in &self.units {
             let inst = ctx.scene.instance(slot)?;
-            self.culling
-                .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)
-                .map_err(core)?;
+            self.backend
+                .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)?;
         }
-
-        // 3. Latency mitigation.
-        if self.config.latency.is_some() {
-            let frustum = Frustum::from_view_projection(ctx.camera.view_proj()).map_err(core)?;
-            let outcome = self
-                .culling
-                .mitigate_latency(ctx.camera.position, &frustum)
-                .map_err(core)?;
-            self.stats.latency_activations = outcome.summary.accepted;
-            for r in outcome.requests {
-                let lod = usize::from(ctx.lods[r.slot as usize]);
-                self.blas.activate(ctx.catalog, r.slot, lod)?;
-                // A BLAS the scheduler already holds (cached shared, or one
-                // whose release is still queued) is attached now.
-                if let Some(address) = self.blas.address(r.slot) {
-                    self.culling.set_blas(r.handle, address).map_err(core)?;
-                }
+        for (slot, (&lod, last)) in ctx.lods.iter().zip(&mut self.lods).enumerate() {
+            if lod != *last {
+                *last = lod;
+                self.backend.set_lod(self.handles[slot], u32::from(lod))?;
             }
         }
 
-        // 4. Commands of frame f - k, processed under the budget.
-        while let Some(r) = self.ring.pop_ready(frame) {
-            self.stats.commands_ingested +=
-                self.culling.ingest_readback(r.counter, &r.words).accepted;
-        }
-        let mut events = Vec::new();
-        let st = self
-            .culling
-            .process_commands(self.config.command_budget, &mut events);
-        for event in events {
-            match event.action {
-                BlasAction::Acquire => {
-                    let lod = usize::from(ctx.lods[event.slot as usize]);
-                    self.blas.activate(ctx.catalog, event.slot, lod)?;
-                    // A BLAS the scheduler already holds is attached now.
-                    if let Some(address) = self.blas.address(event.slot).filter(|&a| a != 0) {
-                        self.culling.set_blas(event.handle, address).map_err(core)?;
-                    }
-                }
-                BlasAction::Release { .. } | BlasAction::CancelBuild => {
-                    self.blas.deactivate(event.slot)?;
-                }
-            }
-        }
-        self.stats.commands_processed = st.drained;
-        self.stats.commands_pending = st.remaining;
-
-        // 5. Builds; new addresses.
-        let work = self.blas.build(ctx.catalog, ctx.lods)?;
-        for slot in self.blas.take_address_changes() {
-            let address = self.blas.address(slot).unwrap_or(0);
-            self.culling
-                .set_blas(self.handles[slot as usize], address)
-                .map_err(core)?;
-        }
-        self.culling.take_uploads();
-
-        // 6. Algorithm 1; geometry records get this frame's BLAS.
-        self.culling.assemble(out).map_err(core)?;
-        let counting = CountingConfig::default();
+        // 3. Latency mitigation, commands, builds, Algorithm 1.
+        let f = self.backend.run(ctx.camera, out)?;
+        self.stats.commands_ingested = f.commands_ingested;
+        self.stats.commands_processed = f.commands_processed;
+        self.stats.commands_pending = f.commands_pending;
+        self.stats.latency_activations = f.latency_activations;
+        // Geometry records get this frame's BLAS.
+        let counting = CountingBoxes::default();
         for r in out.iter_mut() {
             let sbt = r.sbt_offset();
             if sbt != counting.instance_box_sbt && sbt != counting.hitbox_box_sbt {
@@ -384,12 +311,12 @@ impl Strategy for Lipac {
                 r.acceleration_structure_reference = full.acceleration_structure_reference;
             }
         }
-        let hitboxes = self.culling.hitboxes();
+        let hitboxes = self.backend.hitboxes();
         self.stats.active_hitboxes = hitboxes.iter().filter(|h| h.is_active()).count() as u32;
         Ok(StrategyFrame {
-            work,
-            blas_bytes: self.blas.memory_bytes() + blas_bytes(12),
-            overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, self.handles.len() as u64),
+            work: f.work,
+            blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
+            overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64),
         })
     }
 }
