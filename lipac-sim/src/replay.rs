@@ -243,8 +243,9 @@ impl<R: Read> TraceInput<R> {
     }
     /// Where the last frame read is (binary: the offset of its record;
     /// JSON lines: its line), and its frame number, as text for errors:
-    /// `"frame record 3 (frame number 7) at byte 1234"`, or `"before the
-    /// first frame"`.
+    /// `"frame record 3 (frame number 7) at byte 1234"`, `"before the
+    /// first frame (…)"`, or, once the end was read, `"after the last frame
+    /// (…)"`.
     pub fn position(&self) -> String {
         let (at, number) = match self {
             Self::Binary(r) => (
@@ -256,8 +257,18 @@ impl<R: Read> TraceInput<R> {
                 r.validator().last_frame_number(),
             ),
         };
+        let finished = match self {
+            Self::Binary(r) => r.is_finished(),
+            Self::Jsonl(r) => r.is_finished(),
+        };
         match (self.frames_read(), number) {
+            (0, _) | (_, None) if finished => format!("after the end of the trace ({at})"),
             (0, _) | (_, None) => format!("before the first frame ({at})"),
+            (n, Some(number)) if finished => format!(
+                "after the last frame (frame record {}, frame number {number}; end of the \
+                 trace at {at})",
+                n - 1
+            ),
             (n, Some(number)) => {
                 format!("frame record {} (frame number {number}) at {at}", n - 1)
             }
