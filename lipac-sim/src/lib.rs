@@ -23,5 +23,6 @@ pub mod strategy;
 pub mod sweep;
 pub mod tlas;
 pub mod trace;
+pub mod trace_scene;
 
 pub use error::SimError;

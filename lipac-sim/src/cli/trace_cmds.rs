@@ -10,8 +10,9 @@ use std::process::ExitCode;
 use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
-use lipac_sim::replay::{replay, ReplayConfig, ReplayMode, TraceInput};
+use lipac_sim::replay::{ReplayConfig, ReplayMode};
 use lipac_sim::report::{headline, table, write_report};
+use lipac_sim::trace_scene::{replay_path, TraceSceneOptions};
 use lipac_sim::SimError;
 
 use crate::{SceneArg, StrategyArg};
@@ -89,6 +90,14 @@ pub struct ReplayArgs {
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
+    /// Geometry mode of a trace of another scene: trace a box over the
+    /// bounds of a mesh without geometry instead of failing.
+    #[arg(long)]
+    box_proxy: bool,
+    /// Geometry mode of a trace of another scene: a JSON scene file
+    /// overriding sun and sky (see docs/trace-format.md).
+    #[arg(long)]
+    scene_file: Option<PathBuf>,
 }
 
 /// `lipac convert`.
@@ -162,11 +171,14 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
         }),
         keep_frames: true,
     };
-    let report =
-        match TraceInput::open(&a.file).and_then(|input| replay(input, &config, &mut |_| {})) {
-            Ok(r) => r,
-            Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
-        };
+    let options = match trace_scene_options(a.box_proxy, a.scene_file.as_deref()) {
+        Ok(o) => o,
+        Err(e) => return fail(e),
+    };
+    let report = match replay_path(&a.file, &config, &options, &mut |_| {}) {
+        Ok((r, _)) => r,
+        Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
+    };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
@@ -182,6 +194,20 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => fail(format_args!("writing the report: {e}")),
+    }
+}
+
+fn trace_scene_options(
+    box_proxy: bool,
+    scene_file: Option<&Path>,
+) -> Result<TraceSceneOptions, SimError> {
+    let o = TraceSceneOptions {
+        box_proxy,
+        ..TraceSceneOptions::default()
+    };
+    match scene_file {
+        None => Ok(o),
+        Some(p) => o.with_json(&std::fs::read_to_string(p).map_err(io_at(p))?),
     }
 }
 
