@@ -9,6 +9,7 @@ pub mod blas;
 pub mod camera;
 pub mod compare;
 pub mod error;
+pub mod import;
 pub mod memory;
 pub mod mesh;
 pub mod metrics;
