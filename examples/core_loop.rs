@@ -38,20 +38,21 @@ fn main() -> Result<(), CoreError> {
         culling.register(InstanceDesc::new(MeshId(mesh), at, aabb))?;
     }
 
-    let mut tlas = Vec::new();
+    let (mut tlas, mut events) = (Vec::new(), Vec::new());
     let mut next_blas = 0x1000;
     for frame in 0..6 {
         culling.begin_frame(frame)?;
         while let Some(r) = ring.pop_ready(frame) {
             culling.ingest_readback(r.counter, &r.words);
         }
-        let processed = culling.process_frame_commands(&mut |e| match e.action {
-            BlasAction::Acquire => {
+        let mut processed = culling.process_commands(usize::MAX, &mut events);
+        for e in &events {
+            if e.action == BlasAction::Acquire {
                 next_blas += 1; // a real manager looks up or builds the BLAS
-                Some(next_blas)
+                culling.set_blas(e.handle, next_blas)?;
+                processed.acquired += 1;
             }
-            BlasAction::Release { .. } | BlasAction::CancelBuild => None,
-        });
+        }
         let stats = culling.assemble(&mut tlas)?;
         // Stub tracer: hitbox 0 (the houses' cell) is in full view.
         for r in &tlas {

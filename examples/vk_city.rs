@@ -33,7 +33,7 @@
 use ash::vk;
 use glam::Vec3;
 use lipac::core::blas_cache::BlasOwner;
-use lipac::core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac::core::blas_ids::{InstanceKey, Lod};
 use lipac::core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
@@ -45,6 +45,7 @@ use lipac::core::instance::InstanceDesc;
 use lipac::core::layout::InstanceState;
 use lipac::core::registry::{InstanceRegistry, RegistryConfig};
 use lipac::core::thresholds::Thresholds;
+use lipac::core::MeshId;
 use lipac::sim::camera::CameraPath;
 use lipac::sim::scene::{LodPolicy, Scene, SceneConfig};
 use lipac::vk::{

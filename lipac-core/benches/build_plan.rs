@@ -4,8 +4,9 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::*;
+use lipac_core::MeshId;
 
 fn steady(n: u32) -> BuildScheduler {
     let mut cfg = SchedulerConfig::default();

@@ -1,6 +1,6 @@
 //! One full CPU frame of the per-frame loop ([`lipac_core::culling::Culling`]):
 //! `begin_frame`, ingest of the read-back from `k = 2` frames ago,
-//! `process_commands` (budget 4096), `assemble` (Algorithm 1), a stub tracer
+//! `process_commands` (budget 4096) with `set_blas` for every acquire, `assemble` (Algorithm 1), a stub tracer
 //! writing hits for every TLAS record, `process_feedback` (Algorithm 2) and
 //! `take_commands`. Latency mitigation is not included (see the `registry`
 //! bench for its cost).

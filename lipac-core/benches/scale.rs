@@ -1,7 +1,7 @@
 //! Scale: the core's per-frame CPU cost at 10k, 100k, 1M and 10M instances.
 //!
 //! One frame of [`lipac_core::culling::Culling`]: `begin_frame`, ingest of
-//! the read-back from `k = 2` frames ago, `process_frame_commands` under a
+//! the read-back from `k = 2` frames ago, `process_commands` under a
 //! budget of 4096, `assemble` (Algorithm 1), synthetic hits for every TLAS
 //! record, `process_feedback` (Algorithm 2) and `take_commands`. Latency
 //! mitigation is off (its cost is in the `registry` bench).
@@ -44,7 +44,7 @@ fn setup(n: u32) -> Loop {
     // (an eighth of the world at once) is not measured as a backlog; then
     // the budget of 4096 commands per frame applies.
     let start = Instant::now();
-    l.culling.set_command_budget(usize::MAX);
+    l.budget = usize::MAX;
     // At 10M the first activation (1.25M adds) overflows the 65,536-command
     // buffer for ~20 frames: warm up until it has drained (at most 64).
     for i in 0..64 {
@@ -53,7 +53,7 @@ fn setup(n: u32) -> Loop {
             break;
         }
     }
-    l.culling.set_command_budget(4096);
+    l.budget = 4096;
     let warm = start.elapsed();
     l.culling.take_uploads();
     let m = l.culling.memory_usage();

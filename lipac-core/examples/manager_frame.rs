@@ -8,23 +8,18 @@
 //! cargo run -p lipac-core --example manager_frame
 
 use glam::{Affine3A, Vec3};
-use lipac_core::blas_ids::BuildId;
-use lipac_core::build_plan::BuildEstimate;
-use lipac_core::culling::ReadbackRing;
-use lipac_core::grid::{GridConfig, HitboxGrid};
-use lipac_core::instance::{InstanceDesc, MeshId};
-use lipac_core::manager::{
-    FrameBudgets, Manager, ManagerConfig, ManagerPlan, MeshCatalog, MeshLod,
+use lipac_core::{
+    Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, HitboxIndex, InstanceDesc,
+    Manager, ManagerConfig, ManagerError, ManagerPlan, MeshCatalog, MeshId, MeshLod, ReadbackRing,
 };
-use lipac_core::math::Aabb;
 
 const UNIT_CUBE_BLAS: u64 = 0xC0BE;
 
 /// Builds finish at once; acknowledgements arrive one frame later.
 struct Backend {
     next_address: u64,
-    /// (frame it arrives in, build, result bytes, address)
-    acks: Vec<(u64, BuildId, u64, u64)>,
+    /// (frame it arrives in, the acknowledgement)
+    acks: Vec<(u64, Ack)>,
     data_buffer_bytes: u64,
 }
 
@@ -37,22 +32,25 @@ impl Backend {
         // destroy plan.blas.frees, record plan.blas.batches ...)
         for build in plan.blas.builds() {
             self.next_address += 0x1_0000;
-            let bytes = build.result_bytes; // the real size would come back
-            self.acks
-                .push((plan.frame + 1, build.id, bytes, self.next_address));
+            let ack = Ack::Built {
+                build: build.id,
+                result_bytes: build.result_bytes, // the real size would come back
+                address: self.next_address,
+            };
+            self.acks.push((plan.frame + 1, ack));
         }
     }
 
-    fn deliver<H: lipac_core::hitbox_index::HitboxIndex>(
+    /// Hands the acknowledgements that have arrived to the manager.
+    fn deliver<H: HitboxIndex>(
         &mut self,
         frame: u64,
         manager: &mut Manager<H>,
-    ) -> Result<(), lipac_core::manager::ManagerError> {
+    ) -> Result<(), ManagerError> {
         let mut i = 0;
         while i < self.acks.len() {
             if self.acks[i].0 <= frame {
-                let (_, build, bytes, address) = self.acks.swap_remove(i);
-                manager.ack_built(build, bytes, address)?;
+                manager.handle_ack(self.acks.swap_remove(i).1)?;
             } else {
                 i += 1;
             }

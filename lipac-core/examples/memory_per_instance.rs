@@ -54,17 +54,19 @@ fn build(n: u32, reserve: bool) -> (Culling, f64) {
     let v = view::look_to_mat4(camera, Vec3::NEG_Z, Vec3::Y);
     let p = proj::vulkan::perspective(1.0, 1.7, 0.1, 1000.0);
     let frustum = Frustum::from_view_projection(p * v).expect("frustum");
-    let mut tlas = Vec::new();
+    let (mut tlas, mut events) = (Vec::new(), Vec::new());
     for frame in 0..3 {
         culling.begin_frame(frame).expect("frame");
         let out = culling.mitigate_latency(camera, &frustum).expect("camera");
         for r in out.requests {
             culling.set_blas(r.handle, 0xB1A5).expect("live");
         }
-        culling.process_frame_commands(&mut |e| match e.action {
-            BlasAction::Acquire => Some(0xB1A5),
-            _ => None,
-        });
+        culling.process_commands(usize::MAX, &mut events);
+        for e in &events {
+            if e.action == BlasAction::Acquire {
+                culling.set_blas(e.handle, 0xB1A5).expect("live");
+            }
+        }
         culling.assemble(&mut tlas).expect("assemble");
         culling.process_feedback().expect("feedback");
         culling.take_commands();

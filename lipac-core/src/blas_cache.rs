@@ -46,6 +46,16 @@
 //! device-memory peak is therefore the budget plus what was evicted in the
 //! last `frames_in_flight` frames.
 //!
+//! # Limits
+//!
+//! Frame numbers go up to [`MAX_FRAME`] (`2^63 - 1`); a larger one is
+//! refused by [`BlasCache::begin_frame`] ([`BlasError::FrameOutOfRange`]),
+//! so a frame plus any `u32` frame count is exact. Every byte count handed
+//! in is at most [`MAX_BLAS_BYTES`] (2^48) or refused
+//! ([`BlasError::InvalidAck`]), and the byte totals are kept in `u128`, so
+//! no counter can wrap; [`CacheStats`] reports them saturated at
+//! `u64::MAX` (only reachable for scratch, which is not budgeted).
+//!
 //! # Deferred frees
 //!
 //! A BLAS released or evicted during frame `f` may still be referenced by the
@@ -56,7 +66,8 @@
 //!
 //! ```
 //! use lipac_core::blas_cache::{BlasCache, CacheConfig, Lookup};
-//! use lipac_core::blas_ids::{BlasKey, BuildId, Lod, MeshId};
+//! use lipac_core::blas_ids::{BlasKey, BuildId, Lod};
+//! use lipac_core::MeshId;
 //!
 //! let mut cache = BlasCache::new(CacheConfig { frames_in_flight: 2, ..CacheConfig::default() })?;
 //! cache.begin_frame(1)?;
@@ -76,6 +87,18 @@ use std::fmt;
 use slotmap::SlotMap;
 
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
+
+/// The largest frame number [`BlasCache::begin_frame`] accepts: `2^63 - 1`
+/// (at 10 000 frames per second, 29 million years). Below it, a frame plus
+/// any `u32` count of frames (frames in flight, hysteresis, slot staggering)
+/// is exact in a `u64`, so no frame arithmetic can overflow.
+pub const MAX_FRAME: u64 = (1 << 63) - 1;
+
+/// The largest byte count the cache takes in one value (a reserved estimate,
+/// scratch, an acknowledged or compacted size): 2^48 bytes (256 TiB), far
+/// above any device's memory. Larger values are refused as corrupt input
+/// ([`BlasError::InvalidAck`]).
+pub const MAX_BLAS_BYTES: u64 = 1 << 48;
 
 /// Configuration of a [`BlasCache`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -282,7 +305,9 @@ pub struct CacheStats {
 impl CacheStats {
     /// Bytes counted against the budget.
     pub fn live_bytes(&self) -> u64 {
-        self.shared_bytes + self.unique_bytes + self.compacted_bytes
+        self.shared_bytes
+            .saturating_add(self.unique_bytes)
+            .saturating_add(self.compacted_bytes)
     }
 }
 
@@ -297,6 +322,13 @@ pub enum BlasError {
         previous: u64,
         /// The frame given.
         got: u64,
+    },
+    /// `begin_frame` was called with a frame above [`MAX_FRAME`].
+    FrameOutOfRange {
+        /// The frame given.
+        frame: u64,
+        /// The largest frame allowed ([`MAX_FRAME`]).
+        max: u64,
     },
     /// The handle names no live entry.
     StaleBlas(BlasId),
@@ -313,7 +345,8 @@ pub enum BlasError {
     NotReferenced(BlasId),
     /// More than `u32::MAX` users.
     RefcountOverflow(BlasId),
-    /// A size of zero, or an address of zero (0 means "no BLAS").
+    /// A size of zero or above [`MAX_BLAS_BYTES`], or an address of zero
+    /// (0 means "no BLAS").
     InvalidAck(&'static str),
 }
 
@@ -323,6 +356,9 @@ impl fmt::Display for BlasError {
             BlasError::InvalidConfig(what) => write!(f, "invalid BLAS cache configuration: {what}"),
             BlasError::NonMonotonicFrame { previous, got } => {
                 write!(f, "frame {got} does not follow frame {previous}")
+            }
+            BlasError::FrameOutOfRange { frame, max } => {
+                write!(f, "frame {frame} is above the largest frame number {max}")
             }
             BlasError::StaleBlas(id) => write!(f, "stale BLAS handle {id:?}"),
             BlasError::UnknownBuild(b) => write!(f, "{b} is unknown or already acknowledged"),
@@ -404,11 +440,13 @@ pub struct BlasCache {
     dead_queries: HashSet<BuildId>,
     compaction_ready: BTreeSet<BlasId>,
     pending_frees: Vec<(u64, BlasFree)>,
-    shared_bytes: u64,
-    unique_bytes: u64,
-    compacted_bytes: u64,
-    scratch_bytes: u64,
-    pending_free_bytes: u64,
+    // Byte totals in u128: sums of u64 values over at most 2^32 entries
+    // cannot wrap (see "Limits" in the module docs).
+    shared_bytes: u128,
+    unique_bytes: u128,
+    compacted_bytes: u128,
+    scratch_bytes: u128,
+    pending_free_bytes: u128,
     hits: u64,
     misses: u64,
     evictions: u64,
@@ -455,7 +493,16 @@ impl BlasCache {
     /// Starts frame `frame` (strictly after the previous one): evicts entries
     /// unused for more than `max_unused_frames` frames and returns the BLASes
     /// that no frame in flight can use any more, for the backend to destroy.
+    ///
+    /// Fails, changing nothing, for a frame not after the current one or
+    /// above [`MAX_FRAME`].
     pub fn begin_frame(&mut self, frame: u64) -> Result<Vec<BlasFree>, BlasError> {
+        if frame > MAX_FRAME {
+            return Err(BlasError::FrameOutOfRange {
+                frame,
+                max: MAX_FRAME,
+            });
+        }
         if self.started && frame <= self.frame {
             return Err(BlasError::NonMonotonicFrame {
                 previous: self.frame,
@@ -484,7 +531,7 @@ impl BlasCache {
             }
         });
         for f in &ready {
-            self.pending_free_bytes -= f.bytes;
+            self.pending_free_bytes -= u128::from(f.bytes);
         }
         Ok(ready)
     }
@@ -592,6 +639,11 @@ impl BlasCache {
         if self.ops.contains_key(&build) {
             return Err(BlasError::InvalidAck("operation id already in flight"));
         }
+        if reserved_bytes > MAX_BLAS_BYTES || scratch_bytes > MAX_BLAS_BYTES {
+            return Err(BlasError::InvalidAck(
+                "reserved or scratch size above MAX_BLAS_BYTES",
+            ));
+        }
         if !self.make_room(reserved_bytes) {
             return Ok(false);
         }
@@ -619,6 +671,9 @@ impl BlasCache {
     ) -> Result<BlasId, BlasError> {
         if result_bytes == 0 {
             return Err(BlasError::InvalidAck("result size 0"));
+        }
+        if result_bytes > MAX_BLAS_BYTES {
+            return Err(BlasError::InvalidAck("result size above MAX_BLAS_BYTES"));
         }
         if address == 0 {
             return Err(BlasError::InvalidAck("address 0"));
@@ -667,6 +722,9 @@ impl BlasCache {
         }
         if compacted_bytes == 0 {
             return Err(BlasError::InvalidAck("compacted size 0"));
+        }
+        if compacted_bytes > MAX_BLAS_BYTES {
+            return Err(BlasError::InvalidAck("compacted size above MAX_BLAS_BYTES"));
         }
         let id = *self
             .size_queries
@@ -843,41 +901,52 @@ impl BlasCache {
     }
 
     /// Statistics.
+    /// Byte totals above `u64::MAX` are reported as `u64::MAX`.
     pub fn stats(&self) -> CacheStats {
         CacheStats {
-            shared_bytes: self.shared_bytes,
-            unique_bytes: self.unique_bytes,
-            compacted_bytes: self.compacted_bytes,
-            scratch_in_use: self.scratch_bytes,
+            shared_bytes: saturate(self.shared_bytes),
+            unique_bytes: saturate(self.unique_bytes),
+            compacted_bytes: saturate(self.compacted_bytes),
+            scratch_in_use: saturate(self.scratch_bytes),
             hits: self.hits,
             misses: self.misses,
             evictions: self.evictions,
             pending_frees: self.pending_frees.len(),
-            pending_free_bytes: self.pending_free_bytes,
+            pending_free_bytes: saturate(self.pending_free_bytes),
             entries: self.entries.len(),
         }
     }
 
-    /// Bytes counted against the budget.
+    /// Bytes counted against the budget (saturated at `u64::MAX`).
     pub fn live_bytes(&self) -> u64 {
-        self.shared_bytes + self.unique_bytes + self.compacted_bytes
+        saturate(self.live())
     }
 
     /// Whether `bytes` more would fit after evicting every candidate.
     pub fn could_fit(&self, bytes: u64) -> bool {
-        let evictable: u64 = self
+        let evictable: u128 = self
             .entries
             .values()
             .filter(|e| Self::evictable(e))
             .map(|e| {
                 let b = contribution(e);
-                b.shared + b.unique + b.compacted
+                u128::from(b.shared) + u128::from(b.unique) + u128::from(b.compacted)
             })
             .sum();
-        self.live_bytes() - evictable + bytes <= self.config.memory_budget
+        self.live() - evictable + u128::from(bytes) <= u128::from(self.config.memory_budget)
     }
 
     // ---- internals ----
+
+    /// Bytes counted against the budget, exactly.
+    fn live(&self) -> u128 {
+        self.shared_bytes + self.unique_bytes + self.compacted_bytes
+    }
+
+    /// Whether `extra` more bytes fit the budget without evicting.
+    fn fits(&self, extra: u64) -> bool {
+        self.live() + u128::from(extra) <= u128::from(self.config.memory_budget)
+    }
 
     fn evictable(e: &Entry) -> bool {
         e.info.refs == 0
@@ -892,18 +961,19 @@ impl BlasCache {
         let before = contribution(e);
         f(e);
         let after = contribution(e);
-        self.shared_bytes = self.shared_bytes - before.shared + after.shared;
-        self.unique_bytes = self.unique_bytes - before.unique + after.unique;
-        self.compacted_bytes = self.compacted_bytes - before.compacted + after.compacted;
-        self.scratch_bytes = self.scratch_bytes - before.scratch + after.scratch;
+        let step =
+            |total: u128, before: u64, after: u64| total - u128::from(before) + u128::from(after);
+        self.shared_bytes = step(self.shared_bytes, before.shared, after.shared);
+        self.unique_bytes = step(self.unique_bytes, before.unique, after.unique);
+        self.compacted_bytes = step(self.compacted_bytes, before.compacted, after.compacted);
+        self.scratch_bytes = step(self.scratch_bytes, before.scratch, after.scratch);
     }
 
     /// Evicts (LRU, then largest) until `extra` more bytes fit. Evicts nothing
     /// and returns `false` if they cannot fit even after evicting everything
     /// evictable.
     fn make_room(&mut self, extra: u64) -> bool {
-        let budget = self.config.memory_budget;
-        if self.live_bytes() + extra <= budget {
+        if self.fits(extra) {
             return true;
         }
         if !self.could_fit(extra) {
@@ -924,12 +994,12 @@ impl BlasCache {
             .collect();
         candidates.sort_unstable();
         for (_, _, id) in candidates {
-            if self.live_bytes() + extra <= budget {
+            if self.fits(extra) {
                 break;
             }
             self.evict(id);
         }
-        self.live_bytes() + extra <= budget
+        self.fits(extra)
     }
 
     fn evict(&mut self, id: BlasId) {
@@ -979,10 +1049,16 @@ impl BlasCache {
     }
 
     fn defer_free(&mut self, free: BlasFree) {
+        // Exact: frames are at most MAX_FRAME = 2^63 - 1.
         let safe = self.frame + u64::from(self.config.frames_in_flight);
-        self.pending_free_bytes += free.bytes;
+        self.pending_free_bytes += u128::from(free.bytes);
         self.pending_frees.push((safe, free));
     }
+}
+
+/// `x`, or `u64::MAX` if it does not fit.
+fn saturate(x: u128) -> u64 {
+    u64::try_from(x).unwrap_or(u64::MAX)
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 
 use std::fmt;
 
-pub use crate::instance::MeshId;
+pub(crate) use crate::instance::MeshId;
 
 /// A mesh level of detail. `Lod(0)` is the finest; a larger number is coarser.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]

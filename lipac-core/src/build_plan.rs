@@ -2,6 +2,10 @@
 //! budgeted [`BuildBatch`]es (thesis §3.3.1: batching, compaction, unique
 //! BLAS updates, budgeted LOD switches).
 //!
+//! **Low-level**: [`crate::Manager`] owns a [`BuildScheduler`] and drives it;
+//! its plan reaches the backend as [`crate::ManagerPlan::blas`] and the
+//! acknowledgements go back through [`crate::Manager::handle_ack`].
+//!
 //! Sans-IO: [`BuildScheduler::plan`] hands out a [`FramePlan`]; the backend
 //! records it and reports back, frames later, with
 //! [`BuildScheduler::ack_built`], [`BuildScheduler::ack_compacted_size`] and
@@ -64,7 +68,8 @@
 //!   the uncompacted BLAS stays in use until the copy is acknowledged.
 //!
 //! ```
-//! use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+//! use lipac_core::blas_ids::{InstanceKey, Lod};
+//! use lipac_core::MeshId;
 //! use lipac_core::build_plan::*;
 //!
 //! let mut s = BuildScheduler::new(SchedulerConfig::default())?;
@@ -88,7 +93,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt;
 
 use crate::blas_cache::{
-    BlasCache, BlasError, BlasFree, BlasOwner, BlasState, CacheConfig, CacheStats,
+    BlasCache, BlasError, BlasFree, BlasOwner, BlasState, CacheConfig, CacheStats, MAX_BLAS_BYTES,
 };
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
 
@@ -180,11 +185,14 @@ impl Default for BuildBudgets {
 pub struct BuildEstimate {
     /// Primitives (triangles or AABBs).
     pub primitives: u64,
-    /// Result size (`accelerationStructureSize`), > 0.
+    /// Result size (`accelerationStructureSize`), in
+    /// `1..=`[`MAX_BLAS_BYTES`].
     pub result_bytes: u64,
-    /// Scratch for a full build (`buildScratchSize`).
+    /// Scratch for a full build (`buildScratchSize`), at most
+    /// [`MAX_BLAS_BYTES`].
     pub build_scratch_bytes: u64,
-    /// Scratch for a refit (`updateScratchSize`; unique BLASes only).
+    /// Scratch for a refit (`updateScratchSize`; unique BLASes only), at
+    /// most [`MAX_BLAS_BYTES`].
     pub update_scratch_bytes: u64,
 }
 
@@ -347,7 +355,8 @@ impl FramePlan {
 /// Scheduler counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SchedulerStats {
-    /// The cache's statistics.
+    /// The cache's statistics; its pending frees also count those due and
+    /// held for the next [`BuildScheduler::plan`].
     pub cache: CacheStats,
     /// Builds waiting to be handed out.
     pub queued_builds: usize,
@@ -494,6 +503,15 @@ pub struct BuildScheduler {
 fn validate(e: &BuildEstimate) -> Result<(), BuildPlanError> {
     if e.result_bytes == 0 {
         return Err(BuildPlanError::InvalidEstimate("result_bytes must be > 0"));
+    }
+    if e.result_bytes
+        .max(e.build_scratch_bytes)
+        .max(e.update_scratch_bytes)
+        > MAX_BLAS_BYTES
+    {
+        return Err(BuildPlanError::InvalidEstimate(
+            "result and scratch sizes must be at most MAX_BLAS_BYTES",
+        ));
     }
     Ok(())
 }
@@ -717,6 +735,7 @@ impl BuildScheduler {
         uniques.sort_by_key(|&(last, k, _, _)| (last, k));
         for (_, inst, cur, address) in uniques {
             let overdue = self.slots.get(&inst).is_some_and(|s| s.rebuild_overdue);
+            // Exact: frames are at most MAX_FRAME = 2^63 - 1.
             let due = overdue || (frame + u64::from(inst.0)) % interval == 0;
             let e = cur.estimate;
             let mut mode = None;
@@ -938,10 +957,17 @@ impl BuildScheduler {
             .collect()
     }
 
-    /// Statistics.
+    /// Statistics. The cache's pending frees include those that became due
+    /// at [`BuildScheduler::begin_frame`] and wait for the next plan (the
+    /// backend still holds them).
     pub fn stats(&self) -> SchedulerStats {
+        let mut cache = self.cache.stats();
+        cache.pending_frees += self.frees.len();
+        for f in &self.frees {
+            cache.pending_free_bytes = cache.pending_free_bytes.saturating_add(f.bytes);
+        }
         SchedulerStats {
-            cache: self.cache.stats(),
+            cache,
             queued_builds: self.queue.len(),
             in_flight: self.cache.in_flight_ops(),
             instances: self.slots.len(),

@@ -1,4 +1,6 @@
-//! Commands from hit feedback processing (Algorithm 2) to the CPU.
+//! Commands from hit feedback processing (Algorithm 2) to the CPU, and the
+//! one read-back rule ([`CommandQueue`]). Low-level: backends hand read-backs
+//! to [`crate::Manager::ingest_readback`].
 //!
 //! On the GPU, Algorithm 2 appends one `u32` per state change that needs CPU
 //! work (lines 17, 25, 31, 34) to a bounded readback buffer through an atomic
@@ -277,31 +279,39 @@ impl CommandBuffer {
     }
 }
 
-/// What [`CommandQueue::ingest`] did with one read-back buffer.
+/// What one ingest of a read-back did ([`CommandQueue::ingest`],
+/// [`crate::culling::Culling::ingest_readback`],
+/// [`crate::manager::Manager::ingest_readback`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct IngestStats {
-    /// Words decoded and applied.
+pub struct IngestSummary {
+    /// Commands queued.
     pub accepted: u32,
-    /// Words rejected by [`Command::decode`] (slot out of range).
+    /// Words naming a slot at or beyond the slot limit (corrupt read-back),
+    /// skipped.
     pub rejected: u32,
-    /// Pending commands of the opposite kind cancelled (and the new one
-    /// dropped with them).
-    pub cancelled: u32,
-    /// Pending commands of the same kind replaced by the newer one.
+    /// Commands for slots holding no live instance (removed since), dropped.
+    /// Always 0 for a bare [`CommandQueue`], which knows no instances.
+    pub dead: u32,
+    /// Commands that replaced a pending one of the opposite kind.
+    pub replaced: u32,
+    /// Commands that replaced a pending one of the same kind.
     pub superseded: u32,
-    /// Requests the GPU counted but could not store (`counter - stored`);
+    /// `counter - stored`: transitions that did not fit the GPU's buffer;
     /// their instances kept their state and will ask again.
     pub overflowed: u32,
 }
 
 /// The CPU's pending commands: at most one per slot, drained by priority.
 ///
-/// Rules for a new command for a slot that already has one pending:
-///
-/// * same kind: the new one **supersedes** the old (its priority wins);
-/// * opposite kind: both **cancel**. A pending add was never executed, so a
-///   following remove has nothing to undo; a pending remove was never
-///   executed, so the BLAS still exists when the add arrives.
+/// The one read-back rule of lipac (CPU and GPU paths alike): a new command
+/// for a slot that already has one pending **replaces** it, whatever its
+/// kind (counted in [`IngestSummary::superseded`] for the same kind,
+/// [`IngestSummary::replaced`] for the opposite one). The newest command
+/// wins because processing reconciles the instance's BLAS with its *current*
+/// state ([`crate::culling`]), so only "this slot needs a look" matters; the
+/// kind and priority are the newest hints. (Cancelling opposite kinds
+/// pairwise, as an earlier version did, loses that look when the CPU changed
+/// the state or the BLAS in between, e.g. latency mitigation.)
 ///
 /// ```
 /// use lipac_core::command::{Command, CommandKind, CommandQueue};
@@ -309,6 +319,8 @@ pub struct IngestStats {
 /// let add = |slot, p| Command::new(slot, CommandKind::Add, p).unwrap().encode();
 /// let stats = q.ingest(3, &[add(7, 5), add(8, 20), add(9, 20)]);
 /// assert_eq!(stats.accepted, 3);
+/// let remove = Command::new(7, CommandKind::Remove, 1).unwrap().encode();
+/// assert_eq!(q.ingest(1, &[remove]).replaced, 1); // the newest stays pending
 /// let first: Vec<u32> = q.drain(2).iter().map(|c| c.slot).collect();
 /// assert_eq!(first, [8, 9]); // priority 20 first, ties by slot
 /// assert_eq!(q.len(), 1); // slot 7 waits for the next frame
@@ -349,48 +361,59 @@ impl CommandQueue {
     /// Ingests one read-back: `counter` is the GPU's atomic counter value and
     /// `words` the buffer's stored words (`words.len()` = its capacity or
     /// fewer). Words beyond `counter` are ignored; malformed words are counted
-    /// and skipped, never a panic.
-    pub fn ingest(&mut self, counter: u32, words: &[u32]) -> IngestStats {
+    /// and skipped, never a panic. Every slot below the limit counts as live.
+    pub fn ingest(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+        self.ingest_live(counter, words, self.slot_limit, |_| true)
+    }
+
+    /// [`CommandQueue::ingest`] against `slot_limit` (the registry's slot
+    /// count) dropping commands for slots `live` says hold no instance. The
+    /// one implementation of the read-back rule.
+    pub(crate) fn ingest_live(
+        &mut self,
+        counter: u32,
+        words: &[u32],
+        slot_limit: u32,
+        live: impl Fn(u32) -> bool,
+    ) -> IngestSummary {
         let stored = (counter as usize).min(words.len());
-        let mut stats = IngestStats {
+        let mut s = IngestSummary {
             overflowed: counter.saturating_sub(stored as u32),
-            ..IngestStats::default()
+            ..IngestSummary::default()
         };
+        let limit = slot_limit.min(self.slot_limit);
         for &w in &words[..stored] {
-            match Command::decode(w, self.slot_limit) {
-                Ok(c) => {
-                    stats.accepted += 1;
-                    self.push(c, &mut stats);
-                }
-                Err(_) => stats.rejected += 1,
+            let Ok(c) = Command::decode(w, limit) else {
+                s.rejected += 1;
+                continue;
+            };
+            if !live(c.slot) {
+                s.dead += 1;
+                continue;
             }
+            s.accepted += 1;
+            self.push(c, &mut s);
         }
-        stats
+        s
     }
 
     /// Ingests a [`CommandBuffer`] (the CPU reference's read-back).
-    pub fn ingest_buffer(&mut self, buffer: &CommandBuffer) -> IngestStats {
+    pub fn ingest_buffer(&mut self, buffer: &CommandBuffer) -> IngestSummary {
         self.ingest(buffer.requested(), buffer.words())
     }
 
-    fn push(&mut self, c: Command, stats: &mut IngestStats) {
-        match self.by_slot.get(&c.slot).copied() {
-            Some((kind, prio)) => {
-                self.order.remove(&(Reverse(prio), c.slot));
-                if kind == c.kind {
-                    stats.superseded += 1;
-                    self.by_slot.insert(c.slot, (c.kind, c.priority));
-                    self.order.insert((Reverse(c.priority), c.slot));
-                } else {
-                    stats.cancelled += 1;
-                    self.by_slot.remove(&c.slot);
-                }
-            }
-            None => {
-                self.by_slot.insert(c.slot, (c.kind, c.priority));
-                self.order.insert((Reverse(c.priority), c.slot));
+    /// Queues `c`, replacing whatever is pending for its slot (the read-back
+    /// rule, see [`CommandQueue`]).
+    pub(crate) fn push(&mut self, c: Command, s: &mut IngestSummary) {
+        if let Some((kind, prio)) = self.by_slot.insert(c.slot, (c.kind, c.priority)) {
+            self.order.remove(&(Reverse(prio), c.slot));
+            if kind == c.kind {
+                s.superseded += 1;
+            } else {
+                s.replaced += 1;
             }
         }
+        self.order.insert((Reverse(c.priority), c.slot));
     }
 
     /// Removes and returns up to `budget` commands, highest priority first,
@@ -544,7 +567,7 @@ mod tests {
     }
 
     #[test]
-    fn queue_supersedes_same_kind_and_cancels_opposite() {
+    fn queue_keeps_the_newest_command_per_slot() {
         let mut q = CommandQueue::new(100);
         let s = q.ingest(
             2,
@@ -553,20 +576,22 @@ mod tests {
                 cmd(1, CommandKind::Add, 9).encode(),
             ],
         );
-        assert_eq!((s.accepted, s.superseded, s.cancelled), (2, 1, 0));
+        assert_eq!((s.accepted, s.superseded, s.replaced), (2, 1, 0));
         assert_eq!(q.len(), 1);
         assert_eq!(q.pending(1), Some(cmd(1, CommandKind::Add, 9)));
 
-        // Add then remove: nothing left to do.
+        // Add then remove: the remove is pending (the slot still needs a
+        // look: reconciliation decides against the current state).
         let s = q.ingest(1, &[cmd(1, CommandKind::Remove, 0).encode()]);
-        assert_eq!(s.cancelled, 1);
+        assert_eq!((s.replaced, s.superseded), (1, 0));
+        assert_eq!(q.drain(10), vec![cmd(1, CommandKind::Remove, 0)]);
         assert!(q.is_empty());
-        assert!(q.drain(10).is_empty());
 
-        // Remove then add (the BLAS was never freed): cancels as well.
+        // Remove then add: the add, with its priority, in the order set once.
         q.ingest(1, &[cmd(2, CommandKind::Remove, 1).encode()]);
         q.ingest(1, &[cmd(2, CommandKind::Add, 5).encode()]);
-        assert!(q.is_empty());
+        assert_eq!(q.len(), 1);
+        assert_eq!(q.drain(10), vec![cmd(2, CommandKind::Add, 5)]);
 
         // Add, remove, add in one read-back: one add pending, never two.
         let w = [

@@ -1,11 +1,14 @@
-//! The per-frame command loop: one object that ties the registry, the hitbox
-//! records, the hit counters, Algorithms 1 and 2, the command buffer and
-//! queue, and latency mitigation together.
+//! **Low-level.** The culling half of the per-frame loop: one object that ties
+//! the registry, the hitbox records, the hit counters, Algorithms 1 and 2, the
+//! command buffer and queue, and latency mitigation together. Engines and
+//! backends drive [`crate::Manager`], which owns a [`Culling`] and keeps the
+//! BLAS scheduler and the geometry data consistent with it; [`Culling`] is
+//! public for tests, benches and the CPU reference of the GPU algorithms
+//! (and, until they move to the manager, lipac-sim's strategies).
 //!
-//! [`Culling`] is the CPU reference of the whole GPU loop. A CPU backend
-//! (`lipac-sim`) drives exactly this; a GPU backend (`lipac-vk`) replaces
-//! [`Culling::assemble`] and [`Culling::process_feedback`] by its shaders and
-//! keeps the rest.
+//! [`Culling`] is sans-IO and polled: it takes calls and returns values. It
+//! never calls back into its caller; [`Culling::process_commands`] returns
+//! the BLAS work as [`CommandEvent`]s for the caller to carry out.
 //!
 //! # One frame
 //!
@@ -14,7 +17,7 @@
 //! | 1 | [`Culling::begin_frame`]: slot quarantine, hitbox reset, hit counters cleared | |
 //! | 2 | [`Culling::mitigate_latency`] (optional): instances newly in the frustum become active now | §3.6 |
 //! | 3 | [`Culling::ingest_readback`]: the commands of frame `N - k` | §3.4 |
-//! | 4 | [`Culling::process_commands`]: budgeted BLAS work through a handler | §3.4 |
+//! | 4 | [`Culling::process_commands`]: budgeted BLAS work as [`CommandEvent`]s | §3.4 |
 //! | 5 | [`Culling::take_uploads`] (GPU backends): what to upload | |
 //! | 6 | [`Culling::assemble`]: the TLAS instances | Alg. 1 |
 //! | 7 | trace; write [`Culling::instance_hits_mut`] and hitbox hits ([`Culling::hitboxes_mut`]) | §3.3 |
@@ -45,7 +48,7 @@
 //!
 //! | current state | BLAS | action ([`BlasAction`]) |
 //! | --- | --- | --- |
-//! | active | none, no build pending | [`BlasAction::Acquire`]: the handler returns the address, or `None` = build pending ([`Culling::set_blas`] later) |
+//! | active | none, no build pending | [`BlasAction::Acquire`]: the instance now waits for a BLAS; the caller provides it with [`Culling::set_blas`] (at once when cached, else once built) |
 //! | active | held or build pending | nothing |
 //! | omitted / inactive | held | [`BlasAction::Release`]: the record's BLAS is cleared, the caller releases it |
 //! | omitted / inactive | build pending | [`BlasAction::CancelBuild`] |
@@ -59,10 +62,10 @@
 //! This is why no command is lost: every transition of Algorithm 2 that
 //! changes whether an instance should hold a BLAS (into or out of *active*)
 //! appends a command (or does not happen: the overflow rule), and processing
-//! the last command of a slot makes BLAS and state agree. [`Culling`] keeps
-//! the **newest** command when one of the opposite kind is pending (counted
-//! in [`IngestSummary::replaced`]) instead of cancelling both as
-//! [`CommandQueue::ingest`] does. Under reconciliation the kind no longer
+//! the last command of a slot makes BLAS and state agree. The queue keeps the
+//! **newest** command per slot, of either kind (the one read-back rule of
+//! [`CommandQueue`], counted in [`IngestSummary::replaced`] and
+//! [`IngestSummary::superseded`]). Under reconciliation the kind no longer
 //! matters, and keeping the newest makes the invariant "a slot whose BLAS
 //! disagrees with its state has a command pending or in flight" hold by
 //! construction, whatever happened in between (latency mitigation,
@@ -104,7 +107,7 @@ use std::ops::Range;
 use glam::{Affine3A, Vec3};
 
 use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
-use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue};
+use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
 use crate::feedback::{process_feedback, FeedbackStats};
 use crate::grid::HitboxGrid;
@@ -131,11 +134,11 @@ pub struct CullingConfig {
     pub assembly: AssemblyConfig,
     /// Capacity of the bounded command buffer Algorithm 2 appends to
     /// (1..=[`MAX_SLOTS`]; more than one command per slot and frame never
-    /// happens). Transitions that do not fit are retried next frame.
+    /// happens). Transitions that do not fit are retried next frame. (The
+    /// per-frame *processing* budget is not a setting: it is an argument of
+    /// [`Culling::process_commands`], [`crate::FrameBudgets::commands`] for
+    /// the manager.)
     pub command_capacity: u32,
-    /// Commands [`Culling::process_frame_commands`] handles per frame; the
-    /// rest wait, highest hit count first. `usize::MAX` = no limit.
-    pub command_budget: usize,
     /// Latency mitigation (§3.6) with this heuristic, or `None` to disable it.
     pub latency_mitigation: Option<ActivationHeuristic>,
     /// Frames between a frame's feedback and the ingestion of its commands
@@ -147,16 +150,14 @@ pub struct CullingConfig {
 impl CullingConfig {
     /// Defaults around the backend's unit-cube BLAS: the registry's defaults
     /// (quarantine 4 frames), the paper's thresholds, [`AssemblyConfig::new`],
-    /// 65 536 commands per frame in the buffer, a budget of 4096 commands per
-    /// frame, latency mitigation with the default heuristic, readback latency
-    /// 2.
+    /// 65 536 commands per frame in the buffer, latency mitigation with the
+    /// default heuristic, readback latency 2.
     pub fn new(unit_cube_blas: u64) -> Self {
         Self {
             registry: RegistryConfig::default(),
             thresholds: Thresholds::paper(),
             assembly: AssemblyConfig::new(unit_cube_blas),
             command_capacity: 1 << 16,
-            command_budget: 4096,
             latency_mitigation: Some(ActivationHeuristic::default()),
             readback_latency: 2,
         }
@@ -319,12 +320,13 @@ impl ReadbackRing {
     }
 }
 
-/// What the handler of [`Culling::process_commands`] is asked to do.
+/// What the caller of [`Culling::process_commands`] is asked to do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BlasAction {
-    /// The instance is active and has no BLAS: return `Some(address)` if one
-    /// is ready now (shared BLAS in the cache), or `None` when a build was
-    /// requested; then call [`Culling::set_blas`] once it is built.
+    /// The instance is active and has no BLAS: it now waits for one
+    /// ([`Culling::awaiting_blas`]). Provide it with [`Culling::set_blas`]:
+    /// at once if one is ready (a shared BLAS in the cache), else once it is
+    /// built.
     Acquire,
     /// The instance is no longer active: its record's BLAS was cleared,
     /// release this address.
@@ -332,13 +334,13 @@ pub enum BlasAction {
         /// The BLAS address the record held (nonzero).
         blas: u64,
     },
-    /// The instance is no longer active and its requested build (an
-    /// [`BlasAction::Acquire`] answered `None`) is not wanted any more.
+    /// The instance is no longer active and the BLAS it waited for (an
+    /// earlier [`BlasAction::Acquire`] or latency-mitigation request not yet
+    /// answered by [`Culling::set_blas`]) is not wanted any more.
     CancelBuild,
 }
 
-/// One unit of BLAS work handed to the handler of
-/// [`Culling::process_commands`].
+/// One unit of BLAS work returned by [`Culling::process_commands`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CommandEvent {
     /// The instance.
@@ -391,31 +393,16 @@ pub struct LatencyOutcome {
     pub hitboxes_activated: u32,
 }
 
-/// What [`Culling::ingest_readback`] did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct IngestSummary {
-    /// Commands queued.
-    pub accepted: u32,
-    /// Words naming a slot beyond the registry's slots (corrupt read-back).
-    pub rejected: u32,
-    /// Commands for slots holding no live instance, dropped.
-    pub dead: u32,
-    /// Commands that replaced a pending one of the opposite kind.
-    pub replaced: u32,
-    /// Commands that replaced a pending one of the same kind.
-    pub superseded: u32,
-    /// `counter - stored`: transitions that did not fit; retried by the GPU.
-    pub overflowed: u32,
-}
-
 /// What [`Culling::process_commands`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ProcessStats {
     /// Commands taken from the queue (at most the budget).
     pub drained: u32,
-    /// [`BlasAction::Acquire`] answered with an address.
+    /// [`BlasAction::Acquire`]s served at once from the BLAS cache. Filled by
+    /// [`crate::Manager::plan`]; [`Culling::process_commands`] cannot know
+    /// and counts every acquire in `requested`.
     pub acquired: u32,
-    /// [`BlasAction::Acquire`] answered `None` (build pending).
+    /// [`BlasAction::Acquire`]s that wait for a build.
     pub requested: u32,
     /// [`BlasAction::Release`]s.
     pub released: u32,
@@ -470,10 +457,10 @@ pub struct Removal {
 /// ```
 /// use glam::{Affine3A, Vec3};
 /// use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+/// use lipac_core::InstanceDesc;
 /// use lipac_core::grid::{GridConfig, HitboxGrid};
-/// use lipac_core::instance::{InstanceDesc, MeshId};
 /// use lipac_core::layout::InstanceState;
-/// use lipac_core::math::Aabb;
+/// use lipac_core::{Aabb, MeshId};
 ///
 /// let grid = HitboxGrid::new(GridConfig { min: [0.0, 0.0], max: [64.0, 64.0], cell_size: 16.0 })?;
 /// let mut config = CullingConfig::new(0xC0BE); // unit-cube BLAS address
@@ -485,16 +472,18 @@ pub struct Removal {
 /// let aabb = Aabb::new(Vec3::new(7.0, 0.0, 7.0), Vec3::new(9.0, 2.0, 9.0));
 /// let house = culling.register(InstanceDesc::new(MeshId(1), Affine3A::IDENTITY, aabb))?;
 ///
-/// let mut tlas = Vec::new();
+/// let (mut tlas, mut events) = (Vec::new(), Vec::new());
 /// for frame in 0..2 {
 ///     culling.begin_frame(frame)?;
 ///     while let Some(r) = ring.pop_ready(frame) {
 ///         culling.ingest_readback(r.counter, &r.words);
 ///     }
-///     culling.process_commands(usize::MAX, &mut |event| match event.action {
-///         BlasAction::Acquire => Some(0xB1A5), // the shared BLAS of mesh 1
-///         BlasAction::Release { .. } | BlasAction::CancelBuild => None,
-///     });
+///     culling.process_commands(usize::MAX, &mut events);
+///     for e in &events {
+///         if e.action == BlasAction::Acquire {
+///             culling.set_blas(e.handle, 0xB1A5)?; // the shared BLAS of mesh 1
+///         }
+///     }
 ///     culling.assemble(&mut tlas)?;
 ///     // "Trace": 2500 rays hit hitbox 0's counting box (> 2·θa).
 ///     if frame == 0 {
@@ -597,16 +586,6 @@ impl<H: HitboxIndex> Culling<H> {
         &mut self.instance_hits
     }
 
-    /// The per-frame command budget of [`Culling::process_frame_commands`].
-    pub fn command_budget(&self) -> usize {
-        self.config.command_budget
-    }
-
-    /// Changes the per-frame command budget.
-    pub fn set_command_budget(&mut self, budget: usize) {
-        self.config.command_budget = budget;
-    }
-
     /// Commands waiting for processing.
     pub fn pending_commands(&self) -> usize {
         self.queue.len()
@@ -617,9 +596,9 @@ impl<H: HitboxIndex> Culling<H> {
         self.queue.pending(slot)
     }
 
-    /// Whether the instance waits for a BLAS it was promised
-    /// ([`BlasAction::Acquire`] answered `None`, or a latency-mitigation
-    /// request).
+    /// Whether the instance waits for a BLAS it was promised (a
+    /// [`BlasAction::Acquire`] or a latency-mitigation request not yet
+    /// answered by [`Culling::set_blas`]).
     pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
         Ok(self.awaiting[slot as usize])
@@ -774,15 +753,12 @@ impl<H: HitboxIndex> Culling<H> {
         let old = self.registry.set_blas(handle, address)?;
         self.awaiting[slot as usize] = false;
         if address != 0 && self.registry.records()[slot as usize].state() != InstanceState::Active {
-            let mut s = IngestSummary::default();
-            self.enqueue(
-                Command {
-                    slot,
-                    kind: CommandKind::Remove,
-                    priority: 0,
-                },
-                &mut s,
-            );
+            let remove = Command {
+                slot,
+                kind: CommandKind::Remove,
+                priority: 0,
+            };
+            self.queue.push(remove, &mut IngestSummary::default());
         }
         Ok(old)
     }
@@ -863,60 +839,34 @@ impl<H: HitboxIndex> Culling<H> {
     /// Ingests one read-back (`counter` = the GPU's atomic counter, `words`
     /// the stored words): decodes and validates each word, drops commands for
     /// dead slots, and queues the rest, at most one per slot (the newest, see
-    /// the [module docs](self)). Never fails: bad words are counted.
+    /// the [module docs](self) and [`CommandQueue`]). Never fails: bad words
+    /// are counted.
     pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
-        let stored = (counter as usize).min(words.len());
-        let mut s = IngestSummary {
-            overflowed: counter.saturating_sub(stored as u32),
-            ..IngestSummary::default()
-        };
-        let limit = self.registry.slot_count();
-        for &w in &words[..stored] {
-            let Ok(c) = Command::decode(w, limit) else {
-                s.rejected += 1;
-                continue;
-            };
-            if self.registry.handle_at(c.slot).is_none() {
-                s.dead += 1;
-                continue;
-            }
-            s.accepted += 1;
-            self.enqueue(c, &mut s);
-        }
-        s
-    }
-
-    /// Queues `c`, replacing whatever is pending for its slot.
-    fn enqueue(&mut self, c: Command, s: &mut IngestSummary) {
-        match self.queue.pending(c.slot) {
-            Some(p) if p.kind != c.kind => {
-                self.queue.cancel_slot(c.slot);
-                s.replaced += 1;
-            }
-            Some(_) => s.superseded += 1,
-            None => {}
-        }
-        self.queue.ingest(1, &[c.encode()]);
-    }
-
-    /// [`Culling::process_commands`] with the configured per-frame budget.
-    pub fn process_frame_commands(
-        &mut self,
-        handler: &mut impl FnMut(CommandEvent) -> Option<u64>,
-    ) -> ProcessStats {
-        self.process_commands(self.config.command_budget, handler)
+        let registry = &self.registry;
+        self.queue
+            .ingest_live(counter, words, registry.slot_count(), |slot| {
+                registry.handle_at(slot).is_some()
+            })
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and
-    /// reconciles each instance's BLAS with its current state through
-    /// `handler` (see the [module docs](self) for the table). The handler's
-    /// return value matters only for [`BlasAction::Acquire`]: `Some(address)`
-    /// attaches the BLAS now, `None` (or `Some(0)`) means a build is pending.
+    /// reconciles each instance's BLAS with its current state (see the
+    /// [module docs](self) for the table). What the caller must do is
+    /// written into `events` (cleared first), in processing order:
+    ///
+    /// * [`BlasAction::Acquire`]: the instance now waits for a BLAS; provide
+    ///   it with [`Culling::set_blas`];
+    /// * [`BlasAction::Release`]: the record's BLAS was cleared; release it;
+    /// * [`BlasAction::CancelBuild`]: the instance no longer waits; cancel
+    ///   its build.
+    ///
+    /// Commands the budget leaves over wait for the next call.
     pub fn process_commands(
         &mut self,
         budget: usize,
-        handler: &mut impl FnMut(CommandEvent) -> Option<u64>,
+        events: &mut Vec<CommandEvent>,
     ) -> ProcessStats {
+        events.clear();
         let mut st = ProcessStats::default();
         for c in self.queue.drain(budget) {
             st.drained += 1;
@@ -930,47 +880,41 @@ impl<H: HitboxIndex> Culling<H> {
                 st.dead += 1;
                 continue;
             };
-            let (lod, flags) = (record.lod, InstanceFlags::from_bits_truncate(record.packed));
             let active = record.state() == InstanceState::Active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
             }
-            let event = |action| CommandEvent {
-                handle,
-                slot: c.slot,
-                mesh,
-                lod,
-                flags,
-                priority: c.priority,
-                command: c.kind,
-                action,
+            let mut event = |action| {
+                events.push(CommandEvent {
+                    handle,
+                    slot: c.slot,
+                    mesh,
+                    lod: record.lod,
+                    flags: InstanceFlags::from_bits_truncate(record.packed),
+                    priority: c.priority,
+                    command: c.kind,
+                    action,
+                })
             };
             if active {
                 if record.blas != 0 || self.awaiting[slot] {
                     st.no_op += 1;
                     continue;
                 }
-                match handler(event(BlasAction::Acquire)) {
-                    Some(address) if address != 0 => {
-                        // The slot is live: cannot fail.
-                        let _ = self.registry.set_blas_at(c.slot, address);
-                        st.acquired += 1;
-                    }
-                    _ => {
-                        self.awaiting[slot] = true;
-                        st.requested += 1;
-                    }
-                }
+                self.awaiting[slot] = true;
+                st.requested += 1;
+                event(BlasAction::Acquire);
             } else {
                 let mut acted = false;
                 if record.blas != 0 {
+                    // The slot is live: cannot fail.
                     let _ = self.registry.set_blas_at(c.slot, 0);
-                    handler(event(BlasAction::Release { blas: record.blas }));
+                    event(BlasAction::Release { blas: record.blas });
                     st.released += 1;
                     acted = true;
                 }
                 if std::mem::take(&mut self.awaiting[slot]) {
-                    handler(event(BlasAction::CancelBuild));
+                    event(BlasAction::CancelBuild);
                     st.builds_cancelled += 1;
                     acted = true;
                 }

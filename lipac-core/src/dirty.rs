@@ -1,5 +1,5 @@
 //! Tracking which records of a GPU buffer mirror changed since the last
-//! upload.
+//! upload (crate-private: the registry's dirty ranges).
 
 use std::ops::Range;
 
@@ -7,17 +7,6 @@ use std::ops::Range;
 ///
 /// Marking is O(1) and idempotent; taking is O(d log d) in the number of
 /// dirty indices, independent of the buffer size.
-///
-/// ```
-/// use lipac_core::dirty::DirtySet;
-///
-/// let mut d = DirtySet::default();
-/// for i in [7, 3, 4, 5, 9, 4] {
-///     d.mark(i);
-/// }
-/// assert_eq!(d.take(), vec![3..6, 7..8, 9..10]);
-/// assert!(d.is_empty());
-/// ```
 #[derive(Clone, Debug, Default)]
 pub struct DirtySet {
     bits: Vec<u64>,
@@ -52,6 +41,7 @@ impl DirtySet {
     }
 
     /// Whether index `i` is dirty.
+    #[cfg(test)]
     pub fn contains(&self, i: u32) -> bool {
         self.bits
             .get((i / 64) as usize)
@@ -65,6 +55,7 @@ impl DirtySet {
     }
 
     /// Number of dirty indices.
+    #[cfg(test)]
     pub fn len(&self) -> usize {
         self.list.len()
     }

@@ -658,7 +658,7 @@ mod tests {
                 .unwrap();
             total += s.inactive_to_active;
             let i = q.ingest_buffer(&buf);
-            assert_eq!(i.superseded + i.cancelled, 0);
+            assert_eq!(i.superseded + i.replaced, 0);
         }
         assert_eq!(total, 10);
         let mut slots: Vec<u32> = q.drain(100).iter().map(|c| c.slot).collect();

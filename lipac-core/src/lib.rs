@@ -8,6 +8,29 @@
 //! CPU reference implementations over exactly the buffer layouts a GPU backend
 //! uses ([`layout`]), so that `lipac-vk`'s compute shaders can be tested
 //! against them record for record.
+//!
+//! # For integrators: the crate root
+//!
+//! An engine (or a backend) drives one object, the [`Manager`], and needs only
+//! the names re-exported here: calls in (`register`, `begin_frame`,
+//! `ingest_readback`, ...), one [`ManagerPlan`] out per frame
+//! ([`Manager::plan`]), [`Ack`]s in ([`Manager::handle_ack`]). Every type an
+//! integrator meets in those signatures is at the crate root, once.
+//!
+//! # Low-level modules
+//!
+//! The modules are public so that backends, tests and benches can reach the
+//! parts the manager is made of; an integrator should not need them:
+//!
+//! * the parts the [`Manager`] owns and keeps consistent: [`culling`] (the
+//!   command loop), [`registry`] (slots and records), [`build_plan`] and
+//!   [`blas_cache`] (the BLAS scheduler and cache), [`allocator`] (TLSF
+//!   ranges), [`command`] (the command words and the read-back rule),
+//!   [`latency`] (latency mitigation);
+//! * the CPU references of the GPU algorithms a GPU backend tests its shaders
+//!   against: [`assembly`] (Algorithm 1), [`feedback`] (Algorithm 2),
+//!   [`state`] (the state machine), [`thresholds`];
+//! * [`trace`]: recorded instance traces.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
@@ -18,7 +41,7 @@ pub mod blas_ids;
 pub mod build_plan;
 pub mod command;
 pub mod culling;
-pub mod dirty;
+mod dirty;
 pub mod error;
 pub mod feedback;
 pub mod grid;
@@ -34,4 +57,34 @@ pub mod state;
 pub mod thresholds;
 pub mod trace;
 
-pub use manager::{Ack, FrameBudgets, Manager, ManagerConfig, ManagerError, ManagerPlan};
+// The manager: calls in, a plan out, acknowledgements in.
+pub use manager::{
+    Ack, DataConfig, DataGrowth, DataUpload, FrameBudgets, InstanceCounts, InstanceView, Manager,
+    ManagerConfig, ManagerError, ManagerPlan, ManagerStats, MemoryStats, MeshCatalog, MeshLod,
+};
+// Instances and meshes.
+pub use instance::{InstanceDesc, InstanceFlags, MeshId};
+pub use math::Aabb;
+pub use registry::{InstanceHandle, RegistryConfig, RemovedInstance};
+// Settings inside `ManagerConfig`.
+pub use assembly::AssemblyConfig;
+pub use build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig};
+pub use culling::CullingConfig;
+pub use grid::{GridConfig, HitboxGrid};
+pub use hitbox_index::HitboxIndex;
+pub use latency::{ActivationHeuristic, Frustum};
+pub use thresholds::Thresholds;
+// What a plan and the frame calls hand out.
+pub use assembly::AssemblyStats;
+pub use blas_cache::BlasFree;
+pub use blas_ids::BuildId;
+pub use build_plan::{BlasBuild, BlasUpdate, BuildBatch, CompactionPlan, FramePlan, UpdateMode};
+pub use command::IngestSummary;
+pub use culling::{LatencyOutcome, ProcessStats, Readback, ReadbackRing, Uploads};
+pub use feedback::FeedbackStats;
+// The GPU buffer layouts.
+pub use layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
+// Errors (all of them convert into `ManagerError`).
+pub use allocator::AllocError;
+pub use build_plan::BuildPlanError;
+pub use error::CoreError;

@@ -1,8 +1,15 @@
 //! The instance registry: handles, dense GPU slots and the CPU mirror of the
 //! GPU instance buffer.
 //!
+//! **Low-level**: a part of [`crate::Manager`] (through
+//! [`crate::culling::Culling`]); engines change instances through the
+//! manager, which keeps commands, BLASes and geometry data consistent.
+//!
 //! Engines address instances by [`InstanceHandle`] (a `slotmap` key that goes
-//! stale on removal); the GPU addresses them by *slot*, a dense `u32` index
+//! stale on removal, plus the id of the registry that issued it, so that a
+//! handle of another registry or [`crate::manager::Manager`] is refused
+//! rather than taken for one of this registry's instances); the GPU
+//! addresses them by *slot*, a dense `u32` index
 //! into the instance buffer ([`InstanceRecord`] per slot) and the hit
 //! feedback buffer. A slot is stable while its instance lives.
 //!
@@ -40,11 +47,45 @@ use slotmap::{Key, SlotMap};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
 use std::ops::Range;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 slotmap::new_key_type! {
-    /// Handle of a registered instance. It goes stale when the instance is
-    /// removed; every use of a stale handle is a [`CoreError::StaleHandle`].
-    pub struct InstanceHandle;
+    /// The registry-internal key of an instance (index and version).
+    struct EntryKey;
+}
+
+/// Handle of a registered instance. It goes stale when the instance is
+/// removed; every use of a stale handle, and of a handle issued by another
+/// registry, is a [`CoreError::StaleHandle`].
+///
+/// 12 bytes (`Option<InstanceHandle>` too): the 8-byte slot-map key and the
+/// 4-byte id of the issuing registry, which costs one `u32` compare per
+/// lookup. A clone of a registry keeps its id, so handles stay valid in
+/// both copies. `InstanceHandle::default()` names no instance of any
+/// registry.
+#[derive(Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct InstanceHandle {
+    key: EntryKey,
+    registry: u32,
+}
+
+impl std::fmt::Debug for InstanceHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "InstanceHandle({:?}@{})", self.key.data(), self.registry)
+    }
+}
+
+/// Source of registry ids (0 is never issued: it marks default handles).
+static NEXT_REGISTRY_ID: AtomicU32 = AtomicU32::new(1);
+
+fn next_registry_id() -> u32 {
+    loop {
+        // Skips 0 when the counter wraps (after 2^32 registries).
+        let id = NEXT_REGISTRY_ID.fetch_add(1, Ordering::Relaxed);
+        if id != 0 {
+            return id;
+        }
+    }
 }
 
 /// Largest SBT record offset (24 bits in a TLAS instance).
@@ -101,7 +142,7 @@ struct Entry {
 
 #[derive(Clone, Copy, Debug, Default)]
 struct SlotOccupant {
-    handle: Option<InstanceHandle>,
+    handle: Option<EntryKey>,
     /// Registration serial of the current (or last) occupant.
     serial: u64,
 }
@@ -156,7 +197,9 @@ struct SlotOccupant {
 pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
     config: RegistryConfig,
     index: H,
-    instances: SlotMap<InstanceHandle, Entry>,
+    /// Stamped into every handle this registry issues.
+    id: u32,
+    instances: SlotMap<EntryKey, Entry>,
     records: Vec<InstanceRecord>,
     occupants: Vec<SlotOccupant>,
     free: BinaryHeap<Reverse<u32>>,
@@ -170,7 +213,14 @@ pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
 fn stale(h: InstanceHandle) -> CoreError {
     CoreError::StaleHandle {
         kind: "instance",
-        key: h.data().as_ffi(),
+        key: h.key.data().as_ffi(),
+    }
+}
+
+fn foreign(h: InstanceHandle) -> CoreError {
+    CoreError::StaleHandle {
+        kind: "instance of another registry",
+        key: h.key.data().as_ffi(),
     }
 }
 
@@ -282,6 +332,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         Ok(Self {
             config,
             index,
+            id: next_registry_id(),
             instances: SlotMap::with_key(),
             records: Vec::new(),
             occupants: Vec::new(),
@@ -419,13 +470,14 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             self.records.push(InstanceRecord::default());
             self.occupants.push(SlotOccupant::default());
         }
-        let handle = self.instances.insert(Entry {
+        let key = self.instances.insert(Entry {
             slot,
             mesh: desc.mesh,
         });
+        let handle = self.handle(key);
         self.records[slot as usize] = build_record(&desc, rows, hitbox, InstanceState::Inactive, 0);
         self.occupants[slot as usize] = SlotOccupant {
-            handle: Some(handle),
+            handle: Some(key),
             serial: self.registrations,
         };
         self.registrations += 1;
@@ -443,13 +495,14 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         handle: InstanceHandle,
         desc: InstanceDesc,
     ) -> Result<InstanceDesc, CoreError> {
+        let key = self.key(handle)?;
         let entry = self.entry(handle)?;
         let (rows, hitbox) = self.check(&desc)?;
         let record = &mut self.records[entry.slot as usize];
         let old = desc_from_record(record, entry.mesh);
         *record = build_record(&desc, rows, hitbox, record.state(), record.blas);
         self.dirty.mark(entry.slot);
-        self.instances[handle].mesh = desc.mesh;
+        self.instances[key].mesh = desc.mesh;
         Ok(old)
     }
 
@@ -495,7 +548,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// Removes an instance. Its slot is zeroed (dead), marked dirty and
     /// quarantined; the returned [`RemovedInstance`] says what to release.
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<RemovedInstance, CoreError> {
-        let entry = self.instances.remove(handle).ok_or_else(|| stale(handle))?;
+        let key = self.key(handle)?;
+        let entry = self.instances.remove(key).ok_or_else(|| stale(handle))?;
         let slot = entry.slot;
         let record = std::mem::take(&mut self.records[slot as usize]);
         self.occupants[slot as usize].handle = None;
@@ -557,7 +611,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
 
     /// Whether `handle` refers to a live instance.
     pub fn contains(&self, handle: InstanceHandle) -> bool {
-        self.instances.contains_key(handle)
+        handle.registry == self.id && self.instances.contains_key(handle.key)
     }
 
     /// Number of slots in use, dead ones included: the length of the GPU
@@ -583,15 +637,37 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
 
     fn entry(&self, handle: InstanceHandle) -> Result<Entry, CoreError> {
         self.instances
-            .get(handle)
+            .get(self.key(handle)?)
             .copied()
             .ok_or_else(|| stale(handle))
+    }
+
+    /// The slot-map key of a handle this registry issued.
+    #[inline]
+    fn key(&self, handle: InstanceHandle) -> Result<EntryKey, CoreError> {
+        if handle.registry == self.id {
+            Ok(handle.key)
+        } else {
+            Err(foreign(handle))
+        }
+    }
+
+    /// The handle of slot-map key `key`.
+    #[inline]
+    fn handle(&self, key: EntryKey) -> InstanceHandle {
+        InstanceHandle {
+            key,
+            registry: self.id,
+        }
     }
 
     /// The live instance in `slot`, or `None` for a dead, quarantined or
     /// out-of-range slot (e.g. a late command for a removed instance).
     pub fn handle_at(&self, slot: u32) -> Option<InstanceHandle> {
-        self.occupants.get(slot as usize)?.handle
+        self.occupants
+            .get(slot as usize)?
+            .handle
+            .map(|k| self.handle(k))
     }
 
     /// The GPU record of an instance.
@@ -707,7 +783,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
 
     /// Live instances as `(handle, slot)`, in no particular order.
     pub fn iter(&self) -> impl Iterator<Item = (InstanceHandle, u32)> + '_ {
-        self.instances.iter().map(|(h, e)| (h, e.slot))
+        self.instances.iter().map(|(k, e)| (self.handle(k), e.slot))
     }
 
     /// Takes the slot ranges changed since the last call (sorted, disjoint,

@@ -69,5 +69,3 @@
 //!
 //! Outside Algorithm 2, the CPU may also set states directly (registration,
 //! latency mitigation §3.6) and upload the records.
-
-pub use crate::layout::InstanceState;

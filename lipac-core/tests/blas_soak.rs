@@ -10,8 +10,9 @@
 use std::collections::{BTreeSet, HashMap};
 
 use lipac_core::blas_cache::CacheConfig;
-use lipac_core::blas_ids::{BuildId, InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{BuildId, InstanceKey, Lod};
 use lipac_core::build_plan::*;
+use lipac_core::MeshId;
 use proptest::prelude::*;
 
 struct Rng(u64);

@@ -341,23 +341,20 @@ impl Sim {
         } else {
             fp.budget.unwrap_or(usize::MAX)
         };
-        let (model, ids) = (&mut self.model, &self.ids);
-        let st = self
-            .culling
-            .process_commands(budget, &mut |e: CommandEvent| {
-                let id = ids[&e.handle];
-                match e.action {
-                    BlasAction::Acquire => model.acquire(id),
-                    BlasAction::Release { blas } => {
-                        model.release(id, blas);
-                        None
-                    }
-                    BlasAction::CancelBuild => {
-                        model.cancel(id);
-                        None
+        let mut events: Vec<CommandEvent> = Vec::new();
+        let st = self.culling.process_commands(budget, &mut events);
+        for e in events {
+            let id = self.ids[&e.handle];
+            match e.action {
+                BlasAction::Acquire => {
+                    if let Some(addr) = self.model.acquire(id) {
+                        prop_assert_eq!(self.culling.set_blas(e.handle, addr).unwrap(), 0);
                     }
                 }
-            });
+                BlasAction::Release { blas } => self.model.release(id, blas),
+                BlasAction::CancelBuild => self.model.cancel(id),
+            }
+        }
         prop_assert_eq!(st.dead, 0, "dead commands are dropped at ingest");
         prop_assert!(self.model.errors.is_empty(), "{:?}", self.model.errors);
 

@@ -64,14 +64,19 @@ impl Blas {
         self.held[slot as usize] = 0;
         self.released += 1;
     }
-    fn handler(&mut self) -> impl FnMut(lipac_core::culling::CommandEvent) -> Option<u64> + '_ {
-        move |e| match e.action {
-            BlasAction::Acquire => Some(self.acquire(e.slot)),
-            BlasAction::Release { blas } => {
-                self.release(e.slot, blas);
-                None
+    /// `culling.process_commands(budget)` with every acquire served at once.
+    fn process<H: HitboxIndex>(&mut self, culling: &mut Culling<H>, budget: usize) {
+        let mut events = Vec::new();
+        culling.process_commands(budget, &mut events);
+        for e in events {
+            match e.action {
+                BlasAction::Acquire => {
+                    let address = self.acquire(e.slot);
+                    culling.set_blas(e.handle, address).unwrap();
+                }
+                BlasAction::Release { blas } => self.release(e.slot, blas),
+                BlasAction::CancelBuild => panic!("no build is ever pending here"),
             }
-            BlasAction::CancelBuild => panic!("no build is ever pending here"),
         }
     }
 }
@@ -150,7 +155,7 @@ fn hit_counters_saturate_without_wrapping_and_transitions_stay_correct() {
         while let Some(r) = ring.pop_ready(frame) {
             culling.ingest_readback(r.counter, &r.words);
         }
-        culling.process_commands(usize::MAX, &mut blas.handler());
+        blas.process(culling, usize::MAX);
         culling.assemble(&mut tlas).unwrap();
         for r in &tlas {
             let i = r.custom_index() as usize;
@@ -250,7 +255,6 @@ fn command_buffer_overflow_loses_nothing_and_drains_in_bounded_frames() {
         config.latency_mitigation = None;
         config.readback_latency = latency;
         config.command_capacity = capacity;
-        config.command_budget = usize::MAX;
         // n_d = 127 (the maximum) keeps hitboxes whose instances still wait
         // for their BLAS active through the longest drain (1 per frame:
         // 4096 frames would need more; capacity 1 is run on a subset).
@@ -282,7 +286,7 @@ fn command_buffer_overflow_loses_nothing_and_drains_in_bounded_frames() {
                 assert_eq!((s.rejected, s.dead), (0, 0));
                 max_overflow = max_overflow.max(s.overflowed);
             }
-            culling.process_commands(usize::MAX, &mut blas.handler());
+            blas.process(&mut culling, usize::MAX);
             if done_at.is_none()
                 && burst.iter().all(|&h| {
                     let r = culling.registry().record(h).unwrap();
@@ -399,7 +403,6 @@ fn camera_jump(n: u32, budget: usize) -> JumpReport {
     let latency = 2u32;
     let mut config = CullingConfig::new(CUBE);
     config.readback_latency = latency;
-    config.command_budget = usize::MAX;
     config.latency_mitigation = Some(ActivationHeuristic::default());
     let (mut culling, handles, w) = city(n, config, 0.1);
     let side = (f64::from(w) * CELL) as f32;
@@ -422,6 +425,7 @@ fn camera_jump(n: u32, budget: usize) -> JumpReport {
     let mut commands = 0u64;
     let mut mitigated = 0u32;
     let mut jump: Option<u64> = None;
+    let mut command_budget = usize::MAX;
     let mut quiet_frames = 0u32;
     let mut last_command_frame = 0u64;
     let mut drained_after = 0u64;
@@ -434,7 +438,7 @@ fn camera_jump(n: u32, budget: usize) -> JumpReport {
             camera = Vec3::new(side * 0.5, 1.7, side * 0.5);
             frustum = camera_at(camera, Vec3::new(0.2, -0.05, -1.0).normalize());
             vis = visibility(&culling, camera, &frustum, radius);
-            culling.set_command_budget(budget);
+            command_budget = budget;
         }
         let tracking = jump.is_some();
         culling.begin_frame(frame).unwrap();
@@ -454,7 +458,7 @@ fn camera_jump(n: u32, budget: usize) -> JumpReport {
                 commands += u64::from(s.accepted);
             }
         }
-        culling.process_frame_commands(&mut blas.handler());
+        blas.process(&mut culling, command_budget);
         if tracking {
             // Served: active with its BLAS, i.e. traced from this frame on.
             for (slot, r) in culling.registry().records().iter().enumerate() {

@@ -156,16 +156,27 @@ impl Backend {
             match self.due[k] {
                 Ack::Built(id, bytes, compactable) => {
                     let address = self.create(bytes);
-                    m.ack_built(id, bytes, address).unwrap();
+                    let ack = lipac_core::Ack::Built {
+                        build: id,
+                        result_bytes: bytes,
+                        address,
+                    };
+                    m.handle_ack(ack).unwrap();
                     if compactable {
                         let at = frame + 1 + rng.below(3);
                         self.acks.push((at, Ack::Size(id, bytes / 2 + 1)));
                     }
                 }
-                Ack::Size(id, bytes) => m.ack_compacted_size(id, bytes).unwrap(),
+                Ack::Size(id, bytes) => m
+                    .handle_ack(lipac_core::Ack::CompactedSize {
+                        build: id,
+                        compacted_bytes: bytes,
+                    })
+                    .unwrap(),
                 Ack::Compacted(id, bytes) => {
                     let address = self.create(bytes);
-                    m.ack_compacted(id, address).unwrap();
+                    m.handle_ack(lipac_core::Ack::Compacted { op: id, address })
+                        .unwrap();
                 }
             }
         }

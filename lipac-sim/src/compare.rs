@@ -27,11 +27,13 @@ use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, Summary, Tra
 use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
+use crate::snapshot::{Snapshot, StrategySnapshot};
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::{
     FrameContext, FrustumRadius, Full, Heuristic, InstanceCatalog, Oracle, Strategy, StrategyKind,
 };
 use crate::tlas::{CountingConfig, Tlas};
+use crate::tlas_map::TlasMap;
 use crate::trace::{Counters, SlotSet};
 use lipac_core::layout::TlasInstance;
 
@@ -205,6 +207,30 @@ pub fn run_choice(
     run(choice.name(), &mut scene, &path, config, progress)
 }
 
+/// Like [`run_choice`], also capturing a [`Snapshot`] of each frame in
+/// `snapshots` (frames past the end are ignored).
+pub fn run_choice_with_snapshots(
+    choice: SceneChoice,
+    seed: Option<u64>,
+    config: &CompareConfig,
+    snapshots: &[u32],
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
+    let mut scene = Scene::generate(&choice.config(seed))?;
+    let aspect = config.width as f32 / config.height.max(1) as f32;
+    let path = CameraPath::flythrough(&scene, aspect);
+    let contenders = contenders_of(&scene, config)?;
+    run_path(
+        choice.name(),
+        &mut scene,
+        &path,
+        config,
+        contenders,
+        snapshots,
+        progress,
+    )
+}
+
 /// Runs the comparison on `scene` along `path` (see the module docs).
 pub fn run(
     scene_name: &str,
@@ -246,17 +272,30 @@ pub fn run_contenders(
     contenders: Vec<Contender>,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<CompareReport, SimError> {
+    run_path(scene_name, scene, path, config, contenders, &[], progress).map(|(r, _)| r)
+}
+
+fn run_path(
+    scene_name: &str,
+    scene: &mut Scene,
+    path: &CameraPath,
+    config: &CompareConfig,
+    contenders: Vec<Contender>,
+    snapshots: &[u32],
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
     let frames = config.frames.unwrap_or(path.frames()).min(path.frames());
     if frames == 0 {
         return Err(SimError::BadConfig("no frames to render"));
     }
     let mut c = Comparison::with_contenders(scene_name, scene, config, contenders)?;
+    c.capture_frames(snapshots);
     for frame in 0..frames {
         scene.set_frame(frame);
         c.frame(scene, frame, &path.camera_at(frame))?;
         progress(frame + 1, frames);
     }
-    c.finish()
+    c.finish_with_snapshots()
 }
 
 /// The comparison one frame at a time, for callers whose frames come from
@@ -294,6 +333,8 @@ pub struct Comparison {
     geometry_ms: f64,
     traced_rays: u64,
     frames: u32,
+    capture: Vec<u32>,
+    snapshots: Vec<Snapshot>,
 }
 
 impl std::fmt::Debug for Comparison {
@@ -379,7 +420,16 @@ impl Comparison {
             geometry_ms: 0.0,
             traced_rays: 0,
             frames: 0,
+            capture: Vec::new(),
+            snapshots: Vec::new(),
         })
+    }
+
+    /// Captures a [`Snapshot`] of each of `frames` when it is compared
+    /// (the images and TLAS maps of [`crate::snapshot`]); the snapshots come
+    /// back from [`Comparison::finish_with_snapshots`].
+    pub fn capture_frames(&mut self, frames: &[u32]) {
+        self.capture = frames.to_vec();
     }
 
     /// Frames compared so far.
@@ -496,6 +546,13 @@ impl Comparison {
         self.gt_ms += ms(t);
         self.traced_rays += gt.rays.bounce + gt.rays.shadow;
         let gt_trace_ms = gt.traced_ns as f64 * 1e-6;
+        let mut snapshot = self.capture.contains(&frame).then(|| Snapshot {
+            frame,
+            width: self.config.width,
+            height: self.config.height,
+            ground_truth: gt.indirect.clone(),
+            strategies: Vec::new(),
+        });
         let ctx = FrameContext {
             frame,
             scene,
@@ -556,22 +613,57 @@ impl Comparison {
                 Some(out) => {
                     m.error = relative_rmse(&out.indirect, &gt.indirect)?;
                     self.previous[i] = Some(out.counters);
+                    if let Some(snap) = &mut snapshot {
+                        snap.strategies.push(StrategySnapshot {
+                            name: self.names[i].clone(),
+                            indirect: out.indirect,
+                            error: m.error,
+                            map: TlasMap::new(
+                                scene,
+                                &self.records,
+                                &self.counting,
+                                self.previous[i].as_ref().unwrap_or(&gt.counters),
+                                camera,
+                            )?,
+                        });
+                    }
                 }
                 None => {
                     m.error = 0.0;
                     self.previous[i] = Some(gt.counters.clone());
+                    if let Some(snap) = &mut snapshot {
+                        snap.strategies.push(StrategySnapshot {
+                            name: self.names[i].clone(),
+                            indirect: gt.indirect.clone(),
+                            error: 0.0,
+                            map: TlasMap::new(
+                                scene,
+                                &self.records,
+                                &self.counting,
+                                &gt.counters,
+                                camera,
+                            )?,
+                        });
+                    }
                 }
             }
             self.last_geometry[i].clear();
             self.last_geometry[i].extend((0..n as u32).filter(|&s| geometry.contains(s)));
             self.metrics[i].push(m);
         }
+        self.snapshots.extend(snapshot);
         self.frames += 1;
         Ok(())
     }
 
     /// The report over the frames compared.
     pub fn finish(self) -> Result<CompareReport, SimError> {
+        self.finish_with_snapshots().map(|(r, _)| r)
+    }
+
+    /// The report over the frames compared, and the snapshots captured
+    /// ([`Comparison::capture_frames`]) in frame order.
+    pub fn finish_with_snapshots(self) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
         let frames = self.frames;
         if frames == 0 {
             return Err(SimError::BadConfig("no frames to render"));
@@ -591,7 +683,7 @@ impl Comparison {
                 last_geometry: last,
             })
             .collect();
-        Ok(CompareReport {
+        let report = CompareReport {
             scene: self.scene_name,
             instances: self.n as u64,
             frames,
@@ -607,7 +699,8 @@ impl Comparison {
             traced_rays_per_frame: self.traced_rays as f64 / nf,
             wall_s: self.start.elapsed().as_secs_f64(),
             strategies,
-        })
+        };
+        Ok((report, self.snapshots))
     }
 }
 

@@ -1,16 +1,16 @@
 //! The comparison's outputs: a terminal table, and a report folder with
-//! `report.md`, `report.json`, `frames.csv` and SVG plots.
-//!
-//! The plots are hand-written SVG (polylines and circles, about a hundred
-//! lines here) rather than `plotters`: four simple charts do not justify its
-//! dependency tree and build time on a 2-core machine.
+//! `report.md`, `report.json`, `frames.csv`, SVG plots ([`crate::plots`]),
+//! `report.html` ([`crate::html`]) and, when asked, snapshot pictures
+//! ([`crate::snapshot`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::compare::CompareReport;
 use crate::error::SimError;
-use crate::metrics::FrameMetrics;
+use crate::html::report_html;
+use crate::plots::{line_plot, scatter_plot};
+use crate::snapshot::{write_snapshots, Snapshot};
 
 const MIB: f64 = 1024.0 * 1024.0;
 
@@ -89,8 +89,9 @@ pub fn headline(r: &CompareReport) -> Option<String> {
     (!out.is_empty()).then_some(out)
 }
 
-/// The Markdown report.
-pub fn markdown(r: &CompareReport) -> String {
+/// The Markdown report; `snapshots`: whether the report folder has
+/// `snapshots/` (mentioned with `report.html`).
+pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# lipac: culling strategies compared\n");
     let th = r.thresholds;
@@ -167,7 +168,13 @@ pub fn markdown(r: &CompareReport) -> String {
     }
     let _ = writeln!(
         s,
-        "Per-frame data: [frames.csv](frames.csv); everything: [report.json](report.json)."
+        "Per-frame data: [frames.csv](frames.csv); everything: [report.json](report.json). \
+         Open [report.html](report.html) in a browser for the plots{}.",
+        if snapshots {
+            ", the snapshot images, error heat maps and TLAS maps (files in snapshots/)"
+        } else {
+            " (run with `--snapshots 0,90,180` for images, error heat maps and TLAS maps)"
+        }
     );
     s
 }
@@ -211,229 +218,51 @@ pub fn csv(r: &CompareReport) -> String {
     s
 }
 
-pub(crate) const COLORS: [&str; 8] = [
-    "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
-];
-pub(crate) const W: f64 = 720.0;
-pub(crate) const H: f64 = 420.0;
-pub(crate) const L: f64 = 70.0;
-pub(crate) const R: f64 = 150.0;
-pub(crate) const T: f64 = 40.0;
-pub(crate) const B: f64 = 50.0;
-
-pub(crate) fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
+/// The [`PLOTS`] as SVG documents, in order.
+pub fn plots(r: &CompareReport) -> Result<Vec<String>, SimError> {
+    Ok(vec![
+        line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
+            m.total_bytes() as f64 / MIB
+        })?,
+        line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64)?,
+        line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
+            m.error
+        })?,
+        scatter_plot(r)?,
+    ])
 }
 
-pub(crate) fn nice_max(v: f64) -> f64 {
-    if v <= 0.0 || !v.is_finite() {
-        return 1.0;
-    }
-    let p = 10f64.powf(v.log10().floor());
-    for m in [1.0, 2.0, 2.5, 5.0, 10.0] {
-        if m * p >= v {
-            return m * p;
-        }
-    }
-    10.0 * p
-}
-
-pub(crate) fn frame_axes(
-    s: &mut String,
-    title: &str,
-    xlabel: &str,
-    ylabel: &str,
-    xmax: f64,
-    ymax: f64,
-) {
-    let _ = write!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">
-<rect width="{W}" height="{H}" fill="white"/>
-<text x="{}" y="22" text-anchor="middle" font-size="15">{}</text>
-<line x1="{L}" y1="{}" x2="{}" y2="{}" stroke="black"/>
-<line x1="{L}" y1="{T}" x2="{L}" y2="{}" stroke="black"/>
-<text x="{}" y="{}" text-anchor="middle">{}</text>
-<text x="16" y="{}" text-anchor="middle" transform="rotate(-90 16 {})">{}</text>
-"#,
-        (L + W - R) / 2.0,
-        esc(title),
-        H - B,
-        W - R,
-        H - B,
-        H - B,
-        (L + W - R) / 2.0,
-        H - 12.0,
-        esc(xlabel),
-        (T + H - B) / 2.0,
-        (T + H - B) / 2.0,
-        esc(ylabel)
-    );
-    for i in 0..=5 {
-        let f = f64::from(i) / 5.0;
-        let x = L + f * (W - R - L);
-        let y = H - B - f * (H - B - T);
-        let _ = write!(
-            s,
-            r##"<line x1="{x:.1}" y1="{}" x2="{x:.1}" y2="{}" stroke="black"/><text x="{x:.1}" y="{}" text-anchor="middle">{}</text>
-<line x1="{}" y1="{y:.1}" x2="{L}" y2="{y:.1}" stroke="black"/><line x1="{L}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#ddd"/><text x="{}" y="{:.1}" text-anchor="end">{}</text>
-"##,
-            H - B,
-            H - B + 5.0,
-            H - B + 18.0,
-            fmt_tick(f * xmax),
-            L - 5.0,
-            W - R,
-            L - 8.0,
-            y + 4.0,
-            fmt_tick(f * ymax)
-        );
-    }
-}
-
-fn fmt_tick(v: f64) -> String {
-    if v == 0.0 {
-        "0".into()
-    } else if v.abs() >= 100.0 {
-        format!("{v:.0}")
-    } else if v.abs() >= 1.0 {
-        format!("{v:.1}")
-    } else {
-        format!("{v:.3}")
-    }
-}
-
-pub(crate) fn legend(s: &mut String, i: usize, name: &str) {
-    let y = T + 10.0 + i as f64 * 18.0;
-    let _ = writeln!(
-        s,
-        r#"<line x1="{}" y1="{y}" x2="{}" y2="{y}" stroke="{}" stroke-width="2"/><text x="{}" y="{}">{}</text>"#,
-        W - R + 10.0,
-        W - R + 30.0,
-        COLORS[i % COLORS.len()],
-        W - R + 35.0,
-        y + 4.0,
-        esc(name)
-    );
-}
-
-/// A line chart of `value(frame metrics)` per frame, one polyline per
-/// strategy.
-pub fn line_plot(
-    r: &CompareReport,
-    title: &str,
-    ylabel: &str,
-    value: impl Fn(&FrameMetrics) -> f64,
-) -> String {
-    let xmax = f64::from(r.frames.saturating_sub(1).max(1));
-    let ymax = nice_max(
-        r.strategies
-            .iter()
-            .flat_map(|s| s.frames.iter().map(&value))
-            .filter(|v| v.is_finite())
-            .fold(0.0, f64::max),
-    );
-    let mut s = String::new();
-    frame_axes(&mut s, title, "frame", ylabel, xmax, ymax);
-    for (i, st) in r.strategies.iter().enumerate() {
-        let mut pts = String::new();
-        for m in &st.frames {
-            let v = value(m);
-            let v = if v.is_finite() { v } else { ymax };
-            let x = L + f64::from(m.frame) / xmax * (W - R - L);
-            let y = H - B - (v / ymax).clamp(0.0, 1.0) * (H - B - T);
-            let _ = write!(pts, "{x:.1},{y:.1} ");
-        }
-        let _ = writeln!(
-            s,
-            r#"<polyline fill="none" stroke="{}" stroke-width="1.5" points="{}"><title>{}</title></polyline>"#,
-            COLORS[i % COLORS.len()],
-            pts.trim_end(),
-            esc(&st.name)
-        );
-        legend(&mut s, i, &st.name);
-    }
-    s.push_str("</svg>\n");
-    s
-}
-
-/// Mean trace time against mean error, one point per strategy.
-pub fn scatter_plot(r: &CompareReport) -> String {
-    let xmax = nice_max(
-        r.strategies
-            .iter()
-            .map(|s| s.summary.mean_trace_ms)
-            .fold(0.0, f64::max),
-    );
-    let ymax = nice_max(
-        r.strategies
-            .iter()
-            .map(|s| s.summary.mean_error)
-            .filter(|v| v.is_finite())
-            .fold(0.0, f64::max),
-    );
-    let mut s = String::new();
-    frame_axes(
-        &mut s,
-        "Trace time against error",
-        "mean trace time per frame, ms",
-        "mean relative RMSE (indirect)",
-        xmax,
-        ymax,
-    );
-    for (i, st) in r.strategies.iter().enumerate() {
-        let m = &st.summary;
-        let x = L + (m.mean_trace_ms / xmax).clamp(0.0, 1.0) * (W - R - L);
-        let y = H - B - (m.mean_error / ymax).clamp(0.0, 1.0) * (H - B - T);
-        let _ = writeln!(
-            s,
-            r#"<circle cx="{x:.1}" cy="{y:.1}" r="5" fill="{}"><title>{}</title></circle><text x="{:.1}" y="{:.1}">{}</text>"#,
-            COLORS[i % COLORS.len()],
-            esc(&st.name),
-            x + 7.0,
-            y - 7.0,
-            esc(&st.name)
-        );
-        legend(&mut s, i, &st.name);
-    }
-    s.push_str("</svg>\n");
-    s
-}
-
-/// Writes `report.md`, `report.json`, `frames.csv` and the [`PLOTS`] into
-/// `dir` (created if missing); returns the paths written.
+/// Writes `report.md`, `report.json`, `frames.csv`, the [`PLOTS`] and
+/// `report.html` into `dir` (created if missing); returns the paths
+/// written. [`write_report_with_snapshots`] without snapshots.
 pub fn write_report(r: &CompareReport, dir: &Path) -> Result<Vec<PathBuf>, SimError> {
+    write_report_with_snapshots(r, &[], dir)
+}
+
+/// [`write_report`] plus the pictures of `snapshots`: in `report.html`,
+/// and as files under `dir/snapshots/` ([`crate::snapshot::write_snapshots`]).
+pub fn write_report_with_snapshots(
+    r: &CompareReport,
+    snapshots: &[Snapshot],
+    dir: &Path,
+) -> Result<Vec<PathBuf>, SimError> {
     std::fs::create_dir_all(dir)?;
     let json = serde_json::to_string_pretty(r).map_err(|e| SimError::Io(e.to_string()))?;
-    let files: Vec<(&str, String)> = vec![
-        ("report.md", markdown(r)),
+    let svgs = plots(r)?;
+    let html = report_html(r, &svgs, snapshots)?;
+    let mut files: Vec<(&str, String)> = vec![
+        ("report.md", markdown(r, !snapshots.is_empty())),
         ("report.json", json),
         ("frames.csv", csv(r)),
-        (
-            PLOTS[0],
-            line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
-                m.total_bytes() as f64 / MIB
-            }),
-        ),
-        (
-            PLOTS[1],
-            line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64),
-        ),
-        (
-            PLOTS[2],
-            line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
-                m.error
-            }),
-        ),
-        (PLOTS[3], scatter_plot(r)),
     ];
+    files.extend(PLOTS.iter().copied().zip(svgs));
+    files.push(("report.html", html));
     let mut paths = Vec::new();
     for (name, body) in files {
         let p = dir.join(name);
         std::fs::write(&p, body)?;
         paths.push(p);
     }
+    paths.extend(write_snapshots(snapshots, dir)?);
     Ok(paths)
 }

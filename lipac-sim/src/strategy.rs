@@ -38,7 +38,7 @@
 pub mod lipac;
 
 use glam::Vec3;
-use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest,
     SchedulerConfig, UpdateMode,
@@ -46,6 +46,7 @@ use lipac_core::build_plan::{
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::Aabb;
+use lipac_core::MeshId;
 
 use crate::camera::Camera;
 use crate::error::SimError;

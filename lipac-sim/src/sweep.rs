@@ -34,7 +34,7 @@ use crate::camera::CameraPath;
 use crate::compare::{make_strategy, run_contenders, CompareConfig, Contender, SceneChoice};
 use crate::error::SimError;
 use crate::metrics::Summary;
-use crate::report::{esc, frame_axes, nice_max, B, COLORS, H, L, R, T, W};
+use crate::plots::pareto_plot;
 use crate::scene::Scene;
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::StrategyKind;
@@ -579,95 +579,6 @@ pub const COSTS: [Cost; 3] = [
     ),
 ];
 
-fn on_front(p: &SweepPoint, plot: usize) -> bool {
-    [p.front_time, p.front_memory, p.front_builds][plot]
-}
-
-/// The scatter plot of cost `plot` (index into [`COSTS`]) against error:
-/// one circle per point (colour per scene, black ring on the front), the
-/// front of each scene as a dashed line (`class="front"`).
-pub fn pareto_plot(r: &SweepReport, plot: usize) -> String {
-    let (_, title, xlabel, cost) = COSTS[plot.min(COSTS.len() - 1)];
-    let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
-    let xmax = nice_max(r.points.iter().map(|p| finite(cost(p))).fold(0.0, f64::max));
-    let ymax = nice_max(
-        r.points
-            .iter()
-            .map(|p| finite(p.summary.mean_error))
-            .fold(0.0, f64::max),
-    );
-    let px = |v: f64| L + (finite(v) / xmax).clamp(0.0, 1.0) * (W - R - L);
-    let py = |v: f64| H - B - (finite(v) / ymax).clamp(0.0, 1.0) * (H - B - T);
-    let mut s = String::new();
-    frame_axes(
-        &mut s,
-        title,
-        xlabel,
-        "mean relative RMSE (indirect)",
-        xmax,
-        ymax,
-    );
-    for (si, scene) in r.scenes.iter().enumerate() {
-        let color = COLORS[si % COLORS.len()];
-        let mut front: Vec<(f64, f64)> = r
-            .points
-            .iter()
-            .filter(|p| p.scene == scene.name && on_front(p, plot))
-            .map(|p| (cost(p), p.summary.mean_error))
-            .collect();
-        front.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let pts: Vec<String> = front
-            .iter()
-            .map(|&(x, y)| format!("{:.1},{:.1}", px(x), py(y)))
-            .collect();
-        let _ = writeln!(
-            s,
-            r#"<polyline class="front" fill="none" stroke="{color}" stroke-width="1.5" stroke-dasharray="5,3" points="{}"><title>{} Pareto front</title></polyline>"#,
-            pts.join(" "),
-            esc(&scene.name)
-        );
-        for p in r.points.iter().filter(|p| p.scene == scene.name) {
-            let (x, y) = (px(cost(p)), py(p.summary.mean_error));
-            let ring = if on_front(p, plot) {
-                r#" stroke="black" stroke-width="1.5""#
-            } else {
-                ""
-            };
-            let _ = writeln!(
-                s,
-                r#"<circle cx="{x:.1}" cy="{y:.1}" r="4" fill="{color}" fill-opacity="0.8"{ring}><title>{}: {} ({:.3}, error {:.4})</title></circle><text x="{:.1}" y="{:.1}" font-size="8">{}</text>"#,
-                esc(&scene.name),
-                esc(&p.name),
-                cost(p),
-                p.summary.mean_error,
-                x + 5.0,
-                y - 4.0,
-                esc(&p.name)
-            );
-        }
-        let y = T + 10.0 + si as f64 * 18.0;
-        let _ = writeln!(
-            s,
-            r#"<circle cx="{}" cy="{y}" r="4" fill="{color}"/><text x="{}" y="{}">{}</text>"#,
-            W - R + 20.0,
-            W - R + 35.0,
-            y + 4.0,
-            esc(&scene.name)
-        );
-    }
-    let y = T + 10.0 + r.scenes.len() as f64 * 18.0;
-    let _ = writeln!(
-        s,
-        r#"<line x1="{}" y1="{y}" x2="{}" y2="{y}" stroke="black" stroke-dasharray="5,3"/><text x="{}" y="{}">Pareto front</text>"#,
-        W - R + 10.0,
-        W - R + 30.0,
-        W - R + 35.0,
-        y + 4.0
-    );
-    s.push_str("</svg>\n");
-    s
-}
-
 /// CSV header of [`sweep_csv`].
 pub const SWEEP_CSV_HEADER: &str = "scene,name,family,strategy,factor,cell_size,theta_a,theta_d,sigma_a,sigma_o,n_a,n_d,latency_distance,latency_size,mean_instances,mean_mib,peak_mib,mean_blas_mib,builds,builds_per_frame,refits,primitives_built,primitives_refit,state_changes,cycles,mean_latency,p95_latency,never_active,mean_needed_missing,mean_error,max_error,mean_trace_ms,mean_tlas_build_ms,mean_strategy_ms,front_time,front_memory,front_builds";
 
@@ -841,9 +752,9 @@ pub fn write_sweep(r: &SweepReport, dir: &Path) -> Result<Vec<PathBuf>, SimError
         sweep_markdown(r),
         json,
         sweep_csv(r),
-        pareto_plot(r, 0),
-        pareto_plot(r, 1),
-        pareto_plot(r, 2),
+        pareto_plot(r, 0)?,
+        pareto_plot(r, 1)?,
+        pareto_plot(r, 2)?,
     ];
     let mut paths = Vec::new();
     for (name, body) in SWEEP_FILES.iter().zip(bodies) {

@@ -203,12 +203,24 @@ fn lipac_activates_an_instance_seen_only_in_a_mirror() {
     );
 }
 
+/// The text of every `<text>` element of an SVG.
+fn svg_texts(svg: &str) -> Vec<String> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| t.split_once('>'))
+        .filter_map(|(_, rest)| rest.split_once("</text>"))
+        .map(|(s, _)| s.trim().to_string())
+        .collect()
+}
+
 #[test]
 fn report_files_are_well_formed() {
     let r = small(4, 32, 18, &StrategyKind::ALL, true);
     let dir = std::env::temp_dir().join(format!("lipac-report-test-{}", std::process::id()));
     let written = write_report(&r, &dir).unwrap();
-    assert_eq!(written.len(), 3 + PLOTS.len());
+    // report.md, report.json, frames.csv, the plots, report.html (no snapshots).
+    assert_eq!(written.len(), 4 + PLOTS.len());
+    assert!(dir.join("report.html").exists() && !dir.join("snapshots").exists());
 
     let json = std::fs::read_to_string(dir.join("report.json")).unwrap();
     let back: CompareReport = serde_json::from_str(&json).unwrap();
@@ -229,13 +241,32 @@ fn report_files_are_well_formed() {
     let columns = CSV_HEADER.split(',').count();
     assert!(rows.iter().all(|l| l.split(',').count() == columns));
 
-    for plot in &PLOTS[..3] {
+    for plot in PLOTS {
         let svg = std::fs::read_to_string(dir.join(plot)).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        assert_eq!(svg.matches("<polyline").count(), 6, "{plot}");
+        let labels = svg_texts(&svg);
+        // One legend entry per strategy, each exactly once.
+        for st in &r.strategies {
+            let n = labels.iter().filter(|l| **l == st.name).count();
+            assert_eq!(n, 1, "{plot}: {} in {labels:?}", st.name);
+        }
+        // Tick labels are round numbers (no 53.8, 108, 161).
+        for l in labels.iter().filter_map(|l| l.parse::<f64>().ok()) {
+            let mantissa = l / 10f64.powf(l.abs().log10().floor());
+            let round = l == 0.0
+                || [1.0, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 1.5]
+                    .iter()
+                    .any(|m| (mantissa - m).abs() < 1e-9);
+            assert!(round, "{plot}: tick {l}");
+        }
     }
+    for plot in &PLOTS[..3] {
+        let svg = std::fs::read_to_string(dir.join(plot)).unwrap();
+        assert!(svg.matches("<polyline").count() >= 6, "{plot}");
+    }
+    // One point per strategy plus its legend marker.
     let scatter = std::fs::read_to_string(dir.join(PLOTS[3])).unwrap();
-    assert_eq!(scatter.matches("<circle").count(), 6);
+    assert_eq!(scatter.matches("<circle").count(), 2 * 6);
 
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert!(md.contains("LiPaC: ") && md.contains("MiB full"));

@@ -105,24 +105,42 @@ fn tiny_sweep_writes_well_formed_outputs() {
     {
         let svg = std::fs::read_to_string(dir.join(file)).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        // One circle per point plus one legend circle per scene.
-        assert_eq!(svg.matches("<circle").count(), configs * 2 + 2, "{file}");
-        // One front line per scene, through as many points as are on it.
-        assert_eq!(svg.matches(r#"class="front""#).count(), 2, "{file}");
-        let on_front = r
+        let on_front: Vec<_> = r
             .points
             .iter()
             .filter(|p| [p.front_time, p.front_memory, p.front_builds][plot])
-            .count();
+            .collect();
+        // One filled circle per point, one ring per front point, and the
+        // legend's markers (two scenes, the ring).
         assert_eq!(
-            svg.matches(r#"stroke="black" stroke-width="1.5""#).count(),
-            on_front
+            svg.matches("<circle").count(),
+            configs * 2 + on_front.len() + 3,
+            "{file}"
         );
-        for p in &r.points {
-            assert!(
-                svg.contains(&format!("{}: {} (", p.scene, p.name)),
-                "{file}"
+        let texts: Vec<String> = svg
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| t.split_once('>'))
+            .filter_map(|(_, rest)| rest.split_once("</text>"))
+            .map(|(s, _)| s.trim().to_string())
+            .collect();
+        // Legend: each scene, its front and the ring, once each.
+        for entry in [
+            "small",
+            "city",
+            "small Pareto front",
+            "city Pareto front",
+            "on a front",
+        ] {
+            assert_eq!(
+                texts.iter().filter(|t| *t == entry).count(),
+                1,
+                "{file}: {entry} in {texts:?}"
             );
+        }
+        // The front points carry their configuration's name.
+        for p in &on_front {
+            assert!(texts.contains(&p.name), "{file}: {}", p.name);
         }
     }
     let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();

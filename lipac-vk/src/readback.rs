@@ -22,7 +22,7 @@ use crate::error::{Result, VkError};
 use crate::memory::{Buffer, MemoryLocation};
 use crate::timeline::TimelineSemaphore;
 use ash::vk;
-use lipac_core::command::{CommandQueue, IngestStats};
+use lipac_core::command::{CommandQueue, IngestSummary};
 
 /// Where one frame's commands went: the ring slot and the timeline value the
 /// submission must signal on [`ReadbackRing::semaphore`].
@@ -70,7 +70,7 @@ impl Readback {
     }
     /// Hands the commands to the core's queue
     /// ([`CommandQueue::ingest`]).
-    pub fn ingest_into(&self, queue: &mut CommandQueue) -> IngestStats {
+    pub fn ingest_into(&self, queue: &mut CommandQueue) -> IngestSummary {
         queue.ingest(self.counter, &self.words)
     }
 }

@@ -9,11 +9,12 @@ mod common;
 use ash::vk;
 use common::*;
 use lipac_core::blas_cache::{BlasOwner, BlasState, CacheConfig};
-use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE};
+use lipac_core::MeshId;
 use lipac_vk::{
     AccelerationStructurePool, Blas, Buffer, FrameSubmitter, MemoryLocation, PlanExecutor,
     ScratchBuffer, TimelineSemaphore, TlasPair, TriangleGeometry,

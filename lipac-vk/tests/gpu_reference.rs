@@ -592,8 +592,8 @@ fn frames_match_cpu_reference_without_overflow() {
             let a = queue_cpu.ingest_buffer(&buf);
             let b = queue_gpu.ingest(counter, &words);
             assert_eq!(
-                (a.accepted, a.cancelled, a.superseded),
-                (b.accepted, b.cancelled, b.superseded)
+                (a.accepted, a.replaced, a.superseded),
+                (b.accepted, b.replaced, b.superseded)
             );
         }
         assert!(

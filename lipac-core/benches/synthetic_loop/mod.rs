@@ -5,7 +5,7 @@
 #![allow(dead_code)]
 
 use glam::{Affine3A, Vec3};
-use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
+use lipac_core::culling::{BlasAction, CommandEvent, Culling, CullingConfig, ReadbackRing};
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::TlasInstance;
@@ -32,6 +32,11 @@ pub struct Scene {
 pub struct Loop {
     pub culling: Culling,
     pub ring: ReadbackRing,
+    /// Commands processed per frame.
+    pub budget: usize,
+    /// The BLAS work of the last `process_commands` (kept for its
+    /// allocation).
+    pub events: Vec<CommandEvent>,
     pub tlas: Vec<TlasInstance>,
     pub frame: u64,
     /// Hitbox columns of the grid.
@@ -85,6 +90,8 @@ pub fn build(n: u32, scene: &Scene) -> Loop {
     Loop {
         culling,
         ring: ReadbackRing::new(2).unwrap(),
+        budget: 4096,
+        events: Vec::new(),
         tlas: Vec::new(),
         frame: 0,
         columns: w,
@@ -96,7 +103,8 @@ pub fn build(n: u32, scene: &Scene) -> Loop {
 }
 
 /// One frame: `begin_frame`, ingest of the read-back from `k = 2` frames
-/// ago, `process_frame_commands` (every acquired BLAS gets a fresh address),
+/// ago, `process_commands` under `budget` (every acquired BLAS gets a fresh
+/// address through `set_blas`),
 /// `assemble`, synthetic hits for every TLAS record (2500 per counting box
 /// and 1500 per traced instance in the hot band, 10 and 5 elsewhere),
 /// `process_feedback` and `take_commands`.
@@ -106,14 +114,13 @@ pub fn frame(l: &mut Loop) {
     while let Some(r) = l.ring.pop_ready(l.frame) {
         c.ingest_readback(r.counter, &r.words);
     }
-    let next = &mut l.next_blas;
-    c.process_frame_commands(&mut |e| match e.action {
-        BlasAction::Acquire => {
-            *next += 1;
-            Some(*next)
+    c.process_commands(l.budget, &mut l.events);
+    for e in &l.events {
+        if e.action == BlasAction::Acquire {
+            l.next_blas += 1;
+            c.set_blas(e.handle, l.next_blas).unwrap();
         }
-        _ => None,
-    });
+    }
     c.assemble(&mut l.tlas).unwrap();
     let (w, shift) = (l.columns, (l.frame / 8) as u32);
     let band = w.div_ceil(l.hot_divisor);

@@ -90,6 +90,10 @@
 //! [`AllocError::StaleHandle`]; an index that was never issued
 //! is [`AllocError::UnknownHandle`] and a handle of another allocator is
 //! [`AllocError::ForeignHandle`]. None of these panic or corrupt state.
+//! When the `u32` serial counter runs out (every 2^32 allocations) the
+//! allocator starts a new epoch under a fresh id and keeps the handles of
+//! the allocations then live valid, so a freed handle never comes back to
+//! life (see the `tlsf` module's "Serial epochs").
 //!
 //! **Growth.** When no block fits, allocation fails with
 //! [`AllocError::OutOfSpace`], which carries the smallest capacity at which

@@ -117,6 +117,91 @@ fn double_free_and_stale_handles_are_errors() {
     assert_eq!(a.allocation_count(), 1);
 }
 
+/// Issue 12: the serial was a `u32` that wrapped, so after 2^32
+/// allocations a long-freed handle was live again and `free(stale)` freed
+/// an unrelated allocation. (`skip_serials_to` stands in for the 2^32
+/// allocations in between.)
+#[test]
+fn stale_handle_stays_stale_when_the_serial_wraps() {
+    let mut a = TlsfAllocator::new(1024);
+    let old = a.allocate(100).unwrap();
+    a.free(old.handle).unwrap();
+    a.skip_serials_to(u32::MAX);
+    let last = a.allocate(100).unwrap(); // the last serial before the wrap
+    a.free(last.handle).unwrap();
+    let new = a.allocate(100).unwrap(); // serials wrapped: same record, serial 0
+    assert_eq!(new.offset, old.offset);
+    assert_eq!(a.free(old.handle), Err(AllocError::StaleHandle));
+    assert_eq!(a.free(last.handle), Err(AllocError::StaleHandle));
+    assert!(
+        a.is_live(new.handle),
+        "a stale free freed a live allocation"
+    );
+    assert_eq!(a.get(new.handle).unwrap(), new);
+    a.check_invariants();
+}
+
+/// Allocations live across a serial wrap keep working (get, resize,
+/// defragment, free), are listed with their own handles, and go stale once
+/// freed.
+#[test]
+fn allocations_live_across_serial_wraps_stay_valid() {
+    let mut a = TlsfAllocator::new(1 << 16);
+    let mut rng = SplitMix(12);
+    let mut live: Vec<Allocation> = Vec::new();
+    let mut dead: Vec<AllocHandle> = Vec::new();
+    for round in 0..4 {
+        for _ in 0..40 {
+            if live.len() > 10 && rng.below(3) == 0 {
+                let x = live.swap_remove(rng.below(live.len() as u64) as usize);
+                a.free(x.handle).unwrap();
+                dead.push(x.handle);
+            } else {
+                live.push(a.allocate(1 + rng.below(300)).unwrap());
+            }
+        }
+        // Wrap the serials (twice in the last rounds).
+        a.skip_serials_to(u32::MAX - rng.below(3) as u32);
+        for _ in 0..5 {
+            let x = a.allocate(8).unwrap();
+            a.free(x.handle).unwrap();
+            dead.push(x.handle);
+        }
+        if round % 2 == 1 {
+            let x = live.swap_remove(0);
+            let resized = a.resize(x.handle, 1).unwrap();
+            assert_eq!(resized.handle, x.handle);
+            live.push(resized);
+        }
+        let mut moves = Vec::new();
+        a.defragment(1 << 12, &mut moves).unwrap();
+        for m in &moves {
+            let x = live.iter_mut().find(|x| x.handle == m.handle).unwrap();
+            x.offset = m.to;
+        }
+        for x in &live {
+            assert_eq!(a.get(x.handle).unwrap(), *x);
+        }
+        for &h in &dead {
+            assert_eq!(a.get(h), Err(AllocError::StaleHandle));
+        }
+        let mut listed: Vec<Allocation> = a.allocations().collect();
+        let mut expected = live.clone();
+        listed.sort_by_key(|x| x.offset);
+        expected.sort_by_key(|x| x.offset);
+        assert_eq!(listed, expected);
+        a.check_invariants();
+    }
+    for x in live.drain(..) {
+        a.free(x.handle).unwrap();
+        assert_eq!(a.free(x.handle), Err(AllocError::StaleHandle));
+    }
+    assert_eq!(a.allocation_count(), 0);
+    a.check_invariants();
+    let other = TlsfAllocator::new(64).allocate(8).unwrap();
+    assert_eq!(a.free(other.handle), Err(AllocError::ForeignHandle));
+}
+
 #[test]
 fn foreign_and_unknown_handles_are_errors() {
     let mut a = TlsfAllocator::new(1000);

@@ -18,10 +18,25 @@
 //! block when it is handed out and copied into its [`AllocHandle`]: a handle
 //! is valid only while its record is used *and* carries the same serial, so a
 //! second free, or any use of a handle whose record was since reused, is a
-//! [`AllocError::StaleHandle`]. (A stale handle could only be accepted after
-//! exactly a multiple of 2^32 allocations in between that land on the same
-//! record.) Vacant records form an intrusive stack through `links[NEXT]`.
+//! [`AllocError::StaleHandle`]. Vacant records form an intrusive stack
+//! through `links[NEXT]`.
+//!
+//! # Serial epochs
+//!
+//! The serial is a `u32` (a wider one would not fit the 32-byte record). So
+//! that a serial is never handed out twice under the same handle, the
+//! allocator starts a new *epoch* when the counter runs out (every 2^32
+//! allocations): it takes a fresh id (the handle's `owner`), restarts the
+//! serials at 0 and remembers, per record, the old id of every allocation
+//! live at that moment (`survivors`). A handle is valid when its owner is
+//! the current id, or when it names a survivor with the id recorded for it;
+//! freeing a survivor forgets it. A handle of an earlier epoch whose
+//! allocation was freed is therefore stale for ever, however many
+//! allocations follow. The hot paths pay one well-predicted branch on the
+//! counter; the survivor map is only consulted for handles of earlier
+//! epochs (a `HashMap` lookup).
 
+use std::collections::HashMap;
 use std::num::NonZeroU32;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -197,6 +212,9 @@ pub struct TlsfAllocator {
     vacant_count: usize,
     /// Serial stamped on the next allocation.
     next_serial: u32,
+    /// What earlier serial epochs left (`None` until the first 2^32
+    /// allocations; boxed to keep the hot struct small).
+    epochs: Option<Box<PastEpochs>>,
     fl_bitmap: u64,
     sl_bitmaps: [u32; FL_COUNT],
     /// One free list per bin, by flat bin index.
@@ -209,6 +227,17 @@ pub struct TlsfAllocator {
     free_blocks: usize,
     peak_used: u64,
     high_water: u64,
+}
+
+/// What earlier serial epochs left behind (see the module docs).
+#[derive(Debug, Default)]
+struct PastEpochs {
+    /// Allocations live when an earlier epoch ended: record index -> the
+    /// allocator id of their epoch.
+    survivors: HashMap<u32, NonZeroU32>,
+    /// The ids of the earlier epochs (one per 2^32 allocations), so that
+    /// their stale handles are told from foreign ones.
+    ids: Vec<NonZeroU32>,
 }
 
 /// A bin's free list, last in first out, and its *best* block: the block
@@ -249,6 +278,7 @@ impl TlsfAllocator {
             vacant_head: NIL,
             vacant_count: 0,
             next_serial: 0,
+            epochs: None,
             fl_bitmap: 0,
             sl_bitmaps: [0; FL_COUNT],
             bins: Box::new([BinList::EMPTY; BIN_COUNT]),
@@ -365,7 +395,15 @@ impl TlsfAllocator {
         // Up to two new nodes (padding and tail remainder).
         self.ensure_nodes(2)?;
         match self.find_block(size, align_log2) {
-            Some((i, bin, start)) => Ok(self.take_block(i, bin, start, size, align_log2)),
+            Some((i, bin, start)) => {
+                let serial = self.next_serial;
+                let a = self.take_block(i, bin, start, size, align_log2, serial);
+                match serial.checked_add(1) {
+                    Some(next) => self.next_serial = next,
+                    None => self.next_epoch(),
+                }
+                Ok(a)
+            }
             None => Err(self.out_of_space(size, 1 << align_log2)),
         }
     }
@@ -378,11 +416,20 @@ impl TlsfAllocator {
     /// [`AllocError::ForeignHandle`]; the allocator is unchanged then.
     #[inline]
     pub fn free(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
+        if handle.owner != self.id {
+            return self.free_earlier_epoch(handle);
+        }
         let i = self.validate(handle)?;
+        self.release_used(i);
+        Ok(())
+    }
+
+    /// Frees used node `i`, whose handle was validated.
+    #[inline(always)]
+    fn release_used(&mut self, i: u32) {
         self.used_bytes -= self.nodes[i as usize].size;
         self.live -= 1;
         self.release_free_range(i);
-        Ok(())
     }
 
     /// The current range of a live allocation.
@@ -574,11 +621,15 @@ impl TlsfAllocator {
     /// The allocation held by used node `i`.
     pub(super) fn allocation_at(&self, i: u32) -> Allocation {
         let n = &self.nodes[i as usize];
+        let owner = match &self.epochs {
+            None => self.id,
+            Some(e) => e.survivors.get(&i).copied().unwrap_or(self.id),
+        };
         Allocation {
             handle: AllocHandle {
                 index: i,
                 serial: n.links[NEXT],
-                owner: self.id,
+                owner,
             },
             offset: n.offset,
             size: n.size,
@@ -588,7 +639,7 @@ impl TlsfAllocator {
     #[inline]
     fn validate(&self, h: AllocHandle) -> Result<u32, AllocError> {
         if h.owner != self.id {
-            return Err(AllocError::ForeignHandle);
+            return self.validate_earlier_epoch(h);
         }
         let n = self
             .nodes
@@ -598,6 +649,57 @@ impl TlsfAllocator {
             return Err(AllocError::StaleHandle);
         }
         Ok(h.index)
+    }
+
+    /// [`validate`](Self::validate) for a handle that is not of the current
+    /// epoch: a survivor of an earlier one, a stale handle of an earlier
+    /// one, or a foreign handle.
+    #[cold]
+    #[inline(never)]
+    fn validate_earlier_epoch(&self, h: AllocHandle) -> Result<u32, AllocError> {
+        let Some(epochs) = self.epochs.as_deref() else {
+            return Err(AllocError::ForeignHandle);
+        };
+        if !epochs.ids.contains(&h.owner) {
+            return Err(AllocError::ForeignHandle);
+        }
+        let survivor = epochs.survivors.get(&h.index) == Some(&h.owner);
+        match self.nodes.get(h.index as usize) {
+            Some(n) if survivor && n.is_used() && n.links[NEXT] == h.serial => Ok(h.index),
+            _ => Err(AllocError::StaleHandle),
+        }
+    }
+
+    /// [`free`](Self::free) of a handle that is not of the current epoch.
+    #[cold]
+    #[inline(never)]
+    fn free_earlier_epoch(&mut self, handle: AllocHandle) -> Result<(), AllocError> {
+        let i = self.validate_earlier_epoch(handle)?;
+        if let Some(e) = self.epochs.as_mut() {
+            e.survivors.remove(&i);
+        }
+        self.release_used(i);
+        Ok(())
+    }
+
+    /// The serial counter ran out: start a new epoch (see the module docs).
+    /// O(blocks), once every 2^32 allocations.
+    #[cold]
+    #[inline(never)]
+    fn next_epoch(&mut self) {
+        let old = self.id;
+        let epochs = self.epochs.get_or_insert_with(Box::default);
+        let mut cur = self.first;
+        while cur != NIL {
+            let n = &self.nodes[cur as usize];
+            if n.is_used() {
+                epochs.survivors.entry(cur).or_insert(old);
+            }
+            cur = n.next_phys;
+        }
+        epochs.ids.push(old);
+        self.id = next_allocator_id();
+        self.next_serial = 0;
     }
 
     #[inline]
@@ -826,9 +928,10 @@ impl TlsfAllocator {
     }
 
     /// Turns free node `i` (on the list of flat bin `bin`) into a used
-    /// `[start, start + size)` allocated with alignment `2^align_log2`,
-    /// splitting off the padding before and the remainder after as free
-    /// blocks. Callers ran `ensure_nodes(2)` first.
+    /// `[start, start + size)` allocated with alignment `2^align_log2` and
+    /// stamped with `serial`, splitting off the padding before and the
+    /// remainder after as free blocks. Callers ran `ensure_nodes(2)` first
+    /// and advance the serial counter themselves.
     #[inline(always)]
     pub(super) fn take_block(
         &mut self,
@@ -837,6 +940,7 @@ impl TlsfAllocator {
         start: u64,
         size: u64,
         align_log2: u32,
+        serial: u32,
     ) -> Allocation {
         self.remove_free(i, bin);
         let Node {
@@ -870,8 +974,6 @@ impl TlsfAllocator {
             next_phys = t;
             self.insert_free(t, rest);
         }
-        let serial = self.next_serial;
-        self.next_serial = serial.wrapping_add(1);
         self.nodes[i as usize] = Node {
             offset: start,
             size,
@@ -981,16 +1083,15 @@ impl TlsfAllocator {
             ..
         } = self.nodes[i as usize];
         let align_log2 = self.nodes[i as usize].align_log2();
-        let (peak, next_serial) = (self.peak_used, self.next_serial);
+        let peak = self.peak_used;
         let bin = flat_floor(self.nodes[dst as usize].size);
         let t = self
-            .take_block(dst, bin, start, size, align_log2)
+            .take_block(dst, bin, start, size, align_log2, serial)
             .handle
             .index;
         self.used_bytes -= size;
         self.live -= 1;
         self.peak_used = peak;
-        self.next_serial = next_serial;
         // Swap places so that index `i` (the handle) names the new range and
         // `t` the old one, which is then freed.
         self.swap_identity(i, t);
@@ -1044,6 +1145,13 @@ impl TlsfAllocator {
                 self.nodes[next as usize].prev_phys = x;
             }
         }
+    }
+
+    /// Makes `serial` the next allocation serial, standing in for the
+    /// allocations that would lead there; test support.
+    #[cfg(test)]
+    pub(super) fn skip_serials_to(&mut self, serial: u32) {
+        self.next_serial = serial;
     }
 
     /// Checks every structural invariant; test support.
@@ -1109,6 +1217,11 @@ impl TlsfAllocator {
             .count();
         assert_eq!(vacant, vacant_records);
         assert_eq!(vacant + live + free_blocks, self.nodes.len());
+        for (&i, owner) in self.epochs.iter().flat_map(|e| &e.survivors) {
+            assert!(self.nodes[i as usize].is_used(), "survivor {i} not live");
+            let ids = &self.epochs.as_ref().unwrap().ids;
+            assert!(ids.contains(owner) && *owner != self.id);
+        }
         // Bitmaps agree with the lists; list links are consistent.
         for fl in 0..FL_COUNT {
             for sl in 0..SL_COUNT {

@@ -61,21 +61,27 @@ struct Blas {
 }
 
 impl Blas {
-    fn handler(&mut self, ready: bool) -> impl FnMut(CommandEvent) -> Option<u64> + '_ {
-        move |e| match e.action {
-            BlasAction::Acquire => {
-                self.acquired.push(e.slot);
-                ready.then_some(0x1000 + u64::from(e.slot))
-            }
-            BlasAction::Release { blas } => {
-                self.released.push(blas);
-                None
-            }
-            BlasAction::CancelBuild => {
-                self.cancelled.push(e.slot);
-                None
+    /// `c.process_commands(budget)`, carrying out its events the way a
+    /// backend does: acquires get `addr(slot)` at once when `ready` (counted
+    /// as acquired, as the manager does), releases and cancels are recorded.
+    fn process(&mut self, c: &mut Culling, budget: usize, ready: bool) -> ProcessStats {
+        let mut events = Vec::new();
+        let mut st = c.process_commands(budget, &mut events);
+        for e in events {
+            match e.action {
+                BlasAction::Acquire => {
+                    self.acquired.push(e.slot);
+                    if ready {
+                        c.set_blas(e.handle, 0x1000 + u64::from(e.slot)).unwrap();
+                        st.acquired += 1;
+                        st.requested -= 1;
+                    }
+                }
+                BlasAction::Release { blas } => self.released.push(blas),
+                BlasAction::CancelBuild => self.cancelled.push(e.slot),
             }
         }
+        st
     }
 }
 
@@ -238,7 +244,7 @@ fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
         while let Some(r) = ring.pop_ready(frame) {
             c.ingest_readback(r.counter, &r.words);
         }
-        c.process_commands(usize::MAX, &mut blas.handler(true));
+        blas.process(&mut c, usize::MAX, true);
         c.assemble(&mut tlas).unwrap();
         c.process_feedback().unwrap();
         ring.push(c.take_commands().unwrap()).unwrap();
@@ -251,7 +257,7 @@ fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
     while let Some(r) = ring.pop_ready(15) {
         c.ingest_readback(r.counter, &r.words);
     }
-    c.process_commands(usize::MAX, &mut blas.handler(true));
+    blas.process(&mut c, usize::MAX, true);
     assert_eq!(blas.released.len(), 3);
     for h in [a, b, u] {
         assert_eq!(c.registry().record(h).unwrap().blas, 0);
@@ -319,7 +325,7 @@ fn remove_cancels_pending_command_and_returns_the_blas() {
     assert_eq!((cancelled.slot, cancelled.kind), (0, CommandKind::Add));
     assert_eq!(c.pending_commands(), 1);
     let mut blas = Blas::default();
-    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    let st = blas.process(&mut c, usize::MAX, false);
     assert_eq!(blas.acquired, vec![c.registry().slot(b).unwrap()]);
     assert_eq!((st.requested, st.dead), (1, 0));
     // b waits for its build; removing it reports the pending build.
@@ -370,7 +376,7 @@ fn stale_commands_reconcile_with_the_current_state() {
     let mut blas = Blas::default();
     // An add for an instance that is inactive again: nothing to build.
     c.ingest_readback(1, &[add]);
-    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    let st = blas.process(&mut c, usize::MAX, true);
     assert_eq!((st.stale_kind, st.no_op, st.acquired), (1, 1, 0));
     assert!(blas.acquired.is_empty());
     // A remove for an instance that is active (say, re-activated by latency
@@ -379,7 +385,7 @@ fn stale_commands_reconcile_with_the_current_state() {
     c.registry.set_state(slot, InstanceState::Active).unwrap();
     c.set_blas(a, 0xAB).unwrap();
     c.ingest_readback(1, &[remove]);
-    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    let st = blas.process(&mut c, usize::MAX, true);
     assert_eq!((st.stale_kind, st.released), (1, 0));
     assert_eq!(c.registry().record(a).unwrap().blas, 0xAB);
     // Newest wins: add then remove pending for an active instance whose
@@ -391,29 +397,29 @@ fn stale_commands_reconcile_with_the_current_state() {
         c.pending_command(slot).map(|c| c.kind),
         Some(CommandKind::Remove)
     );
-    let st = c.process_commands(usize::MAX, &mut blas.handler(true));
+    let st = blas.process(&mut c, usize::MAX, true);
     assert_eq!(st.released, 1);
     assert_eq!(blas.released, vec![0xAB]);
     // A build still running when the instance went inactive is cancelled.
     c.registry.set_state(slot, InstanceState::Active).unwrap();
     c.ingest_readback(1, &[add]);
-    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    let st = blas.process(&mut c, usize::MAX, false);
     assert_eq!(st.requested, 1);
     c.registry.set_state(slot, InstanceState::Inactive).unwrap();
     c.ingest_readback(1, &[remove]);
-    let st = c.process_commands(usize::MAX, &mut blas.handler(false));
+    let st = blas.process(&mut c, usize::MAX, false);
     assert_eq!((st.builds_cancelled, st.released), (1, 0));
     assert_eq!(blas.cancelled, vec![slot]);
     assert!(!c.awaiting_blas(a).unwrap());
     // A build finishing after the instance went inactive is handed back.
     c.registry.set_state(slot, InstanceState::Active).unwrap();
     c.ingest_readback(1, &[add]);
-    c.process_commands(usize::MAX, &mut blas.handler(false));
+    blas.process(&mut c, usize::MAX, false);
     assert!(c.awaiting_blas(a).unwrap());
     c.registry.set_state(slot, InstanceState::Inactive).unwrap();
     c.set_blas(a, 0xCD).unwrap();
     assert_eq!(c.pending_commands(), 1);
-    c.process_commands(usize::MAX, &mut blas.handler(true));
+    blas.process(&mut c, usize::MAX, true);
     assert_eq!(blas.released, vec![0xAB, 0xCD]);
     assert_eq!(c.registry().record(a).unwrap().blas, 0);
 }
@@ -444,7 +450,7 @@ fn overflow_and_budget_retry_end_to_end() {
             c.ingest_readback(r.counter, &r.words);
         }
         max_pending = max_pending.max(c.pending_commands());
-        let st = c.process_commands(1, &mut blas.handler(true));
+        let st = blas.process(&mut c, 1, true);
         assert!(st.drained <= 1);
         c.assemble(&mut tlas).unwrap();
         // Plenty of hits everywhere.

@@ -9,9 +9,9 @@ use crate::blas_ids::BuildId;
 /// acknowledges after its timeline passed the submission).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Ack {
-    /// A BLAS build or update of the plan finished.
+    /// A BLAS build of the plan finished (updates need no acknowledgement).
     Built {
-        /// The build ([`BuildOp::id`](crate::build_plan::BuildOp)).
+        /// The build ([`BlasBuild::id`](crate::build_plan::BlasBuild::id)).
         build: BuildId,
         /// The BLAS's real result size in bytes.
         result_bytes: u64,
@@ -27,7 +27,8 @@ pub enum Ack {
     },
     /// Compaction `op` (a copy into a smaller BLAS) finished.
     Compacted {
-        /// The compaction.
+        /// The compaction
+        /// ([`CompactionPlan::id`](crate::build_plan::CompactionPlan::id)).
         op: BuildId,
         /// The compacted BLAS's device address.
         address: u64,

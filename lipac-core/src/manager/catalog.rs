@@ -4,11 +4,16 @@
 use std::collections::HashMap;
 
 use super::error::ManagerError;
+use crate::blas_cache::MAX_BLAS_BYTES;
 use crate::build_plan::BuildEstimate;
 use crate::instance::MeshId;
 
 /// Most LODs per mesh ([`crate::blas_ids::Lod`] is a `u8`).
 pub const MAX_LODS: usize = 256;
+
+/// The largest [`MeshLod::data_bytes`] accepted: 2^32 bytes (4 GiB) of
+/// geometry-instance data per instance.
+pub const MAX_LOD_DATA_BYTES: u64 = 1 << 32;
 
 /// One level of detail of a mesh.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,8 +66,10 @@ impl MeshCatalog {
     }
 
     /// Registers `mesh` with its LODs (1..=[`MAX_LODS`], each with
-    /// `estimate.result_bytes > 0` and `data_bytes > 0`). A mesh is
-    /// registered once: its sizes decide live allocations and BLASes.
+    /// `estimate.result_bytes` in `1..=`[`MAX_BLAS_BYTES`], both scratch
+    /// sizes at most [`MAX_BLAS_BYTES`] and `data_bytes` in
+    /// `1..=`[`MAX_LOD_DATA_BYTES`]). A mesh is registered once: its sizes
+    /// decide live allocations and BLASes. On error nothing changes.
     pub fn insert(&mut self, mesh: MeshId, lods: Vec<MeshLod>) -> Result<(), ManagerError> {
         let invalid = |what: String| Err(ManagerError::InvalidMesh { mesh, what });
         if self.meshes.contains_key(&mesh) {
@@ -77,6 +84,24 @@ impl MeshCatalog {
             }
             if l.data_bytes == 0 {
                 return invalid(format!("LOD {i}: data_bytes is 0"));
+            }
+            if l.data_bytes > MAX_LOD_DATA_BYTES {
+                return invalid(format!(
+                    "LOD {i}: data_bytes = {} is above the limit {MAX_LOD_DATA_BYTES}",
+                    l.data_bytes
+                ));
+            }
+            let e = &l.estimate;
+            for (what, bytes) in [
+                ("result_bytes", e.result_bytes),
+                ("build_scratch_bytes", e.build_scratch_bytes),
+                ("update_scratch_bytes", e.update_scratch_bytes),
+            ] {
+                if bytes > MAX_BLAS_BYTES {
+                    return invalid(format!(
+                        "LOD {i}: estimate.{what} = {bytes} is above the limit {MAX_BLAS_BYTES}"
+                    ));
+                }
             }
         }
         self.meshes.insert(mesh, lods);

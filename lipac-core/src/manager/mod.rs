@@ -3,6 +3,19 @@
 //! [`TlsfAllocator`] for per-instance geometry-data ranges, and keeps them
 //! consistent.
 //!
+//! # One polled loop
+//!
+//! The manager is the only per-frame loop of lipac, for every backend, and
+//! it is sans-IO in the shape of quinn-proto's `Connection`
+//! (`handle_event` in, `poll_transmit` out): the engine and the backend
+//! *call in* (instance changes, the frame's camera, read-backs, hits), take
+//! **one value out** per frame ([`Manager::plan`] → [`ManagerPlan`]: every
+//! build, compaction, free, upload and growth to execute), and *hand results
+//! back in* as [`Ack`] values ([`Manager::handle_ack`]) whenever they arrive.
+//! The manager never calls back into its caller (no closures cross the
+//! boundary), keeps no side channel, and returns every error from the call
+//! that caused it; a call that fails changes nothing it did not document.
+//!
 //! # One frame
 //!
 //! | step | call | what happens |
@@ -11,10 +24,10 @@
 //! | 2 | [`Manager::mitigate_latency`] (optional) | instances newly in the frustum become active; their BLASes are requested |
 //! | 3 | [`Manager::ingest_readback`] | the commands Algorithm 2 wrote frames ago |
 //! | 4 | [`Manager::plan`] | commands under the budget → BLAS activations / releases; priorities; [`FramePlan`] (builds, updates, compactions, frees); uploads; geometry-data changes and buffer growth |
-//! | 5 | backend | executes the plan and uploads; acknowledges whenever results arrive: [`Manager::ack_built`], [`Manager::ack_compacted_size`], [`Manager::ack_compacted`] |
+//! | 5 | backend | executes the plan and uploads; acknowledges whenever results arrive: [`Manager::handle_ack`] with [`Ack::Built`], [`Ack::CompactedSize`], [`Ack::Compacted`] |
 //! | 6 | [`Manager::assemble`] (CPU backends) | Algorithm 1: TLAS instances; a GPU backend runs it as a shader over the uploaded records |
 //! | 7 | trace | hits into [`Manager::instance_hits_mut`] / [`Manager::hitboxes_mut`] |
-//! | 8 | [`Manager::process_feedback`] + [`Manager::take_commands`] (CPU backends) | Algorithm 2; its commands go to the read-back ring |
+//! | 8 | [`Manager::process_feedback`] + [`Manager::take_commands`] (CPU backends) | Algorithm 2; its commands go to the read-back ring (a GPU backend reads its command buffer back and calls [`Manager::ingest_readback`] with the same words: one read-back rule, [`crate::command::CommandQueue`]) |
 //!
 //! Instances are added, changed and removed at any time between frames:
 //! [`Manager::register`], [`Manager::update`], [`Manager::set_transform`],
@@ -74,7 +87,7 @@ mod error;
 mod stats;
 
 pub use ack::Ack;
-pub use catalog::{MeshCatalog, MeshLod, MAX_LODS};
+pub use catalog::{MeshCatalog, MeshLod, MAX_LODS, MAX_LOD_DATA_BYTES};
 pub use error::ManagerError;
 pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
 
@@ -88,8 +101,9 @@ use crate::blas_ids::{BuildId, InstanceKey, Lod};
 use crate::build_plan::{
     BlasGeometry, BuildBudgets, BuildScheduler, FramePlan, InstanceBlasRequest, SchedulerConfig,
 };
+use crate::command::IngestSummary;
 use crate::culling::{
-    BlasAction, Culling, CullingConfig, IngestSummary, LatencyOutcome, ProcessStats, Readback,
+    BlasAction, CommandEvent, Culling, CullingConfig, LatencyOutcome, ProcessStats, Readback,
     Uploads,
 };
 use crate::feedback::FeedbackStats;
@@ -97,7 +111,7 @@ use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::Frustum;
-use crate::layout::{HitboxRecord, InstanceState, TlasInstance};
+use crate::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
 use crate::math::Aabb;
 use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
 
@@ -124,8 +138,8 @@ impl Default for DataConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ManagerConfig {
     /// The command loop (registry, thresholds, assembly, command buffer,
-    /// latency mitigation, read-back latency). Its `command_budget` is not
-    /// used: [`FrameBudgets::commands`] is.
+    /// latency mitigation, read-back latency). The per-frame command budget
+    /// is [`FrameBudgets::commands`].
     pub culling: CullingConfig,
     /// The BLAS scheduler and cache.
     pub scheduler: SchedulerConfig,
@@ -199,8 +213,7 @@ pub struct ManagerPlan {
     /// What command processing did this frame.
     pub commands: ProcessStats,
     /// BLAS builds and updates (batches with scratch slices), compactions and
-    /// frees; acknowledge builds and compactions with [`Manager::ack_built`],
-    /// [`Manager::ack_compacted_size`] and [`Manager::ack_compacted`].
+    /// frees; acknowledge builds and compactions with [`Manager::handle_ack`].
     pub blas: FramePlan,
     /// Instance records to upload (keeping the GPU's state bits) and the
     /// CPU's state-bit overrides ([`Uploads`]).
@@ -234,6 +247,19 @@ pub struct InstanceView {
     pub scheduled: bool,
 }
 
+/// The manager's state of one GPU slot (one table, indexed by slot).
+#[derive(Clone, Copy, Debug, Default)]
+struct SlotEntry {
+    /// The live instance, if any.
+    instance: Option<Slot>,
+    /// The hits of the last frame whose feedback was seen.
+    last_hits: u32,
+    /// Listed in `data_dirty`: the geometry-data range changed since the
+    /// last plan.
+    data_dirty: bool,
+}
+
+/// A live instance's manager state.
 #[derive(Clone, Copy, Debug)]
 struct Slot {
     handle: InstanceHandle,
@@ -253,18 +279,17 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     data: TlsfAllocator,
     data_config: DataConfig,
     catalog: MeshCatalog,
-    /// Per GPU slot: the live instance's manager state.
-    slots: Vec<Option<Slot>>,
-    /// Per GPU slot: the hits of the last frame whose feedback was seen.
-    last_hits: Vec<u32>,
+    /// Per GPU slot: the manager's state.
+    slots: Vec<SlotEntry>,
     /// Slots whose geometry-data range changed since the last plan.
     data_dirty: Vec<u32>,
-    data_dirty_mark: Vec<bool>,
     /// The buffer capacity the backend was last told about.
     reported_capacity: u64,
     frame: Option<u64>,
     planned: Option<u64>,
-    actions: Vec<(u32, BlasAction, u8)>,
+    /// The command loop's BLAS work of the current plan (kept for its
+    /// allocation).
+    events: Vec<CommandEvent>,
 }
 
 fn geometry_of(mesh: MeshId, flags: InstanceFlags) -> BlasGeometry {
@@ -316,30 +341,42 @@ impl<H: HitboxIndex> Manager<H> {
             data_config: config.data,
             catalog,
             slots: Vec::new(),
-            last_hits: Vec::new(),
             data_dirty: Vec::new(),
-            data_dirty_mark: Vec::new(),
             frame: None,
             planned: None,
-            actions: Vec::new(),
+            events: Vec::new(),
         })
     }
 
     // ---- read access ------------------------------------------------------
 
-    /// The command loop (registry, hitboxes, hit counters, queue).
+    /// Low-level, read-only: the command loop (registry, hitboxes, hit
+    /// counters, queue), for inspection.
     pub fn culling(&self) -> &Culling<H> {
         &self.culling
     }
 
-    /// The instance registry (records, slots, dirty ranges).
+    /// Low-level, read-only: the instance registry (records, slots, dirty
+    /// ranges), for inspection.
     pub fn registry(&self) -> &InstanceRegistry<H> {
         self.culling.registry()
     }
 
-    /// The BLAS build scheduler (and through it the cache).
+    /// Low-level, read-only: the BLAS build scheduler (and through it the
+    /// cache), for inspection.
     pub fn scheduler(&self) -> &BuildScheduler {
         &self.scheduler
+    }
+
+    /// The instance records, indexed by GPU slot: what a GPU backend uploads
+    /// the [`ManagerPlan::uploads`] ranges from.
+    pub fn records(&self) -> &[InstanceRecord] {
+        self.culling.registry().records()
+    }
+
+    /// The hitbox records, indexed by hitbox.
+    pub fn hitboxes(&self) -> &[HitboxRecord] {
+        self.culling.hitboxes()
     }
 
     /// The geometry-data allocator.
@@ -399,8 +436,6 @@ impl<H: HitboxIndex> Manager<H> {
         let slots = self.culling.reserve_slots(additional);
         let more = slots.saturating_sub(self.slots.len());
         self.slots.reserve_exact(more);
-        self.last_hits.reserve_exact(more);
-        self.data_dirty_mark.reserve_exact(more);
         self.data_dirty.reserve(additional.min(slots));
     }
 
@@ -424,11 +459,10 @@ impl<H: HitboxIndex> Manager<H> {
         let slot = self.culling.registry().slot(handle)?;
         let i = slot as usize;
         if self.slots.len() <= i {
-            self.slots.resize(i + 1, None);
-            self.last_hits.resize(i + 1, 0);
-            self.data_dirty_mark.resize(i + 1, false);
+            self.slots.resize(i + 1, SlotEntry::default());
         }
-        self.slots[i] = Some(Slot {
+        let entry = &mut self.slots[i];
+        entry.instance = Some(Slot {
             handle,
             mesh: desc.mesh,
             geometry: geometry_of(desc.mesh, desc.flags),
@@ -437,7 +471,7 @@ impl<H: HitboxIndex> Manager<H> {
             range,
             scheduled: false,
         });
-        self.last_hits[i] = 0;
+        entry.last_hits = 0;
         self.mark_data(slot);
         Ok(handle)
     }
@@ -504,7 +538,7 @@ impl<H: HitboxIndex> Manager<H> {
             self.scheduler
                 .request_lod(InstanceKey(slot), Lod(lod8), estimate)?;
         }
-        if let Some(s) = self.slots[slot as usize].as_mut() {
+        if let Some(s) = self.slots[slot as usize].instance.as_mut() {
             s.requested_lod = lod8;
         }
         self.sync_addresses()?;
@@ -520,8 +554,9 @@ impl<H: HitboxIndex> Manager<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<RemovedInstance, ManagerError> {
         let (slot, s) = self.slot_of(handle)?;
         let removal = self.culling.remove(handle)?;
-        self.slots[slot as usize] = None;
-        self.last_hits[slot as usize] = 0;
+        let entry = &mut self.slots[slot as usize];
+        entry.instance = None;
+        entry.last_hits = 0;
         if s.scheduled {
             self.scheduler.deactivate(InstanceKey(slot))?;
         }
@@ -539,8 +574,16 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// Starts frame `frame` (strictly after the previous one). Fails,
     /// changing nothing, if frames do not increase or the last frame's
-    /// commands were not taken ([`Manager::take_commands`]).
+    /// commands were not taken ([`Manager::take_commands`]), or if `frame`
+    /// is above [`MAX_FRAME`](crate::blas_cache::MAX_FRAME).
     pub fn begin_frame(&mut self, frame: u64) -> Result<(), ManagerError> {
+        if frame > crate::blas_cache::MAX_FRAME {
+            let e = crate::blas_cache::BlasError::FrameOutOfRange {
+                frame,
+                max: crate::blas_cache::MAX_FRAME,
+            };
+            return Err(crate::build_plan::BuildPlanError::Cache(e).into());
+        }
         if let Some(prev) = self.frame {
             if frame <= prev {
                 return Err(ManagerError::CallOrder {
@@ -565,14 +608,20 @@ impl<H: HitboxIndex> Manager<H> {
     ) -> Result<LatencyOutcome, ManagerError> {
         let out = self.culling.mitigate_latency(camera, frustum)?;
         for r in &out.requests {
-            let hits = self.last_hits.get(r.slot as usize).copied().unwrap_or(0);
+            let hits = self.slots.get(r.slot as usize).map_or(0, |e| e.last_hits);
             self.activate(r.slot, hits, true)?;
         }
         self.sync_addresses()?;
         Ok(out)
     }
 
-    /// Ingests one read-back of commands ([`Culling::ingest_readback`]).
+    /// Ingests one read-back of commands: `counter` is the GPU's atomic
+    /// counter (it may exceed `words.len()`: the overflow), `words` the
+    /// stored command words. The same call for CPU backends (the words of a
+    /// [`Manager::take_commands`] from `readback_latency` frames ago) and GPU
+    /// backends (the read-back buffer): per slot the newest command is kept,
+    /// commands for slots without a live instance are dropped
+    /// ([`Culling::ingest_readback`]). Never fails; bad words are counted.
     pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
         self.culling.ingest_readback(counter, words)
     }
@@ -581,8 +630,9 @@ impl<H: HitboxIndex> Manager<H> {
     /// back), used to prioritise builds. CPU backends get them from
     /// [`Manager::process_feedback`].
     pub fn record_hits(&mut self, hits: &[u32]) {
-        let n = hits.len().min(self.last_hits.len());
-        self.last_hits[..n].copy_from_slice(&hits[..n]);
+        for (e, &h) in self.slots.iter_mut().zip(hits) {
+            e.last_hits = h;
+        }
     }
 
     /// Plans the frame, once per frame after [`Manager::begin_frame`]:
@@ -607,40 +657,23 @@ impl<H: HitboxIndex> Manager<H> {
         }
         self.planned = Some(frame);
 
-        // 1. Commands: record the actions, apply them after the loop.
-        let mut actions = std::mem::take(&mut self.actions);
-        actions.clear();
-        let commands = self.culling.process_commands(budgets.commands, &mut |e| {
-            actions.push((e.slot, e.action, e.priority));
-            None
-        });
-        let mut result = Ok(());
-        for &(slot, action, priority) in &actions {
-            let r = match action {
-                BlasAction::Acquire => {
-                    let hits = self.last_hits[slot as usize].max(hits_from_priority(priority));
-                    let visible = self.visible(slot);
-                    self.activate(slot, hits, visible)
-                }
-                BlasAction::Release { .. } | BlasAction::CancelBuild => self.deactivate(slot),
-            };
-            if r.is_err() && result.is_ok() {
-                result = r;
-            }
-        }
-        self.actions = actions;
+        // 1. Commands: the command loop reconciles, the scheduler follows.
+        let mut events = std::mem::take(&mut self.events);
+        let mut commands = self.culling.process_commands(budgets.commands, &mut events);
+        let result = self.apply_command_events(&events, &mut commands);
+        self.events = events;
         result?;
 
         // 2. Priorities of waiting instances.
         for slot in 0..self.slots.len() as u32 {
-            let Some(s) = self.slots[slot as usize] else {
+            let entry = self.slots[slot as usize];
+            let Some(s) = entry.instance else {
                 continue;
             };
             let key = InstanceKey(slot);
             if s.scheduled && self.scheduler.pending_lod(key).is_some() {
                 let visible = self.visible(slot);
-                self.scheduler
-                    .set_feedback(key, self.last_hits[slot as usize], visible)?;
+                self.scheduler.set_feedback(key, entry.last_hits, visible)?;
             }
         }
 
@@ -653,8 +686,9 @@ impl<H: HitboxIndex> Manager<H> {
         let mut data_uploads = Vec::with_capacity(self.data_dirty.len());
         self.data_dirty.sort_unstable();
         for &slot in &self.data_dirty {
-            self.data_dirty_mark[slot as usize] = false;
-            let Some(s) = self.slots[slot as usize] else {
+            let entry = &mut self.slots[slot as usize];
+            entry.data_dirty = false;
+            let Some(s) = entry.instance else {
                 continue;
             };
             let a = self.data.get(s.range)?;
@@ -705,7 +739,7 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// Acknowledges build `build` ([`BuildScheduler::ack_built`]); the
     /// instances waiting for it get its address in their records now.
-    pub fn ack_built(
+    fn ack_built(
         &mut self,
         build: BuildId,
         result_bytes: u64,
@@ -718,7 +752,7 @@ impl<H: HitboxIndex> Manager<H> {
     /// Acknowledges the compacted-size query after build `build`
     /// ([`BuildScheduler::ack_compacted_size`]); a compaction follows in a
     /// later plan.
-    pub fn ack_compacted_size(
+    fn ack_compacted_size(
         &mut self,
         build: BuildId,
         compacted_bytes: u64,
@@ -729,7 +763,7 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// Acknowledges compaction `op` ([`BuildScheduler::ack_compacted`]); the
     /// instances using that BLAS get the compacted address now.
-    pub fn ack_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
+    fn ack_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
         self.scheduler.ack_compacted(op, address)?;
         self.sync_addresses()
     }
@@ -745,9 +779,9 @@ impl<H: HitboxIndex> Manager<H> {
     /// for CPU backends. The hits are kept to prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
         let stats = self.culling.process_feedback()?;
-        let hits = self.culling.instance_hits();
-        let n = hits.len().min(self.last_hits.len());
-        self.last_hits[..n].copy_from_slice(&hits[..n]);
+        for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
+            e.last_hits = h;
+        }
         Ok(stats)
     }
 
@@ -784,7 +818,7 @@ impl<H: HitboxIndex> Manager<H> {
             inst.scheduled += usize::from(
                 self.slots
                     .get(slot as usize)
-                    .and_then(|s| s.as_ref())
+                    .and_then(|e| e.instance.as_ref())
                     .is_some_and(|s| s.scheduled),
             );
         }
@@ -821,7 +855,7 @@ impl<H: HitboxIndex> Manager<H> {
 
     fn slot_of(&self, handle: InstanceHandle) -> Result<(u32, Slot), ManagerError> {
         let slot = self.culling.registry().slot(handle)?;
-        match self.slots.get(slot as usize).copied().flatten() {
+        match self.instance_at(slot) {
             Some(s) if s.handle == handle => Ok((slot, s)),
             _ => Err(ManagerError::Invariant {
                 what: format!("live instance in slot {slot} has no manager record"),
@@ -835,10 +869,47 @@ impl<H: HitboxIndex> Manager<H> {
             .is_some_and(|lm| lm.was_visible(slot))
     }
 
+    /// The live instance in `slot`, if any.
+    fn instance_at(&self, slot: u32) -> Option<Slot> {
+        self.slots.get(slot as usize).and_then(|e| e.instance)
+    }
+
     fn mark_data(&mut self, slot: u32) {
-        if !std::mem::replace(&mut self.data_dirty_mark[slot as usize], true) {
+        if !std::mem::replace(&mut self.slots[slot as usize].data_dirty, true) {
             self.data_dirty.push(slot);
         }
+    }
+
+    /// Carries out the command loop's BLAS work in the scheduler: an acquire
+    /// activates the slot (a cached BLAS reaches the record at once, counted
+    /// in [`ProcessStats::acquired`]), a release or a cancelled build
+    /// deactivates it. All events are applied; the first error is returned.
+    fn apply_command_events(
+        &mut self,
+        events: &[CommandEvent],
+        stats: &mut ProcessStats,
+    ) -> Result<(), ManagerError> {
+        let mut result = Ok(());
+        for e in events {
+            let r = match e.action {
+                BlasAction::Acquire => {
+                    let last = self.slots.get(e.slot as usize).map_or(0, |s| s.last_hits);
+                    let hits = last.max(hits_from_priority(e.priority));
+                    let visible = self.visible(e.slot);
+                    self.activate(e.slot, hits, visible).map(|()| {
+                        if self.culling.awaiting_blas(e.handle) == Ok(false) {
+                            stats.acquired += 1;
+                            stats.requested = stats.requested.saturating_sub(1);
+                        }
+                    })
+                }
+                BlasAction::Release { .. } | BlasAction::CancelBuild => self.deactivate(e.slot),
+            };
+            if r.is_err() && result.is_ok() {
+                result = r;
+            }
+        }
+        result
     }
 
     /// Allocates a data range, growing the buffer (at least doubling) when
@@ -861,7 +932,7 @@ impl<H: HitboxIndex> Manager<H> {
     /// Activates `slot` in the scheduler at its requested LOD (no-op if it
     /// is already known); a cached BLAS goes into the record at once.
     fn activate(&mut self, slot: u32, hits: u32, in_frustum: bool) -> Result<(), ManagerError> {
-        let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+        let Some(s) = self.instance_at(slot) else {
             return Err(ManagerError::Invariant {
                 what: format!("BLAS requested for slot {slot} without an instance"),
             });
@@ -879,7 +950,7 @@ impl<H: HitboxIndex> Manager<H> {
                     in_frustum,
                 },
             )?;
-            if let Some(s) = self.slots[slot as usize].as_mut() {
+            if let Some(s) = self.slots[slot as usize].instance.as_mut() {
                 s.scheduled = true;
             }
         }
@@ -892,7 +963,11 @@ impl<H: HitboxIndex> Manager<H> {
     /// Takes `slot` out of the scheduler (its record's BLAS was cleared or
     /// its build is no longer wanted).
     fn deactivate(&mut self, slot: u32) -> Result<(), ManagerError> {
-        let Some(s) = self.slots.get_mut(slot as usize).and_then(|s| s.as_mut()) else {
+        let Some(s) = self
+            .slots
+            .get_mut(slot as usize)
+            .and_then(|e| e.instance.as_mut())
+        else {
             return Ok(());
         };
         if std::mem::take(&mut s.scheduled) {
@@ -905,7 +980,7 @@ impl<H: HitboxIndex> Manager<H> {
     fn sync_addresses(&mut self) -> Result<(), ManagerError> {
         for key in self.scheduler.take_address_changes() {
             let slot = key.0;
-            let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+            let Some(s) = self.instance_at(slot) else {
                 return Err(ManagerError::Invariant {
                     what: format!("BLAS address change for empty slot {slot}"),
                 });
@@ -920,7 +995,7 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// Makes the record's LOD and the data range follow the traced LOD.
     fn sync_lod(&mut self, slot: u32) -> Result<(), ManagerError> {
-        let Some(s) = self.slots.get(slot as usize).copied().flatten() else {
+        let Some(s) = self.instance_at(slot) else {
             return Ok(());
         };
         let traced = if s.scheduled {
@@ -948,7 +1023,7 @@ impl<H: HitboxIndex> Manager<H> {
             ..self.culling.registry().desc(s.handle)?
         };
         self.culling.update(s.handle, desc)?;
-        if let Some(s) = self.slots[slot as usize].as_mut() {
+        if let Some(s) = self.slots[slot as usize].instance.as_mut() {
             s.traced_lod = traced;
             s.range = range;
         }

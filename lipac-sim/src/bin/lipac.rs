@@ -19,8 +19,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
-use lipac_sim::compare::{run_choice, CompareConfig, SceneChoice};
-use lipac_sim::report::{headline, table, write_report};
+use lipac_sim::compare::{run_choice_with_snapshots, CompareConfig, SceneChoice};
+use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::StrategyKind;
 use lipac_sim::sweep::{self, SweepConfig};
 
@@ -98,6 +98,11 @@ struct Common {
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
+    /// Frames to take pictures of (e.g. `0,90,180`): the indirect light of
+    /// the ground truth and each strategy, error heat maps and TLAS maps, in
+    /// report.html and under snapshots/.
+    #[arg(long, value_delimiter = ',')]
+    snapshots: Vec<u32>,
 }
 
 #[derive(Subcommand)]
@@ -315,17 +320,18 @@ fn main() -> ExitCode {
         ProgressStyle::with_template("{bar:40} {pos}/{len} frames  {elapsed} (eta {eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let result = run_choice(
+    let result = run_choice_with_snapshots(
         common.scene.into(),
         common.seed,
         &config,
+        &common.snapshots,
         &mut |done, total| {
             bar.set_length(u64::from(total));
             bar.set_position(u64::from(done));
         },
     );
     bar.finish_and_clear();
-    let report = match result {
+    let (report, snapshots) = match result {
         Ok(r) => r,
         Err(e) => {
             eprintln!("lipac: {e}");
@@ -336,13 +342,15 @@ fn main() -> ExitCode {
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report(&report, &common.out) {
+    match write_report_with_snapshots(&report, &snapshots, &common.out) {
         Ok(_) => {
             println!(
-                "{} frames in {:.1} s; report in {}/report.md",
+                "{} frames in {:.1} s; report in {}/report.md and {}/report.html ({} snapshots)",
                 report.frames,
                 report.wall_s,
-                common.out.display()
+                common.out.display(),
+                common.out.display(),
+                snapshots.len()
             );
             ExitCode::SUCCESS
         }

@@ -32,13 +32,13 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::time::Instant;
 
-use lipac_core::blas_ids::{InstanceKey, Lod, MeshId};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
     BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest, SchedulerConfig,
 };
 use lipac_core::culling::{BlasAction, Culling, CullingConfig, ReadbackRing};
 use lipac_core::grid::HitboxGrid;
-use lipac_core::instance::{InstanceDesc, InstanceFlags};
+use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::math::rows_to_affine;
 use lipac_core::registry::{InstanceHandle, RegistryConfig};
@@ -234,6 +234,7 @@ struct FullReplay {
 #[derive(Debug)]
 struct LipacReplay {
     latency: bool,
+    command_budget: usize,
     culling: Culling<HitboxGrid>,
     ring: ReadbackRing,
     /// Handle per dense slot.
@@ -651,13 +652,13 @@ impl LipacReplay {
             },
             thresholds: config.thresholds,
             command_capacity: config.command_capacity,
-            command_budget: config.command_budget,
             latency_mitigation: config.latency,
             readback_latency: config.readback_latency,
             ..CullingConfig::new(unit_cube)
         };
         Ok(Self {
             latency: config.latency.is_some(),
+            command_budget: config.command_budget,
             culling: Culling::new(grid, cc).map_err(core)?,
             ring: ReadbackRing::new(config.readback_latency).map_err(core)?,
             handles: Vec::new(),
@@ -776,32 +777,25 @@ impl LipacReplay {
         while let Some(r) = self.ring.pop_ready(f) {
             self.culling.ingest_readback(r.counter, &r.words);
         }
-        let (blas, dense) = (&mut self.blas, &self.dense);
-        let mut failure = None;
-        self.culling.process_frame_commands(&mut |event| {
-            let slot = match dense.get(event.slot as usize) {
+        let mut events = Vec::new();
+        self.culling
+            .process_commands(self.command_budget, &mut events);
+        for event in events {
+            let slot = match self.dense.get(event.slot as usize) {
                 Some(&s) if s != u32::MAX => s,
-                _ => {
-                    failure.get_or_insert(SimError::UnknownInstance(event.slot));
-                    return None;
-                }
+                _ => return Err(SimError::UnknownInstance(event.slot)),
             };
-            let result = match event.action {
-                BlasAction::Acquire => blas.activate(world, slot).map(|_| blas.address(slot)),
+            match event.action {
+                BlasAction::Acquire => {
+                    self.blas.activate(world, slot)?;
+                    if let Some(address) = self.blas.address(slot).filter(|&a| a != 0) {
+                        self.culling.set_blas(event.handle, address).map_err(core)?;
+                    }
+                }
                 BlasAction::Release { .. } | BlasAction::CancelBuild => {
-                    blas.deactivate(slot).map(|_| None)
-                }
-            };
-            match result {
-                Ok(a) => a,
-                Err(e) => {
-                    failure.get_or_insert(e);
-                    None
+                    self.blas.deactivate(slot)?;
                 }
             }
-        });
-        if let Some(e) = failure {
-            return Err(e);
         }
         let work = self.blas.build(world, f)?;
         for key in self.blas.scheduler.take_address_changes() {

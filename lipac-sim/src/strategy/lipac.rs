@@ -12,8 +12,8 @@
 //! 3. [`Culling::mitigate_latency`] (optional, paper §3.6): its BLAS
 //!    requests go to the scheduler.
 //! 4. [`Culling::ingest_readback`] of the commands of frame `f − k`, then
-//!    [`Culling::process_commands`] under the command budget; the handler
-//!    requests BLASes from the scheduler (or releases them).
+//!    [`Culling::process_commands`] under the command budget; its events
+//!    request BLASes from the scheduler (or release them).
 //! 5. The scheduler plans this frame's builds under its budgets; they are
 //!    acknowledged at once (the CPU backend builds synchronously), and the
 //!    addresses go back through [`Culling::set_blas`].
@@ -163,7 +163,6 @@ impl Lipac {
             },
             thresholds: config.thresholds,
             command_capacity: config.command_capacity,
-            command_budget: config.command_budget,
             latency_mitigation: config.latency,
             readback_latency: config.readback_latency,
             ..CullingConfig::new(unit_cube)
@@ -340,29 +339,24 @@ impl Strategy for Lipac {
             self.stats.commands_ingested +=
                 self.culling.ingest_readback(r.counter, &r.words).accepted;
         }
-        let blas = &mut self.blas;
-        let mut failure = None;
-        let st = self.culling.process_frame_commands(&mut |event| {
-            let result = match event.action {
+        let mut events = Vec::new();
+        let st = self
+            .culling
+            .process_commands(self.config.command_budget, &mut events);
+        for event in events {
+            match event.action {
                 BlasAction::Acquire => {
                     let lod = usize::from(ctx.lods[event.slot as usize]);
-                    blas.activate(ctx.catalog, event.slot, lod)
-                        .map(|_| blas.address(event.slot))
+                    self.blas.activate(ctx.catalog, event.slot, lod)?;
+                    // A BLAS the scheduler already holds is attached now.
+                    if let Some(address) = self.blas.address(event.slot).filter(|&a| a != 0) {
+                        self.culling.set_blas(event.handle, address).map_err(core)?;
+                    }
                 }
                 BlasAction::Release { .. } | BlasAction::CancelBuild => {
-                    blas.deactivate(event.slot).map(|_| None)
-                }
-            };
-            match result {
-                Ok(address) => address,
-                Err(e) => {
-                    failure.get_or_insert(e);
-                    None
+                    self.blas.deactivate(event.slot)?;
                 }
             }
-        });
-        if let Some(e) = failure {
-            return Err(e);
         }
         self.stats.commands_processed = st.drained;
         self.stats.commands_pending = st.remaining;

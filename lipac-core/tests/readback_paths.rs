@@ -1,0 +1,398 @@
+//! One read-back rule, whatever path the command words take.
+//!
+//! Two identical managers run the same scene, hits and engine calls. Each
+//! frame's command words are the CPU feedback's ([`Manager::take_commands`])
+//! plus injected words a GPU could have written (slots of removed and of
+//! reused instances, slots beyond the registry, either kind, any priority)
+//! and a counter that may exceed the stored words (overflow). Manager A gets
+//! them through the CPU path, a [`ReadbackRing`]; manager B gets the raw
+//! `(counter, words)` at the same frames, as a GPU backend hands its
+//! read-back buffer to [`Manager::ingest_readback`]. Checked every frame:
+//!
+//! * both ingest the same way and stay equal: plans, instance views, stats;
+//! * the GPU-side queue (`CommandQueue::ingest`, what lipac-vk's
+//!   `Readback::ingest_into` feeds) keeps, for every live slot the words
+//!   name, exactly the command the manager keeps (the newest), and the
+//!   manager keeps none for dead slots;
+//! * after planning, an instance whose BLAS disagrees with its state (active
+//!   without a BLAS or a pending build, or not active with one) has a command
+//!   pending or in flight in the ring.
+
+use std::collections::VecDeque;
+
+use glam::{Affine3A, Vec3};
+use lipac_core::command::{Command, CommandKind, CommandQueue};
+use lipac_core::layout::MAX_SLOTS;
+use lipac_core::{
+    Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, IngestSummary, InstanceDesc,
+    InstanceFlags, InstanceHandle, InstanceState, Manager, ManagerConfig, MeshCatalog, MeshId,
+    MeshLod, Readback, ReadbackRing,
+};
+use proptest::prelude::*;
+
+const CUBE: u64 = 0xC0BE;
+const LATENCY: u32 = 2;
+
+/// A word the "GPU" adds to a frame's read-back.
+#[derive(Clone, Copy, Debug)]
+struct Injected {
+    /// Raw slot (beyond the registry's slots it is rejected).
+    slot: u32,
+    remove: bool,
+    priority: u8,
+}
+
+/// What happens in one frame.
+#[derive(Clone, Debug, Default)]
+struct FrameOps {
+    /// Hot hitbox cells (bit `i` = cell `i` of the 4 x 4 grid).
+    hot: u16,
+    /// New instances: (cell, unique BLAS).
+    register: Vec<(u8, bool)>,
+    /// Live instances to remove (index into the live list, modulo its
+    /// length).
+    remove: Vec<usize>,
+    injected: Vec<Injected>,
+    /// Requests the buffer did not store (counter - words).
+    overflow: u32,
+    /// Commands processed this frame (`None` = no limit).
+    budget: Option<usize>,
+}
+
+/// What a run saw, to show which cases a fixed scenario covers.
+#[derive(Clone, Copy, Debug, Default)]
+struct Totals {
+    ingest: IngestSummary,
+    reused_slots: u32,
+    disagreeing_with_command: u32,
+}
+
+fn catalog() -> MeshCatalog {
+    let lod = |triangles: u64| MeshLod {
+        estimate: BuildEstimate {
+            primitives: triangles,
+            result_bytes: triangles * 64,
+            build_scratch_bytes: triangles * 16,
+            update_scratch_bytes: triangles * 4,
+        },
+        data_bytes: 64,
+    };
+    let mut c = MeshCatalog::new();
+    c.insert(MeshId(1), vec![lod(1000)]).unwrap();
+    c.insert(MeshId(2), vec![lod(300)]).unwrap();
+    c
+}
+
+fn manager(capacity: u32) -> Manager {
+    let grid = HitboxGrid::new(GridConfig {
+        min: [0.0, 0.0],
+        max: [64.0, 64.0],
+        cell_size: 16.0,
+    })
+    .unwrap();
+    let mut config = ManagerConfig::new(CUBE);
+    config.culling.latency_mitigation = None;
+    config.culling.readback_latency = LATENCY;
+    config.culling.registry.quarantine_frames = LATENCY + 1;
+    config.culling.command_capacity = capacity;
+    Manager::new(grid, config, catalog()).unwrap()
+}
+
+fn desc(cell: u8, n: u64, unique: bool) -> InstanceDesc {
+    let (cx, cz) = (f32::from(cell % 4), f32::from(cell / 4));
+    let off = (n % 5) as f32 * 2.0;
+    let c = Vec3::new(cx * 16.0 + 3.0 + off, 0.0, cz * 16.0 + 5.0 + off);
+    let aabb = Aabb::new(c - Vec3::new(1.0, 0.0, 1.0), c + Vec3::new(1.0, 3.0, 1.0));
+    let mut d = InstanceDesc::new(
+        MeshId(1 + (n % 2) as u32),
+        Affine3A::from_translation(c),
+        aabb,
+    );
+    if unique {
+        d.flags = InstanceFlags::UNIQUE_BLAS;
+    }
+    d
+}
+
+/// Runs both managers through `frames`; fails at the first difference or
+/// broken invariant.
+fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
+    let (mut a, mut b) = (manager(capacity), manager(capacity));
+    let hitbox_sbt = ManagerConfig::new(CUBE).culling.assembly.hitbox_sbt_offset;
+    let mut ring = ReadbackRing::new(LATENCY).unwrap();
+    // B's read-backs: (frame it becomes readable, counter, words).
+    let mut raw: VecDeque<(u64, u32, Vec<u32>)> = VecDeque::new();
+    let mut live: Vec<InstanceHandle> = Vec::new();
+    let mut removed_slots: Vec<u32> = Vec::new();
+    let mut acks: Vec<(u64, Ack)> = Vec::new();
+    let mut next_address = 0x10_0000u64;
+    let mut registrations = 0u64;
+    let mut tlas = Vec::new();
+    let mut totals = Totals::default();
+
+    for (f, ops) in frames.iter().enumerate() {
+        let frame = f as u64;
+        a.begin_frame(frame).unwrap();
+        b.begin_frame(frame).unwrap();
+        let mut i = 0;
+        while i < acks.len() {
+            if acks[i].0 <= frame {
+                let ack = acks.swap_remove(i).1;
+                a.handle_ack(ack).unwrap();
+                b.handle_ack(ack).unwrap();
+            } else {
+                i += 1;
+            }
+        }
+
+        // Read-backs: the ring (CPU path) and raw words (GPU path).
+        while let Some(r) = ring.pop_ready(frame) {
+            let (due, counter, words) = raw.pop_front().expect("both paths hold the same frames");
+            prop_assert_eq!(due, r.frame + u64::from(LATENCY));
+            prop_assert_eq!((counter, &words), (r.counter, &r.words));
+            let sa = a.ingest_readback(r.counter, &r.words);
+            let sb = b.ingest_readback(counter, &words);
+            prop_assert_eq!(sa, sb);
+            let stored = (counter as usize).min(words.len()) as u32;
+            prop_assert_eq!(sa.accepted + sa.rejected + sa.dead, stored);
+            prop_assert_eq!(sa.overflowed, counter - stored);
+            let t = &mut totals.ingest;
+            t.accepted += sa.accepted;
+            t.rejected += sa.rejected;
+            t.dead += sa.dead;
+            t.replaced += sa.replaced;
+            t.superseded += sa.superseded;
+            t.overflowed += sa.overflowed;
+
+            // The GPU-side queue keeps the same command per live slot.
+            let mut gpu = CommandQueue::new(MAX_SLOTS);
+            gpu.ingest(counter, &words);
+            let slots = a.registry().slot_count();
+            for &w in &words[..stored as usize] {
+                let c = Command::decode(w, MAX_SLOTS).unwrap();
+                let kept = a.culling().pending_command(c.slot);
+                if c.slot < slots && a.registry().handle_at(c.slot).is_some() {
+                    prop_assert_eq!(kept, gpu.pending(c.slot), "slot {}", c.slot);
+                } else {
+                    prop_assert_eq!(kept, None, "dead slot {} kept a command", c.slot);
+                }
+            }
+        }
+
+        // Engine calls.
+        for &k in &ops.remove {
+            if live.is_empty() {
+                break;
+            }
+            let h = live.swap_remove(k % live.len());
+            let slot = a.instance(h).unwrap().slot;
+            prop_assert_eq!(a.remove(h).unwrap(), b.remove(h).unwrap());
+            removed_slots.push(slot);
+        }
+        for &(cell, unique) in &ops.register {
+            let d = desc(cell % 16, registrations, unique);
+            registrations += 1;
+            let h = a.register(d).unwrap();
+            prop_assert_eq!(b.register(d).unwrap(), h);
+            let slot = a.instance(h).unwrap().slot;
+            if let Some(i) = removed_slots.iter().position(|&s| s == slot) {
+                removed_slots.swap_remove(i);
+                totals.reused_slots += 1;
+            }
+            live.push(h);
+        }
+
+        // Plan; the backend "builds" at once and acknowledges next frame.
+        let budgets = FrameBudgets {
+            commands: ops.budget.unwrap_or(usize::MAX),
+            ..FrameBudgets::default()
+        };
+        let plan = a.plan(&budgets).unwrap();
+        prop_assert_eq!(&plan, &b.plan(&budgets).unwrap());
+        for build in plan.blas.builds() {
+            next_address += 0x1000;
+            let ack = Ack::Built {
+                build: build.id,
+                result_bytes: build.result_bytes,
+                address: next_address,
+            };
+            acks.push((frame + 1, ack));
+        }
+
+        // Both equal; BLAS and state agree unless a command will come.
+        let in_flight: Vec<u32> = ring
+            .iter()
+            .flat_map(|r| r.words.iter())
+            .map(|&w| Command::decode(w, MAX_SLOTS).unwrap().slot)
+            .collect();
+        for &h in &live {
+            let v = a.instance(h).unwrap();
+            prop_assert_eq!(&v, &b.instance(h).unwrap());
+            let active = v.state == InstanceState::Active;
+            let agrees = if active {
+                v.blas != 0 || v.awaiting_blas
+            } else {
+                v.blas == 0 && !v.awaiting_blas
+            };
+            if !agrees {
+                let commanded =
+                    a.culling().pending_command(v.slot).is_some() || in_flight.contains(&v.slot);
+                prop_assert!(
+                    commanded,
+                    "slot {} disagrees with no command: {:?}",
+                    v.slot,
+                    v
+                );
+                totals.disagreeing_with_command += 1;
+            }
+        }
+        prop_assert_eq!(a.stats(), b.stats());
+
+        // Algorithm 1, "tracing", Algorithm 2: the same hits for both.
+        a.assemble(&mut tlas).unwrap();
+        let mut tlas_b = Vec::new();
+        b.assemble(&mut tlas_b).unwrap();
+        prop_assert_eq!(&tlas, &tlas_b);
+        let hot = |hitbox: u32| ops.hot & (1 << (hitbox % 16)) != 0;
+        for t in &tlas {
+            let i = t.custom_index();
+            let hitbox_box =
+                t.acceleration_structure_reference == CUBE && t.sbt_offset() == hitbox_sbt;
+            for m in [&mut a, &mut b] {
+                if hitbox_box {
+                    m.hitboxes_mut()[i as usize].add_hits(if hot(i) { 2500 } else { 0 });
+                } else {
+                    let hitbox = m.records()[i as usize].hitbox;
+                    m.instance_hits_mut()[i as usize] = if hot(hitbox) { 1500 } else { 0 };
+                }
+            }
+        }
+        a.process_feedback().unwrap();
+        b.process_feedback().unwrap();
+        let ra = a.take_commands().expect("feedback ran");
+        prop_assert_eq!(&ra, &b.take_commands().expect("feedback ran"));
+
+        // What the GPU left: the feedback's words, injected ones, overflow.
+        let mut words = ra.words;
+        for w in &ops.injected {
+            let kind = if w.remove {
+                CommandKind::Remove
+            } else {
+                CommandKind::Add
+            };
+            words.push(Command::new(w.slot, kind, w.priority).unwrap().encode());
+        }
+        let counter = ra.counter.max(words.len() as u32) + ops.overflow;
+        raw.push_back((frame + u64::from(LATENCY), counter, words.clone()));
+        ring.push(Readback {
+            frame,
+            counter,
+            words,
+        })
+        .unwrap();
+    }
+    Ok(totals)
+}
+
+fn frame_ops() -> impl Strategy<Value = FrameOps> {
+    let injected =
+        (0u32..40, any::<bool>(), 0u8..=127).prop_map(|(slot, remove, priority)| Injected {
+            slot,
+            remove,
+            priority,
+        });
+    (
+        any::<u16>(),
+        prop::collection::vec((0u8..16, prop::bool::weighted(0.3)), 0..3),
+        prop::collection::vec(0usize..64, 0..2),
+        prop::collection::vec(injected, 0..4),
+        prop::option::weighted(0.2, 1u32..6),
+        prop::option::weighted(0.5, 0usize..4),
+    )
+        .prop_map(
+            |(hot, register, remove, injected, overflow, budget)| FrameOps {
+                hot,
+                register,
+                remove,
+                injected,
+                overflow: overflow.unwrap_or(0),
+                budget,
+            },
+        )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(128))]
+
+    #[test]
+    fn cpu_ring_and_raw_words_give_the_same_states(
+        capacity in 1u32..8,
+        frames in prop::collection::vec(frame_ops(), 10..30),
+    ) {
+        run(capacity, &frames)?;
+    }
+}
+
+/// A fixed scenario that reaches every case the property is about: an
+/// overflowing buffer, commands for removed instances, reused slots,
+/// rejected words, both replacement kinds, and instances whose BLAS waits
+/// for a command.
+#[test]
+fn a_fixed_scenario_covers_every_case() {
+    let all = u16::MAX;
+    let mut frames = Vec::new();
+    // Frame 0: 12 instances (3 unique) in four cells, everything hot.
+    frames.push(FrameOps {
+        hot: all,
+        register: (0..12).map(|i| (i % 4, i % 4 == 3)).collect(),
+        ..FrameOps::default()
+    });
+    for f in 1..24u32 {
+        let mut ops = FrameOps {
+            // Hot and cold in turns, so instances come and go.
+            hot: if (f / 4) % 2 == 0 { all } else { 0 },
+            budget: (f % 3 == 0).then_some(2),
+            overflow: u32::from(f % 5 == 0) * 3,
+            ..FrameOps::default()
+        };
+        if f == 3 || f == 5 {
+            ops.remove = vec![0, 1];
+        }
+        if f == 9 {
+            ops.register = vec![(1, false), (2, true), (0, false), (3, false)];
+        }
+        // Commands for slots 0..4 (removed and reused ones among them), of
+        // both kinds, and one beyond the registry.
+        ops.injected = vec![
+            Injected {
+                slot: f % 4,
+                remove: f % 2 == 0,
+                priority: 9,
+            },
+            Injected {
+                slot: f % 4,
+                remove: f % 2 == 1,
+                priority: 3,
+            },
+            Injected {
+                slot: f % 4,
+                remove: f % 2 == 1,
+                priority: 5,
+            },
+            Injected {
+                slot: 39,
+                remove: false,
+                priority: 0,
+            },
+        ];
+        frames.push(ops);
+    }
+    let t = run(2, &frames).unwrap();
+    let i = t.ingest;
+    assert!(i.overflowed > 0, "{t:?}");
+    assert!(i.dead > 0, "{t:?}");
+    assert!(i.rejected > 0, "{t:?}");
+    assert!(i.replaced > 0 && i.superseded > 0, "{t:?}");
+    assert!(t.reused_slots > 0, "{t:?}");
+    assert!(t.disagreeing_with_command > 0, "{t:?}");
+}
