@@ -497,7 +497,7 @@ impl TraceScene {
                     ));
                 }
                 let inst = SceneInstance {
-                    transform: rows_to_affine(&a.pose.transform),
+                    transform: traceable(&a.pose.transform)?,
                     aabb: a.pose.aabb,
                     mesh,
                     flags: self.sim_flags(slot, a.flags),
@@ -512,7 +512,7 @@ impl TraceScene {
                     .ok_or_else(|| SimError::Replay("not live".into()))?;
                 let mut inst = *self.scene.instance(slot)?;
                 if let Some(p) = &u.pose {
-                    inst.transform = rows_to_affine(&p.transform);
+                    inst.transform = traceable(&p.transform)?;
                     inst.aabb = p.aabb;
                 }
                 if let Some(f) = u.flags {
@@ -562,6 +562,19 @@ impl TraceScene {
     pub fn box_proxies(&self) -> &[u32] {
         &self.box_proxies
     }
+}
+
+/// The transform of `rows`, if the path tracer can trace it (finite, with
+/// an invertible linear part, as [`crate::tlas::Tlas`] requires).
+fn traceable(rows: &[f32; 12]) -> Result<Affine3A, SimError> {
+    let t = rows_to_affine(rows);
+    let det = t.matrix3.determinant();
+    if !t.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
+        return Err(SimError::Replay(format!(
+            "the transform is singular (determinant {det:e}); the path tracer cannot trace it"
+        )));
+    }
+    Ok(t)
 }
 
 /// Slot `slot` of mesh `mesh`, parked below the world at `at`.

@@ -378,3 +378,26 @@ fn a_scene_file_overrides_sun_and_sky() {
         .with_json(r#"{"sun_direction":[0,0,0]}"#)
         .is_err());
 }
+
+#[test]
+fn a_singular_transform_is_named_with_its_frame_and_instance() {
+    let (h, mut frames) = valley(3, true);
+    // Frame 2 (number 7) squashes house 11 flat.
+    frames[2].events.push(InstanceEvent::Update(UpdateInstance {
+        id: 11,
+        pose: Some(Pose {
+            transform: [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            aabb: Aabb::new(Vec3::ZERO, Vec3::ONE),
+        }),
+        lod: None,
+        flags: None,
+        mask: None,
+    }));
+    let bytes = write(&h, &frames);
+    let msg = run(&bytes, &[StrategyKind::Full], &TraceSceneOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("frame number 7"), "{msg}");
+    assert!(msg.contains("update of instance 11"), "{msg}");
+    assert!(msg.contains("singular"), "{msg}");
+}
