@@ -293,3 +293,52 @@ fn an_imported_scene_replays_with_zero_error_for_full_and_oracle() {
         assert!(r.report.traced_rays_per_frame > 0.0);
     }
 }
+
+#[test]
+fn msft_lod_levels_are_the_files_not_generated() {
+    let mut doc: serde_json::Value = serde_json::from_slice(&gltf_file(false)).unwrap();
+    let nodes = doc["nodes"].as_array_mut().unwrap();
+    // The house's coarser level is node 5 (the terrain mesh, to tell it
+    // apart); LOD nodes are outside the scene's hierarchy.
+    nodes.push(serde_json::json!({"name": "house_lod1", "mesh": 1}));
+    nodes[1]["extensions"] = serde_json::json!({"MSFT_lod": {"ids": [5]}});
+    let im = import(&serde_json::to_vec(&doc).unwrap(), 2);
+    assert_eq!(im.summary.file_lods, 1);
+    // box (tree, crowd), box with its file LOD (house), terrain.
+    assert_eq!(im.summary.meshes, 3);
+    assert_eq!(im.summary.instances, 6);
+    let house_mesh = match &im.frames[0].events[0] {
+        InstanceEvent::Add(a) => a.mesh,
+        e => panic!("{e:?}"),
+    };
+    let m = im
+        .header
+        .meshes
+        .iter()
+        .find(|m| m.id == house_mesh)
+        .unwrap();
+    let tris: Vec<u32> = m.lods.iter().map(|l| l.triangles).collect();
+    assert_eq!(tris, vec![12, 128]);
+    // Generated LODs elsewhere: three levels.
+    assert!(im
+        .header
+        .meshes
+        .iter()
+        .filter(|m| m.id != house_mesh)
+        .all(|m| m.lods.len() == 3));
+    let bytes = write_trace(&im, TraceFormat::Binary, Vec::new()).unwrap();
+    let r = replay_trace(
+        || TraceInput::new(TraceFormat::Binary, Cursor::new(&bytes[..])),
+        &ReplayConfig {
+            strategies: vec![StrategyKind::Full],
+            width: 16,
+            height: 9,
+            threads: 1,
+            ..ReplayConfig::default()
+        },
+        &TraceSceneOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(r.report.frames, 2);
+}

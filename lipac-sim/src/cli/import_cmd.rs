@@ -92,10 +92,12 @@ pub fn run_import(a: ImportArgs) -> ExitCode {
     match result {
         Ok(s) => {
             println!(
-                "{} meshes (triangles per LOD {} / {} / {}), {} instances ({} GPU-instanced, \
+                "{} meshes ({} with the file's LODs; triangles per LOD {} / {} / {}), \
+                 {} instances ({} GPU-instanced, \
                  {} vegetation, {} animated, {} pinned: not a lipac-core flag yet, ignored), \
                  {} frames, cameras from {}{} -> {}",
                 s.meshes,
+                s.file_lods,
                 s.triangles[0],
                 s.triangles[1],
                 s.triangles[2],

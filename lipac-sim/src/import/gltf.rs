@@ -1,7 +1,8 @@
 //! glTF 2.0 (`.gltf` with embedded base64 or sibling buffers, or `.glb`)
 //! to an [`ImportedScene`]: triangle meshes, instances with world
-//! transforms (node hierarchy and `EXT_mesh_gpu_instancing`), cameras,
-//! and per-instance names and extras for the flag mapping.
+//! transforms (node hierarchy and `EXT_mesh_gpu_instancing`), coarser
+//! LODs from `MSFT_lod`, cameras, and per-instance names and extras for the
+//! flag mapping.
 //!
 //! Parsed with the `gltf` crate without its `import` feature: buffers are
 //! the `.glb` binary chunk, `data:` URIs (base64, decoded here) or files
@@ -9,6 +10,7 @@
 //! materials are not read. Non-triangle primitives (points, lines, strips,
 //! fans) are skipped and counted.
 
+use std::collections::HashMap;
 use std::path::Path;
 
 use ::gltf::accessor::Iter as AccessorIter;
@@ -24,6 +26,18 @@ use crate::error::SimError;
 pub struct ImportedMesh {
     /// The mesh's name (empty if none).
     pub name: String,
+    /// Vertex positions, object space.
+    pub positions: Vec<[f32; 3]>,
+    /// Three indices per triangle.
+    pub indices: Vec<u32>,
+    /// Coarser LODs from the file (`MSFT_lod` on the placing node), finest
+    /// first; empty when the file has none.
+    pub lods: Vec<ImportedLod>,
+}
+
+/// One coarser LOD of an [`ImportedMesh`] from the file.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ImportedLod {
     /// Vertex positions, object space.
     pub positions: Vec<[f32; 3]>,
     /// Three indices per triangle.
@@ -64,8 +78,8 @@ pub struct ImportedCamera {
 /// What a glTF file holds, flattened.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ImportedScene {
-    /// Meshes with at least one triangle, in file order of the glTF meshes
-    /// that have one.
+    /// The placed meshes with at least one triangle, in order of first
+    /// placement (one per glTF mesh and `MSFT_lod` LOD list).
     pub meshes: Vec<ImportedMesh>,
     /// Every placed mesh.
     pub instances: Vec<ImportedInstance>,
@@ -173,7 +187,7 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
 
     let mut scene = ImportedScene::default();
     // glTF mesh index -> imported mesh index.
-    let mut mesh_of = vec![None; doc.meshes().len()];
+    let mut base_meshes: Vec<Option<ImportedMesh>> = vec![None; doc.meshes().len()];
     for m in doc.meshes() {
         let mut out = ImportedMesh {
             name: m.name().unwrap_or_default().to_string(),
@@ -222,8 +236,7 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
             )));
         }
         if !out.indices.is_empty() {
-            mesh_of[m.index()] = Some(scene.meshes.len());
-            scene.meshes.push(out);
+            base_meshes[m.index()] = Some(out);
         }
     }
 
@@ -231,6 +244,8 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
         Some(s) => s.nodes().collect(),
         None => doc.nodes().collect(),
     };
+    // (glTF mesh, MSFT_lod meshes) -> imported mesh.
+    let mut placed_meshes: HashMap<(usize, Vec<usize>), usize> = HashMap::new();
     let mut stack: Vec<Pending<'_>> = roots
         .into_iter()
         .rev()
@@ -271,7 +286,27 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
             });
         }
         if let Some(m) = node.mesh() {
-            if let Some(mesh) = mesh_of[m.index()] {
+            if let Some(base) = &base_meshes[m.index()] {
+                let lod_meshes = msft_lods(doc, &node, &base_meshes)?;
+                let key = (m.index(), lod_meshes);
+                let mesh = match placed_meshes.get(&key) {
+                    Some(&i) => i,
+                    None => {
+                        let mut out = base.clone();
+                        out.lods = key
+                            .1
+                            .iter()
+                            .filter_map(|&lm| base_meshes[lm].as_ref())
+                            .map(|l| ImportedLod {
+                                positions: l.positions.clone(),
+                                indices: l.indices.clone(),
+                            })
+                            .collect();
+                        scene.meshes.push(out);
+                        placed_meshes.insert(key, scene.meshes.len() - 1);
+                        scene.meshes.len() - 1
+                    }
+                };
                 let mut inst_names = names_here.clone();
                 inst_names.push(m.name().unwrap_or_default().to_string());
                 let placements = gpu_instances(doc, &node, &get)?;
@@ -298,6 +333,40 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
         }
     }
     Ok(scene)
+}
+
+/// The glTF meshes (with triangles) of the `MSFT_lod` LOD nodes of `node`,
+/// finest first (empty without the extension).
+fn msft_lods(
+    doc: &Document,
+    node: &Node<'_>,
+    meshes: &[Option<ImportedMesh>],
+) -> Result<Vec<usize>, SimError> {
+    let Some(ext) = node.extension_value("MSFT_lod") else {
+        return Ok(Vec::new());
+    };
+    let ids = ext
+        .get("ids")
+        .and_then(|v| v.as_array())
+        .ok_or_else(|| err(format!("node {}: MSFT_lod without ids", node.index())))?;
+    let mut out = Vec::new();
+    for id in ids {
+        let n = id
+            .as_u64()
+            .and_then(|i| doc.nodes().nth(i as usize))
+            .ok_or_else(|| {
+                err(format!(
+                    "node {}: MSFT_lod id {id} is no node",
+                    node.index()
+                ))
+            })?;
+        if let Some(m) = n.mesh() {
+            if meshes[m.index()].is_some() {
+                out.push(m.index());
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// The per-instance transforms of `EXT_mesh_gpu_instancing` on `node`

@@ -2,10 +2,11 @@
 //! geometry, ready for `lipac replay` (geometry mode,
 //! [`crate::trace_scene`]).
 //!
-//! * **Meshes** ([`gltf`]): every glTF mesh with triangles is a trace mesh
-//!   (its triangle primitives merged) with three LODs: the file's triangles
-//!   and two simplified by meshoptimizer ([`lod`]; glTF has no core LODs,
-//!   and `MSFT_lod` is not read).
+//! * **Meshes** ([`gltf`]): every placed glTF mesh with triangles is a
+//!   trace mesh (its triangle primitives merged). Its LODs are the file's
+//!   where the placing node has `MSFT_lod` (the mesh, then the LOD nodes'
+//!   meshes), else three: the file's triangles and two simplified by
+//!   meshoptimizer ([`lod`]; glTF has no core LODs).
 //! * **Instances**: every node with a mesh, at its world transform (the
 //!   node hierarchy), and every instance of `EXT_mesh_gpu_instancing`
 //!   (float TRANSLATION / ROTATION / SCALE). All are added in frame 0.
@@ -153,8 +154,10 @@ impl Default for ImportConfig {
 pub struct ImportSummary {
     /// Trace meshes.
     pub meshes: usize,
-    /// Triangles of all meshes' LOD 0 / 1 / 2.
+    /// Triangles of all meshes' LOD 0 / 1 / last.
     pub triangles: [u64; 3],
+    /// Meshes whose LODs came from the file (`MSFT_lod`), not generated.
+    pub file_lods: usize,
     /// Instances.
     pub instances: usize,
     /// Of which from `EXT_mesh_gpu_instancing`.
@@ -250,26 +253,43 @@ pub fn to_trace(
     let mut meshes = Vec::with_capacity(scene.meshes.len());
     let mut bounds_of = Vec::with_capacity(scene.meshes.len());
     for (i, m) in scene.meshes.iter().enumerate() {
-        let [l1, l2] = lod::generate_lods(&m.positions, &m.indices)?;
+        // (positions, indices) per LOD: the file's, else generated.
+        let mut levels: Vec<(&[[f32; 3]], Vec<u32>)> = vec![(&m.positions, m.indices.clone())];
+        if m.lods.is_empty() {
+            let [l1, l2] = lod::generate_lods(&m.positions, &m.indices)?;
+            levels.push((&m.positions, l1));
+            levels.push((&m.positions, l2));
+        } else {
+            summary.file_lods += 1;
+            levels.extend(
+                m.lods
+                    .iter()
+                    .map(|l| (l.positions.as_slice(), l.indices.clone())),
+            );
+        }
         let mut lo = Vec3::splat(f32::INFINITY);
         let mut hi = Vec3::splat(f32::NEG_INFINITY);
-        for &ix in &m.indices {
-            let p = Vec3::from(m.positions[ix as usize]);
-            lo = lo.min(p);
-            hi = hi.max(p);
+        for (pos, ix) in &levels {
+            for &k in ix {
+                let p = Vec3::from(pos[k as usize]);
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
         }
         let bounds = Aabb::new(lo, hi);
         bounds_of.push(bounds);
-        let lods = [&m.indices, &l1, &l2]
+        let last = levels.len() - 1;
+        let lods = levels
             .into_iter()
             .enumerate()
-            .map(|(k, ix)| {
-                summary.triangles[k] += (ix.len() / 3) as u64;
+            .map(|(k, (pos, ix))| {
+                let slot = if k == last { 2 } else { k.min(1) };
+                summary.triangles[slot] += (ix.len() / 3) as u64;
                 LodInfo {
                     triangles: (ix.len() / 3) as u32,
                     geometry: Some(LodGeometry {
-                        positions: m.positions.clone(),
-                        indices: ix.clone(),
+                        positions: pos.to_vec(),
+                        indices: ix,
                     }),
                 }
             })
