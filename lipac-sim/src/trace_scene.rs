@@ -455,6 +455,10 @@ impl TraceScene {
     pub fn apply(&mut self, frame: &Frame) -> Result<(), SimError> {
         for (i, e) in frame.events.iter().enumerate() {
             self.apply_event(e).map_err(|err| {
+                let err = match err {
+                    SimError::Replay(m) => m,
+                    other => other.to_string(),
+                };
                 SimError::Replay(format!(
                     "frame number {}, event {i} ({} of instance {}): {err}",
                     frame.number,
@@ -621,6 +625,9 @@ pub fn replay_trace<R: Read>(
     let mut input = open()?;
     let header = input.header().clone();
     let plan = TracePlan::scan(&header, &mut input)?;
+    if plan.slots() == 0 {
+        return Err(SimError::Replay("the trace adds no instance".into()));
+    }
     drop(input);
     let mut input = open()?;
     if *input.header() != header {
