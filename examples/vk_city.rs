@@ -4,7 +4,7 @@
 //! readback ring → command queue → BLAS build plans for the next frames.
 //!
 //! ```text
-//! cargo run --release --example vk_city -- [--instances N] [--full] [--frames F]
+//! cargo run --release --features vk,sim --example vk_city -- [--instances N] [--full] [--frames F]
 //!                                          [--width W] [--height H] [--out FILE.png]
 //! ```
 //!

@@ -6,11 +6,25 @@
 //! * [`core`] — renderer-agnostic state (`lipac-core`): instances, hitboxes,
 //!   the instance/hitbox state machine, TLAS assembly and feedback processing
 //!   (CPU reference), the readback command loop and latency mitigation.
-//! * [`vk`] — the Vulkan backend on `ash` (`lipac-vk`).
-//! * [`sim`] — the CPU laboratory on `obvhs` (`lipac-sim`).
+//!   Always there.
+//! * `vk` — the Vulkan backend on `ash` (`lipac-vk`); feature `vk`.
+//! * `sim` — the CPU laboratory on `obvhs` (`lipac-sim`); feature `sim`.
+//!
+//! Both features are off by default, so `lipac = "0.1"` builds neither ash
+//! nor obvhs, clap or indicatif:
+//!
+//! ```toml
+//! [dependencies]
+//! lipac = { version = "0.1", features = ["vk"] }
+//! ```
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+#![cfg_attr(docsrs, feature(doc_cfg))]
 
 pub use lipac_core as core;
+#[cfg(feature = "sim")]
+#[cfg_attr(docsrs, doc(cfg(feature = "sim")))]
 pub use lipac_sim as sim;
+#[cfg(feature = "vk")]
+#[cfg_attr(docsrs, doc(cfg(feature = "vk")))]
 pub use lipac_vk as vk;

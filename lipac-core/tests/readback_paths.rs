@@ -122,7 +122,8 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
     let mut ring = ReadbackRing::new(LATENCY).unwrap();
     // B's read-backs: (frame it becomes readable, counter, words).
     let mut raw: VecDeque<(u64, u32, Vec<u32>)> = VecDeque::new();
-    let mut live: Vec<InstanceHandle> = Vec::new();
+    // (a's handle, b's handle): handles carry their manager's id.
+    let mut live: Vec<(InstanceHandle, InstanceHandle)> = Vec::new();
     let mut removed_slots: Vec<u32> = Vec::new();
     let mut acks: Vec<(u64, Ack)> = Vec::new();
     let mut next_address = 0x10_0000u64;
@@ -184,22 +185,23 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             if live.is_empty() {
                 break;
             }
-            let h = live.swap_remove(k % live.len());
+            let (h, hb) = live.swap_remove(k % live.len());
             let slot = a.instance(h).unwrap().slot;
-            prop_assert_eq!(a.remove(h).unwrap(), b.remove(h).unwrap());
+            prop_assert_eq!(a.remove(h).unwrap(), b.remove(hb).unwrap());
             removed_slots.push(slot);
         }
         for &(cell, unique) in &ops.register {
             let d = desc(cell % 16, registrations, unique);
             registrations += 1;
             let h = a.register(d).unwrap();
-            prop_assert_eq!(b.register(d).unwrap(), h);
+            let hb = b.register(d).unwrap();
             let slot = a.instance(h).unwrap().slot;
+            prop_assert_eq!(b.instance(hb).unwrap().slot, slot);
             if let Some(i) = removed_slots.iter().position(|&s| s == slot) {
                 removed_slots.swap_remove(i);
                 totals.reused_slots += 1;
             }
-            live.push(h);
+            live.push((h, hb));
         }
 
         // Plan; the backend "builds" at once and acknowledges next frame.
@@ -208,7 +210,15 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             ..FrameBudgets::default()
         };
         let plan = a.plan(&budgets).unwrap();
-        prop_assert_eq!(&plan, &b.plan(&budgets).unwrap());
+        let mut plan_b = b.plan(&budgets).unwrap();
+        // The plans are equal but for the handles (each names its manager).
+        prop_assert_eq!(plan.data_uploads.len(), plan_b.data_uploads.len());
+        for (ua, ub) in plan.data_uploads.iter().zip(&mut plan_b.data_uploads) {
+            prop_assert_eq!(a.instance(ua.handle).unwrap().slot, ua.slot);
+            prop_assert_eq!(b.instance(ub.handle).unwrap().slot, ub.slot);
+            ub.handle = ua.handle;
+        }
+        prop_assert_eq!(&plan, &plan_b);
         for build in plan.blas.builds() {
             next_address += 0x1000;
             let ack = Ack::Built {
@@ -225,9 +235,9 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             .flat_map(|r| r.words.iter())
             .map(|&w| Command::decode(w, MAX_SLOTS).unwrap().slot)
             .collect();
-        for &h in &live {
+        for &(h, hb) in &live {
             let v = a.instance(h).unwrap();
-            prop_assert_eq!(&v, &b.instance(h).unwrap());
+            prop_assert_eq!(&v, &b.instance(hb).unwrap());
             let active = v.state == InstanceState::Active;
             let agrees = if active {
                 v.blas != 0 || v.awaiting_blas

@@ -57,6 +57,9 @@ pub enum SimError {
     Replay(String),
     /// A scene file could not be imported (`crate::import`).
     Import(String),
+    /// Sweep shards that do not merge into one sweep (missing, repeated,
+    /// from other settings).
+    Shard(String),
 }
 
 impl fmt::Display for SimError {
@@ -88,6 +91,7 @@ impl fmt::Display for SimError {
             Self::Trace(e) => write!(f, "{e}"),
             Self::Replay(what) => write!(f, "cannot replay: {what}"),
             Self::Import(what) => write!(f, "cannot import: {what}"),
+            Self::Shard(what) => write!(f, "cannot merge sweep shards: {what}"),
         }
     }
 }

@@ -21,17 +21,22 @@
 //! oracle is plotted as a reference but kept off the fronts: it reads the
 //! ground truth's hits, no renderer can do that, and its zero error would
 //! dominate every costlier configuration.
+//!
+//! **On many machines.** [`shard`] splits a sweep into disjoint parts
+//! (`lipac sweep --shard K/N`) and merges their results into the report of
+//! one run (`lipac sweep --merge DIR...`); docs/SCALING_OUT.md shows Slurm,
+//! Kubernetes and GNU parallel set-ups.
+
+pub mod shard;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::thresholds::Thresholds;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::CameraPath;
-use crate::compare::{make_strategy, run_contenders, CompareConfig, Contender, SceneChoice};
+use crate::compare::{make_strategy, Contender, SceneChoice};
 use crate::error::SimError;
 use crate::metrics::Summary;
 use crate::plots::pareto_plot;
@@ -331,11 +336,13 @@ pub struct SweepScene {
     pub name: String,
     /// Scene instances.
     pub instances: u64,
-    /// Mean ground-truth render time, ms.
+    /// Mean ground-truth render time, ms (merged shards: the mean over the
+    /// shards that rendered it).
     pub ground_truth_ms: f64,
     /// Mean bounce plus shadow rays of the ground truth per frame.
     pub traced_rays_per_frame: f64,
-    /// Wall time of the scene's runs, s.
+    /// Wall time of the scene's runs, s (merged shards: the sum over the
+    /// shards that ran the scene).
     pub wall_s: f64,
 }
 
@@ -356,7 +363,7 @@ pub struct SweepReport {
     pub points: Vec<SweepPoint>,
     /// Variants dropped as duplicates of an earlier one.
     pub skipped: Vec<String>,
-    /// Wall time, s.
+    /// Wall time, s (merged shards: the sum of theirs).
     pub wall_s: f64,
 }
 
@@ -450,102 +457,13 @@ fn mark_scene_fronts(points: &mut [SweepPoint]) {
 }
 
 /// Runs the sweep. `progress(scene index, scenes, frame, frames)` is called
-/// after every frame.
+/// after every frame. The same as [`shard::run_shard`] of shard 1/1,
+/// [`shard::merge`]d; `lipac sweep --shard K/N` runs a part of it.
 pub fn run(
     config: &SweepConfig,
     progress: &mut dyn FnMut(usize, usize, u32, u32),
 ) -> Result<SweepReport, SimError> {
-    let start = Instant::now();
-    if config.scenes.is_empty() {
-        return Err(SimError::BadConfig("no scene to sweep"));
-    }
-    for (i, s) in config.scenes.iter().enumerate() {
-        if config.scenes[..i].contains(s) {
-            return Err(SimError::BadConfig("a scene is listed twice"));
-        }
-    }
-    let (variants, skipped) = config.variants()?;
-    let base = LipacConfig::for_rays_per_frame(config.rays_per_frame())?;
-    let compare = CompareConfig {
-        frames: config.frames,
-        width: config.width,
-        height: config.height,
-        strategies: Vec::new(),
-        share_ground_truth: true,
-        threads: config.threads,
-    };
-    let mut scenes = Vec::new();
-    let mut points = Vec::new();
-    let mut frames = 0;
-    let count = config.scenes.len();
-    for (si, &choice) in config.scenes.iter().enumerate() {
-        let mut scene = Scene::generate(&choice.config(config.seed))?;
-        let aspect = config.width as f32 / config.height.max(1) as f32;
-        let path = CameraPath::flythrough(&scene, aspect);
-        let contenders = variants
-            .iter()
-            .map(|v| make_contender(v, &scene, &base))
-            .collect::<Result<Vec<_>, _>>()?;
-        let r = run_contenders(
-            choice.name(),
-            &mut scene,
-            &path,
-            &compare,
-            contenders,
-            &mut |d, t| progress(si, count, d, t),
-        )?;
-        frames = r.frames;
-        let scene_points: Vec<SweepPoint> = variants
-            .iter()
-            .zip(&r.strategies)
-            .map(|(v, run)| {
-                let th = v.lipac.as_ref().map(|c| {
-                    let t = c.thresholds;
-                    [t.theta_a, t.theta_d, t.sigma_a, t.sigma_o, t.n_a, t.n_d]
-                });
-                SweepPoint {
-                    scene: r.scene.clone(),
-                    name: v.name.clone(),
-                    family: v.family,
-                    strategy: v.kind.name().to_string(),
-                    factor: v.factor,
-                    cell_size: v.lipac.as_ref().map(|c| c.cell_size),
-                    thresholds: th,
-                    latency: v
-                        .lipac
-                        .as_ref()
-                        .and_then(|c| c.latency)
-                        .map(|h| [h.max_distance, h.min_projected_size]),
-                    builds_per_frame: run.summary.builds as f64 / f64::from(r.frames.max(1)),
-                    frame_errors: run.frames.iter().map(|m| m.error).collect(),
-                    summary: run.summary.clone(),
-                    front_time: false,
-                    front_memory: false,
-                    front_builds: false,
-                }
-            })
-            .collect();
-        points.extend(scene_points);
-        scenes.push(SweepScene {
-            name: r.scene.clone(),
-            instances: r.instances,
-            ground_truth_ms: r.ground_truth_ms,
-            traced_rays_per_frame: r.traced_rays_per_frame,
-            wall_s: r.wall_s,
-        });
-    }
-    let mut report = SweepReport {
-        frames,
-        width: config.width,
-        height: config.height,
-        rays_per_frame: config.rays_per_frame(),
-        scenes,
-        points,
-        skipped,
-        wall_s: start.elapsed().as_secs_f64(),
-    };
-    mark_fronts(&mut report);
-    Ok(report)
+    shard::merge(&[shard::run_shard(config, shard::Shard::WHOLE, progress)?])
 }
 
 /// The three costs plotted against error: file name, title, axis label,

@@ -6,6 +6,8 @@
 //! cargo run --release -p lipac-sim --bin lipac -- record --scene small --frames 60 small.lipactrace
 //! cargo run --release -p lipac-sim --bin lipac -- replay small.lipactrace
 //! cargo run --release -p lipac-sim --bin lipac -- sweep --frames 60
+//! cargo run --release -p lipac-sim --bin lipac -- sweep --frames 60 --shard 2/3 --out part-2
+//! cargo run --release -p lipac-sim --bin lipac -- sweep --merge part-1 part-2 part-3
 //! ```
 
 #[path = "../cli/import_cmd.rs"]
@@ -158,7 +160,7 @@ struct SweepArgs {
     /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
     /// lipac-sim's default, 32 m); empty for none.
     #[arg(long, value_delimiter = ',', default_value = "16,64")]
-    cells: Vec<f64>,
+    cells: Vec<String>,
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
     streaks: Vec<String>,
@@ -185,8 +187,17 @@ struct SweepArgs {
     out: PathBuf,
     /// Render nothing: read this sweep.json, recompute the Pareto fronts and
     /// write the outputs again (e.g. after a plot change).
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["shard", "merge"])]
     replot: Option<PathBuf>,
+    /// Run only part K of N (1 <= K <= N) of the sweep and write its
+    /// results to `--out` as sweep-shard-K-of-N.json; run all N with the
+    /// same other flags (e.g. one per machine), then `--merge` them.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<sweep::shard::Shard>,
+    /// Render nothing: combine the shard files in these folders (or files)
+    /// into the report of one run, written to `--out`.
+    #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with = "shard")]
+    merge: Vec<PathBuf>,
 }
 
 fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Result<(A, B), String> {
@@ -209,15 +220,32 @@ fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
     Ok(())
 }
 
+fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
+    let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
+    let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
+    print!("{}", sweep::sweep_markdown(&report));
+    sweep::write_sweep(&report, out).map_err(|e| format!("writing the report: {e}"))?;
+    println!(
+        "\n{} shards merged; sweep in {}/sweep.md",
+        shards.len(),
+        out.display()
+    );
+    Ok(())
+}
+
 fn sweep_main(a: SweepArgs) -> ExitCode {
+    let done = |r: Result<(), String>| match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("lipac sweep: {e}");
+            ExitCode::FAILURE
+        }
+    };
     if let Some(from) = &a.replot {
-        return match replot(from, &a.out) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("lipac sweep: {e}");
-                ExitCode::FAILURE
-            }
-        };
+        return done(replot(from, &a.out));
+    }
+    if !a.merge.is_empty() {
+        return done(merge(&a.merge, &a.out));
     }
     let parsed = (|| -> Result<SweepConfig, String> {
         let streaks = a
@@ -246,7 +274,16 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             baselines: a.baselines.iter().map(|&s| s.into()).collect(),
             factors: a.factors.clone(),
             latency,
-            cell_sizes: a.cells.clone(),
+            cell_sizes: a
+                .cells
+                .iter()
+                .filter(|s| !s.is_empty())
+                .map(|s| {
+                    s.trim()
+                        .parse()
+                        .map_err(|_| format!("cell size `{s}`: not a number"))
+                })
+                .collect::<Result<Vec<f64>, _>>()?,
             streaks,
             threads: a.threads,
         })
@@ -264,11 +301,28 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let names: Vec<&str> = config.scenes.iter().map(|s| s.name()).collect();
-    let result = sweep::run(&config, &mut |si, count, done, total| {
+    let mut progress = |si: usize, count: usize, done: u32, total: u32| {
         bar.set_message(format!("{} ({}/{count})", names[si], si + 1));
         bar.set_length(u64::from(total));
         bar.set_position(u64::from(done));
-    });
+    };
+    if let Some(shard) = a.shard {
+        let result = sweep::shard::run_shard(&config, shard, &mut progress);
+        bar.finish_and_clear();
+        return done(result.map_err(|e| e.to_string()).and_then(|part| {
+            let path = sweep::shard::write_shard(&part, &a.out).map_err(|e| e.to_string())?;
+            println!(
+                "shard {shard}: {} of the sweep's {} (scene, configuration) runs, on {} scene(s), in {:.1} s; results in {}",
+                part.points.len(),
+                part.plan.len(),
+                part.scenes.len(),
+                part.wall_s,
+                path.display()
+            );
+            Ok(())
+        }));
+    }
+    let result = sweep::run(&config, &mut progress);
     bar.finish_and_clear();
     let report = match result {
         Ok(r) => r,
