@@ -28,6 +28,8 @@
 //!   the world (no ray reaches it). Slots whose occupant moves, comes or
 //!   goes after the first frame are animated for the strategies (LiPaC
 //!   follows their poses; their BLASes are accounted as refit per frame).
+//!   A parked slot still counts for strategies that keep it (the full
+//!   scene's TLAS records and modelled memory include parked slots).
 //! * `unique_blas` is not modelled (every trace mesh is a shared BLAS).
 //!
 //! Memory follows the live instances (slots, one map entry per live id) and
