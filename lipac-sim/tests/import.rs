@@ -342,3 +342,72 @@ fn msft_lod_levels_are_the_files_not_generated() {
     .unwrap();
     assert_eq!(r.report.frames, 2);
 }
+
+#[test]
+fn cli_imports_a_glb_and_replays_it_with_the_error() {
+    let dir = std::env::temp_dir().join(format!("lipac-import-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let glb = dir.join("scene.glb");
+    std::fs::write(&glb, glb_file(true)).unwrap();
+    let trace = dir.join("scene.lipactrace");
+    let lipac = env!("CARGO_BIN_EXE_lipac");
+    let out = std::process::Command::new(lipac)
+        .args(["import", "--frames", "4"])
+        .arg(&glb)
+        .arg(&trace)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("6 instances (3 GPU-instanced"), "{stdout}");
+    assert!(stdout.contains("cameras from the file"), "{stdout}");
+    let report = dir.join("report");
+    let out = std::process::Command::new(lipac)
+        .arg("replay")
+        .arg(&trace)
+        .args([
+            "--strategies",
+            "full,oracle",
+            "--width",
+            "24",
+            "--height",
+            "16",
+        ])
+        .args(["--threads", "1", "--out"])
+        .arg(&report)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["frames"], 4);
+    assert_eq!(json["scene"], "gltf:scene.glb");
+    let full = json["strategies"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == "full")
+        .unwrap();
+    assert_eq!(full["summary"]["max_error"], 0.0);
+    // A missing input fails cleanly and leaves no output behind.
+    let missing = dir.join("missing.lipactrace");
+    let out = std::process::Command::new(lipac)
+        .arg("import")
+        .arg(dir.join("nope.glb"))
+        .arg(&missing)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("nope.glb"));
+    assert!(!missing.exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
