@@ -9,7 +9,7 @@ use std::fmt::Write as _;
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::report::{headline, PLOTS};
-use crate::snapshot::{heat_scale_png, Snapshot, MAP_SIZE};
+use crate::snapshot::{heat_scale_png, Pictures, Snapshot};
 use crate::tlas_map::MapState;
 
 /// Escapes `&`, `<`, `>` and `"` for HTML text and attributes.
@@ -66,12 +66,20 @@ ul.legend{list-style:none;padding:0;display:flex;flex-wrap:wrap;gap:6px 18px;fon
 ul.legend span{display:inline-block;width:14px;height:14px;margin-right:6px;vertical-align:middle;border:1px solid #777}";
 
 /// The page over `r` and `snapshots` (see the module docs). `plots` are the
-/// SVG documents of [`PLOTS`], in order.
+/// SVG documents of [`PLOTS`], in order; `pictures` those of each snapshot
+/// ([`Snapshot::pictures`]).
 pub fn report_html(
     r: &CompareReport,
     plots: &[String],
     snapshots: &[Snapshot],
+    pictures: &[Pictures],
 ) -> Result<String, SimError> {
+    if snapshots.len() != pictures.len() {
+        return Err(SimError::SizeMismatch {
+            a: snapshots.len(),
+            b: pictures.len(),
+        });
+    }
     let mut s = String::new();
     let title = format!("lipac: culling strategies compared on {}", r.scene);
     let _ = write!(
@@ -136,7 +144,7 @@ pub fn report_html(
             "bar",
         );
         s.push_str("<h2 id=\"snapshots\">Snapshots</h2>\n<p>Indirect light of the ground truth and of each strategy, all at the ground truth's exposure, and each strategy's per-pixel error |strategy − ground truth| (heat map; black is exactly zero).</p>\n");
-        for snap in snapshots {
+        for (snap, pics) in snapshots.iter().zip(pictures) {
             let scale = snap.scale();
             let _ = writeln!(
                 s,
@@ -146,16 +154,16 @@ pub fn report_html(
             let _ = writeln!(
                 s,
                 "<figure>{}<figcaption><b>ground truth</b></figcaption></figure>",
-                img("image/png", &snap.ground_truth_png()?, "ground truth", "px")
+                img("image/png", &pics.ground_truth, "ground truth", "px")
             );
-            for (i, st) in snap.strategies.iter().enumerate() {
+            for (st, [image, heat, _]) in snap.strategies.iter().zip(&pics.strategies) {
                 let _ = writeln!(
                     s,
                     "<figure>{}<figcaption><b>{}</b>: error {:.4}</figcaption>{}<figcaption>{} error heat map</figcaption></figure>",
-                    img("image/png", &snap.strategy_png(i)?, &st.name, "px"),
+                    img("image/png", image, &st.name, "px"),
                     escape(&st.name),
                     st.error,
-                    img("image/png", &snap.heat_png(i)?, &format!("{} error", st.name), "px"),
+                    img("image/png", heat, &format!("{} error", st.name), "px"),
                     escape(&st.name)
                 );
             }
@@ -183,13 +191,13 @@ pub fn report_html(
             }
             s.push_str("</ul>\n");
         }
-        for snap in snapshots {
+        for (snap, pics) in snapshots.iter().zip(pictures) {
             let _ = writeln!(s, "<h3>Frame {}</h3>\n<div class=\"snap\">", snap.frame);
-            for st in &snap.strategies {
+            for (st, [_, _, map]) in snap.strategies.iter().zip(&pics.strategies) {
                 let _ = writeln!(
                     s,
                     "<figure>{}<figcaption><b>{}</b>: {} active, {} omitted, {} inactive, {} inactive hitboxes</figcaption></figure>",
-                    img("image/png", &st.map.png(MAP_SIZE)?, &format!("{} TLAS map", st.name), "map"),
+                    img("image/png", map, &format!("{} TLAS map", st.name), "map"),
                     escape(&st.name),
                     st.map.count(MapState::Active),
                     st.map.count(MapState::Omitted),

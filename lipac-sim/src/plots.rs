@@ -304,6 +304,7 @@ impl Plot {
             let pt = |&(a, b): &(f64, f64)| (cx.clamp(a), cy.clamp(b));
             // Non-finite values (a hits-only replay has no error) are not drawn.
             let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
+            let mut placed: Vec<[i32; 4]> = Vec::new();
             for s in &self.series {
                 let c = s.color.rgb();
                 match &s.shape {
@@ -352,20 +353,27 @@ impl Plot {
                             .map_err(|e| err(&e))?;
                     }
                     Shape::Labels(l) => {
-                        chart
-                            .draw_series(
-                                l.iter().filter(|l| l.0.is_finite() && l.1.is_finite()).map(
-                                    |(a, b, t)| {
-                                        EmptyElement::at(pt(&(*a, *b)))
-                                            + Text::new(
-                                                t.clone(),
-                                                (5, -14),
-                                                ("sans-serif", 11).into_font(),
-                                            )
-                                    },
-                                ),
-                            )
+                        // Each label takes the first of a few places beside
+                        // its point that no earlier label covers.
+                        for (a, b, t) in l.iter().filter(|l| l.0.is_finite() && l.1.is_finite()) {
+                            let (px, py) = chart.backend_coord(&pt(&(*a, *b)));
+                            let w = 6 * t.chars().count() as i32;
+                            let spot = LABEL_SPOTS
+                                .iter()
+                                .map(|&(dx, dy)| {
+                                    let x = if dx < 0 { px - w + dx } else { px + dx };
+                                    [x, py + dy, x + w, py + dy + 12]
+                                })
+                                .find(|r| !placed.iter().any(|q| overlaps(r, q)))
+                                .unwrap_or([px + 5, py - 14, px + 5 + w, py - 2]);
+                            placed.push(spot);
+                            left.draw(&Text::new(
+                                t.clone(),
+                                (spot[0], spot[1]),
+                                ("sans-serif", 11).into_font().color(&c),
+                            ))
                             .map_err(|e| err(&e))?;
+                        }
                     }
                 }
             }
@@ -423,6 +431,14 @@ impl Plot {
         }
         Ok(out)
     }
+}
+
+/// Offsets (pixels, top left of the text; negative x: right-aligned left of
+/// the point) tried in turn for a point's label.
+const LABEL_SPOTS: [(i32, i32); 6] = [(6, -15), (6, 3), (-6, -15), (-6, 3), (6, -6), (-6, -6)];
+
+fn overlaps(a: &[i32; 4], b: &[i32; 4]) -> bool {
+    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
 }
 
 /// A log range a hair wider, so that plotters labels both end decades.
@@ -680,6 +696,43 @@ mod tests {
             .collect();
         assert_eq!(ys.len(), 2);
         assert_ne!(ys[0], ys[1]);
+    }
+
+    #[test]
+    fn labels_of_coincident_points_do_not_overlap() {
+        let mut p = Plot::new(
+            "T",
+            Axis::fixed("x", 0.0..10.0),
+            Axis::fixed("y", 0.0..10.0),
+        );
+        p.series.push(Series {
+            name: None,
+            color: Color::Palette(0),
+            shape: Shape::Labels(vec![
+                (5.0, 5.0, "first".into()),
+                (5.0, 5.0, "second".into()),
+                (5.0, 5.0, "third".into()),
+            ]),
+        });
+        let svg = p.svg().unwrap();
+        let spot = |name: &str| -> (String, String) {
+            let t = svg
+                .split("<text")
+                .find(|t| t.contains(&format!("\n{name}\n")))
+                .unwrap();
+            let attr = |a: &str| {
+                t.split(&format!(" {a}=\""))
+                    .nth(1)
+                    .unwrap()
+                    .split('"')
+                    .next()
+                    .unwrap()
+                    .to_string()
+            };
+            (attr("x"), attr("y"))
+        };
+        let (a, b, c) = (spot("first"), spot("second"), spot("third"));
+        assert!(a != b && b != c && a != c, "{a:?} {b:?} {c:?}");
     }
 
     #[test]

@@ -47,6 +47,7 @@ use crate::compare::{CompareConfig, CompareReport, Comparison};
 use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
 use crate::scene::Scene;
+use crate::snapshot::Snapshot;
 use crate::strategy::StrategyKind;
 
 /// How a trace is replayed.
@@ -76,6 +77,9 @@ pub struct ReplayConfig {
     /// always keeps them). Without them the summaries still cover every
     /// frame, and memory does not grow with the trace's length.
     pub keep_frames: bool,
+    /// Frame numbers to take [`Snapshot`]s of (geometry mode only; see
+    /// [`replay_with_snapshots`]).
+    pub snapshots: Vec<u32>,
 }
 
 impl Default for ReplayConfig {
@@ -88,6 +92,7 @@ impl Default for ReplayConfig {
             threads: 0,
             mode: None,
             keep_frames: true,
+            snapshots: Vec::new(),
         }
     }
 }
@@ -184,13 +189,29 @@ pub fn mode_for(header: &TraceHeader, config: &ReplayConfig) -> ReplayMode {
 /// Replays `input` (see the module docs). `progress(frames_done)` is called
 /// after every frame.
 pub fn replay<R: Read>(
-    mut input: TraceInput<R>,
+    input: TraceInput<R>,
     config: &ReplayConfig,
     progress: &mut dyn FnMut(u64),
 ) -> Result<CompareReport, SimError> {
+    replay_with_snapshots(input, config, progress).map(|(r, _)| r)
+}
+
+/// [`replay`], also returning the snapshots of `config.snapshots` (frame
+/// numbers the trace does not reach are ignored). Only geometry mode
+/// renders; asking a hits-only replay for snapshots is an error.
+pub fn replay_with_snapshots<R: Read>(
+    mut input: TraceInput<R>,
+    config: &ReplayConfig,
+    progress: &mut dyn FnMut(u64),
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
     match mode_for(input.header(), config) {
         ReplayMode::Geometry => replay_geometry(&mut input, config, progress),
-        ReplayMode::HitsOnly => hits::replay_hits(&mut input, config, progress),
+        ReplayMode::HitsOnly if !config.snapshots.is_empty() => Err(SimError::Replay(
+            "snapshots need geometry mode: a hits-only replay renders no images".into(),
+        )),
+        ReplayMode::HitsOnly => {
+            hits::replay_hits(&mut input, config, progress).map(|r| (r, Vec::new()))
+        }
     }
 }
 
@@ -198,7 +219,7 @@ fn replay_geometry<R: Read>(
     input: &mut TraceInput<R>,
     config: &ReplayConfig,
     progress: &mut dyn FnMut(u64),
-) -> Result<CompareReport, SimError> {
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
     let h = input.header().clone();
     let scene_ref = SceneRef::parse(&h.scene_name).ok_or_else(|| {
         SimError::Replay(format!(
@@ -225,6 +246,7 @@ fn replay_geometry<R: Read>(
         threads: config.threads,
     };
     let mut cmp = Comparison::new(scene_ref.scene.name(), &scene, &cc)?;
+    cmp.capture_frames(&config.snapshots);
     let n = scene.instances().len();
     let mut frame = empty_frame();
     let mut path = None;
@@ -284,7 +306,7 @@ fn replay_geometry<R: Read>(
         read += 1;
         progress(read);
     }
-    cmp.finish()
+    cmp.finish_with_snapshots()
 }
 
 fn check_meshes(got: &TraceHeader, expected: &TraceHeader) -> Result<(), SimError> {

@@ -249,7 +249,11 @@ pub fn write_report_with_snapshots(
     std::fs::create_dir_all(dir)?;
     let json = serde_json::to_string_pretty(r).map_err(|e| SimError::Io(e.to_string()))?;
     let svgs = plots(r)?;
-    let html = report_html(r, &svgs, snapshots)?;
+    let pictures = snapshots
+        .iter()
+        .map(Snapshot::pictures)
+        .collect::<Result<Vec<_>, _>>()?;
+    let html = report_html(r, &svgs, snapshots, &pictures)?;
     let mut files: Vec<(&str, String)> = vec![
         ("report.md", markdown(r, !snapshots.is_empty())),
         ("report.json", json),
@@ -263,6 +267,6 @@ pub fn write_report_with_snapshots(
         std::fs::write(&p, body)?;
         paths.push(p);
     }
-    paths.extend(write_snapshots(snapshots, dir)?);
+    paths.extend(write_snapshots(snapshots, &pictures, dir)?);
     Ok(paths)
 }

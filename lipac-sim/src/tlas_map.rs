@@ -10,7 +10,8 @@
 //! * **omitted**: a counting box stands for the instance (a hit counts for it);
 //! * **inactive**: nothing in the TLAS names it (it lies in an inactive
 //!   hitbox, or the strategy culled it outright);
-//! * **inactive hitbox**: a counting box standing for a whole cell.
+//! * **inactive hitbox**: a counting box standing for a whole cell, pale
+//!   without hits this frame, darker the more hits it counted.
 //!
 //! Active hitboxes have no record of their own and are not drawn. Terrain
 //! tiles are drawn as outlines. lipac-sim has no pinned (always resident)
@@ -212,7 +213,7 @@ impl TlasMap {
                 HITBOX_COLD,
                 self.hitboxes.len() - hot,
             ),
-            ("inactive hitbox, hit", HITBOX_HOT, hot),
+            ("inactive hitbox, hit (darker: more hits)", HITBOX_HOT, hot),
             (
                 "inactive instance",
                 INACTIVE,
@@ -277,9 +278,17 @@ impl TlasMap {
         for i in self.instances.iter().filter(|i| i.terrain) {
             rect(&mut img, i.min, i.max, TERRAIN, 1.0, false);
         }
+        // Hit hitboxes darken with their share of the frame's most hit one.
+        let most = self
+            .hitboxes
+            .iter()
+            .map(|h| h.hits)
+            .max()
+            .unwrap_or(0)
+            .max(1);
         for h in &self.hitboxes {
             let (color, alpha) = if h.hits > 0 {
-                (HITBOX_HOT, 0.55)
+                (HITBOX_HOT, 0.4 + 0.55 * h.hits as f32 / most as f32)
             } else {
                 (HITBOX_COLD, 0.35)
             };

@@ -52,8 +52,9 @@ use crate::error::SimError;
 use crate::mesh::{material, Mesh, MeshKind, MeshLibrary, MeshLod, LOD_COUNT};
 use crate::pathtrace::PathTraceConfig;
 use crate::record::{from_trace_camera, SceneRef};
-use crate::replay::{empty_frame, replay, ReplayConfig, ReplayMode, TraceInput};
+use crate::replay::{empty_frame, replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
 use crate::scene::{flags, Scene, SceneConfig, SceneInstance};
+use crate::snapshot::Snapshot;
 use crate::strategy::StrategyKind;
 
 /// How far below the world a slot that is not live waits, metres.
@@ -612,6 +613,8 @@ pub struct TraceReplay {
     pub slots: usize,
     /// Header mesh ids traced as box proxies.
     pub box_proxies: Vec<u32>,
+    /// The snapshots of `ReplayConfig::snapshots`, in frame order.
+    pub snapshots: Vec<Snapshot>,
 }
 
 /// Replays a trace in geometry mode through a [`TraceScene`] (see the
@@ -677,6 +680,7 @@ pub fn replay_trace<R: Read>(
             Some(c) => c,
             None => {
                 let mut c = Comparison::new(&name, ts.scene(), &cc)?;
+                c.capture_frames(&config.snapshots);
                 let l = options.lighting;
                 c.set_lighting(l.sun_direction, l.sun_irradiance, l.sky_radiance)?;
                 cmp.insert(c)
@@ -691,13 +695,14 @@ pub fn replay_trace<R: Read>(
             "the trace changed between its two reads (frame count)".into(),
         ));
     }
-    let report = cmp
+    let (report, snapshots) = cmp
         .ok_or_else(|| SimError::Replay("the trace has no frames".into()))?
-        .finish()?;
+        .finish_with_snapshots()?;
     Ok(TraceReplay {
         report,
         slots: plan.slots(),
         box_proxies: ts.box_proxies,
+        snapshots,
     })
 }
 
@@ -713,13 +718,13 @@ pub fn has_geometry(header: &TraceHeader) -> bool {
 /// [`crate::replay::replay`]; any other trace in geometry mode (asked for,
 /// or by default when its header carries every mesh's geometry or
 /// `options.box_proxy` is set) through a [`TraceScene`]. Returns the report
-/// and, for a trace-backed replay, the [`TraceReplay`] facts.
+/// and the snapshots of `config.snapshots`.
 pub fn replay_path(
     path: &Path,
     config: &ReplayConfig,
     options: &TraceSceneOptions,
     progress: &mut dyn FnMut(u64),
-) -> Result<(CompareReport, Option<TraceReplay>), SimError> {
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
     let input = TraceInput::open(path)?;
     let h = input.header();
     let builtin = SceneRef::parse(&h.scene_name).is_some();
@@ -730,9 +735,9 @@ pub fn replay_path(
             None => options.box_proxy || has_geometry(h),
         };
     if !trace_backed {
-        return replay(input, config, progress).map(|r| (r, None));
+        return replay_with_snapshots(input, config, progress);
     }
     drop(input);
     let r = replay_trace(|| TraceInput::open(path), config, options, progress)?;
-    Ok((r.report.clone(), Some(r)))
+    Ok((r.report, r.snapshots))
 }

@@ -378,7 +378,7 @@ fn cli_imports_a_glb_and_replays_it_with_the_error() {
             "--height",
             "16",
         ])
-        .args(["--threads", "1", "--out"])
+        .args(["--threads", "1", "--snapshots", "2", "--out"])
         .arg(&report)
         .output()
         .unwrap();
@@ -398,6 +398,8 @@ fn cli_imports_a_glb_and_replays_it_with_the_error() {
         .find(|s| s["name"] == "full")
         .unwrap();
     assert_eq!(full["summary"]["max_error"], 0.0);
+    // Snapshots work on trace-backed replays too.
+    assert!(report.join("snapshots/frame-0002").is_dir());
     // A missing input fails cleanly and leaves no output behind.
     let missing = dir.join("missing.lipactrace");
     let out = std::process::Command::new(lipac)

@@ -47,6 +47,7 @@ fn headless(browser: &Path, profile: &Path, args: &[String], page: &str) -> Stri
             "--disable-gpu",
             "--hide-scrollbars",
             "--no-first-run",
+            "--disable-dev-shm-usage",
             "--allow-file-access-from-files",
         ])
         .arg(format!("--user-data-dir={}", profile.display()))

@@ -126,3 +126,44 @@ fn report_folder_holds_the_pictures() {
     assert!(html.contains("<h3>Frame 2</h3>"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_geometry_replay_takes_the_same_snapshots_as_compare() {
+    use lipac_core::trace::TraceFormat;
+    use lipac_sim::record::{record, CameraChoice, RecordConfig};
+    use lipac_sim::replay::{replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
+    let rec = RecordConfig {
+        scene: SceneChoice::Small,
+        seed: None,
+        camera: CameraChoice::Flythrough,
+        frames: Some(3),
+        aspect: 40.0 / 24.0,
+        geometry: false,
+    };
+    let bytes = record(&rec, TraceFormat::Binary, Vec::new()).unwrap().0;
+    let config = ReplayConfig {
+        strategies: vec![StrategyKind::Full, StrategyKind::Lipac],
+        width: 40,
+        height: 24,
+        threads: 2,
+        snapshots: vec![2],
+        ..ReplayConfig::default()
+    };
+    let input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();
+    let (_, replayed) = replay_with_snapshots(input, &config, &mut |_| {}).unwrap();
+    let (_, compared) = run(3, &[2]);
+    assert_eq!(replayed.len(), 1);
+    assert_eq!(replayed[0].ground_truth, compared[0].ground_truth);
+    assert_eq!(
+        replayed[0].strategies[1].indirect,
+        compared[0].strategies[1].indirect
+    );
+    // Hits-only replays render nothing: asking for pictures is an error.
+    let input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();
+    let hits_only = ReplayConfig {
+        mode: Some(ReplayMode::HitsOnly),
+        ..config
+    };
+    let err = replay_with_snapshots(input, &hits_only, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("geometry mode"), "{err}");
+}

@@ -11,7 +11,7 @@ use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
 use lipac_sim::replay::{ReplayConfig, ReplayMode};
-use lipac_sim::report::{headline, table, write_report};
+use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::trace_scene::{replay_path, TraceSceneOptions};
 use lipac_sim::SimError;
 
@@ -90,6 +90,10 @@ pub struct ReplayArgs {
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
+    /// Frame numbers to take pictures of, as `lipac compare --snapshots`
+    /// (geometry mode only).
+    #[arg(long, value_delimiter = ',')]
+    snapshots: Vec<u32>,
     /// Geometry mode of a trace of another scene: trace a box over the
     /// bounds of a mesh without geometry instead of failing.
     #[arg(long)]
@@ -170,20 +174,21 @@ pub fn run_replay(a: ReplayArgs) -> ExitCode {
             ModeArg::HitsOnly => ReplayMode::HitsOnly,
         }),
         keep_frames: true,
+        snapshots: a.snapshots,
     };
     let options = match trace_scene_options(a.box_proxy, a.scene_file.as_deref()) {
         Ok(o) => o,
         Err(e) => return fail(e),
     };
-    let report = match replay_path(&a.file, &config, &options, &mut |_| {}) {
-        Ok((r, _)) => r,
+    let (report, snapshots) = match replay_path(&a.file, &config, &options, &mut |_| {}) {
+        Ok(r) => r,
         Err(e) => return fail(format_args!("{}: {e}", a.file.display())),
     };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    match write_report(&report, &a.out) {
+    match write_report_with_snapshots(&report, &snapshots, &a.out) {
         Ok(_) => {
             println!(
                 "{} frames replayed in {:.1} s; report in {}/report.md",
