@@ -24,6 +24,10 @@
 //!   latency are reported; the error is not available (`NaN` in the
 //!   report, `null` in its JSON).
 //!
+//! A trace of any other scene whose header carries geometry replays in
+//! geometry mode through [`crate::trace_scene`] (`trace_scene::replay_path`
+//! picks the mode for a trace file; `lipac replay` goes through it).
+//!
 //! The trace is read frame by frame ([`TraceInput::next_frame_into`] reuses
 //! one [`Frame`]); apart from the per-frame metrics kept for the report (see
 //! [`ReplayConfig::keep_frames`]), memory follows the live instances, not the
