@@ -79,9 +79,11 @@ pub struct ReplayConfig {
     /// The mode (`None`: geometry if the trace names a built-in scene,
     /// otherwise hits only).
     pub mode: Option<ReplayMode>,
-    /// Keep per-frame metrics in the report (hits-only mode; geometry mode
-    /// always keeps them). Without them the summaries still cover every
-    /// frame, and memory does not grow with the trace's length.
+    /// Keep every frame's metrics in the report (hits-only mode; geometry
+    /// mode always keeps them). Without it the summaries still cover every
+    /// frame, and the per-frame series (plots, `frames.csv`) is down-sampled
+    /// evenly to at most [`hits::MAX_SERIES_FRAMES`] frames, so memory does
+    /// not grow with the trace's length.
     pub keep_frames: bool,
     /// Frame numbers to take [`Snapshot`]s of (geometry mode only; see
     /// [`replay_with_snapshots`]).
