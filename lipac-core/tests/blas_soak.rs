@@ -13,21 +13,8 @@ use lipac_core::blas_cache::CacheConfig;
 use lipac_core::blas_ids::{BuildId, InstanceKey, Lod};
 use lipac_core::build_plan::*;
 use lipac_core::MeshId;
+use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use proptest::prelude::*;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // xorshift64*
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
 
 enum Ack {
     Built(BuildId, u64, bool),
@@ -142,7 +129,7 @@ fn geometry(key: u32) -> (BlasGeometry, u32) {
 /// Runs the soak; returns the statistics before the final release and the
 /// number of compactions handed out.
 fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
-    let mut rng = Rng(seed | 1);
+    let mut rng = Rng::new(seed | 1);
     let budget = 12_000;
     let mut s = BuildScheduler::new(SchedulerConfig {
         cache: CacheConfig {

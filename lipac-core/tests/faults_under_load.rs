@@ -19,24 +19,10 @@ use lipac_core::layout::{hitbox_bits, InstanceState, TlasInstance};
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::{Rng64, SplitMix64 as Rng};
 
 const CUBE: u64 = 0xC0BE;
 const CELL: f64 = 16.0;
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
 
 /// The test's BLAS manager: one address per instance at most.
 #[derive(Default)]
@@ -94,21 +80,21 @@ fn city(n: u32, config: CullingConfig, unique_share: f32) -> (Culling, Vec<Insta
     })
     .unwrap();
     let mut culling = Culling::new(grid, config).unwrap();
-    let mut rng = Rng(u64::from(n));
+    let mut rng = Rng::new(u64::from(n));
     let mut handles = Vec::with_capacity(n as usize);
     for i in 0..n {
         // Spread instances cell by cell (16 per cell), jittered inside it.
         let cell = i / 16;
         let (cx, cz) = (cell % w, (cell / w) % w);
         let c = Vec3::new(
-            (f64::from(cx) * CELL) as f32 + 2.0 + rng.unit() * 12.0,
+            (f64::from(cx) * CELL) as f32 + 2.0 + rng.unit_f32() * 12.0,
             0.0,
-            (f64::from(cz) * CELL) as f32 + 2.0 + rng.unit() * 12.0,
+            (f64::from(cz) * CELL) as f32 + 2.0 + rng.unit_f32() * 12.0,
         );
-        let h = 3.0 + rng.unit() * 9.0;
+        let h = 3.0 + rng.unit_f32() * 9.0;
         let aabb = Aabb::new(c - Vec3::new(2.0, 0.0, 2.0), c + Vec3::new(2.0, h, 2.0));
         let mut d = InstanceDesc::new(MeshId(i % 64), Affine3A::from_translation(c), aabb);
-        if rng.unit() < unique_share {
+        if rng.unit_f32() < unique_share {
             d.flags = InstanceFlags::UNIQUE_BLAS;
         }
         handles.push(culling.register(d).unwrap());

@@ -52,6 +52,7 @@ use lipac_core::manager::{
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::{Rng64, SplitMix64 as Rng};
 
 /// The three acknowledgements as calls, each sent through
 /// [`Manager::handle_ack`] (the only acknowledgement entry point).
@@ -82,28 +83,6 @@ impl SendAck for Manager {
 
 const CUBE: u64 = 0xC0BE;
 const WORLD: f32 = 64.0;
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // splitmix64
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn chance(&mut self, percent: u64) -> bool {
-        self.below(100) < percent
-    }
-    fn pick<T: Copy>(&mut self, v: &[T]) -> Option<T> {
-        (!v.is_empty()).then(|| v[self.below(v.len() as u64) as usize])
-    }
-}
 
 fn env(name: &str, default: u64) -> u64 {
     std::env::var(name)
@@ -303,7 +282,7 @@ impl Backend {
             } => {
                 // Mostly at or below the estimate; now and then above it
                 // (the cache then evicts, and may overrun its budget).
-                let overrun = rng.chance(5);
+                let overrun = rng.chance_percent(5);
                 let bytes = if overrun {
                     reserved + 1 + rng.below(reserved)
                 } else {
@@ -448,7 +427,7 @@ fn grid() -> HitboxGrid {
 
 impl Case {
     fn new(seed: u64) -> Self {
-        let mut rng = Rng(seed);
+        let mut rng = Rng::new(seed);
         let fif = 1 + rng.below(3) as u32;
         let latency = 1 + rng.below(2) as u32;
         let budget = 20_000 + rng.below(300_000);
@@ -465,7 +444,7 @@ impl Case {
         config.culling.readback_latency = latency;
         config.culling.registry.quarantine_frames = latency + 1 + rng.below(3) as u32;
         config.culling.registry.max_slots = 8 + rng.below(40) as u32;
-        config.culling.latency_mitigation = rng.chance(60).then_some(ActivationHeuristic {
+        config.culling.latency_mitigation = rng.chance_percent(60).then_some(ActivationHeuristic {
             max_distance: 60.0,
             min_projected_size: 0.0,
         });
@@ -545,7 +524,7 @@ impl Case {
     fn call(&mut self) -> (Result<(), ManagerError>, bool) {
         // Mostly the next step of the frame loop, else any call.
         const LOOP: [u64; 10] = [0, 20, 46, 58, 66, 10, 20, 30, 36, 41];
-        let choice = if self.rng.chance(65) {
+        let choice = if self.rng.chance_percent(65) {
             self.phase = (self.phase + 1) % LOOP.len();
             LOOP[self.phase]
         } else {
@@ -639,7 +618,7 @@ impl Case {
             // ---- churn ------------------------------------------------
             46..=57 => {
                 let mut d = random_desc(&mut self.rng, &self.meshes);
-                let valid = self.rng.chance(85);
+                let valid = self.rng.chance_percent(85);
                 if !valid {
                     corrupt(&mut self.rng, &mut d);
                 }
@@ -669,7 +648,7 @@ impl Case {
             73..=77 => {
                 let (h, _) = self.some_handle();
                 let mut d = random_desc(&mut self.rng, &self.meshes);
-                if self.rng.chance(30) {
+                if self.rng.chance_percent(30) {
                     corrupt(&mut self.rng, &mut d);
                 }
                 (self.m.set_transform(h, d.transform, d.aabb), false)
@@ -694,10 +673,10 @@ impl Case {
                 (self.m.update(h, d).map(|_| ()), false)
             }
             82..=84 => {
-                let valid = self.rng.chance(60);
+                let valid = self.rng.chance_percent(60);
                 let lods = mesh_lods(&mut self.rng, valid);
                 let count = lods.len();
-                let mesh = if self.rng.chance(85) {
+                let mesh = if self.rng.chance_percent(85) {
                     self.next_mesh += 1;
                     MeshId(self.next_mesh)
                 } else {
@@ -711,13 +690,17 @@ impl Case {
             }
             85..=87 => {
                 let (eye, fr) = self.frustums[self.rng.below(3) as usize];
-                let eye = if self.rng.chance(10) { Vec3::NAN } else { eye };
+                let eye = if self.rng.chance_percent(10) {
+                    Vec3::NAN
+                } else {
+                    eye
+                };
                 (self.m.mitigate_latency(eye, &fr).map(|_| ()), false)
             }
             // ---- garbage -----------------------------------------------
             88..=90 => {
                 let n = self.rng.below(12);
-                let words: Vec<u32> = (0..n).map(|_| self.rng.next() as u32).collect();
+                let words: Vec<u32> = (0..n).map(|_| self.rng.next_u64() as u32).collect();
                 let counter = self.rng.below(20) as u32;
                 self.m.ingest_readback(counter, &words);
                 (Ok(()), false)
@@ -755,7 +738,7 @@ impl Case {
                 (Ok(()), false)
             }
             96 => {
-                if self.rng.chance(50) {
+                if self.rng.chance_percent(50) {
                     self.m.trim_blas_cache();
                 } else {
                     self.m.reserve(self.rng.below(40) as usize);

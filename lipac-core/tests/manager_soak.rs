@@ -27,6 +27,7 @@ use lipac_core::manager::{
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::{Rng64, XorShift64Star as Rng};
 
 const CUBE: u64 = 0xC0BE;
 const MESHES: u32 = 5;
@@ -34,19 +35,6 @@ const LODS: u32 = 3;
 const MAX_LIVE: usize = 48;
 const BLAS_BUDGET: u64 = 200_000;
 const FRAMES_IN_FLIGHT: u32 = 2;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
 
 fn mesh_lod(mesh: u32, lod: u32) -> MeshLod {
     let tris = u64::from(400 + 300 * mesh) >> lod;
@@ -276,7 +264,7 @@ fn check_invariants(m: &Manager, be: &Backend, live: &[InstanceHandle]) {
 /// Returns the scheduler's statistics before the teardown, builds and
 /// compactions handed out, and the most instances traced with a BLAS at once.
 fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
-    let mut rng = Rng(seed | 1);
+    let mut rng = Rng::new(seed | 1);
     let grid = HitboxGrid::new(GridConfig {
         min: [0.0, 0.0],
         max: [64.0, 64.0],

@@ -28,38 +28,18 @@ use lipac_core::layout::{
 };
 use lipac_core::math::{affine_to_rows, Aabb};
 use lipac_core::registry::{InstanceRegistry, RegistryConfig};
+use lipac_test_support::{Rng64, SplitMix64 as Rng};
 
 const CUBE: u64 = 0xC0BE;
 
 // ---- helpers ----------------------------------------------------------------
 
-/// splitmix64.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        (self.next() % u64::from(n)) as u32
-    }
-    /// An extent: 0, tiny, or log-uniform in [1e-6, max].
-    fn extent(&mut self, max: f64) -> f32 {
-        match self.below(8) {
-            0 => 0.0,
-            1 => f32::from_bits(1 + self.below(1000)), // subnormal
-            _ => (1e-6f64 * (max / 1e-6).powf(self.unit())) as f32,
-        }
+/// An extent: 0, tiny, or log-uniform in [1e-6, max].
+fn extent(rng: &mut Rng, max: f64) -> f32 {
+    match rng.below_u32(8) {
+        0 => 0.0,
+        1 => f32::from_bits(1 + rng.below_u32(1000)), // subnormal
+        _ => (1e-6f64 * (max / 1e-6).powf(rng.unit_f64())) as f32,
     }
 }
 
@@ -219,7 +199,7 @@ const CENTRES: [f64; 9] = [
 
 #[test]
 fn omitted_boxes_contain_the_instance_aabb_in_every_regime() {
-    let mut rng = Rng(1);
+    let mut rng = Rng::new(1);
     let index = grid([-2.0e7, -2.0e7], [1, 1], 4.0e7);
     let mut cfg = AssemblyConfig::new(CUBE);
     let mut out = Vec::new();
@@ -229,17 +209,17 @@ fn omitted_boxes_contain_the_instance_aabb_in_every_regime() {
             // The registry's maximum extent is 1e6 m.
             let max_extent = if i % 3 == 0 { 1.0e6 } else { 50.0 };
             let min = Vec3::new(
-                rng.range(centre - 10.0, centre + 10.0) as f32,
-                rng.range(centre * 0.5 - 10.0, centre * 0.5 + 10.0) as f32,
-                rng.range(-centre - 10.0, -centre + 10.0) as f32,
+                rng.range_f64(centre - 10.0, centre + 10.0) as f32,
+                rng.range_f64(centre * 0.5 - 10.0, centre * 0.5 + 10.0) as f32,
+                rng.range_f64(-centre - 10.0, -centre + 10.0) as f32,
             );
             let size = Vec3::new(
-                rng.extent(max_extent),
-                rng.extent(max_extent),
-                rng.extent(max_extent),
+                extent(&mut rng, max_extent),
+                extent(&mut rng, max_extent),
+                extent(&mut rng, max_extent),
             );
             let max = min + size; // rounded: still >= min
-            cfg.min_box_extent = [0.0, 1e-3, 0.5][rng.below(3) as usize];
+            cfg.min_box_extent = [0.0, 1e-3, 0.5][rng.below_u32(3) as usize];
             let rec = live(InstanceState::Omitted, 0, min, max);
             let mut hitboxes = [active_hitbox()];
             let stats = assemble_tlas(&[rec], &mut hitboxes, &index, &cfg, &mut out).unwrap();
@@ -315,24 +295,24 @@ fn test_grids() -> Vec<HitboxGrid> {
 
 #[test]
 fn hitbox_boxes_contain_cell_and_height_range_in_every_regime() {
-    let mut rng = Rng(2);
+    let mut rng = Rng::new(2);
     let cfg = AssemblyConfig::new(CUBE);
     let mut out = Vec::new();
     for g in test_grids() {
         let n = g.len();
         for _ in 0..300 {
-            let hitbox = rng.below(n);
+            let hitbox = rng.below_u32(n);
             let (lo, hi) = g.bounds_f64(hitbox).unwrap();
             // 1..4 inactive instances; their x/z does not matter to the box.
-            let y0 = rng.range(-100_000.0, 100_000.0);
+            let y0 = rng.range_f64(-100_000.0, 100_000.0);
             let mut records = Vec::new();
             let (mut min_y, mut max_y) = (f32::INFINITY, f32::NEG_INFINITY);
-            for _ in 0..1 + rng.below(4) {
-                let a = (y0 + rng.range(-5.0, 5.0)) as f32;
-                let b = if rng.below(3) == 0 {
+            for _ in 0..1 + rng.below_u32(4) {
+                let a = (y0 + rng.range_f64(-5.0, 5.0)) as f32;
+                let b = if rng.below_u32(3) == 0 {
                     a // flat
                 } else {
-                    a + rng.extent(1.0e3)
+                    a + extent(&mut rng, 1.0e3)
                 };
                 min_y = min_y.min(a);
                 max_y = max_y.max(b);
@@ -447,7 +427,7 @@ fn flat_hitbox_keeps_a_box_that_contains_its_height() {
 /// belongs to the last cell.
 #[test]
 fn assignment_uses_the_exact_centre_in_every_regime() {
-    let mut rng = Rng(3);
+    let mut rng = Rng::new(3);
     for g in test_grids() {
         let mut reg = InstanceRegistry::new(g.clone(), RegistryConfig::default()).unwrap();
         let [x0, z0] = g.min();
@@ -459,19 +439,23 @@ fn assignment_uses_the_exact_centre_in_every_regime() {
             // border or next to one.
             let mut pick = |lo: f64, hi: f64, cell: f64, n: u32| -> f64 {
                 match i % 3 {
-                    0 => rng.range(lo, hi),
-                    _ => lo + f64::from(rng.below(n + 1)) * cell,
+                    0 => rng.range_f64(lo, hi),
+                    _ => lo + f64::from(rng.below_u32(n + 1)) * cell,
                 }
             };
             let cx = pick(x0, x1, g.cell_size(), nx);
             let cz = pick(z0, z1, g.cell_size(), nz);
-            let half = rng.extent(g.cell_size() * 2.0) * 0.5;
+            let half = extent(&mut rng, g.cell_size() * 2.0) * 0.5;
             // f32 corners around the (possibly non-f32) centre, nudged by a
             // few f32 steps so the exact centre sits on all sides of a border.
             let mut corner = |c: f64, sign: f32| {
                 let mut v = (c as f32) + sign * half;
-                for _ in 0..rng.below(3) {
-                    v = if rng.below(2) == 0 { pred(v) } else { succ(v) };
+                for _ in 0..rng.below_u32(3) {
+                    v = if rng.below_u32(2) == 0 {
+                        pred(v)
+                    } else {
+                        succ(v)
+                    };
                 }
                 v
             };
@@ -677,20 +661,20 @@ fn tiny_and_huge_scales_and_rotations_round_trip_and_stay_enclosed() {
     let local = Aabb::new(Vec3::new(-0.5, 0.0, -0.25), Vec3::new(0.5, 0.4, 0.25));
     let g = grid([-200_000.0, -200_000.0], [20, 20], 20_000.0);
     let mut reg = InstanceRegistry::new(g, RegistryConfig::default()).unwrap();
-    let mut rng = Rng(4);
+    let mut rng = Rng::new(4);
     let mut accepted = 0;
     for &scale in &[1e-6f32, 1e-3, 1.0, 37.5, 1e4, 1e6] {
         for _ in 0..40 {
             let rot = Quat::from_euler(
                 glam::EulerRot::YXZ,
-                rng.range(-3.2, 3.2) as f32,
-                rng.range(-1.6, 1.6) as f32,
-                rng.range(-3.2, 3.2) as f32,
+                rng.range_f64(-3.2, 3.2) as f32,
+                rng.range_f64(-1.6, 1.6) as f32,
+                rng.range_f64(-3.2, 3.2) as f32,
             );
             let pos = Vec3::new(
-                rng.range(-100_000.0, 100_000.0) as f32,
-                rng.range(-100.0, 100.0) as f32,
-                rng.range(-100_000.0, 100_000.0) as f32,
+                rng.range_f64(-100_000.0, 100_000.0) as f32,
+                rng.range_f64(-100.0, 100.0) as f32,
+                rng.range_f64(-100_000.0, 100_000.0) as f32,
             );
             let t = Affine3A::from_scale_rotation_translation(Vec3::splat(scale), rot, pos);
             let aabb = conservative_aabb(&t, &local);

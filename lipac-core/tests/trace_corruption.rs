@@ -115,7 +115,7 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn byte_flips_overwrites_and_splices_never_panic() {
-    let mut rng = Rng::new(0xC0FFEE);
+    let mut rng = Rng::from_seed(0xC0FFEE);
     let traces: Vec<Vec<u8>> = (0..8)
         .map(|s| {
             let (h, f) = random_trace(100 + s, 1 + s as usize);
@@ -154,7 +154,7 @@ fn byte_flips_overwrites_and_splices_never_panic() {
             _ => {
                 let at = rng.below(b.len() as u64) as usize;
                 let n = 1 + rng.below(16) as usize;
-                if rng.chance(50) {
+                if rng.chance_percent(50) {
                     b.drain(at..(at + n).min(b.len()));
                 } else {
                     let junk: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
@@ -174,7 +174,7 @@ fn byte_flips_overwrites_and_splices_never_panic() {
 
 #[test]
 fn jsonl_byte_flips_never_panic() {
-    let mut rng = Rng::new(42);
+    let mut rng = Rng::from_seed(42);
     let (h, f) = random_trace(9, 6);
     let text = to_jsonl(&h, &f);
     let alphabet = b"{}[]\":,0123456789-.eE \nxa";

@@ -286,7 +286,7 @@ fn mutated_traces_never_panic_and_errors_say_where() {
             continue;
         }
         // One generator per case: any case replays alone.
-        let mut rng = Rng::new(seed ^ case.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng = Rng::from_seed(seed ^ case.wrapping_mul(0x9E37_79B9_7F4A_7C15));
         let (b0, text) = &base[rng.below(base.len() as u64) as usize];
         let mut b = b0.clone();
         for _ in 0..1 + rng.below(4) {

@@ -19,6 +19,7 @@ use lipac_core::feedback::process_feedback;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, TlasInstance};
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use lipac_vk::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, Buffer,
     CommandReadbackRing, DeviceContext, FeedbackBindings, FeedbackBuffers, FeedbackPipeline,
@@ -28,34 +29,14 @@ use std::collections::{BTreeSet, HashMap};
 
 const STORAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
 
-/// xorshift64* random numbers.
-struct Rng(u64);
-impl Rng {
-    fn u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn u32(&mut self) -> u32 {
-        (self.u64() >> 32) as u32
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        ((u64::from(self.u32()) * u64::from(n)) >> 32) as u32
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        (self.u64() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-    /// Uniform in [lo, hi), never -0.0 (`f32::min` of ±0 is unspecified, so
-    /// the reference's choice there is not something to compare bits on).
-    fn f32(&mut self, lo: f32, hi: f32) -> f32 {
-        let t = (self.u64() >> 40) as f32 / (1u64 << 24) as f32;
-        let v = lo + (hi - lo) * t;
-        if v == 0.0 {
-            0.0
-        } else {
-            v
-        }
+/// Uniform in [lo, hi), never -0.0 (`f32::min` of ±0 is unspecified, so
+/// the reference's choice there is not something to compare bits on).
+fn uniform(rng: &mut Rng, lo: f32, hi: f32) -> f32 {
+    let v = rng.range_f32(lo, hi);
+    if v == 0.0 {
+        0.0
+    } else {
+        v
     }
 }
 
@@ -92,7 +73,7 @@ fn bytes_eq<T: bytemuck::Pod>(a: &[T], b: &[T]) -> bool {
 /// A random AABB: near the origin or up to 1e6 away, sizes from 0 (flat)
 /// over sub-ulp to large; sometimes min > max, sometimes not finite.
 fn random_aabb(rng: &mut Rng) -> ([f32; 3], [f32; 3]) {
-    let centre = match rng.below(4) {
+    let centre = match rng.below_scaled(4) {
         0 => 50.0,
         1 => 1.0e5,
         2 => 1.0e6,
@@ -101,13 +82,13 @@ fn random_aabb(rng: &mut Rng) -> ([f32; 3], [f32; 3]) {
     let mut min = [0.0f32; 3];
     let mut max = [0.0f32; 3];
     for a in 0..3 {
-        let c = rng.f32(-centre, centre);
-        let size = match rng.below(6) {
+        let c = uniform(rng, -centre, centre);
+        let size = match rng.below_scaled(6) {
             0 => 0.0,
-            1 => rng.f32(0.0, 1e-5),
-            2 => rng.f32(0.0, 1e-2),
-            3 => rng.f32(0.0, 30.0),
-            _ => rng.f32(0.0, 2.0),
+            1 => uniform(rng, 0.0, 1e-5),
+            2 => uniform(rng, 0.0, 1e-2),
+            3 => uniform(rng, 0.0, 30.0),
+            _ => uniform(rng, 0.0, 2.0),
         };
         min[a] = c;
         max[a] = {
@@ -123,8 +104,8 @@ fn random_aabb(rng: &mut Rng) -> ([f32; 3], [f32; 3]) {
         std::mem::swap(&mut min[1], &mut max[1]);
     }
     if rng.chance(0.02) {
-        let a = rng.below(3) as usize;
-        min[a] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.below(3) as usize];
+        let a = rng.below_scaled(3) as usize;
+        min[a] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.below_scaled(3) as usize];
     }
     if rng.chance(0.01) {
         max[1] = f32::NAN;
@@ -136,29 +117,33 @@ fn random_instance(rng: &mut Rng, hitboxes: u32) -> InstanceRecord {
     let (aabb_min, aabb_max) = random_aabb(rng);
     let mut transform = [0.0f32; 12];
     for v in &mut transform {
-        *v = rng.f32(-100.0, 100.0);
+        *v = uniform(rng, -100.0, 100.0);
     }
-    let mut packed = rng.below(4); // state, including the unused value 3
+    let mut packed = rng.below_scaled(4); // state, including the unused value 3
     if rng.chance(0.9) {
         packed |= instance_bits::ALIVE;
     }
     if rng.chance(0.4) {
         packed |= instance_bits::UNIQUE_BLAS;
     }
-    packed |= rng.u32() & 0xFFFF_FF30; // vegetation/static bits, mask, vk flags, junk
+    packed |= rng.next_u32() & 0xFFFF_FF30; // vegetation/static bits, mask, vk flags, junk
     InstanceRecord {
         transform,
         aabb_min,
         hitbox: if rng.chance(0.02) {
-            hitboxes + rng.below(5)
+            hitboxes + rng.below_scaled(5)
         } else {
-            rng.below(hitboxes)
+            rng.below_scaled(hitboxes)
         },
         aabb_max,
         packed,
-        blas: if rng.chance(0.2) { 0 } else { rng.u64() | 1 },
-        sbt_offset: rng.u32(),
-        lod: rng.below(4),
+        blas: if rng.chance(0.2) {
+            0
+        } else {
+            rng.next_u64() | 1
+        },
+        sbt_offset: rng.next_u32(),
+        lod: rng.below_scaled(4),
     }
 }
 
@@ -166,37 +151,37 @@ fn random_instance(rng: &mut Rng, hitboxes: u32) -> InstanceRecord {
 /// thresholds and near saturation.
 fn random_hitbox(rng: &mut Rng, th: &Thresholds) -> HitboxRecord {
     let mut h = HitboxRecord {
-        min_y: rng.f32(-10.0, 10.0),
-        max_y: rng.f32(-10.0, 10.0),
+        min_y: uniform(rng, -10.0, 10.0),
+        max_y: uniform(rng, -10.0, 10.0),
         packed: u32::from(rng.chance(0.5)),
     };
-    let streak = match rng.below(4) {
+    let streak = match rng.below_scaled(4) {
         0 => th.n_a.saturating_sub(1),
         1 => th.n_d.saturating_sub(1),
-        2 => hitbox_bits::STREAK_MAX - rng.below(2),
-        _ => rng.below(128),
+        2 => hitbox_bits::STREAK_MAX - rng.below_scaled(2),
+        _ => rng.below_scaled(128),
     };
     h.packed |= streak << hitbox_bits::STREAK_SHIFT;
-    let hits = match rng.below(6) {
+    let hits = match rng.below_scaled(6) {
         0 => 0,
-        1 => th.theta_d - 1 + rng.below(3),
-        2 => th.theta_a - 1 + rng.below(3),
-        3 => 2 * th.theta_a - 1 + rng.below(3),
-        4 => hitbox_bits::HITS_MAX - rng.below(100),
-        _ => rng.below(3 * th.theta_a),
+        1 => th.theta_d - 1 + rng.below_scaled(3),
+        2 => th.theta_a - 1 + rng.below_scaled(3),
+        3 => 2 * th.theta_a - 1 + rng.below_scaled(3),
+        4 => hitbox_bits::HITS_MAX - rng.below_scaled(100),
+        _ => rng.below_scaled(3 * th.theta_a),
     };
     h.add_hits(hits);
     h
 }
 
 fn random_hits(rng: &mut Rng, th: &Thresholds) -> u32 {
-    match rng.below(8) {
+    match rng.below_scaled(8) {
         0..=2 => 0,
-        3 => th.sigma_o - 1 + rng.below(3),
-        4 => th.sigma_a - 1 + rng.below(3),
-        5 => hitbox_bits::HITS_MAX - rng.below(1000),
-        6 => u32::MAX - rng.below(3),
-        _ => rng.below(4 * th.sigma_a),
+        3 => th.sigma_o - 1 + rng.below_scaled(3),
+        4 => th.sigma_a - 1 + rng.below_scaled(3),
+        5 => hitbox_bits::HITS_MAX - rng.below_scaled(1000),
+        6 => u32::MAX - rng.below_scaled(3),
+        _ => rng.below_scaled(4 * th.sigma_a),
     }
 }
 
@@ -372,7 +357,7 @@ fn assembly_matches_cpu_reference() {
         (4, f32::NAN, Vec2::new(0.0, 0.0), 1.0),
     ];
     for (seed, min_extent, origin, size) in cases {
-        let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ seed);
+        let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15 ^ seed);
         let index = Grid {
             nx: 9,
             nz: 7,
@@ -387,10 +372,10 @@ fn assembly_matches_cpu_reference() {
             .map(|_| random_hitbox(&mut rng, &th))
             .collect();
         let cfg = AssemblyConfig {
-            unit_cube_blas: rng.u64() | 1,
-            counting_mask: rng.u32() as u8,
-            omitted_box_sbt_offset: rng.u32(),
-            hitbox_sbt_offset: rng.u32(),
+            unit_cube_blas: rng.next_u64() | 1,
+            counting_mask: rng.next_u32() as u8,
+            omitted_box_sbt_offset: rng.next_u32(),
+            hitbox_sbt_offset: rng.next_u32(),
             min_box_extent: min_extent,
         };
         let what = format!("seed {seed}");
@@ -433,7 +418,7 @@ fn assembly_slot_count_and_small_tlas_buffer() {
     let ctx = h.context();
     let pipeline = AssemblyPipeline::new(ctx).unwrap();
     let th = Thresholds::paper();
-    let mut rng = Rng(77);
+    let mut rng = Rng::new(77);
     let index = Grid {
         nx: 4,
         nz: 4,
@@ -522,7 +507,7 @@ fn frames_match_cpu_reference_without_overflow() {
     let feedback = FeedbackPipeline::new(ctx).unwrap();
     let mut one_shot = OneShot::new(ctx).unwrap();
     for (seed, th) in [(11u64, feedback_thresholds()), (12, Thresholds::paper())] {
-        let mut rng = Rng(0xD1B5_4A32_D192_ED03 ^ seed);
+        let mut rng = Rng::new(0xD1B5_4A32_D192_ED03 ^ seed);
         let index = Grid {
             nx: 8,
             nz: 8,
@@ -617,7 +602,7 @@ fn feedback_overflow_invariants() {
     let th = feedback_thresholds();
     for (seed, capacity) in [(21u64, 17u32), (22, 1), (23, 200)] {
         let what = format!("seed {seed} capacity {capacity}");
-        let mut rng = Rng(0x5851_F42D_4C95_7F2D ^ seed);
+        let mut rng = Rng::new(0x5851_F42D_4C95_7F2D ^ seed);
         let n = 2500usize;
         let n_hitboxes = 40;
         let instances: Vec<InstanceRecord> = (0..n)

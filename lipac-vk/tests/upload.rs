@@ -8,28 +8,14 @@ use ash::vk;
 use common::*;
 use lipac_core::culling::{apply_uploads, Uploads};
 use lipac_core::layout::{instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+use lipac_test_support::{Rng64, SplitMix64 as Rng};
 use lipac_vk::{Buffer, MemoryLocation, OneShot, RecordUploader, UploadStats, UploadTargets};
-
-/// splitmix64.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        (self.next() % u64::from(n)) as u32
-    }
-}
 
 /// Records of random bits: every state value incl. 3, NaN/inf floats, any
 /// BLAS address.
 fn random_records<T: bytemuck::Pod>(rng: &mut Rng, n: usize) -> Vec<T> {
     let words = n * std::mem::size_of::<T>() / 4;
-    let words: Vec<u32> = (0..words).map(|_| rng.next() as u32).collect();
+    let words: Vec<u32> = (0..words).map(|_| rng.next_u64() as u32).collect();
     bytemuck::cast_slice(&words).to_vec()
 }
 
@@ -37,32 +23,32 @@ fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
     let mut records = Vec::new();
     // Mostly sorted disjoint ranges (what the registry hands out), plus
     // overlapping, empty, reversed and out-of-range ones.
-    let mut at = rng.below(8);
+    let mut at = rng.below_u32(8);
     while at < slots {
-        let len = 1 + rng.below(12);
+        let len = 1 + rng.below_u32(12);
         records.push(at..(at + len).min(slots));
-        at += len + rng.below(40);
+        at += len + rng.below_u32(40);
     }
-    for _ in 0..rng.below(4) {
-        let a = rng.below(slots + 20);
-        let b = rng.below(slots + 20);
+    for _ in 0..rng.below_u32(4) {
+        let a = rng.below_u32(slots + 20);
+        let b = rng.below_u32(slots + 20);
         records.push(a..b);
     }
-    let n_states = rng.below(slots / 2 + 1);
+    let n_states = rng.below_u32(slots / 2 + 1);
     let state_overrides = (0..n_states)
         .map(|_| {
-            let state = match rng.below(3) {
+            let state = match rng.below_u32(3) {
                 0 => InstanceState::Inactive,
                 1 => InstanceState::Omitted,
                 _ => InstanceState::Active,
             };
             // Duplicates (small range) and slots past the buffer.
-            (rng.below(slots + 8), state)
+            (rng.below_u32(slots + 8), state)
         })
         .collect();
-    let n_hitboxes = rng.below(hitboxes + 1);
+    let n_hitboxes = rng.below_u32(hitboxes + 1);
     let hitbox_overrides = (0..n_hitboxes)
-        .map(|_| (rng.below(hitboxes + 4), rng.below(2) == 1))
+        .map(|_| (rng.below_u32(hitboxes + 4), rng.below_u32(2) == 1))
         .collect();
     Uploads {
         records,
@@ -80,7 +66,7 @@ fn gpu_upload_equals_apply_uploads() {
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let mut one_shot = OneShot::new(ctx).unwrap();
     let uploader = RecordUploader::new(ctx).unwrap();
-    let mut rng = Rng(0x5EED);
+    let mut rng = Rng::new(0x5EED);
     for (slots, hitboxes) in [(1u32, 1u32), (37, 5), (3000, 257)] {
         let mut gpu_copy: Vec<InstanceRecord> = random_records(&mut rng, slots as usize);
         let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);

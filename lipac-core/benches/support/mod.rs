@@ -1,5 +1,5 @@
-//! Shared by `benches/allocator.rs` and `examples/fragmentation.rs`: a tiny
-//! PRNG, seeded allocation traces, and one adapter trait over lipac's
+//! Shared by `benches/allocator.rs` and `examples/fragmentation.rs`: a
+//! seeded PRNG (from lipac-test-support), seeded allocation traces, and one adapter trait over lipac's
 //! [`TlsfAllocator`], `offset-allocator` and `rlsf`.
 #![allow(dead_code)]
 
@@ -11,33 +11,9 @@ use lipac_core::allocator::{AllocHandle, TlsfAllocator};
 
 // ---- PRNG -----------------------------------------------------------------
 
-/// splitmix64 (Steele, Lea, Flood 2014).
-pub struct SplitMix64(u64);
-
-impl SplitMix64 {
-    pub fn new(seed: u64) -> Self {
-        SplitMix64(seed)
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in `[0, 1)`.
-    pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n as u64) as usize
-    }
-    /// Log-uniform integer in `[lo, hi]`.
-    pub fn log_uniform(&mut self, lo: u32, hi: u32) -> u32 {
-        let (l, h) = ((lo as f64).ln(), (hi as f64).ln());
-        ((l + (h - l) * self.unit()).exp().round() as u32).clamp(lo, hi)
-    }
-}
+/// The seeded generator of every trace: lipac-test-support's SplitMix64
+/// (same stream as the copy that lived here).
+pub use lipac_test_support::{Rng64, SplitMix64};
 
 /// Zipf(s) over ranks `0..n` by inverse CDF.
 pub struct Zipf {
@@ -56,7 +32,7 @@ impl Zipf {
         Zipf { cdf }
     }
     pub fn sample(&self, rng: &mut SplitMix64) -> usize {
-        let u = rng.unit() * self.cdf[self.cdf.len() - 1];
+        let u = rng.unit_f64() * self.cdf[self.cdf.len() - 1];
         self.cdf
             .partition_point(|&c| c <= u)
             .min(self.cdf.len() - 1)
@@ -122,7 +98,7 @@ impl Gen {
         (size, tag)
     }
     fn free_random(&mut self, out: &mut Vec<Op>) -> (u32, u32) {
-        let i = self.rng.below(self.live.len());
+        let i = self.rng.below_usize(self.live.len());
         self.free_at(out, i)
     }
 }
@@ -146,7 +122,7 @@ pub fn churn(name: &'static str, occupancy: f64, seed: u64) -> Trace {
         g.alloc(&mut ops, s, 0);
     }
     while g.used < u64::from(capacity) * 3 / 2 {
-        if g.rng.unit() < 0.6 {
+        if g.rng.unit_f64() < 0.6 {
             let s = size(&mut g);
             g.alloc(&mut ramp, s, 0);
         } else {
@@ -181,14 +157,14 @@ pub fn instances(seed: u64) -> Trace {
     let lod_size = |mesh: usize, lod: u32| (base[mesh] >> (2 * lod)).max(256);
     let add = |g: &mut Gen, out: &mut Vec<Op>| {
         let mesh = zipf.sample(&mut g.rng);
-        let lod = g.rng.below(LODS as usize) as u32;
+        let lod = g.rng.below_usize(LODS as usize) as u32;
         g.alloc(out, lod_size(mesh, lod), mesh as u32 * 8 + lod);
     };
     let swap = |g: &mut Gen, out: &mut Vec<Op>| {
-        let i = g.rng.below(g.live.len());
+        let i = g.rng.below_usize(g.live.len());
         let (_, tag) = g.free_at(out, i);
         let (mesh, lod) = ((tag / 8) as usize, tag % 8);
-        let new_lod = if lod == 0 || (lod + 1 < LODS && g.rng.unit() < 0.5) {
+        let new_lod = if lod == 0 || (lod + 1 < LODS && g.rng.unit_f64() < 0.5) {
             lod + 1
         } else {
             lod - 1
@@ -200,7 +176,7 @@ pub fn instances(seed: u64) -> Trace {
         add(&mut g, &mut setup);
     }
     for _ in 0..CHURN_STEPS {
-        let r = g.rng.unit();
+        let r = g.rng.unit_f64();
         if r < 0.5 {
             swap(&mut g, &mut ops);
         } else if g.used > target {
@@ -210,7 +186,7 @@ pub fn instances(seed: u64) -> Trace {
         }
     }
     while g.used < u64::from(capacity) * 3 / 2 {
-        let r = g.rng.unit();
+        let r = g.rng.unit_f64();
         if r < 0.2 {
             swap(&mut g, &mut ramp);
         } else if r < 0.4 {
@@ -259,7 +235,7 @@ pub fn between_bins(seed: u64) -> Trace {
         g.alloc(&mut ops, size, 0);
     }
     while g.used < u64::from(capacity) * 3 / 2 {
-        if g.rng.unit() < 0.6 {
+        if g.rng.unit_f64() < 0.6 {
             g.alloc(&mut ramp, size, 0);
         } else {
             g.free_random(&mut ramp);

@@ -140,35 +140,14 @@ pub fn tiny_trace() -> (TraceHeader, Vec<Frame>) {
     (header, frames)
 }
 
-/// A small deterministic PRNG (xorshift64*), so tests need no dependency.
-#[derive(Clone, Debug)]
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    pub fn below(&mut self, n: u64) -> u64 {
-        self.next_u64() % n.max(1)
-    }
-    pub fn f32_in(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    pub fn chance(&mut self, percent: u64) -> bool {
-        self.below(100) < percent
-    }
-}
+/// The tests' deterministic PRNG: xorshift64* from lipac-test-support,
+/// seeded through `Rng::from_seed` (state `seed * golden | 1`).
+pub use lipac_test_support::{Rng64, XorShift64Star as Rng};
 
 /// A valid random trace: 1..=3 meshes, `frames` frames of adds, updates,
 /// removes and hit counts.
 pub fn random_trace(seed: u64, frames: usize) -> (TraceHeader, Vec<Frame>) {
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::from_seed(seed);
     let mesh_count = 1 + rng.below(3) as u32;
     let meshes: Vec<MeshInfo> = (0..mesh_count)
         .map(|m| {
@@ -211,18 +190,22 @@ pub fn random_trace(seed: u64, frames: usize) -> (TraceHeader, Vec<Frame>) {
     for _ in 0..frames {
         number += 1 + rng.below(3);
         let camera = Camera::look_to(
-            Vec3::new(rng.f32_in(-100.0, 100.0), 2.0, rng.f32_in(-100.0, 100.0)),
-            Vec3::new(rng.f32_in(-1.0, 1.0), rng.f32_in(-0.2, 0.2), 1.0),
+            Vec3::new(
+                rng.range_f32(-100.0, 100.0),
+                2.0,
+                rng.range_f32(-100.0, 100.0),
+            ),
+            Vec3::new(rng.range_f32(-1.0, 1.0), rng.range_f32(-0.2, 0.2), 1.0),
             Vec3::Y,
-            rng.f32_in(0.5, 1.5),
-            rng.f32_in(1.0, 2.0),
+            rng.range_f32(0.5, 1.5),
+            rng.range_f32(1.0, 2.0),
         );
         let mut events = Vec::new();
         for _ in 0..rng.below(6) {
             let pose = pose_at(
-                rng.f32_in(-200.0, 200.0),
-                rng.f32_in(0.0, 20.0),
-                rng.f32_in(-200.0, 200.0),
+                rng.range_f32(-200.0, 200.0),
+                rng.range_f32(0.0, 20.0),
+                rng.range_f32(-200.0, 200.0),
             );
             match rng.below(3) {
                 0 => {
@@ -234,7 +217,7 @@ pub fn random_trace(seed: u64, frames: usize) -> (TraceHeader, Vec<Frame>) {
                         mesh: m.id,
                         lod: rng.below(m.lods.len() as u64) as u32,
                         flags: InstanceFlags::from_bits_truncate(rng.next_u64() as u32),
-                        mask: rng.chance(50).then(|| rng.next_u64() as u8),
+                        mask: rng.chance_percent(50).then(|| rng.next_u64() as u8),
                         pose,
                     }));
                     live.push((next_id, mesh));
@@ -244,12 +227,12 @@ pub fn random_trace(seed: u64, frames: usize) -> (TraceHeader, Vec<Frame>) {
                     let lods = header.meshes[mesh].lods.len() as u64;
                     events.push(InstanceEvent::Update(UpdateInstance {
                         id,
-                        pose: rng.chance(50).then_some(pose),
-                        lod: rng.chance(50).then(|| rng.below(lods) as u32),
+                        pose: rng.chance_percent(50).then_some(pose),
+                        lod: rng.chance_percent(50).then(|| rng.below(lods) as u32),
                         flags: rng
-                            .chance(30)
+                            .chance_percent(30)
                             .then(|| InstanceFlags::from_bits_truncate(rng.next_u64() as u32)),
-                        mask: rng.chance(30).then(|| rng.next_u64() as u8),
+                        mask: rng.chance_percent(30).then(|| rng.next_u64() as u8),
                     }));
                 }
                 2 if !live.is_empty() => {
@@ -260,10 +243,10 @@ pub fn random_trace(seed: u64, frames: usize) -> (TraceHeader, Vec<Frame>) {
                 _ => {}
             }
         }
-        let hits = if rng.chance(60) {
+        let hits = if rng.chance_percent(60) {
             let mut hits = Vec::new();
             for &(id, _) in &live {
-                if rng.chance(50) {
+                if rng.chance_percent(50) {
                     hits.push(InstanceHits {
                         id,
                         hits: rng.below(5000) as u32,
