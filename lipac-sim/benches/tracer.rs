@@ -19,7 +19,7 @@ use lipac_sim::pathtrace::{render, FrameScene, PathTraceConfig};
 use lipac_sim::scene::{LodPolicy, Scene, SceneConfig};
 use lipac_sim::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
 use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
-use lipac_sim::trace::{trace, Counters, Ray, SlotSet};
+use lipac_sim::traversal::{trace, Counters, Ray, SlotSet};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray as BvhRay, RayHit};
 use obvhs::rt_triangle::RtTriangle;

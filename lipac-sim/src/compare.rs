@@ -34,7 +34,7 @@ use crate::strategy::{
 };
 use crate::tlas::{CountingBoxes, CpuTlas};
 use crate::tlas_map::TlasMap;
-use crate::trace::{Counters, SlotSet};
+use crate::traversal::{Counters, SlotSet};
 use lipac_core::layout::TlasInstance;
 
 /// Which scene to compare on.

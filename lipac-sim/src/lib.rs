@@ -28,7 +28,7 @@ pub mod strategy;
 pub mod sweep;
 pub mod tlas;
 pub mod tlas_map;
-pub mod trace;
 pub mod trace_scene;
+pub mod traversal;
 
 pub use error::SimError;

@@ -35,7 +35,7 @@ use crate::error::SimError;
 use crate::mesh::material as material_of;
 use crate::rng::sample;
 use crate::tlas::{masks, CpuTlas};
-use crate::trace::{occluded_by, trace, Counters, Ray, SlotSet, TraceResult};
+use crate::traversal::{occluded_by, trace, Counters, Ray, SlotSet, TraceResult};
 
 /// Settings of [`render`].
 #[derive(Clone, Debug, PartialEq)]

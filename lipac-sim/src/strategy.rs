@@ -57,7 +57,7 @@ use crate::error::SimError;
 use crate::memory::{build_estimate, mesh_lod};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
 use crate::scene::{flags, Scene, SceneInstance};
-use crate::trace::Counters;
+use crate::traversal::Counters;
 
 /// How an instance's BLAS is owned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

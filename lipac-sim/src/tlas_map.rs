@@ -30,7 +30,7 @@ use crate::error::SimError;
 use crate::scene::{flags, Scene};
 use crate::snapshot::encode_png;
 use crate::tlas::CountingBoxes;
-use crate::trace::Counters;
+use crate::traversal::Counters;
 
 /// What the TLAS holds for an instance.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

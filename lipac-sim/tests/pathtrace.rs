@@ -10,7 +10,7 @@ use lipac_sim::pathtrace::{relative_rmse, render, FrameOutput, FrameScene, PathT
 use lipac_sim::scene::{flags, LodPolicy, Scene, SceneConfig};
 use lipac_sim::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
 use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
-use lipac_sim::trace::SlotSet;
+use lipac_sim::traversal::SlotSet;
 
 struct Setup {
     scene: Scene,

@@ -8,7 +8,7 @@ use lipac_sim::blas::{box_transform, BlasStore, BuildQuality, BvhBlasId};
 use lipac_sim::mesh::{self, leaf_opaque, LodTriangles};
 use lipac_sim::rng::SplitMix64;
 use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
-use lipac_sim::trace::{occluded, trace, BoxKind, Counters, Ray};
+use lipac_sim::traversal::{occluded, trace, BoxKind, Counters, Ray};
 use obvhs::ray::Ray as BvhRay;
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
@@ -377,7 +377,7 @@ fn masks_select_instances_and_boxes() {
     let r = trace(&tlas, &s.store, &z_ray(-10.0, masks::VEGETATION), None);
     assert_eq!((r.hit, r.counted_box), (None, None));
     // A skip set hides an instance by custom index.
-    let mut skip = lipac_sim::trace::SlotSet::new();
+    let mut skip = lipac_sim::traversal::SlotSet::new();
     skip.insert(7);
     assert_eq!(
         trace(&tlas, &s.store, &z_ray(-10.0, masks::ALL), Some(&skip)).hit,

@@ -28,7 +28,7 @@
 //!   waits); [`PlanExecutor`]: records lipac-core's BLAS build plans and
 //!   acknowledges them.
 //! * Counting boxes: [`UnitCube`], [`counting_box_instance`], and the GLSL
-//!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`TracePipeline`] traces rays
+//!   include [`shaders::LIPAC_COUNTING_GLSL`]; [`RayQueryTestPipeline`] traces rays
 //!   from a buffer with it, counting hitbox hits into plain counters or
 //!   straight into the hitbox records ([`HitboxCounting`]); [`CameraTracer`]
 //!   generates a frame's primary, shadow and bounce rays on the GPU, the
@@ -71,11 +71,11 @@ mod feedback;
 mod lifetimes;
 mod memory;
 mod ray_query;
+mod ray_query_test_pipeline;
 mod readback;
 pub mod shaders;
 mod timeline;
 mod tlas;
-mod trace;
 mod upload;
 
 pub use accel::{AccelerationStructure, AsSizes};
@@ -112,10 +112,12 @@ pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecuto
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
+pub use ray_query_test_pipeline::{
+    GpuHit, GpuRay, HitboxCounting, RayQueryTestBindings, RayQueryTestBuffers, RayQueryTestPipeline,
+};
 pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{GpuTlas, TlasBuildOutput};
-pub use trace::{GpuHit, GpuRay, HitboxCounting, TraceBindings, TraceBuffers, TracePipeline};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.

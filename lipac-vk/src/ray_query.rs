@@ -1,6 +1,6 @@
 //! A compute pipeline over one TLAS and storage buffers with the counting
 //! configuration as specialization constants: the shape of lipac's tracers
-//! ([`crate::TracePipeline`], [`crate::CameraTracer`]).
+//! ([`crate::RayQueryTestPipeline`], [`crate::CameraTracer`]).
 
 use crate::compute::allocate_one_set;
 use crate::context::DeviceContext;

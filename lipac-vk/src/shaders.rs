@@ -5,7 +5,7 @@
 use crate::error::{Result, VkError};
 
 /// SPIR-V of `trace_test.comp`: traces rays from a buffer against a TLAS with
-/// counting-box pass-through (see [`crate::TracePipeline`]).
+/// counting-box pass-through (see [`crate::RayQueryTestPipeline`]).
 pub const TRACE_TEST_SPV: &[u8] = include_bytes!("../shaders/spv/trace_test.spv");
 
 /// SPIR-V of `trace_counting.comp`: `trace_test.comp` counting hitbox hits

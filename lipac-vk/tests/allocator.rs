@@ -13,7 +13,7 @@ use glam::{Affine3A, Vec3};
 use lipac_vk::{
     AccelerationStructurePool, AllocationRequest, AllocatorBlocks, BlasBatch, Buffer,
     CountingBoxConfig, DeviceAllocation, DeviceAllocator, GpuRay, HeadlessContext, MemoryLocation,
-    OneShot, ScratchBuffer, TracePipeline, Validation, VkError,
+    OneShot, RayQueryTestPipeline, ScratchBuffer, Validation, VkError,
 };
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -294,7 +294,7 @@ fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 8);
     let hit: Vec<u32> = out.hits.iter().map(|h| h.custom_index).collect();
     assert_eq!(hit, [10, 11, 12, 13]);

@@ -9,7 +9,7 @@ use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_vk::{
     record_compactions_pooled, AccelerationStructurePool, BlasBatch, CountingBoxConfig, GpuRay,
-    OneShot, ScratchBuffer, TracePipeline, VkError, AS_OFFSET_ALIGNMENT,
+    OneShot, RayQueryTestPipeline, ScratchBuffer, VkError, AS_OFFSET_ALIGNMENT,
 };
 
 /// Asserts that the structures' address ranges do not overlap.
@@ -131,7 +131,7 @@ fn pooled_blases_share_blocks_trace_correctly_and_free_their_ranges() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 32);
     let (compared, hits) = compare_with_cpu(&scene, &rays, &out.hits);
     assert!(compared >= rays.len() * 9 / 10, "{compared}");

@@ -9,7 +9,7 @@ use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_vk::{
     AccelerationStructurePool, BlasBatch, BlasUpdateMode, CountingBoxConfig, GpuRay, OneShot,
-    ScratchBuffer, TracePipeline, VkError,
+    RayQueryTestPipeline, ScratchBuffer, VkError,
 };
 
 /// The grid with its vertices displaced along z by `amp * wave(x, y)`.
@@ -96,7 +96,7 @@ fn refit_and_rebuild_in_place_trace_the_deformed_mesh() {
     assert!(matches!(err, VkError::InvalidArgument(_)), "{err}");
     drop(bad);
 
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let rays = rays();
     let trace_with = |mesh: &Mesh| {
         let scene = scene_of(mesh);

@@ -7,8 +7,8 @@ use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_vk::{
-    record_compactions, BlasBatch, CountingBoxConfig, GpuRay, OneShot, ScratchBuffer,
-    TracePipeline, UnitCube, VkError,
+    record_compactions, BlasBatch, CountingBoxConfig, GpuRay, OneShot, RayQueryTestPipeline,
+    ScratchBuffer, UnitCube, VkError,
 };
 
 #[test]
@@ -105,7 +105,7 @@ fn compacted_blases_are_no_larger_and_trace_the_same() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let (tlas, out) = trace(&h, &pipeline, &records, 8, &rays, 0xFF, 32);
     let (compared, hits) = compare_with_cpu(&scene, &rays, &out.hits);
     assert!(

@@ -9,7 +9,7 @@ use glam::{Affine3A, Vec3};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE};
 use lipac_vk::{
     counting_box_instance, BlasBatch, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot,
-    ScratchBuffer, TracePipeline, UnitCube,
+    RayQueryTestPipeline, ScratchBuffer, UnitCube,
 };
 
 const REAL_MASK: u8 = 0x01;
@@ -103,7 +103,7 @@ fn counting_boxes_count_once_and_let_rays_through() {
         t_max: 100.0,
     };
     let rays: Vec<GpuRay> = (0..5).map(ray).collect();
-    let pipeline = TracePipeline::new(ctx, &cfg).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &cfg).unwrap();
 
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 16);
     let hits = &out.hits;

@@ -1020,8 +1020,8 @@ fn assembled_tlas_builds_and_counts_boxes() {
     };
     use lipac_core::layout::{InstanceState, VK_INSTANCE_CULL_DISABLE};
     use lipac_vk::{
-        BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, ScratchBuffer, TraceBuffers, TracePipeline,
-        UnitCube,
+        BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, RayQueryTestBuffers, RayQueryTestPipeline,
+        ScratchBuffer, UnitCube,
     };
     let ctx = h.context();
     let quad = GpuMesh::new(&h, Mesh::quad());
@@ -1122,14 +1122,14 @@ fn assembled_tlas_builds_and_counts_boxes() {
             t_max: 100.0,
         },
     ];
-    let pipeline = TracePipeline::new(ctx, &counting).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &counting).unwrap();
     let host = MemoryLocation::GpuToCpu;
     let ray_buf = Buffer::with_data(ctx, STORAGE, host, &rays).unwrap();
     let results = Buffer::new(ctx, 16 * 3, STORAGE, host).unwrap();
     let instance_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
     let hitbox_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
     let tb = pipeline
-        .bind(&TraceBuffers {
+        .bind(&RayQueryTestBuffers {
             tlas: &tlas,
             rays: &ray_buf,
             results: &results,

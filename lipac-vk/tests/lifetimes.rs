@@ -10,8 +10,8 @@ use glam::{Affine3A, Vec3};
 use lipac_core::layout::TlasInstance;
 use lipac_vk::{
     AccelerationStructurePool, BlasBatch, Buffer, CountingBoxConfig, FrameSubmitter, GpuHit,
-    GpuRay, MemoryLocation, OneShot, Retirement, ScratchBuffer, TimelineSemaphore, TlasPair,
-    TraceBuffers, TracePipeline,
+    GpuRay, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline, Retirement,
+    ScratchBuffer, TimelineSemaphore, TlasPair,
 };
 use std::time::{Duration, Instant};
 
@@ -128,7 +128,7 @@ fn double_buffered_tlas_and_deferred_destruction() {
     );
     assert_ne!(pair.current().accel().raw(), pair.previous().accel().raw());
 
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let rays = [GpuRay {
         origin: [0.1, 0.2, 0.0],
@@ -141,7 +141,7 @@ fn double_buffered_tlas_and_deferred_destruction() {
     let counters = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &[0u32; 32]).unwrap();
     let mut trace = |tlas| {
         let b = pipeline
-            .bind(&TraceBuffers {
+            .bind(&RayQueryTestBuffers {
                 tlas,
                 rays: &ray_buf,
                 results: &results,

@@ -11,8 +11,8 @@ use glam::{Affine3A, Quat, Vec3};
 use lipac_core::layout::{hitbox_bits, HitboxRecord, TlasInstance};
 use lipac_vk::{
     counting_box_instance, BlasBatch, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay,
-    GpuTlas, HitboxCounting, MemoryLocation, OneShot, ScratchBuffer, TraceBuffers, TracePipeline,
-    UnitCube,
+    GpuTlas, HitboxCounting, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline,
+    ScratchBuffer, UnitCube,
 };
 
 const MAX: u32 = hitbox_bits::HITS_MAX;
@@ -198,10 +198,11 @@ fn trace_counts_into_hitbox_records_saturating() {
     let _retired = one_shot
         .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
         .unwrap();
-    let pipeline = TracePipeline::with_hitbox_counting(ctx, &cfg, HitboxCounting::Records).unwrap();
+    let pipeline =
+        RayQueryTestPipeline::with_hitbox_counting(ctx, &cfg, HitboxCounting::Records).unwrap();
     assert_eq!(pipeline.hitbox_counting(), HitboxCounting::Records);
     let bindings = pipeline
-        .bind(&TraceBuffers {
+        .bind(&RayQueryTestBuffers {
             tlas: &tlas,
             rays: &ray_buf,
             results: &results,

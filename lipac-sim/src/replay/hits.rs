@@ -58,7 +58,7 @@ use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
 use crate::strategy::{unlimited_budgets, BlasAccounting, BlasWork, StrategyKind};
 use crate::tlas::CountingBoxes;
-use crate::trace::SlotSet;
+use crate::traversal::SlotSet;
 
 /// Rays per frame the LiPaC thresholds are scaled to in hits-only mode:
 /// those of a `width` x `height` image (one sample per pixel).

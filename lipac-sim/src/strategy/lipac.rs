@@ -35,7 +35,7 @@ use crate::memory::{blas_bytes, lipac_overhead_bytes};
 use crate::scene::{flags, Scene};
 use crate::scene_blas::instance_mask;
 use crate::tlas::CountingBoxes;
-use crate::trace::Counters;
+use crate::traversal::Counters;
 
 /// Settings of [`Lipac`].
 #[derive(Clone, Debug, PartialEq)]

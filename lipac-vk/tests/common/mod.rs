@@ -7,7 +7,7 @@ use lipac_core::layout::TlasInstance;
 use lipac_core::math::affine_to_rows;
 use lipac_vk::{
     BlasBatch, Buffer, GpuBlas, GpuHit, GpuRay, GpuTlas, HeadlessContext, MemoryLocation, OneShot,
-    ScratchBuffer, TraceBuffers, TracePipeline, TriangleGeometry, Validation,
+    RayQueryTestBuffers, RayQueryTestPipeline, ScratchBuffer, TriangleGeometry, Validation,
 };
 
 /// Whether the environment demands a Vulkan ray-query device (CI sets it).
@@ -261,7 +261,7 @@ pub struct TraceOutcome {
 /// traces `rays` with `cull_mask`.
 pub fn trace(
     h: &HeadlessContext,
-    pipeline: &TracePipeline,
+    pipeline: &RayQueryTestPipeline,
     records: &[TlasInstance],
     initial_capacity: u32,
     rays: &[GpuRay],
@@ -294,7 +294,7 @@ pub fn trace(
         .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
         .unwrap();
     let bindings = pipeline
-        .bind(&TraceBuffers {
+        .bind(&RayQueryTestBuffers {
             tlas: &tlas,
             rays: &ray_buf,
             results: &results,

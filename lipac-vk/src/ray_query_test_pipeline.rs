@@ -61,8 +61,8 @@ impl GpuHit {
 const LOCAL_SIZE: u32 = 64;
 const BINDINGS: u32 = 5;
 
-/// Where a [`TracePipeline`] counts hitbox-box hits
-/// ([`TraceBuffers::hitbox_hits`]).
+/// Where a [`RayQueryTestPipeline`] counts hitbox-box hits
+/// ([`RayQueryTestBuffers::hitbox_hits`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum HitboxCounting {
     /// `trace_test.comp`: one plain `u32` counter per hitbox (`atomicAdd`).
@@ -79,7 +79,7 @@ pub enum HitboxCounting {
 /// The compiled `trace_test.comp` (or `trace_counting.comp`, see
 /// [`HitboxCounting`]) compute pipeline for one [`CountingBoxConfig`].
 #[derive(Debug)]
-pub struct TracePipeline {
+pub struct RayQueryTestPipeline {
     ctx: DeviceContext,
     hitbox_counting: HitboxCounting,
     pipeline: RayQueryPipeline,
@@ -87,7 +87,7 @@ pub struct TracePipeline {
 
 /// Buffers a trace reads and writes.
 #[derive(Clone, Copy, Debug)]
-pub struct TraceBuffers<'a> {
+pub struct RayQueryTestBuffers<'a> {
     /// The TLAS (built, with the build barrier recorded before the trace).
     pub tlas: &'a GpuTlas,
     /// [`GpuRay`]s (storage buffer).
@@ -102,17 +102,17 @@ pub struct TraceBuffers<'a> {
     pub hitbox_hits: &'a Buffer,
 }
 
-/// A descriptor set bound to one [`TraceBuffers`]; keep it (and the buffers)
+/// A descriptor set bound to one [`RayQueryTestBuffers`]; keep it (and the buffers)
 /// alive until traces recorded with it have executed.
 #[derive(Debug)]
-pub struct TraceBindings {
+pub struct RayQueryTestBindings {
     ctx: DeviceContext,
     pool: vk::DescriptorPool,
     set: vk::DescriptorSet,
     max_rays: u64,
 }
 
-impl TracePipeline {
+impl RayQueryTestPipeline {
     /// Creates the `trace_test.comp` pipeline (plain hitbox counters) with
     /// `config` as specialization constants.
     ///
@@ -156,7 +156,7 @@ impl TracePipeline {
     ///
     /// [`VkError::MissingUsage`] when a buffer lacks `STORAGE_BUFFER`,
     /// [`VkError::WrongContext`], [`VkError::Vulkan`].
-    pub fn bind(&self, buffers: &TraceBuffers<'_>) -> Result<TraceBindings> {
+    pub fn bind(&self, buffers: &RayQueryTestBuffers<'_>) -> Result<RayQueryTestBindings> {
         let storage = [
             buffers.rays,
             buffers.results,
@@ -172,7 +172,7 @@ impl TracePipeline {
         let (pool, set) = bind_ray_query_set(&self.ctx, &self.pipeline, buffers.tlas, &storage)?;
         let max_rays = (buffers.rays.size() / std::mem::size_of::<GpuRay>() as u64)
             .min(buffers.results.size() / std::mem::size_of::<GpuHit>() as u64);
-        Ok(TraceBindings {
+        Ok(RayQueryTestBindings {
             ctx: self.ctx.clone(),
             pool,
             set,
@@ -192,7 +192,7 @@ impl TracePipeline {
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
-        bindings: &TraceBindings,
+        bindings: &RayQueryTestBindings,
         ray_count: u32,
         cull_mask: u8,
         ray_flags: u32,
@@ -248,7 +248,7 @@ impl TracePipeline {
     }
 }
 
-impl Drop for TraceBindings {
+impl Drop for RayQueryTestBindings {
     fn drop(&mut self) {
         // SAFETY: created on this device; frees the set with the pool; not in
         // use by the GPU per the crate's drop contract.

@@ -6,7 +6,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
-use lipac_vk::{CountingBoxConfig, GpuRay, TracePipeline};
+use lipac_vk::{CountingBoxConfig, GpuRay, RayQueryTestPipeline};
 
 fn scene() -> Vec<SceneInstance> {
     let inst = |mesh: Mesh, transform, custom_index, active| SceneInstance {
@@ -111,7 +111,7 @@ fn traced_rays_hit_the_right_instance_at_the_right_distance() {
         });
     }
 
-    let pipeline = TracePipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
     // Capacity 3 for 5 records: the TLAS grows to max(5, 2 * 3) = 6.
     let (tlas, out) = trace(&h, &pipeline, &records, 3, &rays, 0xFF, 16);
     assert_eq!(tlas.capacity(), 6);
