@@ -68,6 +68,7 @@ mod device_allocator;
 mod error;
 mod executor;
 mod feedback;
+mod headless;
 mod lifetimes;
 mod memory;
 mod ray_query;
@@ -97,7 +98,7 @@ pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, Ca
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
-    HeadlessContext, Validation, REQUIRED_DEVICE_EXTENSIONS,
+    REQUIRED_DEVICE_EXTENSIONS,
 };
 pub use counting::{
     counting_box_instance, CountingBoxConfig, CountingBoxKind, UnitCube, UNIT_CUBE_INDICES,
@@ -110,6 +111,7 @@ pub use device_allocator::{
 pub use error::{Result, VkError};
 pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
+pub use headless::{HeadlessContext, Validation};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use ray_query_test_pipeline::{
