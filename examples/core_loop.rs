@@ -43,7 +43,7 @@ fn main() -> Result<(), CoreError> {
     for frame in 0..6 {
         culling.begin_frame(frame)?;
         while let Some(r) = ring.pop_ready(frame) {
-            culling.ingest_readback(r.counter, &r.words);
+            culling.ingest_readback(r.frame, r.counter, &r.words);
         }
         let mut processed = culling.process_commands(usize::MAX, &mut events);
         for e in &events {

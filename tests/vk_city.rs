@@ -134,7 +134,11 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
             for &ack in &polled.acks {
                 cpu.handle_ack(ack).unwrap();
             }
-            cpu.ingest_readback(cpu_commands.counter, &cpu_commands.words);
+            cpu.ingest_readback(
+                cpu_commands.frame,
+                cpu_commands.counter,
+                &cpu_commands.words,
+            );
         }
         let plan = gpu.plan(&budgets).unwrap();
         let cpu_plan = cpu.plan(&budgets).unwrap();
