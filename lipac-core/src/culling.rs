@@ -4,7 +4,9 @@
 //! backends drive [`crate::Manager`], which owns a [`Culling`] and keeps the
 //! BLAS scheduler and the geometry data consistent with it; [`Culling`] is
 //! public for tests, benches and the CPU reference of the GPU algorithms
-//! (and, until they move to the manager, lipac-sim's strategies).
+//! (no backend in the workspace drives it directly: lipac-sim and lipac-vk
+//! go through the manager; [`Culling::ingest_readback`] and the commanded
+//! state are what the manager's read-back means).
 //!
 //! [`Culling`] is sans-IO and polled: it takes calls and returns values. It
 //! never calls back into its caller; [`Culling::process_commands`] returns

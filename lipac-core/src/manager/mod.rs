@@ -677,7 +677,7 @@ impl<H: HitboxIndex> Manager<H> {
     /// Ingests one read-back of commands, the ones Algorithm 2 wrote in
     /// frame `frame`: `counter` is the GPU's atomic counter (it may exceed
     /// `words.len()`: the overflow), `words` the stored command words. The
-    /// one entry for CPU backends (a [`Readback`](crate::culling::Readback)
+    /// one entry for CPU backends (a [`Readback`]
     /// of [`Manager::take_commands`] from `readback_latency` frames ago) and
     /// GPU backends (the read-back buffer of frame `frame`): the newest
     /// command per slot sets the Manager's commanded state of that slot
