@@ -15,6 +15,8 @@
 
 use std::time::Instant;
 
+use glam::Vec3;
+
 use serde::{Deserialize, Serialize};
 
 use crate::blas::BlasStore;
@@ -24,7 +26,7 @@ use crate::memory::tlas_bytes;
 use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, Summary, Tracker};
 use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
-use crate::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
+use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
 use crate::snapshot::{Snapshot, StrategySnapshot};
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::{
@@ -457,6 +459,49 @@ impl Comparison {
     /// Compares one frame: `scene` animated to `frame` (frame numbers
     /// strictly increase), seen from `camera`.
     pub fn frame(&mut self, scene: &Scene, frame: u32, camera: &Camera) -> Result<(), SimError> {
+        self.frame_at(scene, frame, camera, None)
+    }
+
+    /// Like [`Comparison::frame`] with each instance's LOD given
+    /// (`lods[slot]`, below [`crate::mesh::LOD_COUNT`]) instead of the
+    /// distance policy's: a recorded trace's LODs ([`crate::trace_scene`]).
+    pub fn frame_with_lods(
+        &mut self,
+        scene: &Scene,
+        frame: u32,
+        camera: &Camera,
+        lods: &[u8],
+    ) -> Result<(), SimError> {
+        self.frame_at(scene, frame, camera, Some(lods))
+    }
+
+    /// Replaces the sun and sky of every later frame's renders (default:
+    /// [`PathTraceConfig::default`]'s); `sun_direction` need not be unit
+    /// length but must be finite and non-zero.
+    pub fn set_lighting(
+        &mut self,
+        sun_direction: Vec3,
+        sun_irradiance: Vec3,
+        sky_radiance: Vec3,
+    ) -> Result<(), SimError> {
+        let pt = PathTraceConfig {
+            sun_direction,
+            sun_irradiance,
+            sky_radiance,
+            ..self.pt
+        };
+        pt.validate()?;
+        self.pt = pt;
+        Ok(())
+    }
+
+    fn frame_at(
+        &mut self,
+        scene: &Scene,
+        frame: u32,
+        camera: &Camera,
+        lods: Option<&[u8]>,
+    ) -> Result<(), SimError> {
         if scene.instances().len() != self.n {
             return Err(SimError::SizeMismatch {
                 a: scene.instances().len(),
@@ -465,16 +510,34 @@ impl Comparison {
         }
         let n = self.n;
         let eye = camera.position;
-        for (l, inst) in self.lods.iter_mut().zip(scene.instances()) {
-            *l = self.policy.lod(eye, &inst.aabb) as u8;
+        match lods {
+            Some(given) => {
+                if given.len() != n {
+                    return Err(SimError::SizeMismatch {
+                        a: given.len(),
+                        b: n,
+                    });
+                }
+                if given
+                    .iter()
+                    .any(|&l| usize::from(l) >= crate::mesh::LOD_COUNT)
+                {
+                    return Err(SimError::BadConfig("a given LOD is out of range"));
+                }
+                self.lods.copy_from_slice(given);
+            }
+            None => {
+                for (l, inst) in self.lods.iter_mut().zip(scene.instances()) {
+                    *l = self.policy.lod(eye, &inst.aabb) as u8;
+                }
+            }
         }
         let t = Instant::now();
-        full_scene_records(
+        full_scene_records_at(
             scene,
             &mut self.blases,
             &mut self.store,
-            eye,
-            &self.policy,
+            &self.lods,
             frame,
             UniqueUpdate::Refit,
             &mut self.full_records,

@@ -57,6 +57,8 @@ pub enum SimError {
     /// A valid trace that cannot be replayed as asked (e.g. a strategy that
     /// needs geometry on a hits-only trace).
     Replay(String),
+    /// A scene file could not be imported (`crate::import`).
+    Import(String),
     /// Sweep shards that do not merge into one sweep (missing, repeated,
     /// from other settings).
     Shard(String),
@@ -91,6 +93,7 @@ impl fmt::Display for SimError {
             Self::Io(what) => write!(f, "i/o: {what}"),
             Self::Trace(e) => write!(f, "{e}"),
             Self::Replay(what) => write!(f, "cannot replay: {what}"),
+            Self::Import(what) => write!(f, "cannot import: {what}"),
             Self::Shard(what) => write!(f, "cannot merge sweep shards: {what}"),
         }
     }

@@ -11,6 +11,7 @@ pub mod compare;
 pub mod cpu_backend;
 pub mod error;
 pub mod html;
+pub mod import;
 pub mod memory;
 pub mod mesh;
 pub mod metrics;
@@ -28,5 +29,6 @@ pub mod sweep;
 pub mod tlas;
 pub mod tlas_map;
 pub mod trace;
+pub mod trace_scene;
 
 pub use error::SimError;

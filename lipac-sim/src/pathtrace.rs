@@ -84,7 +84,7 @@ impl Default for PathTraceConfig {
 }
 
 impl PathTraceConfig {
-    fn validate(&self) -> Result<(), SimError> {
+    pub(crate) fn validate(&self) -> Result<(), SimError> {
         if self.width == 0 || self.height == 0 {
             return Err(SimError::BadConfig("image size must be positive"));
         }

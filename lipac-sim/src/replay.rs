@@ -24,6 +24,10 @@
 //!   latency are reported; the error is not available (`NaN` in the
 //!   report, `null` in its JSON).
 //!
+//! A trace of any other scene whose header carries geometry replays in
+//! geometry mode through [`crate::trace_scene`] (`trace_scene::replay_path`
+//! picks the mode for a trace file; `lipac replay` goes through it).
+//!
 //! The trace is read frame by frame ([`TraceInput::next_frame_into`] reuses
 //! one [`Frame`]); apart from the per-frame metrics kept for the report (see
 //! [`ReplayConfig::keep_frames`]), memory follows the live instances, not the
@@ -75,9 +79,11 @@ pub struct ReplayConfig {
     /// The mode (`None`: geometry if the trace names a built-in scene,
     /// otherwise hits only).
     pub mode: Option<ReplayMode>,
-    /// Keep per-frame metrics in the report (hits-only mode; geometry mode
-    /// always keeps them). Without them the summaries still cover every
-    /// frame, and memory does not grow with the trace's length.
+    /// Keep every frame's metrics in the report (hits-only mode; geometry
+    /// mode always keeps them). Without it the summaries still cover every
+    /// frame, and the per-frame series (plots, `frames.csv`) is down-sampled
+    /// evenly to at most [`hits::MAX_SERIES_FRAMES`] frames, so memory does
+    /// not grow with the trace's length.
     pub keep_frames: bool,
     /// Frame numbers to take [`Snapshot`]s of (geometry mode only; see
     /// [`replay_with_snapshots`]).
@@ -243,8 +249,9 @@ impl<R: Read> TraceInput<R> {
     }
     /// Where the last frame read is (binary: the offset of its record;
     /// JSON lines: its line), and its frame number, as text for errors:
-    /// `"frame record 3 (frame number 7) at byte 1234"`, or `"before the
-    /// first frame"`.
+    /// `"frame record 3 (frame number 7) at byte 1234"`, `"before the
+    /// first frame (…)"`, or, once the end was read, `"after the last frame
+    /// (…)"`.
     pub fn position(&self) -> String {
         let (at, number) = match self {
             Self::Binary(r) => (
@@ -256,8 +263,18 @@ impl<R: Read> TraceInput<R> {
                 r.validator().last_frame_number(),
             ),
         };
+        let finished = match self {
+            Self::Binary(r) => r.is_finished(),
+            Self::Jsonl(r) => r.is_finished(),
+        };
         match (self.frames_read(), number) {
+            (0, _) | (_, None) if finished => format!("after the end of the trace ({at})"),
             (0, _) | (_, None) => format!("before the first frame ({at})"),
+            (n, Some(number)) if finished => format!(
+                "after the last frame (frame record {}, frame number {number}; end of the \
+                 trace at {at})",
+                n - 1
+            ),
             (n, Some(number)) => {
                 format!("frame record {} (frame number {number}) at {at}", n - 1)
             }

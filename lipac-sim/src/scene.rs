@@ -621,6 +621,56 @@ impl Scene {
         })
     }
 
+    /// A scene of caller-made instances over `library`, for scenes that come
+    /// from elsewhere than the generator (a recorded trace:
+    /// [`crate::trace_scene`]). Instances share their library mesh (no
+    /// unique or terrain instances); [`flags::ANIMATED`] marks those whose
+    /// pose the caller changes between frames ([`Scene::set_instance`]),
+    /// with no generator animation. `config` supplies the extent and hill
+    /// height only.
+    ///
+    /// Fails on an instance whose mesh is not in `library`, that is unique
+    /// or terrain, or whose transform or bounds are not finite.
+    pub fn from_instances(
+        config: SceneConfig,
+        library: MeshLibrary,
+        instances: Vec<SceneInstance>,
+    ) -> Result<Self, SimError> {
+        for (i, inst) in instances.iter().enumerate() {
+            check_placed(&library, inst, i)?;
+        }
+        Ok(Self {
+            config,
+            library,
+            instances,
+            units: Vec::new(),
+            unit_mesh: TERRAIN_MESH,
+            frame: 0,
+            busy: (0, 0.0),
+        })
+    }
+
+    /// Replaces instance `slot` of a scene made by [`Scene::from_instances`]
+    /// (the same checks; a generated scene's unique instances and units
+    /// cannot be replaced).
+    pub fn set_instance(&mut self, slot: u32, inst: SceneInstance) -> Result<(), SimError> {
+        if !self.units.is_empty() {
+            return Err(SimError::BadConfig(
+                "instances of a generated scene with units cannot be replaced",
+            ));
+        }
+        check_placed(&self.library, &inst, slot as usize)?;
+        let old = self
+            .instances
+            .get_mut(slot as usize)
+            .ok_or(SimError::UnknownInstance(slot))?;
+        if old.is_unique() {
+            return Err(SimError::NotUnique(slot));
+        }
+        *old = inst;
+        Ok(())
+    }
+
     /// The configuration it was generated from.
     pub fn config(&self) -> &SceneConfig {
         &self.config
@@ -737,6 +787,20 @@ impl Scene {
         }
         Ok(())
     }
+}
+
+/// The checks of [`Scene::from_instances`] on instance `index`.
+fn check_placed(library: &MeshLibrary, inst: &SceneInstance, index: usize) -> Result<(), SimError> {
+    if inst.flags & (flags::UNIQUE | flags::TERRAIN) != 0 {
+        return Err(SimError::BadConfig(
+            "placed instances share their library mesh (no unique or terrain instances)",
+        ));
+    }
+    library.mesh(inst.mesh)?;
+    if !inst.transform.is_finite() || !inst.aabb.min.is_finite() || !inst.aabb.max.is_finite() {
+        return Err(SimError::BadTransform { record: index });
+    }
+    Ok(())
 }
 
 fn unit_transform(u: &UnitPath, c: &SceneConfig, frame: u32) -> Affine3A {

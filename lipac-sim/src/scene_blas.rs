@@ -199,3 +199,30 @@ pub fn full_scene_records(
     }
     Ok(())
 }
+
+/// Like [`full_scene_records`] with each instance's LOD given
+/// (`lods[slot]`) instead of chosen by a policy: a recorded trace's LODs.
+pub fn full_scene_records_at(
+    scene: &Scene,
+    blases: &mut SceneBlases,
+    store: &mut BlasStore,
+    lods: &[u8],
+    frame: u32,
+    update: UniqueUpdate,
+    out: &mut Vec<TlasInstance>,
+) -> Result<(), SimError> {
+    if lods.len() != scene.instances().len() {
+        return Err(SimError::SizeMismatch {
+            a: lods.len(),
+            b: scene.instances().len(),
+        });
+    }
+    out.clear();
+    out.reserve(scene.instances().len());
+    for (slot, (inst, &lod)) in scene.instances().iter().zip(lods).enumerate() {
+        let slot = slot as u32;
+        let id = blases.blas_for(store, scene, slot, usize::from(lod), frame, update)?;
+        out.push(geometry_record(inst, slot, id));
+    }
+    Ok(())
+}

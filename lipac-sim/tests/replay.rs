@@ -13,7 +13,7 @@ use lipac_core::trace::{
 };
 use lipac_sim::compare::{run_choice, CompareConfig, CompareReport, SceneChoice};
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
-use lipac_sim::replay::hits::replay_hits_with;
+use lipac_sim::replay::hits::{replay_hits_with, MAX_SERIES_FRAMES};
 use lipac_sim::replay::{replay, ReplayConfig, ReplayMode, TraceInput};
 use lipac_sim::strategy::StrategyKind;
 
@@ -317,6 +317,28 @@ fn hits_only_replay_of_a_long_trace_stays_bounded() {
         replay_hits_with(&mut input, &config, &mut |_| {}).expect("hits-only replay")
     };
     let (short, fp_short) = run(500);
+    // Below the cap a streaming replay keeps every frame, equal to a replay
+    // that keeps them by request (timings aside).
+    let kept = {
+        let bytes = churn(500, 200);
+        let mut input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();
+        replay_hits_with(&mut input, &ReplayConfig::default(), &mut |_| {})
+            .unwrap()
+            .0
+    };
+    for (a, b) in short.strategies.iter().zip(&kept.strategies) {
+        assert_eq!(a.frames.len(), 500);
+        for (x, y) in a.frames.iter().zip(&b.frames) {
+            let untimed = |m: &lipac_sim::metrics::FrameMetrics| {
+                let mut m = m.clone();
+                m.strategy_ms = 0.0;
+                m.trace_ms = 0.0;
+                m.tlas_build_ms = 0.0;
+                format!("{m:?}")
+            };
+            assert_eq!(untimed(x), untimed(y));
+        }
+    }
     let (long, fp_long) = run(20_000);
     assert_eq!(long.frames, 20_000);
     assert_eq!(fp_long.peak_live, 200);
@@ -327,9 +349,19 @@ fn hits_only_replay_of_a_long_trace_stays_bounded() {
         "{fp_short:?} vs {fp_long:?}"
     );
     assert!(fp_long.peak_frame_events <= 4 * 200, "{fp_long:?}");
-    // No per-frame metrics kept, yet the summaries cover every frame.
+    // The per-frame series is down-sampled evenly to at most
+    // MAX_SERIES_FRAMES frames, yet the summaries cover every frame.
     for s in &long.strategies {
-        assert!(s.frames.is_empty());
+        let kept: Vec<u32> = s.frames.iter().map(|m| m.frame).collect();
+        assert!(
+            kept.len() <= MAX_SERIES_FRAMES && kept.len() > MAX_SERIES_FRAMES / 2,
+            "{} frames kept",
+            kept.len()
+        );
+        let stride = kept[1] - kept[0];
+        assert!(stride > 1 && stride.is_power_of_two(), "stride {stride}");
+        assert!(kept.windows(2).all(|w| w[1] - w[0] == stride));
+        assert!(20_000 - kept[kept.len() - 1] <= stride);
         assert_eq!(s.summary.frames, 20_000);
         assert!(
             s.summary.mean_error.is_nan(),

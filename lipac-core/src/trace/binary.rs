@@ -916,6 +916,11 @@ impl<R: Read> TraceReader<R> {
         self.record_at
     }
 
+    /// Whether the end marker was read (every frame is out).
+    pub fn is_finished(&self) -> bool {
+        matches!(self.state, ReadState::Done)
+    }
+
     /// Offset of event `i` of the last frame decoded, if it has one.
     pub fn event_offset(&self, i: usize) -> Option<u64> {
         self.offsets.events.get(i).copied()

@@ -869,6 +869,11 @@ impl<R: Read> JsonlReader<R> {
         self.line
     }
 
+    /// Whether the end line was read (every frame is out).
+    pub fn is_finished(&self) -> bool {
+        matches!(self.state, ReadState::Done)
+    }
+
     /// The next frame, or `None` after the end line.
     pub fn next_frame(&mut self) -> Result<Option<Frame>, TraceError> {
         match &self.state {

@@ -10,6 +10,8 @@
 //! cargo run --release -p lipac-sim --bin lipac -- sweep --merge part-1 part-2 part-3
 //! ```
 
+#[path = "../cli/import_cmd.rs"]
+mod import_cmd;
 #[path = "../cli/output.rs"]
 mod output;
 #[path = "../cli/trace_cmds.rs"]
@@ -131,6 +133,8 @@ enum Command {
     Replay(trace_cmds::ReplayArgs),
     /// Converts a trace between binary and JSON lines.
     Convert(trace_cmds::ConvertArgs),
+    /// Turns a glTF scene (.gltf/.glb) into a trace with geometry.
+    Import(import_cmd::ImportArgs),
     /// Run time, memory and builds against error over many configurations
     /// (threshold factors, latency mitigation, cell sizes, streaks,
     /// baselines), with Pareto plots.
@@ -364,6 +368,7 @@ fn main() -> ExitCode {
         Command::Record(a) => return trace_cmds::run_record(a),
         Command::Replay(a) => return trace_cmds::run_replay(a),
         Command::Convert(a) => return trace_cmds::run_convert(a),
+        Command::Import(a) => return import_cmd::run_import(a),
         Command::Sweep(args) => return sweep_main(args),
     };
     let strategies: Vec<StrategyKind> = if strategies.is_empty() {

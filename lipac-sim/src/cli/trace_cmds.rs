@@ -2,7 +2,7 @@
 //! traces on the command line (logic in `lipac_sim::record` and
 //! `lipac_sim::replay`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
@@ -11,6 +11,7 @@ use lipac_sim::compare::check_image_size;
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
 use lipac_sim::replay::{replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
+use lipac_sim::trace_scene::{replay_path, TraceSceneOptions};
 use lipac_sim::SimError;
 
 use crate::output::{check_not_input, io_err, open_input, publish_dir, OutputFile};
@@ -98,6 +99,14 @@ pub struct ReplayArgs {
     /// every frame and memory does not grow with the trace's length.
     #[arg(long)]
     keep_frames: bool,
+    /// Geometry mode of a trace of another scene: trace a box over the
+    /// bounds of a mesh without geometry instead of failing.
+    #[arg(long)]
+    box_proxy: bool,
+    /// Geometry mode of a trace of another scene: a JSON scene file
+    /// overriding sun and sky (see docs/trace-format.md).
+    #[arg(long)]
+    scene_file: Option<PathBuf>,
 }
 
 /// `lipac convert`.
@@ -184,9 +193,18 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
         snapshots: a.snapshots.clone(),
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
-    let input = TraceInput::detect(open_input(&a.file)?).map_err(at_file)?;
-    let (report, snapshots) =
-        replay_with_snapshots(input, &config, &mut |_| {}).map_err(at_file)?;
+    let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());
+    let (report, snapshots) = if regular_file {
+        // A file can be read twice: traces of other scenes replay with
+        // geometry (lipac_sim::trace_scene).
+        let options =
+            trace_scene_options(a.box_proxy, a.scene_file.as_deref()).map_err(|e| e.to_string())?;
+        replay_path(&a.file, &config, &options, &mut |_| {}).map_err(at_file)?
+    } else {
+        // Standard input or a pipe: one pass (built-in scenes, hits only).
+        let input = TraceInput::detect(open_input(&a.file)?).map_err(at_file)?;
+        replay_with_snapshots(input, &config, &mut |_| {}).map_err(at_file)?
+    };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
@@ -202,6 +220,22 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
         a.out.display()
     );
     Ok(())
+}
+
+fn trace_scene_options(
+    box_proxy: bool,
+    scene_file: Option<&Path>,
+) -> Result<TraceSceneOptions, SimError> {
+    let o = TraceSceneOptions {
+        box_proxy,
+        ..TraceSceneOptions::default()
+    };
+    match scene_file {
+        None => Ok(o),
+        Some(p) => {
+            o.with_json(&std::fs::read_to_string(p).map_err(|e| SimError::Io(io_err(p, e)))?)
+        }
+    }
 }
 
 pub fn run_convert(a: ConvertArgs) -> ExitCode {

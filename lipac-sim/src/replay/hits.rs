@@ -191,6 +191,8 @@ struct Run {
     runner: Runner,
     tracker: Tracker,
     frames: Vec<FrameMetrics>,
+    /// The down-sampling of `frames` when not every frame is kept.
+    series: Series,
     summary_frames: u32,
     totals: FrameTotals,
 }
@@ -231,6 +233,49 @@ impl FrameTotals {
         self.cycles += m.cycles;
         self.sum_needed_missing += m.needed_missing as f64;
         self.sum_strategy_ms += m.strategy_ms;
+    }
+}
+
+/// Most frames of the per-frame series a streaming replay keeps
+/// ([`ReplayConfig::keep_frames`] off): beyond it, every other kept frame is
+/// dropped and the stride doubles, so the series stays evenly spaced over the
+/// whole trace in at most this many frames.
+pub const MAX_SERIES_FRAMES: usize = 2048;
+
+/// Down-sampling of a streaming replay's per-frame series: every
+/// `stride`-th frame, the stride doubling whenever the series is full.
+#[derive(Debug)]
+struct Series {
+    stride: u64,
+    seen: u64,
+}
+
+impl Default for Series {
+    fn default() -> Self {
+        Self { stride: 1, seen: 0 }
+    }
+}
+
+impl Series {
+    fn push(&mut self, frames: &mut Vec<FrameMetrics>, m: FrameMetrics) {
+        let index = self.seen;
+        self.seen += 1;
+        if index % self.stride != 0 {
+            return;
+        }
+        if frames.len() == MAX_SERIES_FRAMES {
+            // Keep frames 0, 2·stride, 4·stride, ...
+            let mut i = 0;
+            frames.retain(|_| {
+                i += 1;
+                i % 2 == 1
+            });
+            self.stride *= 2;
+            if index % self.stride != 0 {
+                return;
+            }
+        }
+        frames.push(m);
     }
 }
 
@@ -307,6 +352,7 @@ pub fn replay_hits_with<R: Read>(
             tracker: Tracker::new(0),
             frames: Vec::new(),
             summary_frames: 0,
+            series: Series::default(),
             totals: FrameTotals::default(),
         });
     }
@@ -365,6 +411,8 @@ pub fn replay_hits_with<R: Read>(
             run.summary_frames += 1;
             if config.keep_frames {
                 run.frames.push(m);
+            } else {
+                run.series.push(&mut run.frames, m);
             }
         }
         read += 1;

@@ -1,0 +1,743 @@
+//! Geometry replay of any trace whose header carries geometry: the trace
+//! becomes a [`Scene`] and goes through [`Comparison`] exactly as in
+//! `compare` (ground truth, every strategy, the error).
+//!
+//! * **Meshes**: one shared BLAS per (mesh, LOD) from the header's indexed
+//!   geometry. The tracer holds [`LOD_COUNT`] LODs per mesh: a trace mesh
+//!   with `k` LODs maps to `[0, min(1, k - 1), k - 1]`, and a recorded LOD
+//!   `l` traces as 0 if `l = 0`, as the coarsest if `l = k - 1 ≥ 2`, else as
+//!   the second (traces with more than three LODs trace their middle LODs as
+//!   the second). A LOD without geometry is an error naming the mesh, or,
+//!   with [`TraceSceneOptions::box_proxy`], a box over the mesh's bounds,
+//!   listed in [`TraceReplay::box_proxies`] and in the report's scene name.
+//! * **Materials** from flags: a mesh any of whose instances is flagged
+//!   `vegetation` is leaves (traced with the vegetation mask, so shadow
+//!   rays skip it as they skip the built-in trees); with
+//!   [`TraceSceneOptions::vegetation_alpha`] also alpha-tested with the
+//!   built-in trees' leaf pattern (which is defined over their crown, so
+//!   only meaningful for tree-sized meshes). Everything else is wall.
+//! * **Sun and sky**: [`crate::pathtrace::PathTraceConfig`]'s defaults,
+//!   overridden by [`Lighting`] (a small JSON scene file,
+//!   [`TraceSceneOptions::with_json`]).
+//! * **Instances** from the events, at any frame: adds, updates (pose, LOD,
+//!   flags), removes; cameras as recorded. The trace is read twice: a first
+//!   pass ([`TracePlan::scan`]) assigns every instance a scene slot, reusing
+//!   the slots of removed instances of the same mesh, so the scene holds as
+//!   many slots as instances of each mesh are live at once, not as many as
+//!   the trace ever adds. A slot not live in a frame is parked 100 km below
+//!   the world (no ray reaches it). Slots whose occupant moves, comes or
+//!   goes after the first frame are animated for the strategies (LiPaC
+//!   follows their poses; their BLASes are accounted as refit per frame).
+//!   A parked slot still counts for strategies that keep it (the full
+//!   scene's TLAS records and modelled memory include parked slots).
+//! * `unique_blas` is not modelled (every trace mesh is a shared BLAS).
+//!
+//! Memory follows the live instances (slots, one map entry per live id) and
+//! the header's geometry; apart from the per-frame metrics kept for the
+//! report, not the trace's length.
+
+use std::collections::{HashMap, HashSet};
+use std::io::Read;
+use std::path::Path;
+
+use glam::{Affine3A, Vec3};
+use lipac_core::instance::{InstanceFlags, MeshId};
+use lipac_core::math::{rows_to_affine, Aabb};
+use lipac_core::trace::{Frame, InstanceEvent, LodInfo, MeshInfo, TraceHeader};
+use obvhs::triangle::Triangle;
+use serde::Deserialize;
+
+use crate::compare::{CompareConfig, CompareReport, Comparison};
+use crate::error::SimError;
+use crate::mesh::{material, LodTriangles, Mesh, MeshKind, MeshLibrary, LOD_COUNT};
+use crate::pathtrace::PathTraceConfig;
+use crate::record::{from_trace_camera, SceneRef};
+use crate::replay::{empty_frame, replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
+use crate::scene::{flags, Scene, SceneConfig, SceneInstance};
+use crate::snapshot::Snapshot;
+use crate::strategy::StrategyKind;
+
+/// How far below the world a slot that is not live waits, metres.
+pub const PARK_DEPTH: f32 = 1.0e5;
+
+/// Sun and sky of a trace replay.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lighting {
+    /// Direction towards the sun (finite, non-zero).
+    pub sun_direction: Vec3,
+    /// Sun irradiance, linear RGB.
+    pub sun_irradiance: Vec3,
+    /// Constant sky radiance, linear RGB.
+    pub sky_radiance: Vec3,
+}
+
+impl Default for Lighting {
+    /// The path tracer's defaults (those of `compare`).
+    fn default() -> Self {
+        let p = PathTraceConfig::default();
+        Self {
+            sun_direction: p.sun_direction,
+            sun_irradiance: p.sun_irradiance,
+            sky_radiance: p.sky_radiance,
+        }
+    }
+}
+
+/// Options of a trace-backed geometry replay.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TraceSceneOptions {
+    /// Trace a box over the mesh bounds for a LOD without geometry (instead
+    /// of failing).
+    pub box_proxy: bool,
+    /// Sun and sky.
+    pub lighting: Lighting,
+    /// Alpha-test vegetation with the built-in trees' leaf pattern.
+    pub vegetation_alpha: bool,
+}
+
+/// The JSON scene file: every field optional.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    sun_direction: Option<[f32; 3]>,
+    sun_irradiance: Option<[f32; 3]>,
+    sky_radiance: Option<[f32; 3]>,
+    vegetation_alpha: Option<bool>,
+    box_proxy: Option<bool>,
+}
+
+impl TraceSceneOptions {
+    /// `self` overridden by a JSON scene file, e.g.
+    /// `{"sun_direction": [0.3, 0.9, 0.2], "sun_irradiance": [3, 3, 3],
+    /// "sky_radiance": [0.3, 0.4, 0.6], "vegetation_alpha": false,
+    /// "box_proxy": false}`; every field is optional, unknown fields are
+    /// refused.
+    ///
+    /// ```
+    /// use lipac_sim::trace_scene::TraceSceneOptions;
+    /// let o = TraceSceneOptions::default().with_json(r#"{"sky_radiance":[1,1,1]}"#).unwrap();
+    /// assert_eq!(o.lighting.sky_radiance, glam::Vec3::ONE);
+    /// assert!(TraceSceneOptions::default().with_json(r#"{"sky":1}"#).is_err());
+    /// ```
+    pub fn with_json(mut self, json: &str) -> Result<Self, SimError> {
+        let f: SceneFile =
+            serde_json::from_str(json).map_err(|e| SimError::Replay(format!("scene file: {e}")))?;
+        let l = &mut self.lighting;
+        if let Some(v) = f.sun_direction {
+            l.sun_direction = Vec3::from(v);
+        }
+        if let Some(v) = f.sun_irradiance {
+            l.sun_irradiance = Vec3::from(v);
+        }
+        if let Some(v) = f.sky_radiance {
+            l.sky_radiance = Vec3::from(v);
+        }
+        if !l.sun_direction.is_finite() || l.sun_direction.length_squared() < 1e-12 {
+            return Err(SimError::Replay(
+                "scene file: the sun direction must be finite and non-zero".into(),
+            ));
+        }
+        if !l.sun_irradiance.is_finite() || !l.sky_radiance.is_finite() {
+            return Err(SimError::Replay(
+                "scene file: sun and sky must be finite".into(),
+            ));
+        }
+        if let Some(v) = f.vegetation_alpha {
+            self.vegetation_alpha = v;
+        }
+        if let Some(v) = f.box_proxy {
+            self.box_proxy = v;
+        }
+        Ok(self)
+    }
+}
+
+/// Scene slots of trace instances: a removed instance's slot goes to the
+/// next added instance of the same mesh.
+#[derive(Clone, Debug, Default)]
+struct SlotAlloc {
+    live: HashMap<u64, u32>,
+    free: HashMap<u32, Vec<u32>>,
+    mesh: Vec<u32>,
+}
+
+impl SlotAlloc {
+    /// The slot of a new instance `id` of scene mesh `mesh`, and whether it
+    /// is a new slot.
+    fn add(&mut self, id: u64, mesh: u32) -> (u32, bool) {
+        let (slot, new) = match self.free.get_mut(&mesh).and_then(Vec::pop) {
+            Some(s) => (s, false),
+            None => {
+                self.mesh.push(mesh);
+                ((self.mesh.len() - 1) as u32, true)
+            }
+        };
+        self.live.insert(id, slot);
+        (slot, new)
+    }
+    fn remove(&mut self, id: u64) -> Option<u32> {
+        let slot = self.live.remove(&id)?;
+        self.free
+            .entry(self.mesh[slot as usize])
+            .or_default()
+            .push(slot);
+        Some(slot)
+    }
+    fn slot(&self, id: u64) -> Option<u32> {
+        self.live.get(&id).copied()
+    }
+}
+
+/// What the first pass over a trace learns: its slots and which meshes are
+/// vegetation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TracePlan {
+    /// Scene mesh (header order) of every slot.
+    slot_mesh: Vec<u32>,
+    /// Whether the slot's occupant moves, comes or goes after frame 0.
+    slot_dynamic: Vec<bool>,
+    /// Header meshes used by a vegetation instance.
+    vegetation: HashSet<u32>,
+    /// Frames in the trace.
+    frames: u64,
+}
+
+/// Header mesh id → (scene mesh index, LOD count).
+fn mesh_index(header: &TraceHeader) -> HashMap<MeshId, (u32, u32)> {
+    header
+        .meshes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id, (i as u32, m.lods.len() as u32)))
+        .collect()
+}
+
+fn scene_mesh(index: &HashMap<MeshId, (u32, u32)>, mesh: MeshId) -> Result<u32, SimError> {
+    index
+        .get(&mesh)
+        .map(|&(i, _)| i)
+        .ok_or_else(|| SimError::Replay(format!("mesh {} is not in the header", mesh.0)))
+}
+
+impl TracePlan {
+    /// Reads every frame of `input` (whose header is `header`), assigning
+    /// slots as [`TraceScene`] will.
+    pub fn scan<R: Read>(
+        header: &TraceHeader,
+        input: &mut TraceInput<R>,
+    ) -> Result<Self, SimError> {
+        let index = mesh_index(header);
+        let mut alloc = SlotAlloc::default();
+        let mut dynamic = Vec::new();
+        let mut vegetation = HashSet::new();
+        let mut frame = empty_frame();
+        let mut frames = 0u64;
+        while input.next_frame_into(&mut frame)? {
+            let later = frames > 0;
+            for e in &frame.events {
+                match e {
+                    InstanceEvent::Add(a) => {
+                        let mesh = scene_mesh(&index, a.mesh)?;
+                        let (slot, new) = alloc.add(a.id, mesh);
+                        if new {
+                            dynamic.push(later);
+                        } else {
+                            dynamic[slot as usize] = true;
+                        }
+                        if a.flags.contains(InstanceFlags::VEGETATION) {
+                            vegetation.insert(mesh);
+                        }
+                    }
+                    InstanceEvent::Update(u) => {
+                        let slot = alloc.slot(u.id).ok_or_else(|| {
+                            SimError::Replay(format!("update of instance {}, not live", u.id))
+                        })?;
+                        if u.pose.is_some() {
+                            dynamic[slot as usize] = true;
+                        }
+                        if u.flags
+                            .is_some_and(|f| f.contains(InstanceFlags::VEGETATION))
+                        {
+                            vegetation.insert(alloc.mesh[slot as usize]);
+                        }
+                    }
+                    InstanceEvent::Remove { id } => {
+                        let slot = alloc.remove(*id).ok_or_else(|| {
+                            SimError::Replay(format!("remove of instance {id}, not live"))
+                        })?;
+                        dynamic[slot as usize] = true;
+                    }
+                }
+            }
+            frames += 1;
+        }
+        Ok(Self {
+            slot_mesh: alloc.mesh,
+            slot_dynamic: dynamic,
+            vegetation,
+            frames,
+        })
+    }
+    /// Scene slots the trace needs.
+    pub fn slots(&self) -> usize {
+        self.slot_mesh.len()
+    }
+    /// Frames in the trace.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+}
+
+/// The sim LOD a recorded LOD `l` of a mesh with `k` LODs traces as.
+pub fn sim_lod(l: u32, k: u32) -> u8 {
+    if l == 0 {
+        0
+    } else if k >= 3 && l + 1 >= k {
+        2
+    } else {
+        1
+    }
+}
+
+/// The header LOD each sim LOD is made of, for a mesh with `k` LODs.
+fn source_lods(k: usize) -> [usize; LOD_COUNT] {
+    [0, 1.min(k - 1), k - 1]
+}
+
+fn lod_geometry(
+    mesh: &MeshInfo,
+    lod: usize,
+    info: &LodInfo,
+    leaves: bool,
+    alpha: bool,
+    box_proxy: bool,
+) -> Result<(LodTriangles, bool), SimError> {
+    let mat = if leaves {
+        material::LEAF
+    } else {
+        material::WALL
+    };
+    let mut out = LodTriangles::default();
+    let proxied = match &info.geometry {
+        Some(g) => {
+            for t in g.indices.chunks_exact(3) {
+                let v = |i: u32| -> Result<Vec3, SimError> {
+                    g.positions
+                        .get(i as usize)
+                        .map(|&p| Vec3::from(p))
+                        .ok_or_else(|| {
+                            SimError::Replay(format!(
+                                "mesh {} LOD {lod}: index {i} out of range",
+                                mesh.id.0
+                            ))
+                        })
+                };
+                out.triangles.push(Triangle {
+                    v0: v(t[0])?.into(),
+                    v1: v(t[1])?.into(),
+                    v2: v(t[2])?.into(),
+                });
+            }
+            false
+        }
+        None if box_proxy => {
+            let b = crate::mesh::cuboid(mesh.bounds.min, mesh.bounds.max, mat);
+            out = b.lods[0].clone();
+            true
+        }
+        None => {
+            return Err(SimError::Replay(format!(
+                "mesh {} LOD {lod} has no geometry in the header (geometry replay needs \
+                 every mesh's triangles; record them, or pass --box-proxy to trace a box \
+                 over the mesh's bounds instead)",
+                mesh.id.0
+            )))
+        }
+    };
+    if out.triangles.is_empty() {
+        return Err(SimError::Replay(format!(
+            "mesh {} LOD {lod} has no triangles",
+            mesh.id.0
+        )));
+    }
+    let n = out.triangles.len();
+    out.materials = vec![mat; n];
+    out.alpha_tested = vec![leaves && alpha; n];
+    Ok((out, proxied))
+}
+
+/// A trace's scene, one frame at a time: [`TraceScene::apply`] a frame's
+/// events, then render [`TraceScene::scene`] at [`TraceScene::lods`].
+#[derive(Clone, Debug)]
+pub struct TraceScene {
+    scene: Scene,
+    alloc: SlotAlloc,
+    index: HashMap<MeshId, (u32, u32)>,
+    dynamic: Vec<bool>,
+    lods: Vec<u8>,
+    lod_counts: Vec<u32>,
+    park_at: Vec3,
+    box_proxies: Vec<u32>,
+}
+
+impl TraceScene {
+    /// The scene of a trace with `header`, planned by `plan`, every slot
+    /// parked until the first frame's events.
+    pub fn new(
+        header: &TraceHeader,
+        plan: &TracePlan,
+        options: &TraceSceneOptions,
+    ) -> Result<Self, SimError> {
+        let index = mesh_index(header);
+        let mut library = MeshLibrary::new();
+        let mut box_proxies = Vec::new();
+        for (i, m) in header.meshes.iter().enumerate() {
+            let leaves = plan.vegetation.contains(&(i as u32));
+            let mut lods: [LodTriangles; LOD_COUNT] = Default::default();
+            let mut proxied = false;
+            for (sim, &src) in source_lods(m.lods.len()).iter().enumerate() {
+                let (g, p) = lod_geometry(
+                    m,
+                    src,
+                    &m.lods[src],
+                    leaves,
+                    options.vegetation_alpha,
+                    options.box_proxy,
+                )?;
+                lods[sim] = g;
+                proxied |= p;
+            }
+            if proxied {
+                box_proxies.push(m.id.0);
+            }
+            let mut bounds = m.bounds;
+            for l in &lods {
+                let b = l.bounds();
+                bounds = Aabb::new(bounds.min.min(b.min), bounds.max.max(b.max));
+            }
+            library.add(Mesh {
+                kind: if leaves {
+                    MeshKind::Tree
+                } else {
+                    MeshKind::Building
+                },
+                lods,
+                bounds,
+            });
+        }
+        let w = header.world;
+        let centre = Vec3::new(
+            (0.5 * (w.min[0] + w.max[0])) as f32,
+            -PARK_DEPTH,
+            (0.5 * (w.min[1] + w.max[1])) as f32,
+        );
+        let extent = ((w.max[0] - w.min[0]).max(w.max[1] - w.min[1]) as f32).max(1.0);
+        let mut placed = Vec::with_capacity(plan.slots());
+        for (slot, &mesh) in plan.slot_mesh.iter().enumerate() {
+            placed.push(parked(&library, mesh, centre, slot)?);
+        }
+        let config = SceneConfig {
+            extent,
+            hill_height: 0.0,
+            ..SceneConfig::small()
+        };
+        let scene = Scene::from_instances(config, library, placed)?;
+        Ok(Self {
+            scene,
+            alloc: SlotAlloc::default(),
+            index,
+            dynamic: plan.slot_dynamic.clone(),
+            lods: vec![(LOD_COUNT - 1) as u8; plan.slots()],
+            lod_counts: header.meshes.iter().map(|m| m.lods.len() as u32).collect(),
+            park_at: centre,
+            box_proxies,
+        })
+    }
+
+    /// Applies `frame`'s events (in order).
+    pub fn apply(&mut self, frame: &Frame) -> Result<(), SimError> {
+        for (i, e) in frame.events.iter().enumerate() {
+            self.apply_event(e).map_err(|err| {
+                let err = match err {
+                    SimError::Replay(m) => m,
+                    other => other.to_string(),
+                };
+                SimError::Replay(format!(
+                    "frame number {}, event {i} ({} of instance {}): {err}",
+                    frame.number,
+                    match e {
+                        InstanceEvent::Add(_) => "add",
+                        InstanceEvent::Update(_) => "update",
+                        InstanceEvent::Remove { .. } => "remove",
+                    },
+                    e.id()
+                ))
+            })?;
+        }
+        Ok(())
+    }
+
+    fn sim_flags(&self, slot: u32, f: InstanceFlags) -> u8 {
+        let mut out = 0;
+        if f.contains(InstanceFlags::VEGETATION) {
+            out |= flags::VEGETATION;
+        }
+        if self.dynamic.get(slot as usize).copied().unwrap_or(true) {
+            out |= flags::ANIMATED;
+        } else if f.contains(InstanceFlags::STATIC) {
+            out |= flags::STATIC;
+        }
+        out
+    }
+
+    fn apply_event(&mut self, e: &InstanceEvent) -> Result<(), SimError> {
+        match e {
+            InstanceEvent::Add(a) => {
+                let &(mesh, k) = self
+                    .index
+                    .get(&a.mesh)
+                    .ok_or_else(|| SimError::Replay(format!("mesh {} unknown", a.mesh.0)))?;
+                let (slot, _) = self.alloc.add(a.id, mesh);
+                if self.alloc.mesh.len() > self.scene.instances().len() {
+                    return Err(SimError::Replay(
+                        "the trace differs from its first read (more slots)".into(),
+                    ));
+                }
+                let inst = SceneInstance {
+                    transform: traceable(&a.pose.transform)?,
+                    aabb: a.pose.aabb,
+                    mesh,
+                    flags: self.sim_flags(slot, a.flags),
+                };
+                self.scene.set_instance(slot, inst)?;
+                self.lods[slot as usize] = sim_lod(a.lod, k);
+            }
+            InstanceEvent::Update(u) => {
+                let slot = self
+                    .alloc
+                    .slot(u.id)
+                    .ok_or_else(|| SimError::Replay("not live".into()))?;
+                let mut inst = *self.scene.instance(slot)?;
+                if let Some(p) = &u.pose {
+                    inst.transform = traceable(&p.transform)?;
+                    inst.aabb = p.aabb;
+                }
+                if let Some(f) = u.flags {
+                    inst.flags = self.sim_flags(slot, f);
+                }
+                if let Some(l) = u.lod {
+                    let k = self
+                        .lod_counts
+                        .get(inst.mesh as usize)
+                        .copied()
+                        .unwrap_or(1);
+                    self.lods[slot as usize] = sim_lod(l, k);
+                }
+                self.scene.set_instance(slot, inst)?;
+            }
+            InstanceEvent::Remove { id } => {
+                let slot = self
+                    .alloc
+                    .remove(*id)
+                    .ok_or_else(|| SimError::Replay("not live".into()))?;
+                let mesh = self.scene.instance(slot)?.mesh;
+                let p = parked(self.scene.library(), mesh, self.park_at, slot as usize)?;
+                self.scene.set_instance(slot, p)?;
+                self.lods[slot as usize] = (LOD_COUNT - 1) as u8;
+            }
+        }
+        Ok(())
+    }
+
+    /// The scene at the events applied so far.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    /// The sim LOD of every slot ([`sim_lod`] of the recorded LOD).
+    pub fn lods(&self) -> &[u8] {
+        &self.lods
+    }
+    /// The slot of live instance `id`.
+    pub fn slot_of(&self, id: u64) -> Option<u32> {
+        self.alloc.slot(id)
+    }
+    /// Instances live now.
+    pub fn live(&self) -> usize {
+        self.alloc.live.len()
+    }
+    /// Header mesh ids traced as box proxies.
+    pub fn box_proxies(&self) -> &[u32] {
+        &self.box_proxies
+    }
+}
+
+/// The transform of `rows`, if the path tracer can trace it (finite, with
+/// an invertible linear part, as [`crate::tlas::Tlas`] requires).
+fn traceable(rows: &[f32; 12]) -> Result<Affine3A, SimError> {
+    let t = rows_to_affine(rows);
+    let det = t.matrix3.determinant();
+    if !t.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
+        return Err(SimError::Replay(format!(
+            "the transform is singular (determinant {det:e}); the path tracer cannot trace it"
+        )));
+    }
+    Ok(t)
+}
+
+/// Slot `slot` of mesh `mesh`, parked below the world at `at`.
+fn parked(
+    library: &MeshLibrary,
+    mesh: u32,
+    at: Vec3,
+    slot: usize,
+) -> Result<SceneInstance, SimError> {
+    let b = library.bounds(mesh)?;
+    // Spread parked slots a little so their boxes do not all coincide.
+    let at = at - Vec3::new(0.0, (slot % 64) as f32 * 1.0e3, 0.0);
+    let transform = Affine3A::from_translation(at - b.center());
+    Ok(SceneInstance {
+        transform,
+        aabb: Aabb::new(at - 0.5 * b.size(), at + 0.5 * b.size()),
+        mesh,
+        flags: flags::ANIMATED,
+    })
+}
+
+/// A trace-backed geometry replay's results.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TraceReplay {
+    /// The comparison's report (as `compare`'s).
+    pub report: CompareReport,
+    /// Scene slots used (at most the sum over meshes of their instances
+    /// live at once).
+    pub slots: usize,
+    /// Header mesh ids traced as box proxies.
+    pub box_proxies: Vec<u32>,
+    /// The snapshots of `ReplayConfig::snapshots`, in frame order.
+    pub snapshots: Vec<Snapshot>,
+}
+
+/// Replays a trace in geometry mode through a [`TraceScene`] (see the
+/// module docs). `open` opens the trace from its start; it is called twice
+/// and must give the same trace both times. `progress(frames_done)` is
+/// called after every rendered frame.
+pub fn replay_trace<R: Read>(
+    mut open: impl FnMut() -> Result<TraceInput<R>, SimError>,
+    config: &ReplayConfig,
+    options: &TraceSceneOptions,
+    progress: &mut dyn FnMut(u64),
+) -> Result<TraceReplay, SimError> {
+    let mut input = open()?;
+    let header = input.header().clone();
+    let plan = TracePlan::scan(&header, &mut input)?;
+    if plan.slots() == 0 {
+        return Err(SimError::Replay("the trace adds no instance".into()));
+    }
+    drop(input);
+    let mut input = open()?;
+    if *input.header() != header {
+        return Err(SimError::Replay(
+            "the trace changed between its two reads".into(),
+        ));
+    }
+    let mut ts = TraceScene::new(&header, &plan, options)?;
+    let strategies = if config.strategies.is_empty() {
+        StrategyKind::ALL.to_vec()
+    } else {
+        config.strategies.clone()
+    };
+    let cc = CompareConfig {
+        frames: None,
+        width: config.width,
+        height: config.height,
+        strategies,
+        share_ground_truth: true,
+        threads: config.threads,
+    };
+    let name = if ts.box_proxies().is_empty() {
+        header.scene_name.clone()
+    } else {
+        let ids: Vec<String> = ts.box_proxies().iter().map(u32::to_string).collect();
+        format!(
+            "{} (box proxies for meshes {})",
+            header.scene_name,
+            ids.join(", ")
+        )
+    };
+    let mut cmp: Option<Comparison> = None;
+    let mut frame = empty_frame();
+    let mut read = 0u64;
+    while input.next_frame_into(&mut frame)? {
+        ts.apply(&frame)?;
+        let number = u32::try_from(frame.number).map_err(|_| {
+            SimError::Replay(format!(
+                "frame record {read}: frame number {} above 2^32 - 1",
+                frame.number
+            ))
+        })?;
+        let camera = from_trace_camera(&frame.camera)?;
+        let c = match &mut cmp {
+            Some(c) => c,
+            None => {
+                let mut c = Comparison::new(&name, ts.scene(), &cc)?;
+                c.capture_frames(&config.snapshots);
+                let l = options.lighting;
+                c.set_lighting(l.sun_direction, l.sun_irradiance, l.sky_radiance)?;
+                cmp.insert(c)
+            }
+        };
+        c.frame_with_lods(ts.scene(), number, &camera, ts.lods())?;
+        read += 1;
+        progress(read);
+    }
+    if read != plan.frames() {
+        return Err(SimError::Replay(
+            "the trace changed between its two reads (frame count)".into(),
+        ));
+    }
+    let (report, snapshots) = cmp
+        .ok_or_else(|| SimError::Replay("the trace has no frames".into()))?
+        .finish_with_snapshots()?;
+    Ok(TraceReplay {
+        report,
+        slots: plan.slots(),
+        box_proxies: ts.box_proxies,
+        snapshots,
+    })
+}
+
+/// Whether every LOD of every mesh of `header` carries geometry.
+pub fn has_geometry(header: &TraceHeader) -> bool {
+    header
+        .meshes
+        .iter()
+        .all(|m| m.lods.iter().all(|l| l.geometry.is_some()))
+}
+
+/// Replays the trace file at `path`: built-in scenes and hits-only mode as
+/// [`crate::replay::replay`]; any other trace in geometry mode (asked for,
+/// or by default when its header carries every mesh's geometry or
+/// `options.box_proxy` is set) through a [`TraceScene`]. Returns the report
+/// and the snapshots of `config.snapshots`.
+pub fn replay_path(
+    path: &Path,
+    config: &ReplayConfig,
+    options: &TraceSceneOptions,
+    progress: &mut dyn FnMut(u64),
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
+    let input = TraceInput::open(path)?;
+    let h = input.header();
+    let builtin = SceneRef::parse(&h.scene_name).is_some();
+    let trace_backed = !builtin
+        && match config.mode {
+            Some(ReplayMode::Geometry) => true,
+            Some(ReplayMode::HitsOnly) => false,
+            None => options.box_proxy || has_geometry(h),
+        };
+    if !trace_backed {
+        return replay_with_snapshots(input, config, progress);
+    }
+    drop(input);
+    let r = replay_trace(|| TraceInput::open(path), config, options, progress)?;
+    Ok((r.report, r.snapshots))
+}

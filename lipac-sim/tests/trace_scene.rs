@@ -1,0 +1,404 @@
+//! Geometry replay of traces lipac never generated (written here through
+//! lipac-core's trace writer): instances added, moved, re-LODed and removed
+//! at any frame, the error reported as in `compare`.
+
+use std::io::Cursor;
+
+use glam::{Affine3A, Quat, Vec3};
+use lipac_core::instance::{InstanceFlags, MeshId};
+use lipac_core::math::{affine_to_rows, Aabb};
+use lipac_core::trace::{
+    AddInstance, Camera, Frame, InstanceEvent, LodGeometry, LodInfo, MeshInfo, Pose, TraceFormat,
+    TraceHeader, TraceWriter, UpdateInstance, WorldInfo,
+};
+use lipac_sim::replay::{ReplayConfig, TraceInput};
+use lipac_sim::strategy::StrategyKind;
+use lipac_sim::trace_scene::{replay_trace, TracePlan, TraceReplay, TraceScene, TraceSceneOptions};
+use lipac_sim::SimError;
+
+/// An axis-aligned box as indexed triangles.
+fn boxed(min: Vec3, max: Vec3) -> LodGeometry {
+    let mut positions = Vec::new();
+    for i in 0..8u32 {
+        let p = |bit: u32, lo: f32, hi: f32| if i & bit != 0 { hi } else { lo };
+        positions.push([p(1, min.x, max.x), p(2, min.y, max.y), p(4, min.z, max.z)]);
+    }
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let mut indices = Vec::new();
+    for q in quads {
+        indices.extend([q[0], q[1], q[2], q[0], q[2], q[3]]);
+    }
+    LodGeometry { positions, indices }
+}
+
+fn mesh(id: u32, min: Vec3, max: Vec3, lods: usize, geometry: bool) -> MeshInfo {
+    MeshInfo {
+        id: MeshId(id),
+        bounds: Aabb::new(min, max),
+        lods: (0..lods)
+            .map(|_| LodInfo {
+                triangles: 12,
+                geometry: geometry.then(|| boxed(min, max)),
+            })
+            .collect(),
+    }
+}
+
+const GROUND: u32 = 1;
+const HOUSE: u32 = 2;
+const DEER: u32 = 3;
+
+fn header(deer_geometry: bool) -> TraceHeader {
+    TraceHeader {
+        scene_name: "hand-written valley".into(),
+        world: WorldInfo {
+            min: [-128.0, -128.0],
+            max: [128.0, 128.0],
+            cell_size: 16.0,
+        },
+        meshes: vec![
+            mesh(
+                GROUND,
+                Vec3::new(-120.0, -1.0, -120.0),
+                Vec3::new(120.0, 0.0, 120.0),
+                1,
+                true,
+            ),
+            mesh(
+                HOUSE,
+                Vec3::new(-4.0, 0.0, -4.0),
+                Vec3::new(4.0, 9.0, 4.0),
+                3,
+                true,
+            ),
+            mesh(
+                DEER,
+                Vec3::new(-0.5, 0.0, -1.0),
+                Vec3::new(0.5, 1.5, 1.0),
+                2,
+                deer_geometry,
+            ),
+        ],
+    }
+}
+
+fn pose(m: &MeshInfo, at: Vec3, yaw: f32) -> Pose {
+    let t = Affine3A::from_rotation_translation(Quat::from_rotation_y(yaw), at);
+    let c: Vec<Vec3> = (0..8)
+        .map(|i| {
+            let (a, b) = (m.bounds.min, m.bounds.max);
+            t.transform_point3(Vec3::new(
+                if i & 1 != 0 { b.x } else { a.x },
+                if i & 2 != 0 { b.y } else { a.y },
+                if i & 4 != 0 { b.z } else { a.z },
+            ))
+        })
+        .collect();
+    let lo = c.iter().fold(Vec3::splat(f32::INFINITY), |a, &p| a.min(p));
+    let hi = c
+        .iter()
+        .fold(Vec3::splat(f32::NEG_INFINITY), |a, &p| a.max(p));
+    Pose {
+        transform: affine_to_rows(&t),
+        aabb: Aabb::new(lo, hi),
+    }
+}
+
+fn add(
+    h: &TraceHeader,
+    id: u64,
+    mesh: u32,
+    lod: u32,
+    at: Vec3,
+    flags: InstanceFlags,
+) -> InstanceEvent {
+    let m = h.meshes.iter().find(|m| m.id.0 == mesh).unwrap();
+    InstanceEvent::Add(AddInstance {
+        id,
+        mesh: MeshId(mesh),
+        lod,
+        flags,
+        mask: None,
+        pose: pose(m, at, 0.0),
+    })
+}
+
+fn camera(f: u64) -> Camera {
+    Camera::look_to(
+        Vec3::new(-30.0 + f as f32, 12.0, 40.0),
+        Vec3::new(0.6, -0.35, -1.0),
+        Vec3::Y,
+        1.0,
+        16.0 / 9.0,
+    )
+}
+
+/// Ground, five houses (one moving every frame, one re-LODed, one removed
+/// at frame 6), a deer replaced by a new one (new id) every frame.
+fn valley(frames: u64, deer_geometry: bool) -> (TraceHeader, Vec<Frame>) {
+    let h = header(deer_geometry);
+    let mut out = Vec::new();
+    for f in 0..frames {
+        let mut events = Vec::new();
+        if f == 0 {
+            events.push(add(&h, 1000, GROUND, 0, Vec3::ZERO, InstanceFlags::STATIC));
+            for i in 0..5u64 {
+                let at = Vec3::new(-20.0 + 10.0 * i as f32, 0.0, -10.0 - 4.0 * (i % 2) as f32);
+                events.push(add(&h, 10 + i, HOUSE, 0, at, InstanceFlags::STATIC));
+            }
+        } else {
+            let m = &h.meshes[1];
+            events.push(InstanceEvent::Update(UpdateInstance {
+                id: 10,
+                pose: Some(pose(
+                    m,
+                    // Back and forth, inside the 256 m world.
+                    Vec3::new(-20.0 + 0.7 * (f % 200) as f32, 0.0, -10.0),
+                    0.1 * f as f32,
+                )),
+                lod: None,
+                flags: None,
+                mask: None,
+            }));
+            events.push(InstanceEvent::Remove { id: 100 + f - 1 });
+        }
+        if f == 4 {
+            events.push(InstanceEvent::Update(UpdateInstance {
+                id: 12,
+                pose: None,
+                lod: Some(2),
+                flags: None,
+                mask: None,
+            }));
+        }
+        if f == 6 {
+            events.push(InstanceEvent::Remove { id: 13 });
+        }
+        let deer_at = Vec3::new(-5.0 + 1.5 * (f % 7) as f32, 0.0, 2.0);
+        events.push(add(
+            &h,
+            100 + f,
+            DEER,
+            (f % 2) as u32,
+            deer_at,
+            InstanceFlags::empty(),
+        ));
+        out.push(Frame {
+            number: 3 * f + 1,
+            camera: camera(f),
+            events,
+            hits: None,
+        });
+    }
+    (h, out)
+}
+
+fn write(h: &TraceHeader, frames: &[Frame]) -> Vec<u8> {
+    let mut w = TraceWriter::new(Vec::new(), h).unwrap();
+    for f in frames {
+        w.write_frame(f).unwrap();
+    }
+    w.finish().unwrap()
+}
+
+fn run(
+    bytes: &[u8],
+    strategies: &[StrategyKind],
+    options: &TraceSceneOptions,
+) -> Result<TraceReplay, SimError> {
+    let config = ReplayConfig {
+        strategies: strategies.to_vec(),
+        width: 48,
+        height: 27,
+        threads: 2,
+        ..ReplayConfig::default()
+    };
+    replay_trace(
+        || TraceInput::new(TraceFormat::Binary, Cursor::new(bytes)),
+        &config,
+        options,
+        &mut |_| {},
+    )
+}
+
+#[test]
+fn a_foreign_trace_replays_with_the_error_reported() {
+    let (h, frames) = valley(10, true);
+    let bytes = write(&h, &frames);
+    let r = run(
+        &bytes,
+        &[
+            StrategyKind::Full,
+            StrategyKind::Oracle,
+            StrategyKind::Lipac,
+            StrategyKind::Frustum,
+        ],
+        &TraceSceneOptions::default(),
+    )
+    .unwrap();
+    // Ground, five houses, one deer slot reused by every new deer.
+    assert_eq!(r.slots, 7);
+    assert!(r.box_proxies.is_empty());
+    let rep = &r.report;
+    assert_eq!(rep.frames, 10);
+    assert_eq!(rep.scene, "hand-written valley");
+    let full = rep.strategy("full").unwrap();
+    assert!(full.frames.iter().all(|m| m.error == 0.0));
+    let oracle = rep.strategy("oracle").unwrap();
+    assert!(
+        oracle.summary.max_error <= 1e-3,
+        "{}",
+        oracle.summary.max_error
+    );
+    assert!(oracle.summary.mean_instances < full.summary.mean_instances);
+    // The error is a real figure: LiPaC starts cold, so it is not zero.
+    let lipac = rep.strategy("lipac").unwrap();
+    assert!(lipac.frames.iter().all(|m| m.error.is_finite()));
+    assert!(
+        lipac.summary.max_error > 1e-3,
+        "{}",
+        lipac.summary.max_error
+    );
+    // The recorded frame numbers are kept.
+    assert_eq!(full.frames.last().unwrap().frame, 28);
+}
+
+#[test]
+fn the_scene_follows_the_events() {
+    let (h, frames) = valley(8, true);
+    let bytes = write(&h, &frames);
+    let mut input = TraceInput::new(TraceFormat::Binary, Cursor::new(&bytes[..])).unwrap();
+    let plan = TracePlan::scan(&h, &mut input).unwrap();
+    assert_eq!(plan.slots(), 7);
+    assert_eq!(plan.frames(), 8);
+    let mut ts = TraceScene::new(&h, &plan, &TraceSceneOptions::default()).unwrap();
+    for (f, frame) in frames.iter().enumerate() {
+        ts.apply(frame).unwrap();
+        let moving = ts.slot_of(10).unwrap();
+        let t = ts.scene().instance(moving).unwrap().transform;
+        let want = if f == 0 {
+            -20.0
+        } else {
+            -20.0 + 0.7 * f as f32
+        };
+        assert!(
+            (t.translation.x - want).abs() < 1e-5,
+            "frame {f}: {}",
+            t.translation.x
+        );
+        let deer = ts.slot_of(100 + f as u64).unwrap();
+        assert_eq!(ts.lods()[deer as usize], (f % 2) as u8);
+        if f > 0 {
+            assert_eq!(ts.slot_of(100 + f as u64 - 1), None);
+        }
+        // Removed house 13 is parked far below the world from frame 6 on.
+        if f >= 6 {
+            assert_eq!(ts.slot_of(13), None);
+            let below = ts
+                .scene()
+                .instances()
+                .iter()
+                .filter(|i| i.aabb.max.y < -1e4)
+                .count();
+            assert_eq!(below, 1);
+        }
+        assert_eq!(ts.live(), if f >= 6 { 6 } else { 7 });
+    }
+    // House 12 went to its coarsest recorded LOD (2 of 3) at frame 4.
+    assert_eq!(ts.lods()[ts.slot_of(12).unwrap() as usize], 2);
+}
+
+#[test]
+fn a_mesh_without_geometry_is_named_or_boxed() {
+    let (h, frames) = valley(3, false);
+    let bytes = write(&h, &frames);
+    let err = run(&bytes, &[StrategyKind::Full], &TraceSceneOptions::default()).unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains("mesh 3 LOD 0 has no geometry"), "{msg}");
+    let boxed = TraceSceneOptions {
+        box_proxy: true,
+        ..TraceSceneOptions::default()
+    };
+    let r = run(&bytes, &[StrategyKind::Full, StrategyKind::Oracle], &boxed).unwrap();
+    assert_eq!(r.box_proxies, vec![3]);
+    assert!(
+        r.report.scene.contains("box proxies for meshes 3"),
+        "{}",
+        r.report.scene
+    );
+    assert_eq!(r.report.frames, 3);
+}
+
+#[test]
+fn memory_follows_the_live_instances_not_the_length() {
+    // 300 frames, a new deer every frame: 300 instances over the trace,
+    // never more than 7 live; the scene keeps 7 slots.
+    let (h, frames) = valley(300, true);
+    let bytes = write(&h, &frames);
+    let config = ReplayConfig {
+        strategies: vec![StrategyKind::Full],
+        width: 4,
+        height: 4,
+        threads: 1,
+        ..ReplayConfig::default()
+    };
+    let r = replay_trace(
+        || TraceInput::new(TraceFormat::Binary, Cursor::new(&bytes[..])),
+        &config,
+        &TraceSceneOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(r.report.frames, 300);
+    assert_eq!(r.slots, 7);
+    assert_eq!(r.report.instances, 7);
+}
+
+#[test]
+fn a_scene_file_overrides_sun_and_sky() {
+    let (h, frames) = valley(2, true);
+    let bytes = write(&h, &frames);
+    let dark = TraceSceneOptions::default()
+        .with_json(r#"{"sun_irradiance":[0,0,0],"sky_radiance":[0,0,0]}"#)
+        .unwrap();
+    let both = [StrategyKind::Full, StrategyKind::Lipac];
+    let lit = run(&bytes, &both, &TraceSceneOptions::default()).unwrap();
+    let unlit = run(&bytes, &both, &dark).unwrap();
+    // Without light every image is black, so even cold LiPaC has no error.
+    let err = |r: &TraceReplay| r.report.strategy("lipac").unwrap().summary.max_error;
+    assert!(err(&lit) > 1e-3, "{}", err(&lit));
+    assert_eq!(err(&unlit), 0.0);
+    assert!(TraceSceneOptions::default()
+        .with_json(r#"{"sun_direction":[0,0,0]}"#)
+        .is_err());
+}
+
+#[test]
+fn a_singular_transform_is_named_with_its_frame_and_instance() {
+    let (h, mut frames) = valley(3, true);
+    // Frame 2 (number 7) squashes house 11 flat.
+    frames[2].events.push(InstanceEvent::Update(UpdateInstance {
+        id: 11,
+        pose: Some(Pose {
+            transform: [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            aabb: Aabb::new(Vec3::ZERO, Vec3::ONE),
+        }),
+        lod: None,
+        flags: None,
+        mask: None,
+    }));
+    let bytes = write(&h, &frames);
+    let msg = run(&bytes, &[StrategyKind::Full], &TraceSceneOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("frame number 7"), "{msg}");
+    assert!(msg.contains("update of instance 11"), "{msg}");
+    assert!(msg.contains("singular"), "{msg}");
+}
