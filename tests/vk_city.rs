@@ -5,8 +5,13 @@
 //!   compacted, the validation layer reports nothing;
 //! * the same scene through the Vulkan backend and the CPU backend (a
 //!   second `Manager` running the CPU reference: `assemble`, the GPU's hit
-//!   counts, `process_feedback`, `take_commands`): their TLAS record
-//!   multisets, command streams and plans are equal frame by frame.
+//!   counts, `process_feedback`, `take_commands`), with frames in flight:
+//!   the Vulkan manager never waits and ingests whatever read-backs have
+//!   finished; the CPU backend runs each frame once the GPU's hit counts of
+//!   that frame are back, handed the same acknowledgements and (its own)
+//!   commands of the same frames. Their TLAS record multisets, command
+//!   streams and plans are equal frame by frame, which holds because both
+//!   reconcile against the commanded state, not the records' state bits.
 //!
 //! Without a ray-query device both skip (and fail with
 //! `LIPAC_REQUIRE_VULKAN=1`).
@@ -15,12 +20,17 @@
 #[path = "../examples/vk_city.rs"]
 mod vk_city;
 
+use std::collections::BTreeMap;
+
 use lipac::core::blas_cache::BlasOwner;
+use lipac::core::build_plan::FramePlan;
+use lipac::core::culling::{ProcessStats, Readback};
 use lipac::core::layout::TlasInstance;
-use lipac::core::manager::FrameBudgets;
+use lipac::core::manager::{Ack, FrameBudgets, Manager, ManagerPlan};
+use lipac::core::MeshId;
 use lipac::vk::{
-    Buffer, CameraTraceBuffers, CameraTracer, FrameSubmitter, HeadlessContext, LipacVk,
-    LipacVkConfig, MemoryLocation, Polled, Validation,
+    Buffer, CameraTraceBuffers, CameraTracer, FrameReadback, FrameSubmitter, HeadlessContext,
+    LipacVk, LipacVkConfig, MemoryLocation, Validation,
 };
 use vk_city::{City, Options};
 
@@ -89,6 +99,104 @@ fn bits(records: &[TlasInstance]) -> Vec<([u32; 12], u32, u32, u64)> {
     v
 }
 
+/// A plan's data uploads without the handles (they name their manager).
+fn data(p: &ManagerPlan) -> Vec<(u32, MeshId, u32, u64, u64)> {
+    let d = p.data_uploads.iter();
+    d.map(|u| (u.slot, u.mesh, u.lod, u.offset, u.bytes))
+        .collect()
+}
+
+/// What the Vulkan manager was handed and planned in one frame.
+struct FrameLog {
+    acks: Vec<Ack>,
+    /// The frames whose read-backs it ingested, in order.
+    ingested: Vec<u64>,
+    commands: ProcessStats,
+    blas: FramePlan,
+    data: Vec<(u32, MeshId, u32, u64, u64)>,
+}
+
+/// The CPU backend, one frame behind the GPU's results: it runs frame `g`
+/// once the GPU's read-back of `g` is back, with the acknowledgements the
+/// Vulkan manager got in `g` and its own commands of the frames whose
+/// read-backs the Vulkan manager ingested in `g`.
+struct CpuReplay {
+    manager: Manager,
+    next: u64,
+    commands: BTreeMap<u64, Readback>,
+    cube: u64,
+    /// (command words, TLAS records with their own BLAS).
+    totals: (usize, usize),
+    /// The GPU's hit counts by frame, until the Vulkan manager ingests them.
+    hit_log: BTreeMap<u64, Vec<u32>>,
+    /// The hit counts the Vulkan manager had in the frame replayed.
+    hits: Vec<u32>,
+}
+
+impl CpuReplay {
+    fn replay(
+        &mut self,
+        log: &BTreeMap<u64, FrameLog>,
+        arrived: &mut BTreeMap<u64, FrameReadback>,
+    ) {
+        while let (Some(l), Some(r)) = (log.get(&self.next), arrived.remove(&self.next)) {
+            let (g, cpu) = (self.next, &mut self.manager);
+            cpu.begin_frame(g).unwrap();
+            for &ack in &l.acks {
+                cpu.handle_ack(ack).unwrap();
+            }
+            for frame in &l.ingested {
+                let c = self.commands.remove(frame).expect("ran before");
+                cpu.ingest_readback(c.frame, c.counter, &c.words);
+                self.hits = self.hit_log.remove(frame).expect("ran before");
+            }
+            // Build priorities: the Vulkan manager has the hit counts of the
+            // newest read-back it ingested (`record_hits`), the CPU backend
+            // those of its last feedback (`process_feedback`); give it the
+            // Vulkan manager's.
+            self.hits.resize(cpu.instance_hits_mut().len(), 0);
+            cpu.record_hits(&self.hits);
+            let plan = cpu.plan(&FrameBudgets::default()).unwrap();
+            assert_eq!(l.commands, plan.commands, "frame {g}: commands processed");
+            assert_eq!(l.blas, plan.blas, "frame {g}: BLAS plans");
+            assert!(l.data == data(&plan), "frame {g}: data uploads");
+            assert_eq!(r.frame, g);
+            let diag = r.diagnostics.as_ref().expect("diagnostics enabled");
+
+            // CPU backend, Algorithm 1: the same TLAS records (as a multiset).
+            let mut tlas = Vec::new();
+            cpu.assemble(&mut tlas).unwrap();
+            assert_eq!(tlas.len() as u32, r.tlas_records, "frame {g}: TLAS records");
+            assert!(
+                bits(&tlas) == bits(&diag.tlas_instances),
+                "frame {g}: TLAS record multisets differ"
+            );
+            self.totals.1 += tlas
+                .iter()
+                .filter(|t| t.acceleration_structure_reference != self.cube)
+                .count();
+
+            // The GPU's hit counts, then Algorithm 2: the same commands.
+            let slots = r.instance_hits.len().min(cpu.instance_hits_mut().len());
+            cpu.instance_hits_mut()[..slots].copy_from_slice(&r.instance_hits[..slots]);
+            for (c, h) in cpu.hitboxes_mut().iter_mut().zip(&diag.hitboxes) {
+                c.add_hits(h.hits());
+            }
+            cpu.process_feedback().unwrap();
+            let commands = cpu.take_commands().expect("feedback ran");
+            assert_eq!(commands.counter, r.commands.counter(), "frame {g}");
+            let (mut a, mut b) = (commands.words.clone(), r.commands.words().to_vec());
+            a.sort_unstable();
+            b.sort_unstable();
+            assert_eq!(a, b, "frame {g}: command words");
+            self.totals.0 += a.len();
+            self.commands.insert(g, commands);
+            self.hit_log.insert(g, r.instance_hits.clone());
+            self.next += 1;
+        }
+    }
+}
+
 #[test]
 fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
     let Some(h) = headless() else {
@@ -109,7 +217,7 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
     let mut lipac = LipacVk::new(ctx, &city.grid, config).unwrap();
     let (cube, align) = (lipac.unit_cube_address(), lipac.scratch_alignment());
     let mut gpu = city.manager(cube, align).unwrap();
-    let mut cpu = city.manager(cube, align).unwrap();
+    let cpu = city.manager(cube, align).unwrap();
     let tracer = CameraTracer::new(ctx, lipac.counting()).unwrap();
     let pixels = u64::from(o.width * o.height);
     let image = Buffer::new(
@@ -122,34 +230,45 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
     let mut submitter = FrameSubmitter::new(ctx, 2).unwrap();
     let timeline = lipac.timeline().clone();
     let budgets = FrameBudgets::default();
-    let mut last: Option<(Polled, lipac::core::culling::Readback)> = None;
-    let (mut builds, mut commands, mut active_records) = (0, 0, 0);
+    // What the Vulkan manager saw and decided per frame, for the CPU
+    // backend's replay of that frame.
+    let mut log: BTreeMap<u64, FrameLog> = BTreeMap::new();
+    // The GPU's read-backs by frame, until the CPU replays that frame.
+    let mut arrived: BTreeMap<u64, FrameReadback> = BTreeMap::new();
+    let mut cpu = CpuReplay {
+        manager: cpu,
+        next: 1,
+        commands: BTreeMap::new(),
+        cube,
+        totals: (0, 0),
+        hit_log: BTreeMap::new(),
+        hits: Vec::new(),
+    };
+    let (mut builds, mut max_latency) = (0, 0);
     for f in 1..=u64::from(o.frames) {
+        // Frames in flight, as the example runs: never wait for the GPU;
+        // hand the Vulkan manager whatever has finished.
         gpu.begin_frame(f).unwrap();
-        cpu.begin_frame(f).unwrap();
-        // Frame f − 1's results: the GPU's to the Vulkan manager, the CPU
-        // reference's commands to the CPU one; the same acknowledgements.
-        if let Some((polled, cpu_commands)) = last.take() {
-            polled.deliver(&mut gpu).unwrap();
-            for &ack in &polled.acks {
-                cpu.handle_ack(ack).unwrap();
-            }
-            cpu.ingest_readback(cpu_commands.counter, &cpu_commands.words);
-        }
+        let polled = lipac.poll().unwrap();
+        polled.deliver(&mut gpu).unwrap();
         let plan = gpu.plan(&budgets).unwrap();
-        let cpu_plan = cpu.plan(&budgets).unwrap();
-        assert_eq!(
-            plan.commands, cpu_plan.commands,
-            "frame {f}: commands processed"
+        log.insert(
+            f,
+            FrameLog {
+                acks: polled.acks.clone(),
+                ingested: polled.readbacks.iter().map(|r| r.frame).collect(),
+                commands: plan.commands,
+                blas: plan.blas.clone(),
+                data: data(&plan),
+            },
         );
-        assert_eq!(plan.blas, cpu_plan.blas, "frame {f}: BLAS plans");
-        // (Handles name their manager, so compare the rest.)
-        let data = |p: &lipac::core::manager::ManagerPlan| -> Vec<_> {
-            let d = p.data_uploads.iter();
-            d.map(|u| (u.slot, u.mesh, u.lod, u.offset, u.bytes))
-                .collect()
-        };
-        assert!(data(&plan) == data(&cpu_plan), "frame {f}: data uploads");
+        for r in polled.readbacks {
+            max_latency = max_latency.max(f - r.frame);
+            arrived.insert(r.frame, r);
+        }
+        // The CPU backend runs each frame once the GPU's results of that
+        // frame (its hit counts) are back.
+        cpu.replay(&log, &mut arrived);
         builds += plan.blas.builds().count();
         city.prepare(ctx, &plan).unwrap();
         let value = lipac.next_frame_value();
@@ -173,50 +292,23 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
                 lipac.record_feedback(rec)
             })
             .unwrap();
-        // The test (not the backend) waits, so that frame f's GPU results
-        // reach the CPU reference before its frame f feedback.
-        submitter.wait_idle().unwrap();
-        // (The fence may signal before the timeline value is visible.)
-        let start = std::time::Instant::now();
-        while timeline.value().unwrap() < value {
-            assert!(start.elapsed().as_secs() < 10, "frame {f}: timeline stuck");
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        }
-        let polled = lipac.poll().unwrap();
-        assert_eq!(polled.readbacks.len(), 1, "frame {f}");
-        let r = &polled.readbacks[0];
-        assert_eq!(r.frame, f);
-        let diag = r.diagnostics.as_ref().expect("diagnostics enabled");
-
-        // CPU backend, Algorithm 1: the same TLAS records (as a multiset).
-        let mut tlas = Vec::new();
-        cpu.assemble(&mut tlas).unwrap();
-        assert_eq!(tlas.len() as u32, r.tlas_records, "frame {f}: TLAS records");
-        assert!(
-            bits(&tlas) == bits(&diag.tlas_instances),
-            "frame {f}: TLAS record multisets differ"
-        );
-        active_records += tlas
-            .iter()
-            .filter(|t| t.acceleration_structure_reference != cube)
-            .count();
-
-        // The GPU's hit counts, then Algorithm 2: the same commands.
-        let slots = r.instance_hits.len().min(cpu.instance_hits_mut().len());
-        cpu.instance_hits_mut()[..slots].copy_from_slice(&r.instance_hits[..slots]);
-        for (c, g) in cpu.hitboxes_mut().iter_mut().zip(&diag.hitboxes) {
-            c.add_hits(g.hits());
-        }
-        cpu.process_feedback().unwrap();
-        let cpu_commands = cpu.take_commands().expect("feedback ran");
-        assert_eq!(cpu_commands.counter, r.commands.counter(), "frame {f}");
-        let (mut a, mut b) = (cpu_commands.words.clone(), r.commands.words().to_vec());
-        a.sort_unstable();
-        b.sort_unstable();
-        assert_eq!(a, b, "frame {f}: command words");
-        commands += a.len();
-        last = Some((polled, cpu_commands));
     }
+    // Shut-down: the GPU's last results, then the CPU's last frames.
+    submitter.wait_idle().unwrap();
+    let last = lipac.next_frame_value() - 1;
+    let start = std::time::Instant::now();
+    while timeline.value().unwrap() < last {
+        assert!(start.elapsed().as_secs() < 10, "timeline stuck");
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    for r in lipac.poll().unwrap().readbacks {
+        arrived.insert(r.frame, r);
+    }
+    cpu.replay(&log, &mut arrived);
+    assert_eq!(cpu.next, u64::from(o.frames) + 1, "every frame replayed");
+    assert!(max_latency >= 1, "read-backs come frames later");
+    eprintln!("largest read-back latency: {max_latency} frames");
+    let (commands, active_records) = cpu.totals;
     // The run exercised the loop: commands came back, BLASes were built and
     // instances went into the TLAS with their own BLAS.
     assert!(builds > 0 && commands > 0 && active_records > 0);

@@ -101,7 +101,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         manager.begin_frame(frame)?;
         backend.deliver(frame, &mut manager)?;
         while let Some(r) = ring.pop_ready(frame) {
-            manager.ingest_readback(r.counter, &r.words);
+            manager.ingest_readback(r.frame, r.counter, &r.words);
         }
         if frame == 3 {
             manager.set_lod(house, 1)?; // the camera moved away

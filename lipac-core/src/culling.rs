@@ -4,7 +4,9 @@
 //! backends drive [`crate::Manager`], which owns a [`Culling`] and keeps the
 //! BLAS scheduler and the geometry data consistent with it; [`Culling`] is
 //! public for tests, benches and the CPU reference of the GPU algorithms
-//! (and, until they move to the manager, lipac-sim's strategies).
+//! (no backend in the workspace drives it directly: lipac-sim and lipac-vk
+//! go through the manager; [`Culling::ingest_readback`] and the commanded
+//! state are what the manager's read-back means).
 //!
 //! [`Culling`] is sans-IO and polled: it takes calls and returns values. It
 //! never calls back into its caller; [`Culling::process_commands`] returns
@@ -38,36 +40,41 @@
 //! exactly the CPU's writes since the last take. In this CPU reference the
 //! registry's records *are* the GPU buffer, so that is trivially consistent.
 //!
-//! # Commands are hints; the state bits are the truth
+//! # Commands are hints; the commanded state decides
 //!
-//! A command says "slot `s` changed state, its BLAS may need work". By the
-//! time the CPU processes it (readback latency, budget), the GPU may have
-//! changed the state again, and latency mitigation may have overridden it.
-//! Processing a command therefore **reconciles** the instance's BLAS with its
-//! *current* state instead of replaying the command's kind:
+//! A command says "slot `s` changed state, its BLAS may need work". The loop
+//! keeps per slot a **commanded state** (active or not), its view of the
+//! device state: set by its own decisions at the frame they happen
+//! (registration → inactive, latency mitigation → active) and by ingested
+//! commands ([`Culling::ingest_readback`]: the newest per slot, `add` →
+//! active, `remove` → inactive, unless the loop decided the slot's state
+//! after the frame whose Algorithm 2 wrote the command). It never reads the
+//! records' state bits, which Algorithm 2 writes: a GPU backend does not
+//! have them, and a CPU backend has them newer than the commands, so reading
+//! them would let the two decide differently. Processing a command
+//! **reconciles** the instance's BLAS with the commanded state:
 //!
-//! | current state | BLAS | action ([`BlasAction`]) |
+//! | commanded state | BLAS | action ([`BlasAction`]) |
 //! | --- | --- | --- |
 //! | active | none, no build pending | [`BlasAction::Acquire`]: the instance now waits for a BLAS; the caller provides it with [`Culling::set_blas`] (at once when cached, else once built) |
 //! | active | held or build pending | nothing |
-//! | omitted / inactive | held | [`BlasAction::Release`]: the record's BLAS is cleared, the caller releases it |
-//! | omitted / inactive | build pending | [`BlasAction::CancelBuild`] |
-//! | omitted / inactive | none | nothing |
+//! | not active | held | [`BlasAction::Release`]: the record's BLAS is cleared, the caller releases it |
+//! | not active | build pending | [`BlasAction::CancelBuild`] |
+//! | not active | none | nothing |
 //!
-//! So an `add` for an instance the GPU has already turned inactive again does
-//! nothing (its `remove` is then a no-op too), and a `remove` for an instance
-//! latency mitigation re-activated keeps its BLAS. Such commands are counted
-//! in [`ProcessStats::stale_kind`].
+//! A command older than a latency-mitigation override does not move the
+//! commanded state (a `remove` the GPU wrote before it saw the override
+//! keeps the BLAS); it is counted in [`ProcessStats::stale_kind`].
 //!
 //! This is why no command is lost: every transition of Algorithm 2 that
 //! changes whether an instance should hold a BLAS (into or out of *active*)
 //! appends a command (or does not happen: the overflow rule), and processing
-//! the last command of a slot makes BLAS and state agree. The queue keeps the
+//! the last command of a slot makes BLAS and commanded state agree. The queue keeps the
 //! **newest** command per slot, of either kind (the one read-back rule of
 //! [`CommandQueue`], counted in [`IngestSummary::replaced`] and
 //! [`IngestSummary::superseded`]). Under reconciliation the kind no longer
 //! matters, and keeping the newest makes the invariant "a slot whose BLAS
-//! disagrees with its state has a command pending or in flight" hold by
+//! disagrees with its commanded state has a command pending or in flight" hold by
 //! construction, whatever happened in between (latency mitigation,
 //! [`Culling::set_blas`]), without a case analysis of which pairs may cancel.
 //! Slots whose BLAS changes outside a command ([`Culling::set_blas`] on an
@@ -356,7 +363,7 @@ pub struct CommandEvent {
     /// The command's priority (quantised hit count).
     pub priority: u8,
     /// The command's kind as the GPU wrote it (informational; the action
-    /// follows the current state, see the [module docs](self)).
+    /// follows the commanded state, see the [module docs](self)).
     pub command: CommandKind,
     /// What to do.
     pub action: BlasAction,
@@ -410,9 +417,9 @@ pub struct ProcessStats {
     pub builds_cancelled: u32,
     /// Commands whose instance's BLAS already agreed with its state.
     pub no_op: u32,
-    /// Commands whose kind disagreed with the instance's current state (an
-    /// `add` for a non-active or a `remove` for an active instance); they are
-    /// also counted as what reconciliation did.
+    /// Commands whose kind disagreed with the instance's commanded state
+    /// (written before a latency-mitigation override or before the slot's
+    /// registration); they are also counted as what reconciliation did.
     pub stale_kind: u32,
     /// Commands for dead slots, dropped.
     pub dead: u32,
@@ -476,7 +483,7 @@ pub struct Removal {
 /// for frame in 0..2 {
 ///     culling.begin_frame(frame)?;
 ///     while let Some(r) = ring.pop_ready(frame) {
-///         culling.ingest_readback(r.counter, &r.words);
+///         culling.ingest_readback(r.frame, r.counter, &r.words);
 ///     }
 ///     culling.process_commands(usize::MAX, &mut events);
 ///     for e in &events {
@@ -506,13 +513,9 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     registry: InstanceRegistry<H>,
     hitboxes: Vec<HitboxRecord>,
     instance_hits: Vec<u32>,
-    /// Per slot: an `Acquire` was answered `None` (or latency mitigation
-    /// requested a BLAS) and no address has come yet.
-    awaiting: Vec<bool>,
-    /// Per slot: the last frame latency mitigation overrode its state (0 =
-    /// never; grown on demand). GPU read-backs older than that do not move
-    /// the state mirror ([`Culling::ingest_gpu_readback`]).
-    mitigated_at: Vec<u64>,
+    /// The one per-slot table of the loop (length = the registry's slot
+    /// count): the commanded state and the pending BLAS promise.
+    slots: Vec<SlotView>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -539,8 +542,7 @@ impl<H: HitboxIndex> Culling<H> {
             registry: InstanceRegistry::new(index, config.registry)?,
             hitboxes: vec![HitboxRecord::default(); hitbox_count],
             instance_hits: Vec::new(),
-            awaiting: Vec::new(),
-            mitigated_at: Vec::new(),
+            slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -606,7 +608,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// answered by [`Culling::set_blas`]).
     pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.awaiting[slot as usize])
+        Ok(self.slots[slot as usize].awaiting)
     }
 
     /// Latency mitigation's tracker, if enabled.
@@ -636,7 +638,7 @@ impl<H: HitboxIndex> Culling<H> {
             free_lists,
             dirty,
             instance_hits: vec_bytes::<u32>(self.instance_hits.capacity()),
-            awaiting: vec_bytes::<bool>(self.awaiting.capacity()),
+            awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
             latency_bits: self
                 .latency
                 .as_ref()
@@ -683,8 +685,8 @@ impl<H: HitboxIndex> Culling<H> {
         let slots = self.registry.reserve_slots(additional);
         self.instance_hits
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
-        self.awaiting
-            .reserve_exact(slots.saturating_sub(self.awaiting.len()));
+        self.slots
+            .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
         self.state_overrides.reserve(slots, additional.min(slots));
         slots
@@ -698,10 +700,15 @@ impl<H: HitboxIndex> Culling<H> {
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
-            self.awaiting.resize(n, false);
+            self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
-        self.awaiting[slot as usize] = false;
+        // The Manager's decision at this frame: inactive, no BLAS promised.
+        self.slots[slot as usize] = SlotView {
+            commanded_active: false,
+            awaiting: false,
+            decided_at: self.registry.frame(),
+        };
         // Nothing can be pending for a fresh slot (see `remove` and
         // `ingest_readback`); make sure.
         self.queue.cancel_slot(slot);
@@ -738,7 +745,8 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<Removal, CoreError> {
         let instance = self.registry.remove(handle)?;
         let slot = instance.slot as usize;
-        let build_was_pending = std::mem::take(&mut self.awaiting[slot]);
+        let build_was_pending = std::mem::take(&mut self.slots[slot].awaiting);
+        self.slots[slot].commanded_active = false;
         self.instance_hits[slot] = 0;
         self.state_overrides.remove(instance.slot);
         Ok(Removal {
@@ -756,8 +764,9 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
         let slot = self.registry.slot(handle)?;
         let old = self.registry.set_blas(handle, address)?;
-        self.awaiting[slot as usize] = false;
-        if address != 0 && self.registry.records()[slot as usize].state() != InstanceState::Active {
+        let view = &mut self.slots[slot as usize];
+        view.awaiting = false;
+        if address != 0 && !view.commanded_active {
             let remove = Command {
                 slot,
                 kind: CommandKind::Remove,
@@ -804,7 +813,15 @@ impl<H: HitboxIndex> Culling<H> {
             return Ok(LatencyOutcome::default());
         };
         let mut activate = std::mem::take(&mut self.scratch);
-        let summary = lm.update(&self.registry, camera, frustum, &mut activate)?;
+        let views = &self.slots;
+        let summary = lm.update_with(
+            &self.registry,
+            camera,
+            frustum,
+            |slot| views.get(slot as usize).is_some_and(|v| v.commanded_active),
+            &mut activate,
+        )?;
+        let frame = self.registry.frame();
         let mut out = LatencyOutcome {
             summary,
             ..LatencyOutcome::default()
@@ -815,11 +832,9 @@ impl<H: HitboxIndex> Culling<H> {
             };
             self.registry.set_state(slot, InstanceState::Active)?;
             self.state_overrides.insert(slot, InstanceState::Active);
-            let i = slot as usize;
-            if self.mitigated_at.len() <= i {
-                self.mitigated_at.resize(i + 1, 0);
-            }
-            self.mitigated_at[i] = self.registry.frame();
+            let view = &mut self.slots[slot as usize];
+            view.commanded_active = true;
+            view.decided_at = frame;
             let record = self.registry.records()[slot as usize];
             if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
                 if !h.is_active() {
@@ -829,10 +844,10 @@ impl<H: HitboxIndex> Culling<H> {
                     out.hitboxes_activated += 1;
                 }
             }
-            if record.blas != 0 || self.awaiting[slot as usize] {
+            if record.blas != 0 || self.slots[slot as usize].awaiting {
                 out.already_provided += 1;
             } else {
-                self.awaiting[slot as usize] = true;
+                self.slots[slot as usize].awaiting = true;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
@@ -846,12 +861,33 @@ impl<H: HitboxIndex> Culling<H> {
         Ok(out)
     }
 
-    /// Ingests one read-back (`counter` = the GPU's atomic counter, `words`
-    /// the stored words): decodes and validates each word, drops commands for
-    /// dead slots, and queues the rest, at most one per slot (the newest, see
-    /// the [module docs](self) and [`CommandQueue`]). Never fails: bad words
-    /// are counted.
-    pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
+    /// Ingests one read-back: the commands Algorithm 2 wrote in frame
+    /// `frame` (`counter` = the GPU's atomic counter, which may exceed
+    /// `words.len()`: the overflow; `words` the stored words). The same call
+    /// for CPU and GPU backends. Decodes and validates each stored word,
+    /// drops commands for dead slots, sets each live slot's commanded state
+    /// from the kind of its newest command (`add` → active, `remove` →
+    /// inactive) unless the loop decided the slot's state itself at a frame
+    /// after `frame` (registration, latency mitigation: the GPU had not seen
+    /// that decision yet), and queues the commands, at most one per slot (the
+    /// newest, see the [module docs](self) and [`CommandQueue`]). Never
+    /// fails: bad words are counted.
+    pub fn ingest_readback(&mut self, frame: u64, counter: u32, words: &[u32]) -> IngestSummary {
+        let stored = (counter as usize).min(words.len());
+        let limit = self.registry.slot_count();
+        for &w in &words[..stored] {
+            let Ok(c) = Command::decode(w, limit) else {
+                continue; // counted by the queue's ingestion
+            };
+            if self.registry.handle_at(c.slot).is_none() {
+                continue; // dead: counted by the queue's ingestion
+            }
+            if let Some(view) = self.slots.get_mut(c.slot as usize) {
+                if view.decided_at <= frame {
+                    view.commanded_active = c.kind == CommandKind::Add;
+                }
+            }
+        }
         let registry = &self.registry;
         self.queue
             .ingest_live(counter, words, registry.slot_count(), |slot| {
@@ -859,45 +895,19 @@ impl<H: HitboxIndex> Culling<H> {
             })
     }
 
-    /// For GPU backends, whose records' state bits are only a mirror of the
-    /// GPU's: first sets the mirror from the kinds of `words`, the commands
-    /// Algorithm 2 wrote in frame `frame` (`add` → active, `remove` →
-    /// inactive; the mirror tells active from not active only), without
-    /// state overrides (the GPU's bits are never uploaded over), then
-    /// ingests them as [`Culling::ingest_readback`] does. The reconciliation
-    /// of [`Culling::process_commands`] then sees the state the GPU had when
-    /// it wrote the commands. A slot whose state latency mitigation
-    /// overrode after `frame` keeps the override (the GPU had not seen it).
-    pub fn ingest_gpu_readback(
-        &mut self,
-        frame: u64,
-        counter: u32,
-        words: &[u32],
-    ) -> IngestSummary {
-        let stored = (counter as usize).min(words.len());
-        let limit = self.registry.slot_count();
-        for &w in &words[..stored] {
-            if let Ok(c) = Command::decode(w, limit) {
-                if self
-                    .mitigated_at
-                    .get(c.slot as usize)
-                    .is_some_and(|&m| m > frame)
-                {
-                    continue;
-                }
-                let state = match c.kind {
-                    CommandKind::Add => InstanceState::Active,
-                    CommandKind::Remove => InstanceState::Inactive,
-                };
-                // A dead slot fails here and is counted by the ingestion.
-                let _ = self.registry.set_state(c.slot, state);
-            }
-        }
-        self.ingest_readback(counter, words)
+    /// The commanded state of a live instance: whether the newest command
+    /// ingested for it (or the loop's own decision since: registration,
+    /// latency mitigation) says *active*. [`Culling::process_commands`]
+    /// reconciles the BLAS against this, never against the records' state
+    /// bits, which Algorithm 2 (CPU or GPU) writes (see the
+    /// [module docs](self)).
+    pub fn commanded_active(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
+        let slot = self.registry.slot(handle)?;
+        Ok(self.slots[slot as usize].commanded_active)
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and
-    /// reconciles each instance's BLAS with its current state (see the
+    /// reconciles each instance's BLAS with its commanded state (see the
     /// [module docs](self) for the table). What the caller must do is
     /// written into `events` (cleared first), in processing order:
     ///
@@ -927,7 +937,7 @@ impl<H: HitboxIndex> Culling<H> {
                 st.dead += 1;
                 continue;
             };
-            let active = record.state() == InstanceState::Active;
+            let active = self.slots[slot].commanded_active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
             }
@@ -944,11 +954,11 @@ impl<H: HitboxIndex> Culling<H> {
                 })
             };
             if active {
-                if record.blas != 0 || self.awaiting[slot] {
+                if record.blas != 0 || self.slots[slot].awaiting {
                     st.no_op += 1;
                     continue;
                 }
-                self.awaiting[slot] = true;
+                self.slots[slot].awaiting = true;
                 st.requested += 1;
                 event(BlasAction::Acquire);
             } else {
@@ -960,7 +970,7 @@ impl<H: HitboxIndex> Culling<H> {
                     st.released += 1;
                     acted = true;
                 }
-                if std::mem::take(&mut self.awaiting[slot]) {
+                if std::mem::take(&mut self.slots[slot].awaiting) {
                     event(BlasAction::CancelBuild);
                     st.builds_cancelled += 1;
                     acted = true;
@@ -1088,6 +1098,21 @@ pub fn apply_uploads(
             h.packed |= u32::from(active);
         }
     }
+}
+
+/// The loop's view of one slot (one entry per slot).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct SlotView {
+    /// The commanded state: the newest ingested command said `add`, or the
+    /// loop's last decision (latency mitigation) made it active.
+    commanded_active: bool,
+    /// An `Acquire` was answered `None` (or latency mitigation requested a
+    /// BLAS) and no address has come yet.
+    awaiting: bool,
+    /// The frame of the loop's last decision about the state (registration,
+    /// latency mitigation). Commands Algorithm 2 wrote before it do not move
+    /// the commanded state: the GPU had not seen the decision.
+    decided_at: u64,
 }
 
 mod state_overrides;

@@ -295,6 +295,29 @@ impl LatencyMitigation {
         frustum: &Frustum,
         activate: &mut Vec<u32>,
     ) -> Result<LatencySummary, CoreError> {
+        let records = registry.records();
+        self.update_with(
+            registry,
+            camera,
+            frustum,
+            |slot| records[slot as usize].state() == InstanceState::Active,
+            activate,
+        )
+    }
+
+    /// [`LatencyMitigation::update`] with `is_active(slot)` telling which
+    /// live slots are already active (instead of the records' state bits):
+    /// [`crate::culling::Culling`] passes its commanded state, so that a CPU
+    /// and a GPU backend (whose CPU records do not carry the GPU's state)
+    /// decide alike.
+    pub fn update_with<H: HitboxIndex>(
+        &mut self,
+        registry: &InstanceRegistry<H>,
+        camera: Vec3,
+        frustum: &Frustum,
+        is_active: impl Fn(u32) -> bool,
+        activate: &mut Vec<u32>,
+    ) -> Result<LatencySummary, CoreError> {
         if !camera.is_finite() {
             return Err(CoreError::NonFinite {
                 what: "camera position",
@@ -325,7 +348,7 @@ impl LatencyMitigation {
                 continue;
             }
             summary.newly_visible += 1;
-            if record.state() == InstanceState::Active {
+            if is_active(slot) {
                 summary.already_active += 1;
             } else if self.heuristic.accepts(camera, &aabb) {
                 summary.accepted += 1;

@@ -333,7 +333,7 @@ impl Sim {
 
         // Commands.
         while let Some(r) = self.ring.pop_ready(frame) {
-            let s = self.culling.ingest_readback(r.counter, &r.words);
+            let s = self.culling.ingest_readback(r.frame, r.counter, &r.words);
             prop_assert_eq!(s.rejected, 0);
         }
         let budget = if budget_unlimited {

@@ -139,7 +139,7 @@ fn hit_counters_saturate_without_wrapping_and_transitions_stay_correct() {
      -> lipac_core::feedback::FeedbackStats {
         culling.begin_frame(frame).unwrap();
         while let Some(r) = ring.pop_ready(frame) {
-            culling.ingest_readback(r.counter, &r.words);
+            culling.ingest_readback(r.frame, r.counter, &r.words);
         }
         blas.process(culling, usize::MAX);
         culling.assemble(&mut tlas).unwrap();
@@ -268,7 +268,7 @@ fn command_buffer_overflow_loses_nothing_and_drains_in_bounded_frames() {
         for frame in 0..bound + 8 {
             culling.begin_frame(frame).unwrap();
             while let Some(r) = ring.pop_ready(frame) {
-                let s = culling.ingest_readback(r.counter, &r.words);
+                let s = culling.ingest_readback(r.frame, r.counter, &r.words);
                 assert_eq!((s.rejected, s.dead), (0, 0));
                 max_overflow = max_overflow.max(s.overflowed);
             }
@@ -438,7 +438,7 @@ fn camera_jump(n: u32, budget: usize) -> JumpReport {
             mitigated += outcome.requests.len() as u32;
         }
         while let Some(r) = ring.pop_ready(frame) {
-            let s = culling.ingest_readback(r.counter, &r.words);
+            let s = culling.ingest_readback(r.frame, r.counter, &r.words);
             assert_eq!((s.rejected, s.overflowed), (0, 0));
             if jump.is_some_and(|j| r.frame >= j) {
                 commands += u64::from(s.accepted);

@@ -548,7 +548,7 @@ impl Case {
                     self.frame = f;
                     let ring = self.be.ring.as_mut().unwrap();
                     while let Some(rb) = ring.pop_ready(f) {
-                        self.m.ingest_readback(rb.counter, &rb.words);
+                        self.m.ingest_readback(rb.frame, rb.counter, &rb.words);
                     }
                 }
                 (r, false)
@@ -702,7 +702,7 @@ impl Case {
                 let n = self.rng.below(12);
                 let words: Vec<u32> = (0..n).map(|_| self.rng.next_u64() as u32).collect();
                 let counter = self.rng.below(20) as u32;
-                self.m.ingest_readback(counter, &words);
+                self.m.ingest_readback(self.rng.below(20), counter, &words);
                 (Ok(()), false)
             }
             91..=93 => {
@@ -887,7 +887,7 @@ impl Case {
             self.m.begin_frame(f).unwrap();
             self.frame = f;
             while let Some(rb) = self.be.ring.as_mut().unwrap().pop_ready(f) {
-                self.m.ingest_readback(rb.counter, &rb.words);
+                self.m.ingest_readback(rb.frame, rb.counter, &rb.words);
             }
             while !self.be.owed.is_empty() {
                 let r = self.be.deliver(&mut self.m, 0, &mut self.rng);

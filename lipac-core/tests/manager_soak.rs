@@ -331,7 +331,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         m.begin_frame(f).unwrap();
         be.deliver(&mut m, f, &mut rng, false);
         while let Some(r) = ring.pop_ready(f) {
-            m.ingest_readback(r.counter, &r.words);
+            m.ingest_readback(r.frame, r.counter, &r.words);
         }
         // Churn.
         for _ in 0..rng.below(3) {
@@ -420,7 +420,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         m.begin_frame(f).unwrap();
         be.deliver(&mut m, f + 10, &mut rng, true);
         while let Some(r) = ring.pop_ready(f) {
-            m.ingest_readback(r.counter, &r.words);
+            m.ingest_readback(r.frame, r.counter, &r.words);
         }
         let plan = m.plan(&FrameBudgets::default()).unwrap();
         be.execute(&plan, &mut rng);
@@ -434,7 +434,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         f += 1;
         m.begin_frame(f).unwrap();
         while let Some(r) = ring.pop_ready(f) {
-            m.ingest_readback(r.counter, &r.words);
+            m.ingest_readback(r.frame, r.counter, &r.words);
         }
         let plan = m.plan(&FrameBudgets::default()).unwrap();
         assert_eq!(plan.blas.builds().count() + plan.blas.compactions.len(), 0);

@@ -292,7 +292,10 @@ impl CpuBackend {
             stats.latency_activations = outcome.summary.accepted;
         }
         while let Some(r) = self.ring.pop_ready(frame) {
-            stats.commands_ingested += self.manager.ingest_readback(r.counter, &r.words).accepted;
+            stats.commands_ingested += self
+                .manager
+                .ingest_readback(r.frame, r.counter, &r.words)
+                .accepted;
         }
         let plan = self.manager.plan(&self.budgets).map_err(core)?;
         stats.commands_processed = plan.commands.drained;

@@ -137,8 +137,8 @@ pub struct FrameDiagnostics {
 pub struct FrameReadback {
     /// The manager's frame ([`ManagerPlan::frame`]).
     pub frame: u64,
-    /// Algorithm 2's commands: hand `counter()` and `words()` to
-    /// [`Manager::ingest_gpu_readback`].
+    /// Algorithm 2's commands: hand `frame`, `counter()` and `words()` to
+    /// [`Manager::ingest_readback`].
     pub commands: CommandReadback,
     /// The per-slot hit counters of the trace: hand them to
     /// [`Manager::record_hits`] (build priorities).
@@ -164,9 +164,10 @@ pub struct Polled {
 
 impl Polled {
     /// Hands everything to `manager`: acknowledgements first, then each
-    /// read-back's commands ([`Manager::ingest_gpu_readback`]: the GPU owns
-    /// the state bits, the commands update the manager's mirror of them) and
-    /// hit counters ([`Manager::record_hits`]).
+    /// read-back's commands with the frame that wrote them
+    /// ([`Manager::ingest_readback`], the same call as for CPU backends: the
+    /// commands set the manager's commanded state) and hit counters
+    /// ([`Manager::record_hits`]).
     ///
     /// # Errors
     ///
@@ -185,7 +186,7 @@ impl Polled {
             }
         }
         for r in &self.readbacks {
-            manager.ingest_gpu_readback(r.frame, r.commands.counter(), r.commands.words());
+            manager.ingest_readback(r.frame, r.commands.counter(), r.commands.words());
             manager.record_hits(&r.instance_hits);
         }
         result

@@ -34,7 +34,8 @@ pub struct CommandReadbackTicket {
 }
 
 /// One frame's commands as read back. Hand them to the manager as they are:
-/// [`Manager::ingest_readback(counter, words)`](lipac_core::manager::Manager::ingest_readback).
+/// [`Manager::ingest_readback(frame, counter, words)`](lipac_core::manager::Manager::ingest_readback),
+/// `frame` being the frame whose Algorithm 2 wrote them.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CommandReadback {
     value: u64,

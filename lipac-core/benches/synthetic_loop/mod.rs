@@ -112,7 +112,7 @@ pub fn frame(l: &mut Loop) {
     let c = &mut l.culling;
     c.begin_frame(l.frame).unwrap();
     while let Some(r) = l.ring.pop_ready(l.frame) {
-        c.ingest_readback(r.counter, &r.words);
+        c.ingest_readback(r.frame, r.counter, &r.words);
     }
     c.process_commands(l.budget, &mut l.events);
     for e in &l.events {

@@ -242,7 +242,7 @@ fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
         );
         c.begin_frame(frame).unwrap();
         while let Some(r) = ring.pop_ready(frame) {
-            c.ingest_readback(r.counter, &r.words);
+            c.ingest_readback(r.frame, r.counter, &r.words);
         }
         blas.process(&mut c, usize::MAX, true);
         c.assemble(&mut tlas).unwrap();
@@ -255,7 +255,7 @@ fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
     assert_eq!(blas.released.len(), 1);
     c.begin_frame(15).unwrap();
     while let Some(r) = ring.pop_ready(15) {
-        c.ingest_readback(r.counter, &r.words);
+        c.ingest_readback(r.frame, r.counter, &r.words);
     }
     blas.process(&mut c, usize::MAX, true);
     assert_eq!(blas.released.len(), 3);
@@ -314,7 +314,7 @@ fn remove_cancels_pending_command_and_returns_the_blas() {
     let rb = c.take_commands().unwrap();
     assert_eq!(rb.counter, 2);
     c.begin_frame(1).unwrap();
-    let s = c.ingest_readback(rb.counter, &rb.words);
+    let s = c.ingest_readback(rb.frame, rb.counter, &rb.words);
     assert_eq!(s.accepted, 2);
     // a got its BLAS by other means (a LOD switch, say) before the command.
     c.set_blas(a, 0xAA).unwrap();
@@ -348,13 +348,13 @@ fn commands_for_dead_slots_are_dropped_never_applied() {
     // Removed while its command is in flight.
     let slot = c.remove(a).unwrap().instance.slot;
     c.begin_frame(1).unwrap();
-    let s = c.ingest_readback(rb.counter, &rb.words);
+    let s = c.ingest_readback(rb.frame, rb.counter, &rb.words);
     assert_eq!((s.accepted, s.dead), (0, 1));
     assert_eq!(c.pending_command(slot), None);
     // A corrupt word naming a slot never used is rejected.
     let bogus = Command::new(999, CommandKind::Add, 3).unwrap().encode();
-    assert_eq!(c.ingest_readback(5, &[bogus]).rejected, 1);
-    assert_eq!(c.ingest_readback(5, &[bogus]).overflowed, 4);
+    assert_eq!(c.ingest_readback(0, 5, &[bogus]).rejected, 1);
+    assert_eq!(c.ingest_readback(0, 5, &[bogus]).overflowed, 4);
     // The slot is not reused before the quarantine is over, and a new
     // instance in it starts clean.
     let b = c.register(desc(8.0, 8.0, 1, false)).unwrap();
@@ -367,61 +367,75 @@ fn commands_for_dead_slots_are_dropped_never_applied() {
 }
 
 #[test]
-fn stale_commands_reconcile_with_the_current_state() {
+fn commands_set_the_commanded_state_and_reconcile_against_it() {
     let mut c = Culling::new(grid(), config()).unwrap();
     let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
     let slot = c.registry().slot(a).unwrap();
     let add = Command::new(slot, CommandKind::Add, 9).unwrap().encode();
     let remove = Command::new(slot, CommandKind::Remove, 9).unwrap().encode();
     let mut blas = Blas::default();
-    // An add for an instance that is inactive again: nothing to build.
-    c.ingest_readback(1, &[add]);
+    // An add makes the commanded state active; the records' state bits
+    // (Algorithm 2's) are neither read nor written.
+    c.ingest_readback(0, 1, &[add]);
+    assert!(c.commanded_active(a).unwrap());
+    assert_eq!(c.registry().state(a).unwrap(), InstanceState::Inactive);
     let st = blas.process(&mut c, usize::MAX, true);
-    assert_eq!((st.stale_kind, st.no_op, st.acquired), (1, 1, 0));
-    assert!(blas.acquired.is_empty());
-    // A remove for an instance that is active (say, re-activated by latency
-    // mitigation) keeps its BLAS.
-    c.begin_frame(1).unwrap();
+    assert_eq!((st.stale_kind, st.acquired), (0, 1));
+    assert_eq!(
+        c.registry().record(a).unwrap().blas,
+        0x1000 + u64::from(slot)
+    );
+    // Even if the records say active, a remove releases it.
     c.registry.set_state(slot, InstanceState::Active).unwrap();
-    c.set_blas(a, 0xAB).unwrap();
-    c.ingest_readback(1, &[remove]);
+    c.ingest_readback(0, 1, &[remove]);
+    assert!(!c.commanded_active(a).unwrap());
     let st = blas.process(&mut c, usize::MAX, true);
-    assert_eq!((st.stale_kind, st.released), (1, 0));
-    assert_eq!(c.registry().record(a).unwrap().blas, 0xAB);
-    // Newest wins: add then remove pending for an active instance whose
-    // BLAS is pending -> nothing lost: processing sees "active, awaiting".
-    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
-    let s = c.ingest_readback(2, &[add, remove]);
+    assert_eq!((st.stale_kind, st.released), (0, 1));
+    assert_eq!(c.registry().record(a).unwrap().blas, 0);
+    // Newest wins, in the queue and in the commanded state alike.
+    let s = c.ingest_readback(1, 2, &[remove, add]);
     assert_eq!((s.accepted, s.replaced), (2, 1));
     assert_eq!(
         c.pending_command(slot).map(|c| c.kind),
-        Some(CommandKind::Remove)
+        Some(CommandKind::Add)
     );
-    let st = blas.process(&mut c, usize::MAX, true);
-    assert_eq!(st.released, 1);
-    assert_eq!(blas.released, vec![0xAB]);
-    // A build still running when the instance went inactive is cancelled.
-    c.registry.set_state(slot, InstanceState::Active).unwrap();
-    c.ingest_readback(1, &[add]);
+    assert!(c.commanded_active(a).unwrap());
+    // A build still running when a remove comes is cancelled.
     let st = blas.process(&mut c, usize::MAX, false);
     assert_eq!(st.requested, 1);
-    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
-    c.ingest_readback(1, &[remove]);
+    c.ingest_readback(1, 1, &[remove]);
     let st = blas.process(&mut c, usize::MAX, false);
     assert_eq!((st.builds_cancelled, st.released), (1, 0));
     assert_eq!(blas.cancelled, vec![slot]);
     assert!(!c.awaiting_blas(a).unwrap());
-    // A build finishing after the instance went inactive is handed back.
-    c.registry.set_state(slot, InstanceState::Active).unwrap();
-    c.ingest_readback(1, &[add]);
+    // A build finishing after a remove is handed back (synthetic command).
+    c.ingest_readback(1, 1, &[add]);
     blas.process(&mut c, usize::MAX, false);
     assert!(c.awaiting_blas(a).unwrap());
-    c.registry.set_state(slot, InstanceState::Inactive).unwrap();
+    c.ingest_readback(1, 1, &[remove]);
     c.set_blas(a, 0xCD).unwrap();
     assert_eq!(c.pending_commands(), 1);
     blas.process(&mut c, usize::MAX, true);
-    assert_eq!(blas.released, vec![0xAB, 0xCD]);
+    assert_eq!(blas.released, vec![0x1000 + u64::from(slot), 0xCD]);
     assert_eq!(c.registry().record(a).unwrap().blas, 0);
+}
+
+#[test]
+fn commands_older_than_a_registration_do_not_move_its_state() {
+    let mut c = Culling::new(grid(), config()).unwrap();
+    c.begin_frame(5).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+    let slot = c.registry().slot(a).unwrap();
+    let add = Command::new(slot, CommandKind::Add, 9).unwrap().encode();
+    // Written before the instance existed (frame 4): the state stays, the
+    // command is reconciled as stale.
+    c.ingest_readback(4, 1, &[add]);
+    assert!(!c.commanded_active(a).unwrap());
+    let st = Blas::default().process(&mut c, usize::MAX, true);
+    assert_eq!((st.stale_kind, st.no_op, st.acquired), (1, 1, 0));
+    // Written in the frame of the registration: after it.
+    c.ingest_readback(5, 1, &[add]);
+    assert!(c.commanded_active(a).unwrap());
 }
 
 /// Overflow of the command buffer and a budget of one command per frame:
@@ -447,7 +461,7 @@ fn overflow_and_budget_retry_end_to_end() {
     for frame in 0..12 {
         c.begin_frame(frame).unwrap();
         while let Some(r) = ring.pop_ready(frame) {
-            c.ingest_readback(r.counter, &r.words);
+            c.ingest_readback(r.frame, r.counter, &r.words);
         }
         max_pending = max_pending.max(c.pending_commands());
         let st = blas.process(&mut c, 1, true);

@@ -242,7 +242,13 @@ pub struct ManagerPlan {
 pub struct InstanceView {
     /// The GPU slot (= the scheduler's [`InstanceKey`]).
     pub slot: u32,
-    /// Its state (GPU-owned; the CPU mirror).
+    /// Its commanded state, the Manager's view of the device state:
+    /// [`InstanceState::Active`] if the newest ingested command said `add`
+    /// or latency mitigation activated it since, else
+    /// [`InstanceState::Inactive`] (registration, `remove`; an omitted
+    /// instance shows as inactive). The same for CPU and GPU backends; the
+    /// state bits Algorithm 2 wrote are in the records (CPU backends:
+    /// [`Manager::registry`]).
     pub state: InstanceState,
     /// The BLAS address in its record (0 = none).
     pub blas: u64,
@@ -435,7 +441,11 @@ impl<H: HitboxIndex> Manager<H> {
         let range = self.data.get(s.range)?;
         Ok(InstanceView {
             slot,
-            state: record.state(),
+            state: if self.culling.commanded_active(handle)? {
+                InstanceState::Active
+            } else {
+                InstanceState::Inactive
+            },
             blas: record.blas,
             requested_lod: s.requested_lod.into(),
             traced_lod: s.traced_lod.into(),
@@ -664,27 +674,21 @@ impl<H: HitboxIndex> Manager<H> {
         Ok(out)
     }
 
-    /// Ingests one read-back of commands: `counter` is the GPU's atomic
-    /// counter (it may exceed `words.len()`: the overflow), `words` the
-    /// stored command words. The same call for CPU backends (the words of a
-    /// [`Manager::take_commands`] from `readback_latency` frames ago) and GPU
-    /// backends (the read-back buffer): per slot the newest command is kept,
-    /// commands for slots without a live instance are dropped
-    /// ([`Culling::ingest_readback`]). Never fails; bad words are counted.
-    pub fn ingest_readback(&mut self, counter: u32, words: &[u32]) -> IngestSummary {
-        self.culling.ingest_readback(counter, words)
-    }
-
-    /// For GPU backends: ingests the read-back of frame `frame` and sets the
-    /// CPU's mirror of the GPU-owned states from the commands' kinds first
-    /// ([`Culling::ingest_gpu_readback`]).
-    pub fn ingest_gpu_readback(
-        &mut self,
-        frame: u64,
-        counter: u32,
-        words: &[u32],
-    ) -> IngestSummary {
-        self.culling.ingest_gpu_readback(frame, counter, words)
+    /// Ingests one read-back of commands, the ones Algorithm 2 wrote in
+    /// frame `frame`: `counter` is the GPU's atomic counter (it may exceed
+    /// `words.len()`: the overflow), `words` the stored command words. The
+    /// one entry for CPU backends (a [`Readback`]
+    /// of [`Manager::take_commands`] from `readback_latency` frames ago) and
+    /// GPU backends (the read-back buffer of frame `frame`): the newest
+    /// command per slot sets the Manager's commanded state of that slot
+    /// (unless the Manager decided the slot's state itself after `frame`:
+    /// registration, latency mitigation) and is queued; commands for slots
+    /// without a live instance are dropped ([`Culling::ingest_readback`]).
+    /// [`Manager::plan`] reconciles BLAS residency against the commanded
+    /// state, never against the records' state bits. Never fails; bad words
+    /// are counted.
+    pub fn ingest_readback(&mut self, frame: u64, counter: u32, words: &[u32]) -> IngestSummary {
+        self.culling.ingest_readback(frame, counter, words)
     }
 
     /// For GPU backends: the per-slot hit counters of a finished frame (read
@@ -869,10 +873,15 @@ impl<H: HitboxIndex> Manager<H> {
                 continue;
             };
             inst.live += 1;
-            match r.state() {
-                InstanceState::Active => inst.active += 1,
-                InstanceState::Omitted => inst.omitted += 1,
-                InstanceState::Inactive => inst.inactive += 1,
+            // Active = the commanded state (the same for CPU and GPU
+            // backends); omitted is known only where the records carry
+            // Algorithm 2's state bits (CPU backends).
+            if self.culling.commanded_active(handle).unwrap_or(false) {
+                inst.active += 1;
+            } else if r.state() == InstanceState::Omitted {
+                inst.omitted += 1;
+            } else {
+                inst.inactive += 1;
             }
             inst.with_blas += usize::from(r.blas != 0);
             inst.awaiting_blas += usize::from(self.culling.awaiting_blas(handle).unwrap_or(false));

@@ -73,7 +73,7 @@ impl Rig {
         self.frame += 1;
         self.m.begin_frame(self.frame).unwrap();
         while let Some(r) = self.ring.pop_ready(self.frame) {
-            self.m.ingest_readback(r.counter, &r.words);
+            self.m.ingest_readback(r.frame, r.counter, &r.words);
         }
         before_plan(&mut self.m);
         let plan = self.m.plan(&FrameBudgets::default()).unwrap();
@@ -110,8 +110,12 @@ fn add_plans_a_build_and_the_ack_puts_it_in_the_next_tlas() {
     let slot = r.m.instance(h).unwrap().slot;
     let p0 = r.frame(); // feedback activates the hitbox and the instance
     assert_eq!(p0.blas.builds().count(), 0);
-    assert_eq!(r.m.instance(h).unwrap().state, InstanceState::Active);
+    // Algorithm 2 wrote the record; the commanded state follows the `add`
+    // when it is read back.
+    assert_eq!(r.m.registry().state(h).unwrap(), InstanceState::Active);
+    assert_eq!(r.m.instance(h).unwrap().state, InstanceState::Inactive);
     let p1 = r.frame(); // the `add` is processed: a build is planned
+    assert_eq!(r.m.instance(h).unwrap().state, InstanceState::Active);
     let builds: Vec<_> = p1.blas.builds().copied().collect();
     assert_eq!(builds.len(), 1);
     assert_eq!(builds[0].result_bytes, 1000 * 64);
@@ -458,7 +462,7 @@ fn unique_static_instances_get_own_blases_that_are_never_refit() {
         r.frame += 1;
         r.m.begin_frame(r.frame).unwrap();
         while let Some(rb) = r.ring.pop_ready(r.frame) {
-            r.m.ingest_readback(rb.counter, &rb.words);
+            r.m.ingest_readback(rb.frame, rb.counter, &rb.words);
         }
         let plan = r.m.plan(&FrameBudgets::default()).unwrap();
         for b in plan.blas.builds() {

@@ -1,8 +1,9 @@
-//! `Manager::ingest_gpu_readback`: a GPU backend's read-back moves the
-//! manager's mirror of the GPU-owned states with the commands' kinds (add →
-//! active, remove → not active) without uploading states over the GPU's,
-//! so the plan acquires and releases BLASes as the GPU's transitions say;
-//! `ingest_readback` (CPU backends) leaves the states to the CPU.
+//! The Manager's commanded state: [`Manager::ingest_readback`] sets each
+//! slot's state from the kind of its newest command (add → active, remove →
+//! inactive), for CPU and GPU backends alike, without reading or uploading
+//! the records' state bits (Algorithm 2's), so the plan acquires and
+//! releases BLASes as the commands say; commands older than one of the
+//! Manager's own decisions (latency mitigation) do not move it.
 
 use glam::{Affine3A, Vec3};
 use lipac_core::build_plan::BuildEstimate;
@@ -59,7 +60,7 @@ fn word(slot: u32, kind: CommandKind) -> u32 {
 }
 
 #[test]
-fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
+fn commands_move_the_commanded_state_and_the_blas_plan() {
     let (mut m, h) = manager();
     m.begin_frame(1).unwrap();
     let first = m.plan(&FrameBudgets::default()).unwrap();
@@ -68,7 +69,7 @@ fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
     // Frame 2: the GPU turned slots 0 and 2 active.
     m.begin_frame(2).unwrap();
     let words = [word(0, CommandKind::Add), word(2, CommandKind::Add)];
-    let s = m.ingest_gpu_readback(1, 2, &words);
+    let s = m.ingest_readback(1, 2, &words);
     assert_eq!(s.accepted, 2);
     for (i, expected) in [
         (0, InstanceState::Active),
@@ -98,24 +99,26 @@ fn gpu_commands_move_the_state_mirror_and_the_blas_plan() {
 
     // Frame 3: the GPU removed slot 0; its BLAS reference goes.
     m.begin_frame(3).unwrap();
-    m.ingest_gpu_readback(2, 1, &[word(0, CommandKind::Remove)]);
+    m.ingest_readback(2, 1, &[word(0, CommandKind::Remove)]);
     assert_ne!(m.instance(h[0]).unwrap().state, InstanceState::Active);
     let plan = m.plan(&FrameBudgets::default()).unwrap();
     assert_eq!(plan.commands.released, 1);
     assert_eq!(m.instance(h[0]).unwrap().blas, 0);
     assert_eq!(m.instance(h[2]).unwrap().blas, 0x10_0000);
 
-    // The CPU backends' entry does not touch the states: an add for an
-    // instance the CPU holds inactive is stale there.
+    // The records' state bits are neither read nor written: an add makes
+    // slot 1 active while its record stays inactive.
     m.begin_frame(4).unwrap();
-    m.ingest_readback(1, &[word(1, CommandKind::Add)]);
-    assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Inactive);
+    m.ingest_readback(3, 1, &[word(1, CommandKind::Add)]);
+    assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Active);
+    assert_eq!(m.registry().state(h[1]).unwrap(), InstanceState::Inactive);
     let plan = m.plan(&FrameBudgets::default()).unwrap();
-    assert_eq!(plan.commands.stale_kind, 1);
+    assert_eq!(plan.commands.stale_kind, 0);
+    assert_eq!(plan.commands.requested + plan.commands.acquired, 1);
 }
 
 #[test]
-fn gpu_commands_older_than_a_mitigation_keep_its_override() {
+fn commands_older_than_a_mitigation_keep_its_override() {
     use lipac_core::latency::{ActivationHeuristic, Frustum};
     let (mut m, h) = manager();
     // The same scene with latency mitigation on.
@@ -145,9 +148,9 @@ fn gpu_commands_older_than_a_mitigation_keep_its_override() {
     assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Active);
     // Frame 1's feedback (before the override reached the GPU) said remove:
     // the override stands.
-    m.ingest_gpu_readback(1, 1, &[word(1, CommandKind::Remove)]);
+    m.ingest_readback(1, 1, &[word(1, CommandKind::Remove)]);
     assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Active);
     // Frame 2's feedback ran after the upload: it moves the mirror.
-    m.ingest_gpu_readback(2, 1, &[word(1, CommandKind::Remove)]);
+    m.ingest_readback(2, 1, &[word(1, CommandKind::Remove)]);
     assert_eq!(m.instance(h[1]).unwrap().state, InstanceState::Inactive);
 }
