@@ -505,8 +505,10 @@ impl TraceRecorder {
         }
     }
 
-    /// Hits of the open frame: per slot, plus the counting-box hits of
-    /// hitboxes split over their inactive instances.
+    /// Hits of the open frame: per slot its own hits, or, for an instance
+    /// reduced into its hitbox's counting box, its share of the box's hits
+    /// (the first `total % k` of the `k` such instances of a box, by slot,
+    /// take one more). Listed by slot, without zeros.
     pub(super) fn on_hits(
         &mut self,
         hits: &[u32],
@@ -520,57 +522,41 @@ impl TraceRecorder {
             None => std::mem::take(&mut self.hits_buf),
         };
         out.clear();
-        for (slot, (&h, id)) in hits.iter().zip(&self.ids).enumerate() {
-            let Some(id) = *id else { continue };
-            let own = if records.is_some_and(|(r, b)| r.get(slot).is_some_and(|r| culled(r, b))) {
-                0
-            } else {
-                h
-            };
-            if own > 0 {
-                out.push(InstanceHits { id, hits: own });
-            }
-        }
-        if let Some((records, boxes)) = records {
-            self.split_box_hits(records, boxes, &mut out);
-        }
-        self.hits = Some(out);
-    }
-
-    fn split_box_hits(
-        &mut self,
-        records: &[InstanceRecord],
-        boxes: &[HitboxRecord],
-        out: &mut Vec<InstanceHits>,
-    ) {
         let per = &mut self.per_hitbox;
         per.clear();
-        per.resize(boxes.len(), (0, 0));
-        let inactive = |slot: usize| {
-            let id = self.ids.get(slot).copied().flatten()?;
-            let r = records.get(slot)?;
-            (culled(r, boxes) && (r.hitbox as usize) < boxes.len())
-                .then_some((id, r.hitbox as usize))
-        };
-        for slot in 0..records.len() {
-            if let Some((_, b)) = inactive(slot) {
-                per[b].0 += 1;
+        let (records, boxes) = records.unwrap_or((&[], &[]));
+        // Per hitbox: its culled instances (k), and how many got a share.
+        if !records.is_empty() {
+            per.resize(boxes.len(), (0, 0));
+            for (r, id) in records.iter().zip(&self.ids) {
+                if id.is_some() && culled(r, boxes) {
+                    if let Some(p) = per.get_mut(r.hitbox as usize) {
+                        p.0 += 1;
+                    }
+                }
             }
         }
-        // The first `total % k` inactive instances of a box take one more.
-        for slot in 0..records.len() {
-            let Some((id, b)) = inactive(slot) else {
-                continue;
+        for (slot, (&own, id)) in hits.iter().zip(&self.ids).enumerate() {
+            let Some(id) = *id else { continue };
+            let h = match records.get(slot) {
+                Some(r) if culled(r, boxes) => {
+                    match (per.get_mut(r.hitbox as usize), boxes.get(r.hitbox as usize)) {
+                        (Some((k, seen)), Some(b)) => {
+                            let total = b.hits();
+                            let share = total / *k + u32::from(*seen < total % *k);
+                            *seen += 1;
+                            share
+                        }
+                        _ => 0,
+                    }
+                }
+                _ => own,
             };
-            let (total, (k, seen)) = (boxes[b].hits(), per[b]);
-            let h = total / k + u32::from(seen < total % k);
-            per[b].1 += 1;
             if h > 0 {
                 out.push(InstanceHits { id, hits: h });
             }
         }
-        // Unsorted ids are fine for the format; sort for readable traces.
-        out.sort_unstable_by_key(|h| h.id);
+        self.hits = Some(out);
     }
 
     /// Writes the open frame (and the header before the first one).
