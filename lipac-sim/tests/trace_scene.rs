@@ -159,7 +159,8 @@ fn valley(frames: u64, deer_geometry: bool) -> (TraceHeader, Vec<Frame>) {
                 id: 10,
                 pose: Some(pose(
                     m,
-                    Vec3::new(-20.0 + 0.7 * f as f32, 0.0, -10.0),
+                    // Back and forth, inside the 256 m world.
+                    Vec3::new(-20.0 + 0.7 * (f % 200) as f32, 0.0, -10.0),
                     0.1 * f as f32,
                 )),
                 lod: None,
