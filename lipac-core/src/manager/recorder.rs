@@ -276,6 +276,8 @@ pub struct TraceRecorder {
     /// Per hitbox: inactive instances, and how many were given hits so far
     /// (scratch).
     per_hitbox: Vec<(u32, u32)>,
+    /// Per slot: the hitbox it is culled into (scratch).
+    slot_box: Vec<u32>,
     frame: Frame,
     frames: u64,
     written_events: u64,
@@ -337,6 +339,7 @@ impl TraceRecorder {
             hits: None,
             hits_buf: Vec::new(),
             per_hitbox: Vec::new(),
+            slot_box: Vec::new(),
             frame: Frame {
                 number: 0,
                 camera: DEFAULT_CAMERA,
@@ -524,31 +527,31 @@ impl TraceRecorder {
         out.clear();
         let per = &mut self.per_hitbox;
         per.clear();
+        let slot_box = &mut self.slot_box;
+        slot_box.clear();
         let (records, boxes) = records.unwrap_or((&[], &[]));
-        // Per hitbox: its culled instances (k), and how many got a share.
-        if !records.is_empty() {
-            per.resize(boxes.len(), (0, 0));
-            for (r, id) in records.iter().zip(&self.ids) {
-                if id.is_some() && culled(r, boxes) {
-                    if let Some(p) = per.get_mut(r.hitbox as usize) {
-                        p.0 += 1;
-                    }
-                }
+        // Per hitbox: its culled instances (k), and how many got a share;
+        // per slot: the box it is culled into (`NONE`: traced itself).
+        const NONE: u32 = u32::MAX;
+        per.resize(boxes.len(), (0, 0));
+        slot_box.extend(records.iter().zip(&self.ids).map(|(r, id)| {
+            let b = r.hitbox as usize;
+            if id.is_some() && b < boxes.len() && culled(r, boxes) {
+                per[b].0 += 1;
+                r.hitbox
+            } else {
+                NONE
             }
-        }
+        }));
         for (slot, (&own, id)) in hits.iter().zip(&self.ids).enumerate() {
             let Some(id) = *id else { continue };
-            let h = match records.get(slot) {
-                Some(r) if culled(r, boxes) => {
-                    match (per.get_mut(r.hitbox as usize), boxes.get(r.hitbox as usize)) {
-                        (Some((k, seen)), Some(b)) => {
-                            let total = b.hits();
-                            let share = total / *k + u32::from(*seen < total % *k);
-                            *seen += 1;
-                            share
-                        }
-                        _ => 0,
-                    }
+            let h = match slot_box.get(slot) {
+                Some(&b) if b != NONE => {
+                    let (k, seen) = &mut per[b as usize];
+                    let total = boxes[b as usize].hits();
+                    let share = total / *k + u32::from(*seen < total % *k);
+                    *seen += 1;
+                    share
                 }
                 _ => own,
             };
