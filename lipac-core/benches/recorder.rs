@@ -11,6 +11,10 @@
 //! moves one hitbox column every 8 frames), `process_feedback`,
 //! `take_commands`. Warmed up for 64 frames first.
 //!
+//! Then the three run frame by frame in turn (150 frames each) and the
+//! per-frame medians and ratios are printed: robust to a shared machine's
+//! changing load.
+//!
 //! `cargo bench -p lipac-core --bench recorder -- --warm-up-time 1 --measurement-time 3`
 
 use std::hint::black_box;
@@ -237,6 +241,38 @@ fn bench(c: &mut Criterion) {
         }
     }
     g.finish();
+    interleaved(n);
+}
+
+/// The three loops run frame by frame in turn (A B C A B C ...), so that
+/// the load of a shared machine hits them alike; prints per-frame medians
+/// and ratios.
+fn interleaved(n: u32) {
+    let mut loops = [setup(n, None), setup(n, Some(false)), setup(n, Some(true))];
+    let mut times: [Vec<f64>; 3] = Default::default();
+    for _ in 0..150 {
+        for (l, t) in loops.iter_mut().zip(&mut times) {
+            let start = std::time::Instant::now();
+            l.frame();
+            t.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let med: Vec<f64> = times
+        .iter_mut()
+        .map(|t| {
+            t.sort_by(f64::total_cmp);
+            t[t.len() / 2]
+        })
+        .collect();
+    println!(
+        "interleaved, 150 frames each, n = {n}: medians without {:.3} ms, events {:.3} ms \
+         (ratio {:.3}), events + hits {:.3} ms (ratio {:.3})",
+        med[0],
+        med[1],
+        med[1] / med[0],
+        med[2],
+        med[2] / med[0]
+    );
 }
 
 criterion_group!(benches, bench);
