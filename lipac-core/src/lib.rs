@@ -62,6 +62,8 @@ pub use manager::{
     Ack, DataConfig, DataGrowth, DataUpload, FrameBudgets, InstanceCounts, InstanceView, Manager,
     ManagerConfig, ManagerError, ManagerPlan, ManagerStats, MemoryStats, MeshCatalog, MeshLod,
 };
+// Recording the manager as a trace.
+pub use manager::{FinishedTrace, RecorderError, RecorderOptions, TraceRecorder};
 // Instances and meshes.
 pub use instance::{InstanceDesc, InstanceFlags, MeshId};
 pub use math::Aabb;

@@ -126,6 +126,11 @@ impl MeshCatalog {
         self.meshes.get(&mesh).map(Vec::as_slice)
     }
 
+    /// Every mesh with its LODs, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = (MeshId, &[MeshLod])> {
+        self.meshes.iter().map(|(m, l)| (*m, l.as_slice()))
+    }
+
     /// Whether `mesh` is registered.
     pub fn contains(&self, mesh: MeshId) -> bool {
         self.meshes.contains_key(&mesh)

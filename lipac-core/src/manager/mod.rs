@@ -95,11 +95,13 @@
 mod ack;
 mod catalog;
 mod error;
+pub mod recorder;
 mod stats;
 
 pub use ack::Ack;
 pub use catalog::{MeshCatalog, MeshLod, MAX_LODS, MAX_LOD_DATA_BYTES};
 pub use error::ManagerError;
+pub use recorder::{FinishedTrace, RecorderError, RecorderOptions, TraceRecorder, DEFAULT_CAMERA};
 pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
 
 use std::ops::Range;
@@ -309,6 +311,8 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     events: Vec<CommandEvent>,
     /// The variant of the next own static BLAS ([`geometry_of`]).
     next_own_variant: u32,
+    /// The attached trace recorder ([`recorder`]).
+    recorder: Option<Box<TraceRecorder>>,
 }
 
 /// The first variant of an instance's own static BLAS (`UNIQUE_BLAS |
@@ -385,6 +389,7 @@ impl<H: HitboxIndex> Manager<H> {
             planned: None,
             events: Vec::new(),
             next_own_variant: OWN_STATIC_VARIANT,
+            recorder: None,
         })
     }
 
@@ -528,6 +533,7 @@ impl<H: HitboxIndex> Manager<H> {
                 .unwrap_or(OWN_STATIC_VARIANT);
         }
         self.mark_data(slot);
+        self.record(|r| r.on_register(slot, &desc));
         Ok(handle)
     }
 
@@ -566,6 +572,7 @@ impl<H: HitboxIndex> Manager<H> {
         if desc.lod != requested {
             self.set_lod(handle, desc.lod)?;
         }
+        self.record_slot(handle, |r, slot| r.on_update(slot, &desc, &old));
         Ok(old)
     }
 
@@ -577,6 +584,7 @@ impl<H: HitboxIndex> Manager<H> {
         aabb: Aabb,
     ) -> Result<(), ManagerError> {
         self.culling.set_transform(handle, transform, aabb)?;
+        self.record_slot(handle, |r, slot| r.on_pose(slot, &transform, aabb));
         Ok(())
     }
 
@@ -602,6 +610,7 @@ impl<H: HitboxIndex> Manager<H> {
         }
         self.sync_addresses()?;
         self.sync_lod(slot)?;
+        self.record(|r| r.on_lod(slot, lod));
         Ok(old.into())
     }
 
@@ -620,6 +629,7 @@ impl<H: HitboxIndex> Manager<H> {
             self.scheduler.deactivate(InstanceKey(slot))?;
         }
         self.data.free(s.range)?;
+        self.record(|r| r.on_remove(slot));
         Ok(removal.instance)
     }
 
@@ -653,6 +663,7 @@ impl<H: HitboxIndex> Manager<H> {
         self.culling.begin_frame(frame)?;
         self.scheduler.begin_frame(frame)?;
         self.frame = Some(frame);
+        self.record_begin(frame);
         Ok(())
     }
 
@@ -698,6 +709,7 @@ impl<H: HitboxIndex> Manager<H> {
         for (e, &h) in self.slots.iter_mut().zip(hits) {
             e.last_hits = h;
         }
+        self.record_frame_hits(Some(hits));
     }
 
     /// Plans the frame, once per frame after [`Manager::begin_frame`]:
@@ -773,6 +785,7 @@ impl<H: HitboxIndex> Manager<H> {
             to: capacity,
         });
         self.reported_capacity = capacity;
+        self.record(TraceRecorder::on_plan);
         Ok(ManagerPlan {
             frame,
             commands,
@@ -843,6 +856,7 @@ impl<H: HitboxIndex> Manager<H> {
     /// Algorithm 2 over this frame's hits ([`Culling::process_feedback`]),
     /// for CPU backends. The hits are kept to prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
+        self.record_frame_hits(None); // before Algorithm 2 changes states
         let stats = self.culling.process_feedback()?;
         for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
             e.last_hits = h;

@@ -47,6 +47,7 @@ pub use binary::{TraceReader, TraceWriter, PREAMBLE_BYTES};
 pub use convert::{binary_to_jsonl, jsonl_to_binary, Peeked, TraceFormat, MAX_DETECT_WHITESPACE};
 pub use error::{TraceError, TraceErrorKind, TraceLocation};
 pub use jsonl::{JsonlReader, JsonlWriter, JSONL_FORMAT_NAME};
+pub(crate) use model::{check_aabb, check_camera};
 pub use model::{
     AddInstance, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo, MeshInfo, Pose,
     TraceHeader, TraceLimits, UpdateInstance, WorldInfo,

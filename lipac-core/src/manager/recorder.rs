@@ -1,0 +1,867 @@
+//! Recording a [`Manager`] as a trace (`docs/trace-format.md`): attach a
+//! [`TraceRecorder`] and every instance change the engine makes through the
+//! manager, the camera it passes ([`Manager::record_camera`]) and optionally
+//! the hit counts of each frame are written as a lipac trace, so that an
+//! engine gets a trace of its game with one call.
+//!
+//! ```
+//! use glam::{Affine3A, Quat, Vec3};
+//! use lipac_core::manager::{RecorderOptions, TraceRecorder};
+//! use lipac_core::trace::{Camera, InstanceEvent, TraceReader};
+//! use lipac_core::{Aabb, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, InstanceDesc};
+//! use lipac_core::{Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod};
+//!
+//! let mut catalog = MeshCatalog::new();
+//! let estimate = BuildEstimate { primitives: 12, result_bytes: 1024,
+//!                                build_scratch_bytes: 256, update_scratch_bytes: 0 };
+//! catalog.insert(MeshId(1), vec![MeshLod { estimate, data_bytes: 64 }])?;
+//! let grid = HitboxGrid::new(GridConfig { min: [0.0, 0.0], max: [64.0, 64.0], cell_size: 16.0 })?;
+//! let mut manager = Manager::new(grid, ManagerConfig::new(0xC0BE), catalog)?;
+//!
+//! manager.attach_recorder(TraceRecorder::new(Vec::new(), RecorderOptions::default()))?;
+//! let aabb = Aabb::new(Vec3::splat(7.0), Vec3::splat(9.0));
+//! let house = manager.register(InstanceDesc::new(MeshId(1), Affine3A::IDENTITY, aabb))?;
+//! manager.begin_frame(0)?;
+//! manager.record_camera(Camera::look_to(Vec3::Y, Vec3::X, Vec3::Y, 1.0, 1.5))?;
+//! manager.plan(&FrameBudgets::default())?;
+//! manager.remove(house)?; // after frame 0's plan: part of frame 1
+//! manager.begin_frame(1)?;
+//! manager.plan(&FrameBudgets::default())?;
+//! let bytes: Vec<u8> = manager.detach_recorder()?.into_writer().expect("a Vec<u8>");
+//!
+//! let mut reader = TraceReader::new(bytes.as_slice())?;
+//! let f0 = reader.next_frame()?.expect("frame 0");
+//! assert!(matches!(f0.events[..], [InstanceEvent::Add(ref a)] if a.id == 0));
+//! let f1 = reader.next_frame()?.expect("frame 1");
+//! assert_eq!(f1.events, [InstanceEvent::Remove { id: 0 }]);
+//! assert_eq!(f1.camera, f0.camera); // no new camera: the last one is kept
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! # What goes into which frame
+//!
+//! Frame `n`'s record holds the changes made after the previous frame's
+//! [`Manager::plan`] and up to frame `n`'s plan (the changes that frame `n`
+//! uploads and renders; changes before the first plan go into the first
+//! frame), the last camera passed by then, and — with
+//! [`RecorderOptions::record_hits`] — the hits of frame `n`'s
+//! [`Manager::process_feedback`] (CPU backends) or [`Manager::record_hits`]
+//! (GPU backends: the read-back hits handed in during frame `n`). Frame `n`
+//! is written when frame `n + 1` begins, or at [`Manager::detach_recorder`].
+//! Changes made after the last plan are not written (counted in
+//! [`FinishedTrace::unwritten_events`]).
+//!
+//! Hits: an instance's own hits; the hits of the counting box of a hitbox
+//! (its inactive instances, and those in an inactive hitbox, which are not
+//! traced: `crate::assembly`) are split evenly over those instances, so that a hits-only replay feeds Algorithm 2
+//! the same hitbox totals. Instances without hits are not listed.
+//!
+//! # Header
+//!
+//! The header is written with the first frame: the scene name, the world
+//! (the manager's [`HitboxGrid`], or [`RecorderOptions::world`]) and every
+//! mesh of the [`MeshCatalog`] then (triangle counts per LOD), with the
+//! bounds and geometry given by [`TraceRecorder::set_mesh_bounds`] and
+//! [`TraceRecorder::set_geometry`] (default bounds: those of the geometry,
+//! else the unit cube `[-0.5, 0.5]³`). A mesh registered later is an error.
+//!
+//! # Ids
+//!
+//! Trace ids count registrations from 0, so a slot reused after a removal
+//! gets a new id ([`TraceRecorder::slot_id`], [`Manager::trace_id`]).
+//!
+//! # Errors
+//!
+//! The manager's state never depends on the recorder. A failed write (I/O,
+//! limits, the trace validator) stops the recorder: it keeps the error,
+//! drops what it buffered, and reports the error from every later
+//! [`Manager::record_camera`], [`Manager::recorder_error`] and from
+//! [`Manager::detach_recorder`]. Nothing panics.
+
+use std::any::Any;
+use std::collections::BTreeMap;
+use std::fmt;
+use std::io::Write;
+
+use glam::{Quat, Vec3};
+
+use super::{Manager, MeshCatalog};
+use crate::grid::HitboxGrid;
+use crate::hitbox_index::HitboxIndex;
+use crate::instance::{InstanceDesc, MeshId};
+use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
+use crate::math::{affine_to_rows, Aabb};
+use crate::registry::InstanceHandle;
+use crate::trace::{
+    AddInstance, Camera, Frame, InstanceEvent, InstanceHits, JsonlWriter, LodGeometry, LodInfo,
+    MeshInfo, Pose, TraceError, TraceErrorKind, TraceHeader, TraceLimits, TraceWriter,
+    UpdateInstance, WorldInfo,
+};
+
+/// Settings of a [`TraceRecorder`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecorderOptions {
+    /// The header's scene name. Default `"recorded"`.
+    pub scene_name: String,
+    /// Record every frame's hit counts (see the [module docs](self)).
+    /// Default `true`.
+    pub record_hits: bool,
+    /// The header's world; `None` (default) takes the manager's
+    /// [`HitboxGrid`] (required for another hitbox structure).
+    pub world: Option<WorldInfo>,
+    /// The limits the writer checks against. Default [`TraceLimits::default`].
+    pub limits: TraceLimits,
+}
+
+impl Default for RecorderOptions {
+    fn default() -> Self {
+        Self {
+            scene_name: "recorded".into(),
+            record_hits: true,
+            world: None,
+            limits: TraceLimits::default(),
+        }
+    }
+}
+
+/// What went wrong while recording.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RecorderError {
+    /// [`Manager::detach_recorder`] without a recorder.
+    NotAttached,
+    /// [`Manager::attach_recorder`] while one is attached.
+    AlreadyAttached,
+    /// The header cannot be made: what is wrong.
+    Header {
+        /// What is wrong.
+        what: String,
+    },
+    /// A camera failed the trace's checks (nothing was recorded).
+    InvalidCamera(TraceErrorKind),
+    /// Writing the trace failed (I/O, limits or the validator); the recorder
+    /// stopped at that point.
+    Write(TraceError),
+}
+
+impl fmt::Display for RecorderError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NotAttached => write!(f, "no trace recorder is attached"),
+            Self::AlreadyAttached => write!(f, "a trace recorder is already attached"),
+            Self::Header { what } => write!(f, "trace recorder: header: {what}"),
+            Self::InvalidCamera(k) => write!(f, "trace recorder: invalid camera: {k}"),
+            Self::Write(e) => write!(f, "trace recorder stopped: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for RecorderError {}
+
+/// A finished recording, from [`Manager::detach_recorder`].
+pub struct FinishedTrace {
+    /// Frames written.
+    pub frames: u64,
+    /// Instance events written.
+    pub events: u64,
+    /// Changes made after the last plan, not written.
+    pub unwritten_events: usize,
+    writer: Box<dyn Any + Send + Sync>,
+}
+
+impl fmt::Debug for FinishedTrace {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("FinishedTrace")
+            .field("frames", &self.frames)
+            .field("events", &self.events)
+            .field("unwritten_events", &self.unwritten_events)
+            .finish_non_exhaustive()
+    }
+}
+
+impl FinishedTrace {
+    /// The writer given to [`TraceRecorder::new`] (flushed, the trace
+    /// closed); `None` if `W` is not its type.
+    pub fn into_writer<W: Any>(self) -> Option<W> {
+        let any: Box<dyn Any> = self.writer;
+        any.downcast::<W>().ok().map(|w| *w)
+    }
+}
+
+/// The encoder behind a recorder, with its writer's type erased.
+trait Sink: Send + Sync {
+    fn start(&mut self, header: &TraceHeader, limits: TraceLimits) -> Result<(), TraceError>;
+    fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError>;
+    fn finish(self: Box<Self>) -> Result<Box<dyn Any + Send + Sync>, TraceError>;
+}
+
+enum SinkState<W: Write> {
+    Pending(W),
+    Binary(TraceWriter<W>),
+    Jsonl(JsonlWriter<W>),
+    Gone,
+}
+
+struct WriterSink<W: Write> {
+    state: SinkState<W>,
+    jsonl: bool,
+}
+
+fn gone() -> TraceError {
+    TraceError {
+        location: crate::trace::TraceLocation::Byte(0),
+        frame_index: None,
+        frame_number: None,
+        event: None,
+        kind: TraceErrorKind::InvalidValue {
+            what: "trace recorder".into(),
+            reason: "the writer was lost in an earlier error".into(),
+        },
+    }
+}
+
+impl<W: Write + Send + Sync + 'static> Sink for WriterSink<W> {
+    fn start(&mut self, header: &TraceHeader, limits: TraceLimits) -> Result<(), TraceError> {
+        let SinkState::Pending(w) = std::mem::replace(&mut self.state, SinkState::Gone) else {
+            return Err(gone());
+        };
+        self.state = if self.jsonl {
+            SinkState::Jsonl(JsonlWriter::with_limits(w, header, limits)?)
+        } else {
+            SinkState::Binary(TraceWriter::with_limits(w, header, limits)?)
+        };
+        Ok(())
+    }
+    fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError> {
+        match &mut self.state {
+            SinkState::Binary(w) => w.write_frame(frame),
+            SinkState::Jsonl(w) => w.write_frame(frame),
+            _ => Err(gone()),
+        }
+    }
+    fn finish(self: Box<Self>) -> Result<Box<dyn Any + Send + Sync>, TraceError> {
+        Ok(match self.state {
+            SinkState::Binary(w) => Box::new(w.finish()?),
+            SinkState::Jsonl(w) => Box::new(w.finish()?),
+            SinkState::Pending(_) | SinkState::Gone => return Err(gone()),
+        })
+    }
+}
+
+/// Geometry and bounds the engine gave for one mesh.
+#[derive(Clone, Debug, Default)]
+struct MeshNotes {
+    bounds: Option<Aabb>,
+    geometry: BTreeMap<u32, LodGeometry>,
+}
+
+/// Records a [`Manager`] as a trace; see the [module docs](self).
+pub struct TraceRecorder {
+    options: RecorderOptions,
+    sink: Option<Box<dyn Sink>>,
+    notes: BTreeMap<MeshId, MeshNotes>,
+    world: Option<WorldInfo>,
+    header_meshes: Option<usize>,
+    /// Trace id per GPU slot.
+    ids: Vec<Option<u64>>,
+    next_id: u64,
+    /// The frame begun last, not yet written.
+    open: Option<u64>,
+    /// Events not yet written; `events[..split]` belong to the open frame.
+    events: Vec<InstanceEvent>,
+    split: Option<usize>,
+    camera: Camera,
+    hits: Option<Vec<InstanceHits>>,
+    /// The hits list's allocation between frames.
+    hits_buf: Vec<InstanceHits>,
+    /// Per hitbox: inactive instances, and how many were given hits so far
+    /// (scratch).
+    per_hitbox: Vec<(u32, u32)>,
+    /// Per slot: the hitbox it is culled into (scratch).
+    slot_box: Vec<u32>,
+    frame: Frame,
+    frames: u64,
+    written_events: u64,
+    error: Option<RecorderError>,
+}
+
+impl fmt::Debug for TraceRecorder {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("TraceRecorder")
+            .field("options", &self.options)
+            .field("frames", &self.frames)
+            .field("open", &self.open)
+            .field("buffered_events", &self.events.len())
+            .field("error", &self.error)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The camera of frames before the engine passed one: at the origin,
+/// looking along −Z, 60° vertical field of view, aspect 16:9.
+pub const DEFAULT_CAMERA: Camera = Camera {
+    position: Vec3::ZERO,
+    orientation: Quat::IDENTITY,
+    vertical_fov: std::f32::consts::FRAC_PI_3,
+    aspect: 16.0 / 9.0,
+};
+
+impl TraceRecorder {
+    /// A recorder writing the binary encoding to `writer`.
+    pub fn new<W: Write + Send + Sync + 'static>(writer: W, options: RecorderOptions) -> Self {
+        Self::with_sink(writer, options, false)
+    }
+
+    /// A recorder writing the JSON-lines encoding to `writer`.
+    pub fn jsonl<W: Write + Send + Sync + 'static>(writer: W, options: RecorderOptions) -> Self {
+        Self::with_sink(writer, options, true)
+    }
+
+    fn with_sink<W: Write + Send + Sync + 'static>(
+        writer: W,
+        options: RecorderOptions,
+        jsonl: bool,
+    ) -> Self {
+        Self {
+            options,
+            sink: Some(Box::new(WriterSink {
+                state: SinkState::Pending(writer),
+                jsonl,
+            })),
+            notes: BTreeMap::new(),
+            world: None,
+            header_meshes: None,
+            ids: Vec::new(),
+            next_id: 0,
+            open: None,
+            events: Vec::new(),
+            split: None,
+            camera: DEFAULT_CAMERA,
+            hits: None,
+            hits_buf: Vec::new(),
+            per_hitbox: Vec::new(),
+            slot_box: Vec::new(),
+            frame: Frame {
+                number: 0,
+                camera: DEFAULT_CAMERA,
+                events: Vec::new(),
+                hits: None,
+            },
+            frames: 0,
+            written_events: 0,
+            error: None,
+        }
+    }
+
+    /// Object-space bounds of `mesh` for the header (before the first frame
+    /// is written). Fails for non-finite or inverted bounds, or once the
+    /// header is written.
+    pub fn set_mesh_bounds(&mut self, mesh: MeshId, bounds: Aabb) -> Result<(), RecorderError> {
+        self.check_unwritten()?;
+        crate::trace::check_aabb("mesh bounds", &bounds, f32::INFINITY).map_err(|k| {
+            RecorderError::Header {
+                what: k.to_string(),
+            }
+        })?;
+        self.notes.entry(mesh).or_default().bounds = Some(bounds);
+        Ok(())
+    }
+
+    /// Geometry of LOD `lod` of `mesh` for the header (before the first
+    /// frame is written). Checked against the catalog's triangle count when
+    /// the header is written.
+    pub fn set_geometry(
+        &mut self,
+        mesh: MeshId,
+        lod: u32,
+        geometry: LodGeometry,
+    ) -> Result<(), RecorderError> {
+        self.check_unwritten()?;
+        self.notes
+            .entry(mesh)
+            .or_default()
+            .geometry
+            .insert(lod, geometry);
+        Ok(())
+    }
+
+    fn check_unwritten(&self) -> Result<(), RecorderError> {
+        if self.header_meshes.is_some() {
+            return Err(RecorderError::Header {
+                what: "the header was already written with the first frame".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The trace id of the live instance in GPU slot `slot`.
+    pub fn slot_id(&self, slot: u32) -> Option<u64> {
+        self.ids.get(slot as usize).copied().flatten()
+    }
+
+    /// Frames written so far.
+    pub fn frames_written(&self) -> u64 {
+        self.frames
+    }
+
+    /// The error that stopped the recorder, if any.
+    pub fn error(&self) -> Option<&RecorderError> {
+        self.error.as_ref()
+    }
+
+    // ---- hooks (called by the manager) ------------------------------------
+
+    fn push(&mut self, e: InstanceEvent) {
+        if self.error.is_some() {
+            return;
+        }
+        // Consecutive updates of one instance in one frame merge (the later
+        // fields win): the same state before the frame renders.
+        let mergeable = self.events.len() > self.split.unwrap_or(0);
+        if let (InstanceEvent::Update(new), Some(InstanceEvent::Update(old))) =
+            (&e, self.events.last_mut())
+        {
+            if old.id == new.id && mergeable {
+                old.pose = new.pose.or(old.pose);
+                old.lod = new.lod.or(old.lod);
+                old.flags = new.flags.or(old.flags);
+                old.mask = new.mask.or(old.mask);
+                return;
+            }
+        }
+        self.events.push(e);
+    }
+
+    pub(super) fn on_register(&mut self, slot: u32, desc: &InstanceDesc) {
+        let id = self.next_id;
+        self.next_id += 1;
+        let i = slot as usize;
+        if self.ids.len() <= i {
+            self.ids.resize(i + 1, None);
+        }
+        self.ids[i] = Some(id);
+        self.push(InstanceEvent::Add(AddInstance {
+            id,
+            mesh: desc.mesh,
+            lod: desc.lod,
+            flags: desc.flags,
+            mask: (desc.mask != 0xFF).then_some(desc.mask),
+            pose: pose(desc),
+        }));
+    }
+
+    pub(super) fn on_update(&mut self, slot: u32, desc: &InstanceDesc, old: &InstanceDesc) {
+        if let Some(id) = self.slot_id(slot) {
+            self.push(InstanceEvent::Update(UpdateInstance {
+                id,
+                pose: Some(pose(desc)),
+                lod: (desc.lod != old.lod).then_some(desc.lod),
+                flags: (desc.flags != old.flags).then_some(desc.flags),
+                mask: (desc.mask != old.mask).then_some(desc.mask),
+            }));
+        }
+    }
+
+    pub(super) fn on_pose(&mut self, slot: u32, transform: &glam::Affine3A, aabb: Aabb) {
+        if let Some(id) = self.slot_id(slot) {
+            self.push(InstanceEvent::Update(UpdateInstance {
+                id,
+                pose: Some(Pose {
+                    transform: affine_to_rows(transform),
+                    aabb,
+                }),
+                lod: None,
+                flags: None,
+                mask: None,
+            }));
+        }
+    }
+
+    pub(super) fn on_lod(&mut self, slot: u32, lod: u32) {
+        if let Some(id) = self.slot_id(slot) {
+            self.push(InstanceEvent::Update(UpdateInstance {
+                id,
+                pose: None,
+                lod: Some(lod),
+                flags: None,
+                mask: None,
+            }));
+        }
+    }
+
+    pub(super) fn on_remove(&mut self, slot: u32) {
+        if let Some(id) = self.ids.get_mut(slot as usize).and_then(Option::take) {
+            self.push(InstanceEvent::Remove { id });
+        }
+    }
+
+    pub(super) fn on_plan(&mut self) {
+        if self.open.is_some() && self.split.is_none() {
+            self.split = Some(self.events.len());
+        }
+    }
+
+    pub(super) fn on_begin_frame(&mut self, frame: u64, catalog: &MeshCatalog) {
+        self.close_frame(catalog);
+        self.open = Some(frame);
+        if let Some(v) = self.hits.take() {
+            self.hits_buf = v;
+        }
+    }
+
+    /// Hits of the open frame: per slot its own hits, or, for an instance
+    /// reduced into its hitbox's counting box, its share of the box's hits
+    /// (the first `total % k` of the `k` such instances of a box, by slot,
+    /// take one more). Listed by slot, without zeros.
+    pub(super) fn on_hits(
+        &mut self,
+        hits: &[u32],
+        records: Option<(&[InstanceRecord], &[HitboxRecord])>,
+    ) {
+        if !self.options.record_hits || self.error.is_some() || self.open.is_none() {
+            return;
+        }
+        let mut out = match self.hits.take() {
+            Some(v) => v,
+            None => std::mem::take(&mut self.hits_buf),
+        };
+        out.clear();
+        let per = &mut self.per_hitbox;
+        per.clear();
+        let slot_box = &mut self.slot_box;
+        slot_box.clear();
+        let (records, boxes) = records.unwrap_or((&[], &[]));
+        // Per hitbox: its culled instances (k), and how many got a share;
+        // per slot: the box it is culled into (`NONE`: traced itself).
+        const NONE: u32 = u32::MAX;
+        per.resize(boxes.len(), (0, 0));
+        slot_box.extend(records.iter().zip(&self.ids).map(|(r, id)| {
+            let b = r.hitbox as usize;
+            if id.is_some() && b < boxes.len() && culled(r, boxes) {
+                per[b].0 += 1;
+                r.hitbox
+            } else {
+                NONE
+            }
+        }));
+        for (slot, (&own, id)) in hits.iter().zip(&self.ids).enumerate() {
+            let Some(id) = *id else { continue };
+            let h = match slot_box.get(slot) {
+                Some(&b) if b != NONE => {
+                    let (k, seen) = &mut per[b as usize];
+                    let total = boxes[b as usize].hits();
+                    let share = total / *k + u32::from(*seen < total % *k);
+                    *seen += 1;
+                    share
+                }
+                _ => own,
+            };
+            if h > 0 {
+                out.push(InstanceHits { id, hits: h });
+            }
+        }
+        self.hits = Some(out);
+    }
+
+    /// Writes the open frame (and the header before the first one).
+    fn close_frame(&mut self, catalog: &MeshCatalog) {
+        let Some(number) = self.open.take() else {
+            return;
+        };
+        if self.error.is_some() {
+            return;
+        }
+        if let Err(e) = self.write_open(number, catalog) {
+            self.fail(e);
+        }
+    }
+
+    fn write_open(&mut self, number: u64, catalog: &MeshCatalog) -> Result<(), RecorderError> {
+        self.ensure_header(catalog)?;
+        let split = self.split.take().unwrap_or(self.events.len());
+        let mut frame = std::mem::replace(
+            &mut self.frame,
+            Frame {
+                number: 0,
+                camera: DEFAULT_CAMERA,
+                events: Vec::new(),
+                hits: None,
+            },
+        );
+        frame.number = number;
+        frame.camera = self.camera;
+        frame.events.clear();
+        frame.events.extend(self.events.drain(..split));
+        frame.hits = self.hits.take();
+        let sink = self.sink.as_mut().ok_or(RecorderError::Write(gone()))?;
+        let r = sink.write_frame(&frame);
+        self.frames += u64::from(r.is_ok());
+        self.written_events += frame.events.len() as u64;
+        if let Some(v) = frame.hits.take() {
+            self.hits_buf = v;
+        }
+        self.frame = frame;
+        r.map_err(RecorderError::Write)
+    }
+
+    fn ensure_header(&mut self, catalog: &MeshCatalog) -> Result<(), RecorderError> {
+        if let Some(n) = self.header_meshes {
+            if catalog.len() != n {
+                return Err(RecorderError::Header {
+                    what: format!(
+                        "{} meshes registered after the trace header was written",
+                        catalog.len() - n.min(catalog.len())
+                    ),
+                });
+            }
+            return Ok(());
+        }
+        let header = self.header(catalog)?;
+        let sink = self.sink.as_mut().ok_or(RecorderError::Write(gone()))?;
+        sink.start(&header, self.options.limits)
+            .map_err(RecorderError::Write)?;
+        self.header_meshes = Some(catalog.len());
+        Ok(())
+    }
+
+    fn header(&mut self, catalog: &MeshCatalog) -> Result<TraceHeader, RecorderError> {
+        let world = self.world.ok_or_else(|| RecorderError::Header {
+            what: "no world: not a HitboxGrid manager and RecorderOptions::world unset".into(),
+        })?;
+        let mut meshes = Vec::with_capacity(catalog.len());
+        for (mesh, lods) in catalog.iter() {
+            let mut notes = self.notes.remove(&mesh).unwrap_or_default();
+            let mut infos = Vec::with_capacity(lods.len());
+            let mut geometry_bounds: Option<Aabb> = None;
+            for (i, l) in lods.iter().enumerate() {
+                let triangles =
+                    u32::try_from(l.triangles()).map_err(|_| RecorderError::Header {
+                        what: format!(
+                            "mesh {}: LOD {i} has {} triangles, more than a trace holds",
+                            mesh.0,
+                            l.triangles()
+                        ),
+                    })?;
+                let geometry = notes.geometry.remove(&(i as u32));
+                if let Some(g) = &geometry {
+                    for p in &g.positions {
+                        let p = Vec3::from_array(*p);
+                        geometry_bounds = Some(match geometry_bounds {
+                            Some(b) => Aabb::new(b.min.min(p), b.max.max(p)),
+                            None => Aabb::new(p, p),
+                        });
+                    }
+                }
+                infos.push(LodInfo {
+                    triangles,
+                    geometry,
+                });
+            }
+            if let Some((&lod, _)) = notes.geometry.iter().next() {
+                return Err(RecorderError::Header {
+                    what: format!(
+                        "geometry given for LOD {lod} of mesh {}, which has {} LODs",
+                        mesh.0,
+                        lods.len()
+                    ),
+                });
+            }
+            meshes.push(MeshInfo {
+                id: mesh,
+                bounds: notes
+                    .bounds
+                    .or(geometry_bounds)
+                    .unwrap_or(Aabb::new(Vec3::splat(-0.5), Vec3::splat(0.5))),
+                lods: infos,
+            });
+        }
+        if let Some(mesh) = self.notes.keys().next() {
+            return Err(RecorderError::Header {
+                what: format!(
+                    "bounds or geometry given for mesh {}, not in the catalog",
+                    mesh.0
+                ),
+            });
+        }
+        meshes.sort_by_key(|m| m.id.0);
+        Ok(TraceHeader {
+            scene_name: self.options.scene_name.clone(),
+            world,
+            meshes,
+        })
+    }
+
+    fn fail(&mut self, e: RecorderError) {
+        self.error = Some(e);
+        self.events = Vec::new();
+        self.hits = None;
+        self.split = None;
+    }
+
+    /// Closes the open frame and the trace.
+    fn finish(mut self, catalog: &MeshCatalog) -> Result<FinishedTrace, RecorderError> {
+        let unwritten = if self.open.is_some() {
+            self.events.len() - self.split.unwrap_or(self.events.len())
+        } else {
+            self.events.len()
+        };
+        self.close_frame(catalog);
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        // An empty recording still gets its header.
+        self.ensure_header(catalog)?;
+        let sink = self.sink.take().ok_or(RecorderError::Write(gone()))?;
+        let writer = sink.finish().map_err(RecorderError::Write)?;
+        Ok(FinishedTrace {
+            frames: self.frames,
+            events: self.written_events,
+            unwritten_events: unwritten,
+            writer,
+        })
+    }
+}
+
+/// Whether Algorithm 1 reduces the instance into its hitbox's counting box:
+/// inactive, or in an inactive hitbox (`crate::assembly`).
+fn culled(r: &InstanceRecord, boxes: &[HitboxRecord]) -> bool {
+    r.state() == InstanceState::Inactive
+        || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active())
+}
+
+fn pose(desc: &InstanceDesc) -> Pose {
+    Pose {
+        transform: affine_to_rows(&desc.transform),
+        aabb: desc.aabb,
+    }
+}
+
+impl<H: HitboxIndex + 'static> Manager<H> {
+    /// Attaches `recorder`: from now on every instance change, camera and
+    /// (optionally) the hits are recorded (see [`recorder`](self)). Fails
+    /// if one is attached, or if there is no world for the header (a hitbox
+    /// structure other than [`HitboxGrid`] without
+    /// [`RecorderOptions::world`]). Instances registered before are not in
+    /// the trace.
+    pub fn attach_recorder(&mut self, mut recorder: TraceRecorder) -> Result<(), RecorderError> {
+        if self.recorder.is_some() {
+            return Err(RecorderError::AlreadyAttached);
+        }
+        let grid =
+            (self.culling.registry().hitbox_index() as &dyn Any).downcast_ref::<HitboxGrid>();
+        let world = recorder
+            .options
+            .world
+            .or_else(|| {
+                grid.map(|g| WorldInfo {
+                    min: g.min(),
+                    max: g.max(),
+                    cell_size: g.cell_size(),
+                })
+            })
+            .ok_or_else(|| RecorderError::Header {
+                what: "no world: not a HitboxGrid manager and RecorderOptions::world unset".into(),
+            })?;
+        recorder.world = Some(world);
+        if let Some(frame) = self.frame {
+            recorder.open = Some(frame);
+            if self.planned == Some(frame) {
+                recorder.split = Some(0);
+            }
+        }
+        self.recorder = Some(Box::new(recorder));
+        Ok(())
+    }
+}
+
+impl<H: HitboxIndex> Manager<H> {
+    /// Detaches the recorder: writes the open frame, closes the trace and
+    /// returns the writer ([`FinishedTrace::into_writer`]). Errors: none
+    /// attached, or the error that stopped it.
+    pub fn detach_recorder(&mut self) -> Result<FinishedTrace, RecorderError> {
+        let r = self.recorder.take().ok_or(RecorderError::NotAttached)?;
+        r.finish(&self.catalog)
+    }
+
+    /// The attached recorder.
+    pub fn recorder(&self) -> Option<&TraceRecorder> {
+        self.recorder.as_deref()
+    }
+
+    /// The attached recorder, e.g. to add geometry before the first frame
+    /// is written.
+    pub fn recorder_mut(&mut self) -> Option<&mut TraceRecorder> {
+        self.recorder.as_deref_mut()
+    }
+
+    /// The error that stopped the attached recorder, if any.
+    pub fn recorder_error(&self) -> Option<&RecorderError> {
+        self.recorder.as_ref().and_then(|r| r.error())
+    }
+
+    /// The trace id of a live instance, if a recorder is attached and
+    /// recorded its registration.
+    pub fn trace_id(&self, handle: InstanceHandle) -> Option<u64> {
+        let slot = self.culling.registry().slot(handle).ok()?;
+        self.recorder.as_ref()?.slot_id(slot)
+    }
+
+    /// The camera of the current frame for the recorder (kept for later
+    /// frames until the next call). Without a recorder it does nothing.
+    /// Errors: a camera the trace format rejects (nothing recorded), or the
+    /// error that stopped the recorder.
+    pub fn record_camera(&mut self, camera: Camera) -> Result<(), RecorderError> {
+        let Some(r) = self.recorder.as_mut() else {
+            return Ok(());
+        };
+        if let Some(e) = &r.error {
+            return Err(e.clone());
+        }
+        crate::trace::check_camera(&camera).map_err(RecorderError::InvalidCamera)?;
+        r.camera = camera;
+        Ok(())
+    }
+
+    /// Hook: runs `f` on the attached recorder.
+    pub(super) fn record(&mut self, f: impl FnOnce(&mut TraceRecorder)) {
+        if let Some(r) = self.recorder.as_deref_mut() {
+            f(r);
+        }
+    }
+
+    /// Hook: runs `f` on the attached recorder with `handle`'s slot.
+    pub(super) fn record_slot(
+        &mut self,
+        handle: InstanceHandle,
+        f: impl FnOnce(&mut TraceRecorder, u32),
+    ) {
+        if let Some(r) = self.recorder.as_deref_mut() {
+            if let Ok(slot) = self.culling.registry().slot(handle) {
+                f(r, slot);
+            }
+        }
+    }
+
+    /// Hook: the frame begins (the previous one is written).
+    pub(super) fn record_begin(&mut self, frame: u64) {
+        if let Some(r) = self.recorder.as_deref_mut() {
+            r.on_begin_frame(frame, &self.catalog);
+        }
+    }
+
+    /// Hook: this frame's hits (`None`: the manager's own per-slot hits of
+    /// Algorithm 2 with the counting boxes; `Some`: read-back hits).
+    pub(super) fn record_frame_hits(&mut self, hits: Option<&[u32]>) {
+        if let Some(r) = self.recorder.as_deref_mut() {
+            match hits {
+                Some(h) => r.on_hits(h, None),
+                None => {
+                    let reg = self.culling.registry();
+                    r.on_hits(
+                        self.culling.instance_hits(),
+                        Some((reg.records(), self.culling.hitboxes())),
+                    );
+                }
+            }
+        }
+    }
+}
