@@ -130,7 +130,7 @@ impl Loop {
             self.m.handle_ack(a).expect("ack");
         }
         while let Some(r) = self.ring.pop_ready(frame) {
-            self.m.ingest_readback(r.counter, &r.words);
+            self.m.ingest_readback(r.frame, r.counter, &r.words);
         }
         // The engine's changes.
         let n = self.handles.len();

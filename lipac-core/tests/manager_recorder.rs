@@ -97,7 +97,7 @@ impl Loop {
             m.handle_ack(a).unwrap();
         }
         while let Some(r) = self.ring.pop_ready(frame) {
-            m.ingest_readback(r.counter, &r.words);
+            m.ingest_readback(r.frame, r.counter, &r.words);
         }
     }
     fn plan_and_trace(&mut self, m: &mut Manager) {

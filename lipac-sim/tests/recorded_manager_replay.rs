@@ -69,7 +69,7 @@ fn record() -> Vec<u8> {
             m.handle_ack(a).unwrap();
         }
         while let Some(r) = ring.pop_ready(frame) {
-            m.ingest_readback(r.counter, &r.words);
+            m.ingest_readback(r.frame, r.counter, &r.words);
         }
         m.record_camera(Camera::look_to(
             Vec3::new(64.0, 40.0, -20.0 - frame as f32),
