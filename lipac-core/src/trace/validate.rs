@@ -8,6 +8,12 @@ use super::model::{
 use crate::instance::MeshId;
 use std::collections::{HashMap, HashSet};
 
+// foldhash's seeded fast hasher: the validator looks up every event's and
+// hit count's id, and std's SipHash dominated recording 100k hits a frame;
+// the per-process random seed keeps crafted ids from colliding on purpose.
+type IdMap<V> = HashMap<u64, V, foldhash::fast::RandomState>;
+type IdSet = HashSet<u64, foldhash::fast::RandomState>;
+
 /// A problem found in one frame: the event it concerns (if any) and what is
 /// wrong. Readers and writers turn it into a
 /// [`TraceError`](super::TraceError) with the location.
@@ -70,11 +76,11 @@ impl FrameFault {
 pub struct TraceValidator {
     limits: TraceLimits,
     meshes: MeshTable,
-    live: HashMap<u64, MeshId>,
+    live: IdMap<MeshId>,
     track_live: bool,
     last_frame: Option<u64>,
     frames: u64,
-    hit_ids: HashSet<u64>,
+    hit_ids: IdSet,
 }
 
 impl TraceValidator {
@@ -88,11 +94,11 @@ impl TraceValidator {
         Self {
             limits,
             meshes,
-            live: HashMap::new(),
+            live: IdMap::default(),
             track_live: true,
             last_frame: None,
             frames: 0,
-            hit_ids: HashSet::new(),
+            hit_ids: IdSet::default(),
         }
     }
 
@@ -101,7 +107,7 @@ impl TraceValidator {
     /// no history: header references, values, frame order.
     pub fn stop_tracking_live(&mut self) {
         self.track_live = false;
-        self.live = HashMap::new();
+        self.live = IdMap::default();
     }
 
     /// Whether live instances are tracked (see
@@ -206,7 +212,7 @@ impl TraceValidator {
         }
         // Keep memory bounded by the largest frame, not the whole trace.
         if self.hit_ids.capacity() > 4 * hits.len().max(1024) {
-            self.hit_ids = HashSet::new();
+            self.hit_ids = IdSet::default();
         }
         Ok(())
     }
