@@ -108,8 +108,7 @@
 //! "all instances newly appearing in the frustum have an associated BLAS and
 //! are marked active").
 
-use std::collections::{HashMap, VecDeque};
-use std::ops::Range;
+use std::collections::HashMap;
 
 use glam::{Affine3A, Vec3};
 
@@ -121,10 +120,7 @@ use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
-use crate::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
-    MAX_SLOTS,
-};
+use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
@@ -218,112 +214,6 @@ impl CullingConfig {
             LatencyMitigation::new(h)?;
         }
         Ok(())
-    }
-}
-
-/// One frame's command words as the GPU left them: what a backend copies
-/// into a read-back slot and hands to [`Culling::ingest_readback`] later.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Readback {
-    /// The frame whose feedback wrote the commands.
-    pub frame: u64,
-    /// The GPU's atomic counter: commands requested, stored or not.
-    pub counter: u32,
-    /// The stored words (`min(counter, capacity)` of them).
-    pub words: Vec<u32>,
-}
-
-/// A model of the GPU's read-back ring for CPU backends and tests: the
-/// commands of frame `f` become readable at frame `f + latency`.
-///
-/// ```
-/// use lipac_core::culling::{Readback, ReadbackRing};
-/// let mut ring = ReadbackRing::new(2)?;
-/// ring.push(Readback { frame: 5, counter: 1, words: vec![7] })?;
-/// assert!(ring.pop_ready(6).is_none());
-/// assert_eq!(ring.pop_ready(7).map(|r| r.words), Some(vec![7]));
-/// # Ok::<(), lipac_core::error::CoreError>(())
-/// ```
-#[derive(Clone, Debug)]
-pub struct ReadbackRing {
-    latency: u32,
-    slots: VecDeque<Readback>,
-}
-
-impl ReadbackRing {
-    /// A ring of `latency` slots (at least 1).
-    pub fn new(latency: u32) -> Result<Self, CoreError> {
-        if latency == 0 {
-            return Err(CoreError::InvalidConfig {
-                what: "read-back ring latency 0: it must be at least 1 frame".into(),
-            });
-        }
-        Ok(Self {
-            latency,
-            slots: VecDeque::with_capacity(latency as usize),
-        })
-    }
-
-    /// The latency in frames.
-    pub fn latency(&self) -> u32 {
-        self.latency
-    }
-
-    /// Stores a frame's read-back. Fails ([`CoreError::CallOrder`]) if all
-    /// `latency` slots still hold unread read-backs (the GPU would overwrite
-    /// one) or if `readback.frame` is not after the last stored frame.
-    pub fn push(&mut self, readback: Readback) -> Result<(), CoreError> {
-        if self.slots.len() >= self.latency as usize {
-            return Err(CoreError::CallOrder {
-                what: format!(
-                    "read-back ring full: {} unread read-backs (pop_ready each frame)",
-                    self.slots.len()
-                ),
-            });
-        }
-        if let Some(last) = self.slots.back() {
-            if readback.frame <= last.frame {
-                return Err(CoreError::CallOrder {
-                    what: format!(
-                        "read-back of frame {} after one of frame {}",
-                        readback.frame, last.frame
-                    ),
-                });
-            }
-        }
-        self.slots.push_back(readback);
-        Ok(())
-    }
-
-    /// At frame `frame`: the oldest read-back written at or before
-    /// `frame - latency`, if any. Call until `None`.
-    pub fn pop_ready(&mut self, frame: u64) -> Option<Readback> {
-        let ready = self
-            .slots
-            .front()?
-            .frame
-            .saturating_add(self.latency.into())
-            <= frame;
-        if ready {
-            self.slots.pop_front()
-        } else {
-            None
-        }
-    }
-
-    /// Read-backs waiting.
-    pub fn len(&self) -> usize {
-        self.slots.len()
-    }
-
-    /// Whether nothing is waiting.
-    pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
-    }
-
-    /// The waiting read-backs, oldest first.
-    pub fn iter(&self) -> impl Iterator<Item = &Readback> {
-        self.slots.iter()
     }
 }
 
@@ -425,24 +315,6 @@ pub struct ProcessStats {
     pub dead: u32,
     /// Commands still pending after this call.
     pub remaining: u32,
-}
-
-/// What a GPU backend uploads before Algorithm 1, from
-/// [`Culling::take_uploads`].
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Uploads {
-    /// Slot ranges whose records changed (sorted, disjoint): upload
-    /// `registry().records()[range]`, **keeping the state bits** of the GPU
-    /// copy (see the [module docs](self)).
-    pub records: Vec<Range<u32>>,
-    /// The CPU's writes of state bits since the last take, by ascending slot
-    /// (registration → inactive, latency mitigation → active); apply after
-    /// the records.
-    pub state_overrides: Vec<(u32, InstanceState)>,
-    /// Hitboxes whose active bit the CPU set, by ascending index, as
-    /// `(index, active)`: set the active bit and zero the streak, keeping the
-    /// hit count and heights.
-    pub hitbox_overrides: Vec<(u32, bool)>,
 }
 
 /// What [`Culling::remove`] hands back.
@@ -1058,48 +930,6 @@ impl<H: HitboxIndex> Culling<H> {
     }
 }
 
-/// Writes `uploads` into a GPU-side copy of the instance and hitbox buffers
-/// the way a GPU backend must: record ranges without their state bits, then
-/// the overrides. `records` is the CPU's instance buffer; `gpu_instances` is
-/// grown to its length. Used by tests and as the specification of the scatter
-/// shader.
-pub fn apply_uploads(
-    uploads: &Uploads,
-    records: &[InstanceRecord],
-    gpu_instances: &mut Vec<InstanceRecord>,
-    gpu_hitboxes: &mut [HitboxRecord],
-) {
-    if gpu_instances.len() < records.len() {
-        gpu_instances.resize(records.len(), InstanceRecord::default());
-    }
-    for range in &uploads.records {
-        let (lo, hi) = (
-            range.start as usize,
-            (range.end as usize).min(records.len()),
-        );
-        for (dst, src) in gpu_instances[lo.min(hi)..hi]
-            .iter_mut()
-            .zip(&records[lo.min(hi)..hi])
-        {
-            let state = dst.packed & instance_bits::STATE_MASK;
-            *dst = *src;
-            dst.packed = (dst.packed & !instance_bits::STATE_MASK) | state;
-        }
-    }
-    for &(slot, state) in &uploads.state_overrides {
-        if let Some(r) = gpu_instances.get_mut(slot as usize) {
-            r.set_state(state);
-        }
-    }
-    for &(index, active) in &uploads.hitbox_overrides {
-        if let Some(h) = gpu_hitboxes.get_mut(index as usize) {
-            h.packed &=
-                !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT) | hitbox_bits::ACTIVE);
-            h.packed |= u32::from(active);
-        }
-    }
-}
-
 /// The loop's view of one slot (one entry per slot).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct SlotView {
@@ -1115,8 +945,12 @@ struct SlotView {
     decided_at: u64,
 }
 
+mod readback_ring;
 mod state_overrides;
+mod uploads;
+pub use readback_ring::{Readback, ReadbackRing};
 use state_overrides::StateOverrides;
+pub use uploads::{apply_uploads, Uploads};
 
 #[cfg(test)]
 mod tests;
