@@ -126,7 +126,8 @@ impl BlasOwner {
     }
 }
 
-/// Lifecycle state of a cache entry (see the module docs).
+/// Lifecycle state of a cache entry (see `docs/BLAS.md`, "Lifecycle of an
+/// entry").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BlasState {
     /// Wanted; nothing allocated yet.
@@ -389,7 +390,8 @@ fn contribution(e: &Entry) -> Bytes {
     b
 }
 
-/// The shared/unique BLAS cache. See the module documentation for policies.
+/// The shared/unique BLAS cache. See the module docs; policies in
+/// `docs/BLAS.md`.
 #[derive(Debug)]
 pub struct BlasCache {
     config: CacheConfig,
@@ -406,7 +408,7 @@ pub struct BlasCache {
     compaction_ready: BTreeSet<BlasId>,
     pending_frees: Vec<(u64, BlasFree)>,
     // Byte totals in u128: sums of u64 values over at most 2^32 entries
-    // cannot wrap (see "Limits" in the module docs).
+    // cannot wrap (see the limits in the module docs).
     shared_bytes: u128,
     unique_bytes: u128,
     compacted_bytes: u128,

@@ -67,7 +67,7 @@ use crate::blas_cache::{
 };
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
 
-/// Priority weights (see the module docs).
+/// Priority weights (see `docs/BLAS.md`, "Priority with ageing").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PriorityConfig {
     /// Hit counts above this count as this.
@@ -449,7 +449,8 @@ impl ScratchPacker {
     }
 }
 
-/// The BLAS build scheduler; owns the [`BlasCache`]. See the module docs.
+/// The BLAS build scheduler; owns the [`BlasCache`]. See the module docs;
+/// its policies are in `docs/BLAS.md`.
 #[derive(Debug)]
 pub struct BuildScheduler {
     config: SchedulerConfig,

@@ -136,7 +136,8 @@ fn hitbox_step(packed: u32, th: &Thresholds) -> (u32, i8) {
 /// Algorithm 2: accumulates instance hits into hitboxes, updates hitbox and
 /// instance states and appends commands to `commands` (which is not cleared:
 /// the caller clears it per frame, as the GPU resets its counter). See the
-/// [module docs](self) for the lines, the overflow rule and the deviations.
+/// [module docs](self) for the overflow rule, `docs/ALGORITHMS.md` for the
+/// lines and the deviations.
 ///
 /// ```
 /// use lipac_core::command::{Command, CommandBuffer, CommandKind};
@@ -265,7 +266,7 @@ pub fn process_feedback(
                     overflow = true;
                 }
             } else if state == InstanceState::Active && m.blas != 0 && hits < th.sigma_o {
-                // Lines 34/35 (only once the BLAS exists; see module docs).
+                // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
                 if commands.push(command(CommandKind::Remove, hits)) {
                     state = InstanceState::Omitted;
                     stats.active_to_omitted += 1;

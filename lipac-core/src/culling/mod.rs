@@ -612,9 +612,10 @@ impl<H: HitboxIndex> Culling<H> {
 
     /// Latency mitigation (§3.6): every live instance newly in `frustum` that
     /// passes the heuristic and is not active becomes active now, and its
-    /// hitbox active too (see the [module docs](self)). Those without a BLAS
-    /// are returned as [`LatencyOutcome::requests`]. With latency mitigation
-    /// disabled, does nothing. Fails only for a non-finite camera.
+    /// hitbox active too (why: `docs/ARCHITECTURE.md`, "The state machine").
+    /// Those without a BLAS are returned as [`LatencyOutcome::requests`]. With
+    /// latency mitigation disabled, does nothing. Fails only for a non-finite
+    /// camera.
     pub fn mitigate_latency(
         &mut self,
         camera: Vec3,
