@@ -7,70 +7,21 @@
 //! atomic counter, so its output order is arbitrary; compare with
 //! [`sort_canonical`] applied to both sides.
 //!
-//! Passes:
+//! The passes, in short: [`begin_frame`] resets every hitbox's height bounds
+//! and hit count (active bit and streak kept); then every live *active*
+//! instance with a BLAS gets its own TLAS record (custom index = slot; active
+//! without a BLAS yet is left out and counted), every *omitted* one a
+//! unit-cube counting box onto its AABB, and every *inactive* one widens its
+//! hitbox's height range; finally every **inactive** hitbox with an inactive
+//! instance gets a counting box (custom index = hitbox index). An active or
+//! omitted instance in an inactive hitbox counts as inactive
+//! ([`AssemblyStats::in_inactive_hitbox`]). The backend clears the
+//! per-instance hit buffer before tracing.
 //!
-//! 0. **Frame reset** ([`begin_frame`]): every hitbox gets `min_y = +∞`,
-//!    `max_y = −∞` (thesis: "in each frame, the hitbox height bounds are
-//!    reset") and a hit count of 0 (thesis: hit counts "get reset to zero …
-//!    at the beginning of each frame"); the active bit and streak are kept.
-//!    A GPU backend does the same, either as a small dispatch over the
-//!    hitboxes or fused into its first pass. The per-instance hit buffer is
-//!    cleared by the backend (e.g. `vkCmdFillBuffer`) before tracing.
-//! 1. **Per live instance** (lines 1–19; an active or omitted instance in an
-//!    inactive hitbox counts as inactive, see the deviations below):
-//!    * *active* with a BLAS → its own TLAS record (line 7): transform, custom
-//!      index = slot, its mask, SBT offset and instance flags, reference =
-//!      BLAS address. *Active* without a BLAS yet (the CPU has not built it)
-//!      is left out and counted in [`AssemblyStats::active_without_blas`].
-//!    * *omitted* → a unit-cube counting box mapped onto its AABB (lines
-//!      9–13): reference = [`AssemblyConfig::unit_cube_blas`], custom index =
-//!      slot, mask = [`AssemblyConfig::counting_mask`], SBT offset =
-//!      [`AssemblyConfig::omitted_box_sbt_offset`], flags force-opaque |
-//!      cull-disable.
-//!    * *inactive* → min/max-reduce its AABB's y range into its hitbox
-//!      (lines 15–17; `atomicMin`/`atomicMax` on the GPU).
-//! 2. **Per hitbox** (lines 20–28): an **inactive** hitbox with at least one
-//!    inactive instance gets a counting box spanning its cell's x/z bounds
-//!    and `[min_y, max_y]`: custom index = hitbox index, mask =
-//!    [`AssemblyConfig::counting_mask`], SBT offset =
-//!    [`AssemblyConfig::hitbox_sbt_offset`].
-//!
-//! # Deviations from the pseudocode (deliberate)
-//!
-//! * Thesis Algorithm 4 line 21 tests `H.state = active`; the text of both
-//!   the thesis and the paper says the box is added for *inactive* hitboxes
-//!   (an active hitbox's instances are in the TLAS themselves). The text is
-//!   right and is what this code does.
-//! * Line 21 also requires `minY < maxY`. Here a hitbox whose inactive
-//!   instances are all flat (`min_y == max_y`, e.g. decals or a ground
-//!   plane) still gets a box, padded to [`AssemblyConfig::min_box_extent`];
-//!   otherwise that hitbox could never count a ray again and its instances
-//!   would stay culled forever. The same padding applies to omitted boxes.
-//!   "At least one inactive instance" is `min_y <= max_y` after the reset.
-//! * **In an inactive hitbox** (not in the pseudocode): an *active* or
-//!   *omitted* instance whose hitbox is inactive is treated as *inactive* —
-//!   left out of the TLAS and reduced into the hitbox's counting box — and
-//!   counted in [`AssemblyStats::in_inactive_hitbox`]. The printed
-//!   Algorithm 1 never needs this because Algorithm 2 (line 17) removes such
-//!   instances in the pass that deactivates the hitbox. Here that can be
-//!   delayed: the `remove` command may not fit in the bounded command buffer
-//!   (the overflow rule keeps the instance active for a retry), or the engine
-//!   moved an active instance into an inactive cell. Without the check such
-//!   an instance would sit in the TLAS, uncounted by its hitbox, in a region
-//!   the feedback has culled. It costs one read of the hitbox record per
-//!   active/omitted instance on the GPU.
-//! * The hitbox of an instance is its record's [`InstanceRecord::hitbox`]
-//!   field (the registry stores `hitbox_at(aabb centre)` there), not a
-//!   lookup per frame; the [`HitboxIndex`] only supplies the x/z bounds.
-//!
-//! # Conservative boxes
-//!
-//! A counting box must contain its target box when the hardware transforms
-//! the unit cube `[0,1]^3` in f32. The transform is `diag(s) + t` with
-//! `t = min` and `s` the smallest f32 with `fl(t + s) >= max` (see
-//! [`unit_cube_transform`]), so both transformed corners, `t` and
-//! `fl(1·s + t)`, bound the target exactly or outwards, at any distance from
-//! the origin.
+//! Counting boxes contain their target box in f32 at any distance from the
+//! origin ([`unit_cube_transform`]; bounds in `docs/PRECISION.md`). Every pass
+//! line by line, the deviations from the pseudocode and why:
+//! `docs/ALGORITHMS.md`.
 
 use std::fmt;
 

@@ -4,65 +4,30 @@
 //!
 //! # What it holds
 //!
-//! * **Shared BLASes**, one per [`BlasKey`] `(mesh, lod, variant)`, found
-//!   through a hash map and reference counted by their users
-//!   ([`BlasCache::acquire_shared`] / [`BlasCache::release`]).
-//! * **Unique BLASes** ([`BlasCache::create_unique`]) for instances whose
-//!   geometry is deformed per instance (skinning, terrain adaptation). They
-//!   have exactly one user, are never shared, never compacted and never
-//!   cached: releasing one frees it.
+//! * **Shared BLASes**, one per [`BlasKey`] `(mesh, lod, variant)`, reference
+//!   counted ([`BlasCache::acquire_shared`] / [`BlasCache::release`]); an
+//!   unreferenced one stays cached until evicted.
+//! * **Unique BLASes** ([`BlasCache::create_unique`]): one user, never shared,
+//!   compacted or cached; releasing one frees it.
 //!
-//! # Lifecycle of an entry ([`BlasState`])
+//! An entry goes through [`BlasState`]; its address is valid from `Built` on
+//! and through compaction until the compacted copy is acknowledged.
 //!
-//! `Requested` (wanted, nothing allocated) → `Building` (a build was handed to
-//! the backend; its estimated result size is reserved) → `Built` (the backend
-//! acknowledged size and address) → for static shared BLASes built with
-//! compaction allowed: `SizeQueried` (the compacted-size query came back,
-//! frames later) → `Compacting` (a copy into a smaller BLAS was handed out)
-//! → `Compacted`. The address of an entry is valid from `Built` on and stays
-//! valid through compaction until the compacted copy is acknowledged.
+//! # What a caller must know
 //!
-//! # Memory budget and eviction
+//! * The memory budget is checked on every reservation
+//!   ([`BlasCache::try_reserve_build`], [`BlasCache::try_begin_compaction`])
+//!   and acknowledgement; a reservation that cannot fit even after evicting
+//!   every unreferenced, idle entry is refused without evicting anything.
+//! * A BLAS released or evicted in frame `f` is handed back for destruction by
+//!   [`BlasCache::begin_frame`]`(g)` only once `g >= f + frames_in_flight`.
+//! * Limits: frames up to [`MAX_FRAME`] (`2^63 - 1`, else
+//!   [`BlasError::FrameOutOfRange`]); byte counts up to [`MAX_BLAS_BYTES`]
+//!   (2^48, else [`BlasError::InvalidAck`]); [`CacheStats`] totals saturate
+//!   at `u64::MAX`.
 //!
-//! The budget covers the bytes of all live BLASes (shared, unique, compacted,
-//! and the reserved estimate of builds in flight). It is checked on *every*
-//! reservation ([`BlasCache::try_reserve_build`],
-//! [`BlasCache::try_begin_compaction`]) and every acknowledgement, not only at
-//! frame end, so it holds within a burst of requests. When more room is
-//! needed, unreferenced shared entries are evicted in this order:
-//!
-//! 1. only entries with no users and no GPU operation in flight,
-//! 2. least recently used first (the frame in which the last user let go),
-//! 3. among equally old ones, the largest first.
-//!
-//! A reservation that cannot fit even after evicting every candidate is
-//! refused *without* evicting anything. Independently, [`BlasCache::begin_frame`]
-//! evicts unreferenced entries unused for more than
-//! [`CacheConfig::max_unused_frames`] frames. An evicted entry that is needed
-//! again is simply a miss and is rebuilt.
-//!
-//! Bytes waiting in the deferred-free queue are *not* counted against the
-//! budget (they are reported as [`CacheStats::pending_free_bytes`]); the
-//! device-memory peak is therefore the budget plus what was evicted in the
-//! last `frames_in_flight` frames.
-//!
-//! # Limits
-//!
-//! Frame numbers go up to [`MAX_FRAME`] (`2^63 - 1`); a larger one is
-//! refused by [`BlasCache::begin_frame`] ([`BlasError::FrameOutOfRange`]),
-//! so a frame plus any `u32` frame count is exact. Every byte count handed
-//! in is at most [`MAX_BLAS_BYTES`] (2^48) or refused
-//! ([`BlasError::InvalidAck`]), and the byte totals are kept in `u128`, so
-//! no counter can wrap; [`CacheStats`] reports them saturated at
-//! `u64::MAX` (only reachable for scratch, which is not budgeted).
-//!
-//! # Deferred frees
-//!
-//! A BLAS released or evicted during frame `f` may still be referenced by the
-//! TLAS of a frame the GPU has not finished. It is handed to the backend for
-//! destruction by [`BlasCache::begin_frame`]`(g)` only once
-//! `g >= f + frames_in_flight` (at the start of frame `g` the host has waited
-//! for frame `g - frames_in_flight`).
+//! Lifecycle, eviction order, deferred frees and the limits in detail:
+//! `docs/BLAS.md`.
 //!
 //! ```
 //! use lipac_core::blas_cache::{BlasCache, CacheConfig, Lookup};
@@ -161,7 +126,8 @@ impl BlasOwner {
     }
 }
 
-/// Lifecycle state of a cache entry (see the module docs).
+/// Lifecycle state of a cache entry (see `docs/BLAS.md`, "Lifecycle of an
+/// entry").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BlasState {
     /// Wanted; nothing allocated yet.
@@ -424,7 +390,8 @@ fn contribution(e: &Entry) -> Bytes {
     b
 }
 
-/// The shared/unique BLAS cache. See the module documentation for policies.
+/// The shared/unique BLAS cache. See the module docs; policies in
+/// `docs/BLAS.md`.
 #[derive(Debug)]
 pub struct BlasCache {
     config: CacheConfig,
@@ -441,7 +408,7 @@ pub struct BlasCache {
     compaction_ready: BTreeSet<BlasId>,
     pending_frees: Vec<(u64, BlasFree)>,
     // Byte totals in u128: sums of u64 values over at most 2^32 entries
-    // cannot wrap (see "Limits" in the module docs).
+    // cannot wrap (see the limits in the module docs).
     shared_bytes: u128,
     unique_bytes: u128,
     compacted_bytes: u128,

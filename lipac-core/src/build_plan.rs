@@ -21,51 +21,21 @@
 //! take_address_changes(), blas_address(inst)         for TLAS instance records
 //! ```
 //!
-//! # Policies
+//! # What a caller must know
 //!
-//! * **Batches.** A [`BuildBatch`] is recorded without barriers between its
-//!   operations and with one barrier after it. Every operation gets its own
-//!   slice of one scratch buffer (`offset` aligned to
-//!   [`SchedulerConfig::scratch_alignment`], slices never overlap, the slices
-//!   of a batch end within [`BuildBudgets::max_scratch_bytes`]). Several
-//!   batches per frame ([`BuildBudgets::max_batches`]) reuse the same scratch
-//!   buffer, which is why a barrier separates them.
-//! * **Budgets.** Per frame: at most `max_builds` full builds, `max_primitives`
-//!   primitives and `max_result_bytes` of (estimated) results; the BLAS memory
-//!   budget of the cache holds on every reservation. Builds are taken in
-//!   priority order and filling stops at the first one that does not fit the
-//!   frame's remaining budgets, so a large build cannot be starved by a stream
-//!   of small ones. A build that could not fit even an empty frame is
-//!   reported in [`FramePlan::oversized`]; one the memory budget refuses is
-//!   skipped (reported in [`FramePlan::memory_blocked`]) and retried.
-//! * **Priority with ageing.** `priority = min(hits, hit_cap) + frustum_bonus
-//!   (if any waiting instance is in the frustum) + ageing_per_frame × frames
-//!   waited`. Because the first two terms are bounded, a request waiting
-//!   `(hit_cap + frustum_bonus) / ageing_per_frame + 1` frames outranks every
-//!   newer request: nothing starves.
-//! * **Unique BLASes** (animated / deformed instances) are refit in place
-//!   every frame once built, and fully rebuilt in place every
-//!   [`SchedulerConfig::unique_rebuild_interval`] frames, staggered by
-//!   instance (`(frame + instance) % interval == 0`) so rebuilds spread over
-//!   frames. Rebuilds count against the build budgets; if one does not fit it
-//!   becomes a refit and is retried next frame. Refits only need scratch; those
-//!   that do not fit are skipped (oldest-updated first next frame).
-//! * **LOD switches.** `Lod(0)` is finest. A requested LOD must persist
-//!   [`SchedulerConfig::lod_hysteresis_frames`] frames before the switch
-//!   (except the first assignment). A due switch is instant when the target
-//!   shared BLAS is cached and built; otherwise its build is queued and the
-//!   instance keeps its old BLAS — valid and referenced — until the new one is
-//!   acknowledged. Within a frame coarser switches are processed before finer
-//!   ones and before any build is placed: a coarser switch releases the old
-//!   BLAS first (free-before-allocate), so the memory it gives up is available
-//!   to this frame's builds; a finer switch must allocate its BLAS while the
-//!   old one is still held (allocate-before-free) and simply keeps the old one
-//!   while the new build does not fit the budget.
-//! * **Compaction.** Static shared BLASes are built with compaction allowed
-//!   ([`BlasBuild::allow_compaction`]); the backend then queries the compacted
-//!   size. When that answer arrives a [`CompactionPlan`] is produced (at most
-//!   [`BuildBudgets::max_compactions`] per frame, within the memory budget);
-//!   the uncompacted BLAS stays in use until the copy is acknowledged.
+//! * A [`BuildBatch`] is recorded without barriers inside and one barrier
+//!   after it; each operation has its own non-overlapping slice of one
+//!   scratch buffer, and the batches of a frame reuse that buffer.
+//! * Builds are taken by priority until the first that does not fit the
+//!   frame's [`BuildBudgets`]; one that fits no frame is in
+//!   [`FramePlan::oversized`], one the memory budget refuses in
+//!   [`FramePlan::memory_blocked`] (retried). Ageing makes every request win
+//!   eventually.
+//! * An instance keeps its old, valid BLAS until its new one (LOD switch,
+//!   compaction) is acknowledged.
+//!
+//! Policies (batches, budgets, priority with ageing, unique refit/rebuild,
+//! LOD switches, compaction) and why: `docs/BLAS.md`.
 //!
 //! ```
 //! use lipac_core::blas_ids::{InstanceKey, Lod};
@@ -97,7 +67,7 @@ use crate::blas_cache::{
 };
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
 
-/// Priority weights (see the module docs).
+/// Priority weights (see `docs/BLAS.md`, "Priority with ageing").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PriorityConfig {
     /// Hit counts above this count as this.
@@ -479,7 +449,8 @@ impl ScratchPacker {
     }
 }
 
-/// The BLAS build scheduler; owns the [`BlasCache`]. See the module docs.
+/// The BLAS build scheduler; owns the [`BlasCache`]. See the module docs;
+/// its policies are in `docs/BLAS.md`.
 #[derive(Debug)]
 pub struct BuildScheduler {
     config: SchedulerConfig,

@@ -6,60 +6,23 @@
 //! Line numbers below are those of the paper's Algorithm 2 / thesis
 //! Algorithm 5.
 //!
-//! * **Lines 1–6** (one GPU thread per slot): the hits of every live *active*
-//!   or *omitted* instance are added to its hitbox (`atomicAdd`, saturating at
-//!   the 24-bit maximum here and in the shader). The hitbox records already
-//!   hold the rays that hit their counting box this frame.
-//! * **Lines 7–13** (one thread per hitbox): an inactive hitbox activates
-//!   (line 9) when its hits are above θa for `n_a` consecutive frames or above
-//!   2·θa in one frame; an active one deactivates (line 11) after `n_d`
-//!   consecutive frames below θd. The consecutive-frame count lives in the
-//!   record's 7-bit streak field; any frame that breaks the run resets it, and
-//!   a state change resets it to 0.
-//! * **Lines 14–38** (one thread per slot), in this order, each a fall-through
-//!   into the next as in the pseudocode:
-//!   * active ∧ H inactive → `remove` command, *inactive* (17/18);
-//!   * omitted ∧ H inactive → *inactive*, no command (19/20);
-//!   * inactive ∧ H active → *omitted* if the instance needs a unique BLAS
-//!     (23), else `add` command and *active* (25/26);
-//!   * then, for an instance needing a unique BLAS (line 29 reads "H needs
-//!     unique BLAS": it means M, hitboxes have no such property): omitted ∧
-//!     hits > σa → `add`, *active* (30–32); active ∧ hits < σo → `remove`,
-//!     *omitted* (33–35).
+//! It adds instance hits to their hitboxes (lines 1–6), moves hitbox states
+//! (7–13) and instance states (14–38), appending `add`/`remove` commands to
+//! the bounded [`CommandBuffer`].
 //!
-//! # The overflow rule
+//! * **The overflow rule.** A transition that emits a command takes effect
+//!   only if the command fits ([`CommandBuffer::push`] returns `true`; on the
+//!   GPU the `atomicAdd` index is below the capacity); otherwise the instance
+//!   keeps its state and the transition is retried next frame: nothing lost,
+//!   nothing duplicated ([`FeedbackStats::overflowed`]).
+//! * **Who resets what.** Hit counts are this frame's; the hitbox counts stay
+//!   readable after this call and are zeroed by
+//!   [`crate::assembly::begin_frame`] next frame; the backend clears the
+//!   per-instance hit buffer before tracing. A live instance whose hitbox
+//!   index is out of range is skipped ([`FeedbackStats::invalid_instances`]).
 //!
-//! A transition that emits a command takes effect only if the command fits in
-//! the bounded buffer ([`CommandBuffer::push`] returns `true`; on the GPU, the
-//! index returned by `atomicAdd` on the counter is below the capacity). If it
-//! does not fit, the instance keeps the state it had before that transition
-//! and its thread stops for this frame, so the same transition is attempted
-//! again next frame: nothing lost, nothing duplicated. Such transitions are
-//! counted in [`FeedbackStats::overflowed`]. (A transition without a command
-//! that already happened earlier in the same thread, line 23, stands.)
-//!
-//! # Deviations from the pseudocode (deliberate)
-//!
-//! * Lines 33–35 only apply to an active instance whose BLAS exists
-//!   (`blas != 0`). An active instance without a BLAS is not in the TLAS
-//!   (Algorithm 1), so its hit count is 0 by construction and says nothing;
-//!   without this guard every unique-BLAS activation would be undone the
-//!   frame after it was issued, before the CPU could build the BLAS.
-//! * Command priorities (see [`crate::command`]) quantise the hit count behind
-//!   the transition: the hitbox's count for hitbox-driven transitions (lines
-//!   17 and 25; an inactive instance has no hits of its own) and the
-//!   instance's own count for lines 31 and 34.
-//!
-//! # Who resets what
-//!
-//! Hit counts are this frame's. The hitbox hit counts are zeroed by
-//! [`crate::assembly::begin_frame`] (called by
-//! [`crate::assembly::assemble_tlas`]) at the start of the next frame, before
-//! tracing, so they stay readable after this function (for statistics and
-//! debug views). The per-instance hit buffer is read-only here; the backend
-//! clears it before tracing. The instance's hitbox is its record's
-//! [`InstanceRecord::hitbox`] field; a live instance whose index is out of
-//! range is skipped and counted in [`FeedbackStats::invalid_instances`].
+//! Every line, the deviations from the pseudocode and why:
+//! `docs/ALGORITHMS.md`.
 
 use std::fmt;
 
@@ -173,7 +136,8 @@ fn hitbox_step(packed: u32, th: &Thresholds) -> (u32, i8) {
 /// Algorithm 2: accumulates instance hits into hitboxes, updates hitbox and
 /// instance states and appends commands to `commands` (which is not cleared:
 /// the caller clears it per frame, as the GPU resets its counter). See the
-/// [module docs](self) for the lines, the overflow rule and the deviations.
+/// [module docs](self) for the overflow rule, `docs/ALGORITHMS.md` for the
+/// lines and the deviations.
 ///
 /// ```
 /// use lipac_core::command::{Command, CommandBuffer, CommandKind};
@@ -302,7 +266,7 @@ pub fn process_feedback(
                     overflow = true;
                 }
             } else if state == InstanceState::Active && m.blas != 0 && hits < th.sigma_o {
-                // Lines 34/35 (only once the BLAS exists; see module docs).
+                // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
                 if commands.push(command(CommandKind::Remove, hits)) {
                     state = InstanceState::Omitted;
                     stats.active_to_omitted += 1;

@@ -201,7 +201,7 @@ impl Node {
 /// Two-level segregated fit range allocator over `[0, capacity)`.
 ///
 /// Allocate and free are O(1) (bounded work, no loops over blocks or bins);
-/// see the [module documentation](super) for the design.
+/// the design is in `docs/ALLOCATOR.md`.
 #[derive(Debug)]
 pub struct TlsfAllocator {
     id: NonZeroU32,
@@ -861,7 +861,7 @@ impl TlsfAllocator {
         (start.checked_add(size)? <= n.end()).then_some(start)
     }
 
-    /// The constant-step search described in the module docs: the chosen
+    /// The constant-step search described in `docs/ALLOCATOR.md`: the chosen
     /// free node (always a bin's head except in step 4), its flat bin index
     /// and the aligned start.
     #[inline(always)]

@@ -1,86 +1,39 @@
 //! The engine-facing per-frame API: one [`Manager`] that owns the command
 //! loop ([`Culling`]), the BLAS [`BuildScheduler`] (and its cache) and a
 //! [`TlsfAllocator`] for per-instance geometry-data ranges, and keeps them
-//! consistent.
-//!
-//! # One polled loop
-//!
-//! The manager is the only per-frame loop of lipac, for every backend, and
-//! it is sans-IO in the shape of quinn-proto's `Connection`
-//! (`handle_event` in, `poll_transmit` out): the engine and the backend
-//! *call in* (instance changes, the frame's camera, read-backs, hits), take
-//! **one value out** per frame ([`Manager::plan`] → [`ManagerPlan`]: every
-//! build, compaction, free, upload and growth to execute), and *hand results
-//! back in* as [`Ack`] values ([`Manager::handle_ack`]) whenever they arrive.
-//! The manager never calls back into its caller (no closures cross the
-//! boundary), keeps no side channel, and returns every error from the call
-//! that caused it; a call that fails changes nothing it did not document.
+//! consistent. It is sans-IO and polled: the engine and the backend call in,
+//! take one [`ManagerPlan`] out per frame ([`Manager::plan`]) and hand results
+//! back as [`Ack`]s ([`Manager::handle_ack`]). It never calls back; every
+//! error comes from the call that caused it, and a failed call changes
+//! nothing it did not document.
 //!
 //! # One frame
 //!
 //! | step | call | what happens |
 //! | --- | --- | --- |
-//! | 1 | [`Manager::begin_frame`] | slot quarantine, hitbox reset, scheduler frame (deferred BLAS frees become due) |
+//! | 1 | [`Manager::begin_frame`] | slot quarantine, hitbox reset, deferred BLAS frees become due |
 //! | 2 | [`Manager::mitigate_latency`] (optional) | instances newly in the frustum become active; their BLASes are requested |
-//! | 3 | [`Manager::ingest_readback`] | the commands Algorithm 2 wrote frames ago |
-//! | 4 | [`Manager::plan`] | commands under the budget → BLAS activations / releases; priorities; [`FramePlan`] (builds, updates, compactions, frees); uploads; geometry-data changes and buffer growth |
-//! | 5 | backend | executes the plan and uploads; acknowledges whenever results arrive: [`Manager::handle_ack`] with [`Ack::Built`], [`Ack::CompactedSize`], [`Ack::Compacted`] |
-//! | 6 | [`Manager::assemble`] (CPU backends) | Algorithm 1: TLAS instances; a GPU backend runs it as a shader over the uploaded records |
+//! | 3 | [`Manager::ingest_readback`] | the commands Algorithm 2 wrote frames ago (one read-back rule, [`crate::command::CommandQueue`]) |
+//! | 4 | [`Manager::plan`] | BLAS work ([`FramePlan`]), uploads, geometry-data changes and buffer growth |
+//! | 5 | backend | executes the plan; [`Manager::handle_ack`] with [`Ack::Built`], [`Ack::CompactedSize`], [`Ack::Compacted`] whenever results arrive |
+//! | 6 | [`Manager::assemble`] (CPU backends) | Algorithm 1: TLAS instances (a GPU backend runs it as a shader) |
 //! | 7 | trace | hits into [`Manager::instance_hits_mut`] / [`Manager::hitboxes_mut`] |
-//! | 8 | [`Manager::process_feedback`] + [`Manager::take_commands`] (CPU backends) | Algorithm 2; its commands go to the read-back ring (a GPU backend reads its command buffer back and calls [`Manager::ingest_readback`] with the same words: one read-back rule, [`crate::command::CommandQueue`]) |
+//! | 8 | [`Manager::process_feedback`] + [`Manager::take_commands`] (CPU backends) | Algorithm 2; its commands go to the read-back ring |
 //!
-//! Instances are added, changed and removed at any time between frames:
-//! [`Manager::register`], [`Manager::update`], [`Manager::set_transform`],
-//! [`Manager::set_lod`], [`Manager::remove`].
-//!
-//! # Identities
-//!
-//! The engine holds [`InstanceHandle`]s. The GPU and the scheduler use the
-//! instance's GPU slot: the scheduler's [`InstanceKey`] is the slot number.
-//! Slots are reused after a quarantine, so [`Manager::remove`] always takes
-//! the instance out of the scheduler (its BLAS references released, pending
-//! builds cancelled): a new instance in a reused slot starts with no BLAS
-//! state at all.
-//!
-//! # Which BLAS an instance uses
-//!
-//! The instance's flags decide, once at [`Manager::register`]:
+//! Instances change between frames: [`Manager::register`],
+//! [`Manager::update`], [`Manager::set_transform`], [`Manager::set_lod`],
+//! [`Manager::remove`]. The flags decide the BLAS once, at registration:
 //!
 //! | flags | BLAS |
 //! | --- | --- |
 //! | neither `UNIQUE_BLAS` nor `STATIC` | shared per (mesh, LOD) |
 //! | `STATIC` | shared per (mesh, LOD), compactable (a separate BLAS from the non-static one) |
 //! | `UNIQUE_BLAS` | the instance's own, refit every frame and rebuilt periodically (animated, deformed) |
-//! | `UNIQUE_BLAS \| STATIC` | the instance's own, static (terrain tile, terrain-adapted building): built once per LOD, never refit, compactable |
+//! | `UNIQUE_BLAS \| STATIC` | the instance's own, static (terrain tile): built once per LOD, never refit, compactable |
 //!
-//! # BLAS addresses follow acknowledgements
-//!
-//! Whenever the scheduler reports address changes (first BLAS built, a LOD
-//! switch completed, a compaction copied, an instant switch to a cached
-//! BLAS), the manager writes the new address into the instance's record
-//! ([`Culling::set_blas`]) before the call returns. So a newly built BLAS is
-//! in the next [`Manager::assemble`], and an instance switching LOD keeps
-//! its old, valid BLAS until the new one is acknowledged.
-//!
-//! # LODs and geometry data
-//!
-//! An instance has a *requested* LOD (what the engine asked for) and a
-//! *traced* LOD: the LOD of the BLAS in its record. They differ while a LOD
-//! switch waits for hysteresis or for its build. The instance record's `lod`
-//! field and the instance's geometry-data range always follow the **traced**
-//! LOD, so hit shaders never read one LOD's data for another LOD's BLAS.
-//! An instance without a BLAS (not active, or waiting for its first build)
-//! is at its requested LOD.
-//!
-//! Every live instance owns one range of the geometry-data buffer, of
-//! [`MeshLod::data_bytes`] for its traced LOD. On a LOD change the range is
-//! resized in place when the allocator can, else a new range is allocated
-//! and then the old one freed. Each change is listed in
-//! [`ManagerPlan::data_uploads`]: the backend writes that LOD's data at the
-//! range and points the slot at it. When the buffer must grow, the
-//! allocator grows at once (at least doubling) and the next plan reports
-//! [`ManagerPlan::data_growth`]: the backend grows its buffer (keeping the
-//! contents) before writing the uploads.
+//! What the manager guarantees (addresses follow acknowledgements, the traced
+//! LOD, slots and the scheduler, the geometry-data buffer, errors and limits):
+//! `docs/MANAGER.md`.
 //!
 //! # Example
 //!

@@ -1,16 +1,11 @@
-//! **Low-level.** The culling half of the per-frame loop: one object that ties
-//! the registry, the hitbox records, the hit counters, Algorithms 1 and 2, the
-//! command buffer and queue, and latency mitigation together. Engines and
-//! backends drive [`crate::Manager`], which owns a [`Culling`] and keeps the
-//! BLAS scheduler and the geometry data consistent with it; [`Culling`] is
-//! public for tests, benches and the CPU reference of the GPU algorithms
-//! (no backend in the workspace drives it directly: lipac-sim and lipac-vk
-//! go through the manager; [`Culling::ingest_readback`] and the commanded
-//! state are what the manager's read-back means).
-//!
-//! [`Culling`] is sans-IO and polled: it takes calls and returns values. It
-//! never calls back into its caller; [`Culling::process_commands`] returns
-//! the BLAS work as [`CommandEvent`]s for the caller to carry out.
+//! **Low-level.** [`Culling`], the culling half of the per-frame loop over one
+//! scene: registry, hitbox records, hit counters, Algorithms 1 and 2, command
+//! buffer and queue, latency mitigation. Engines and backends drive
+//! [`crate::Manager`], which owns one; [`Culling`] is public for tests,
+//! benches and as the CPU reference of the GPU algorithms. It is sans-IO and
+//! polled: [`Culling::process_commands`] returns the BLAS work as
+//! [`CommandEvent`]s for the caller to carry out. [`ReadbackRing`] models the
+//! read-back latency; [`Uploads`] / [`apply_uploads`] are the upload contract.
 //!
 //! # One frame
 //!
@@ -26,90 +21,33 @@
 //! | 8 | [`Culling::process_feedback`]: states and commands | Alg. 2 |
 //! | 9 | [`Culling::take_commands`] → the backend's read-back ring ([`ReadbackRing`]) | |
 //!
-//! # Who owns the state bits
+//! # The rules a caller must know
 //!
-//! The state bits of an [`InstanceRecord`] belong to Algorithm 2, i.e. to the
-//! GPU. The CPU writes them in two cases only: registration (a new instance
-//! starts [`InstanceState::Inactive`]) and latency mitigation (→
-//! [`InstanceState::Active`]). The same holds for the hitboxes' active bit and
-//! streak, which the CPU writes only in latency mitigation. A GPU backend
-//! therefore uploads [`Uploads::records`] *without* overwriting the state bits
-//! of the GPU copy (a scatter shader that keeps bits
-//! [`instance_bits::STATE_MASK`] of the destination), and then applies
-//! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
-//! exactly the CPU's writes since the last take. In this CPU reference the
-//! registry's records *are* the GPU buffer, so that is trivially consistent.
-//!
-//! # Commands are hints; the commanded state decides
-//!
-//! A command says "slot `s` changed state, its BLAS may need work". The loop
-//! keeps per slot a **commanded state** (active or not), its view of the
-//! device state: set by its own decisions at the frame they happen
-//! (registration → inactive, latency mitigation → active) and by ingested
-//! commands ([`Culling::ingest_readback`]: the newest per slot, `add` →
-//! active, `remove` → inactive, unless the loop decided the slot's state
-//! after the frame whose Algorithm 2 wrote the command). It never reads the
-//! records' state bits, which Algorithm 2 writes: a GPU backend does not
-//! have them, and a CPU backend has them newer than the commands, so reading
-//! them would let the two decide differently. Processing a command
-//! **reconciles** the instance's BLAS with the commanded state:
+//! * **State bits belong to Algorithm 2.** The CPU writes an instance's state
+//!   bits only at registration (→ inactive) and in latency mitigation
+//!   (→ active, and its hitbox active); a GPU backend uploads
+//!   [`Uploads`] with [`apply_uploads`]'s semantics.
+//! * **Commands are hints; the commanded state decides.** Processing a
+//!   command reconciles the instance's BLAS with the loop's commanded state
+//!   (the newest ingested command per slot, or the loop's own later
+//!   decision), never with the records' state bits:
 //!
 //! | commanded state | BLAS | action ([`BlasAction`]) |
 //! | --- | --- | --- |
-//! | active | none, no build pending | [`BlasAction::Acquire`]: the instance now waits for a BLAS; the caller provides it with [`Culling::set_blas`] (at once when cached, else once built) |
+//! | active | none, no build pending | [`BlasAction::Acquire`]: provide it with [`Culling::set_blas`] (at once when cached, else once built) |
 //! | active | held or build pending | nothing |
 //! | not active | held | [`BlasAction::Release`]: the record's BLAS is cleared, the caller releases it |
 //! | not active | build pending | [`BlasAction::CancelBuild`] |
 //! | not active | none | nothing |
 //!
-//! A command older than a latency-mitigation override does not move the
-//! commanded state (a `remove` the GPU wrote before it saw the override
-//! keeps the BLAS); it is counted in [`ProcessStats::stale_kind`].
-//!
-//! This is why no command is lost: every transition of Algorithm 2 that
-//! changes whether an instance should hold a BLAS (into or out of *active*)
-//! appends a command (or does not happen: the overflow rule), and processing
-//! the last command of a slot makes BLAS and commanded state agree. The queue keeps the
-//! **newest** command per slot, of either kind (the one read-back rule of
-//! [`CommandQueue`], counted in [`IngestSummary::replaced`] and
-//! [`IngestSummary::superseded`]). Under reconciliation the kind no longer
-//! matters, and keeping the newest makes the invariant "a slot whose BLAS
-//! disagrees with its commanded state has a command pending or in flight" hold by
-//! construction, whatever happened in between (latency mitigation,
-//! [`Culling::set_blas`]), without a case analysis of which pairs may cancel.
-//! Slots whose BLAS changes outside a command ([`Culling::set_blas`] on an
-//! instance that is no longer active) get a synthetic command, so they are
-//! reconciled by the same path.
-//!
-//! # Dead slots
-//!
-//! A command naming a slot that holds no live instance (removed since) is
-//! dropped and counted, at ingest ([`IngestSummary::dead`]) and again at
-//! processing ([`ProcessStats::dead`]). [`Culling::remove`] cancels the
-//! slot's pending command. [`CullingConfig::validate`] requires the slot
-//! quarantine to be longer than the readback latency, so a late command can
-//! never reach a new instance in a reused slot; even if it did, reconciliation
-//! would only compare the new instance's own state and BLAS.
-//!
-//! # Latency mitigation and hitboxes
-//!
-//! An instance made active by latency mitigation in an *inactive* hitbox would
-//! be removed again by Algorithm 2 (line 17) in the very same frame, and it
-//! would not even be traced ([`crate::assembly`] folds active instances of
-//! inactive hitboxes into the hitbox's box). So
-//! [`Culling::mitigate_latency`] also activates that hitbox (active bit set,
-//! streak reset). The paper's "unimportant ones are quickly made inactive
-//! again by hit feedback processing" then happens through the normal
-//! deactivation after `n_d` frames below θd. A consequence: the *other*
-//! inactive instances of such a hitbox are added by Algorithm 2 (lines 21–26:
-//! `add` for shared BLASes, *omitted* for unique ones) in that frame's
-//! feedback, as if the hitbox had been activated by hits. Instances that need
-//! a unique BLAS and are newly in the frustum are made active too (paper:
-//! "all instances newly appearing in the frustum have an associated BLAS and
-//! are marked active").
+//! Commands for dead slots are dropped and counted ([`IngestSummary::dead`],
+//! [`ProcessStats::dead`]); stale ones in [`ProcessStats::stale_kind`].
+//! [`CullingConfig::validate`] requires the slot quarantine to exceed the
+//! read-back latency. Why it is built this way (no command lost, the newest
+//! command per slot, latency mitigation and hitboxes): `docs/ARCHITECTURE.md`,
+//! "The command loop".
 
-use std::collections::{HashMap, VecDeque};
-use std::ops::Range;
+use std::collections::HashMap;
 
 use glam::{Affine3A, Vec3};
 
@@ -121,10 +59,7 @@ use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
-use crate::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
-    MAX_SLOTS,
-};
+use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
@@ -218,112 +153,6 @@ impl CullingConfig {
             LatencyMitigation::new(h)?;
         }
         Ok(())
-    }
-}
-
-/// One frame's command words as the GPU left them: what a backend copies
-/// into a read-back slot and hands to [`Culling::ingest_readback`] later.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Readback {
-    /// The frame whose feedback wrote the commands.
-    pub frame: u64,
-    /// The GPU's atomic counter: commands requested, stored or not.
-    pub counter: u32,
-    /// The stored words (`min(counter, capacity)` of them).
-    pub words: Vec<u32>,
-}
-
-/// A model of the GPU's read-back ring for CPU backends and tests: the
-/// commands of frame `f` become readable at frame `f + latency`.
-///
-/// ```
-/// use lipac_core::culling::{Readback, ReadbackRing};
-/// let mut ring = ReadbackRing::new(2)?;
-/// ring.push(Readback { frame: 5, counter: 1, words: vec![7] })?;
-/// assert!(ring.pop_ready(6).is_none());
-/// assert_eq!(ring.pop_ready(7).map(|r| r.words), Some(vec![7]));
-/// # Ok::<(), lipac_core::error::CoreError>(())
-/// ```
-#[derive(Clone, Debug)]
-pub struct ReadbackRing {
-    latency: u32,
-    slots: VecDeque<Readback>,
-}
-
-impl ReadbackRing {
-    /// A ring of `latency` slots (at least 1).
-    pub fn new(latency: u32) -> Result<Self, CoreError> {
-        if latency == 0 {
-            return Err(CoreError::InvalidConfig {
-                what: "read-back ring latency 0: it must be at least 1 frame".into(),
-            });
-        }
-        Ok(Self {
-            latency,
-            slots: VecDeque::with_capacity(latency as usize),
-        })
-    }
-
-    /// The latency in frames.
-    pub fn latency(&self) -> u32 {
-        self.latency
-    }
-
-    /// Stores a frame's read-back. Fails ([`CoreError::CallOrder`]) if all
-    /// `latency` slots still hold unread read-backs (the GPU would overwrite
-    /// one) or if `readback.frame` is not after the last stored frame.
-    pub fn push(&mut self, readback: Readback) -> Result<(), CoreError> {
-        if self.slots.len() >= self.latency as usize {
-            return Err(CoreError::CallOrder {
-                what: format!(
-                    "read-back ring full: {} unread read-backs (pop_ready each frame)",
-                    self.slots.len()
-                ),
-            });
-        }
-        if let Some(last) = self.slots.back() {
-            if readback.frame <= last.frame {
-                return Err(CoreError::CallOrder {
-                    what: format!(
-                        "read-back of frame {} after one of frame {}",
-                        readback.frame, last.frame
-                    ),
-                });
-            }
-        }
-        self.slots.push_back(readback);
-        Ok(())
-    }
-
-    /// At frame `frame`: the oldest read-back written at or before
-    /// `frame - latency`, if any. Call until `None`.
-    pub fn pop_ready(&mut self, frame: u64) -> Option<Readback> {
-        let ready = self
-            .slots
-            .front()?
-            .frame
-            .saturating_add(self.latency.into())
-            <= frame;
-        if ready {
-            self.slots.pop_front()
-        } else {
-            None
-        }
-    }
-
-    /// Read-backs waiting.
-    pub fn len(&self) -> usize {
-        self.slots.len()
-    }
-
-    /// Whether nothing is waiting.
-    pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
-    }
-
-    /// The waiting read-backs, oldest first.
-    pub fn iter(&self) -> impl Iterator<Item = &Readback> {
-        self.slots.iter()
     }
 }
 
@@ -425,24 +254,6 @@ pub struct ProcessStats {
     pub dead: u32,
     /// Commands still pending after this call.
     pub remaining: u32,
-}
-
-/// What a GPU backend uploads before Algorithm 1, from
-/// [`Culling::take_uploads`].
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Uploads {
-    /// Slot ranges whose records changed (sorted, disjoint): upload
-    /// `registry().records()[range]`, **keeping the state bits** of the GPU
-    /// copy (see the [module docs](self)).
-    pub records: Vec<Range<u32>>,
-    /// The CPU's writes of state bits since the last take, by ascending slot
-    /// (registration → inactive, latency mitigation → active); apply after
-    /// the records.
-    pub state_overrides: Vec<(u32, InstanceState)>,
-    /// Hitboxes whose active bit the CPU set, by ascending index, as
-    /// `(index, active)`: set the active bit and zero the streak, keeping the
-    /// hit count and heights.
-    pub hitbox_overrides: Vec<(u32, bool)>,
 }
 
 /// What [`Culling::remove`] hands back.
@@ -801,9 +612,10 @@ impl<H: HitboxIndex> Culling<H> {
 
     /// Latency mitigation (§3.6): every live instance newly in `frustum` that
     /// passes the heuristic and is not active becomes active now, and its
-    /// hitbox active too (see the [module docs](self)). Those without a BLAS
-    /// are returned as [`LatencyOutcome::requests`]. With latency mitigation
-    /// disabled, does nothing. Fails only for a non-finite camera.
+    /// hitbox active too (why: `docs/ARCHITECTURE.md`, "The state machine").
+    /// Those without a BLAS are returned as [`LatencyOutcome::requests`]. With
+    /// latency mitigation disabled, does nothing. Fails only for a non-finite
+    /// camera.
     pub fn mitigate_latency(
         &mut self,
         camera: Vec3,
@@ -1058,48 +870,6 @@ impl<H: HitboxIndex> Culling<H> {
     }
 }
 
-/// Writes `uploads` into a GPU-side copy of the instance and hitbox buffers
-/// the way a GPU backend must: record ranges without their state bits, then
-/// the overrides. `records` is the CPU's instance buffer; `gpu_instances` is
-/// grown to its length. Used by tests and as the specification of the scatter
-/// shader.
-pub fn apply_uploads(
-    uploads: &Uploads,
-    records: &[InstanceRecord],
-    gpu_instances: &mut Vec<InstanceRecord>,
-    gpu_hitboxes: &mut [HitboxRecord],
-) {
-    if gpu_instances.len() < records.len() {
-        gpu_instances.resize(records.len(), InstanceRecord::default());
-    }
-    for range in &uploads.records {
-        let (lo, hi) = (
-            range.start as usize,
-            (range.end as usize).min(records.len()),
-        );
-        for (dst, src) in gpu_instances[lo.min(hi)..hi]
-            .iter_mut()
-            .zip(&records[lo.min(hi)..hi])
-        {
-            let state = dst.packed & instance_bits::STATE_MASK;
-            *dst = *src;
-            dst.packed = (dst.packed & !instance_bits::STATE_MASK) | state;
-        }
-    }
-    for &(slot, state) in &uploads.state_overrides {
-        if let Some(r) = gpu_instances.get_mut(slot as usize) {
-            r.set_state(state);
-        }
-    }
-    for &(index, active) in &uploads.hitbox_overrides {
-        if let Some(h) = gpu_hitboxes.get_mut(index as usize) {
-            h.packed &=
-                !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT) | hitbox_bits::ACTIVE);
-            h.packed |= u32::from(active);
-        }
-    }
-}
-
 /// The loop's view of one slot (one entry per slot).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct SlotView {
@@ -1115,8 +885,12 @@ struct SlotView {
     decided_at: u64,
 }
 
+mod readback_ring;
 mod state_overrides;
+mod uploads;
+pub use readback_ring::{Readback, ReadbackRing};
 use state_overrides::StateOverrides;
+pub use uploads::{apply_uploads, Uploads};
 
 #[cfg(test)]
 mod tests;
