@@ -40,7 +40,7 @@
 //! `(frame + slot) % interval == 0`, as in the comparison's earlier runs.
 
 use lipac_core::blas_ids::BuildId;
-use lipac_core::build_plan::{PriorityConfig, SchedulerConfig, UpdateMode};
+use lipac_core::build_plan::{PriorityConfig, SchedulerConfig};
 use lipac_core::culling::{CullingConfig, ReadbackRing};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::InstanceDesc;
@@ -308,26 +308,9 @@ impl CpuBackend {
     /// Executes `plan` synchronously (module docs) and returns its work.
     fn execute(&mut self, plan: &ManagerPlan) -> Result<BlasWork, SimError> {
         let blas = &plan.blas;
-        let mut work = BlasWork {
-            frees: blas.frees.len() as u64,
-            ..BlasWork::default()
-        };
-        for u in blas.updates() {
-            match u.mode {
-                UpdateMode::Refit => {
-                    work.refits += 1;
-                    work.primitives_refit += u.primitives;
-                }
-                UpdateMode::Rebuild => {
-                    work.builds += 1;
-                    work.primitives_built += u.primitives;
-                }
-            }
-        }
+        let work = BlasWork::of_plan(blas);
         let mut queried: Vec<(BuildId, u64)> = Vec::new();
         for b in blas.builds() {
-            work.builds += 1;
-            work.primitives_built += b.primitives;
             let address = self.fresh_address();
             self.ack(Ack::Built {
                 build: b.id,

@@ -90,6 +90,26 @@ pub struct ReplayConfig {
     pub snapshots: Vec<u32>,
 }
 
+impl ReplayConfig {
+    /// The [`CompareConfig`] a geometry replay runs with: every frame the
+    /// trace has, these strategies (all when none are named), image size and
+    /// threads, one ground truth shared by the strategies.
+    pub fn compare_config(&self) -> CompareConfig {
+        CompareConfig {
+            frames: None,
+            width: self.width,
+            height: self.height,
+            strategies: if self.strategies.is_empty() {
+                StrategyKind::ALL.to_vec()
+            } else {
+                self.strategies.clone()
+            },
+            share_ground_truth: true,
+            threads: self.threads,
+        }
+    }
+}
+
 impl Default for ReplayConfig {
     /// 128 x 72 (as `compare`), all strategies, automatic mode, frames kept.
     fn default() -> Self {
@@ -362,19 +382,7 @@ fn replay_geometry<R: Read>(
     let mut scene = Scene::generate(&scene_ref.scene.config(Some(scene_ref.seed)))?;
     let expected = header(&scene, &scene_ref, false)?;
     check_meshes(&h, &expected)?;
-    let strategies = if config.strategies.is_empty() {
-        StrategyKind::ALL.to_vec()
-    } else {
-        config.strategies.clone()
-    };
-    let cc = CompareConfig {
-        frames: None,
-        width: config.width,
-        height: config.height,
-        strategies,
-        share_ground_truth: true,
-        threads: config.threads,
-    };
+    let cc = config.compare_config();
     let mut cmp = Comparison::new(scene_ref.scene.name(), &scene, &cc)?;
     cmp.capture_frames(&config.snapshots);
     let n = scene.instances().len();

@@ -43,7 +43,7 @@ use std::collections::HashMap;
 use glam::Vec3;
 use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{
-    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, InstanceBlasRequest,
+    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, FramePlan, InstanceBlasRequest,
     SchedulerConfig, UpdateMode,
 };
 use lipac_core::latency::ActivationHeuristic;
@@ -206,6 +206,32 @@ pub struct BlasWork {
 }
 
 impl BlasWork {
+    /// The work `plan` asks for: its builds, its updates (refits, or
+    /// rebuilds counted as builds) with their triangles, and its frees.
+    pub fn of_plan(plan: &FramePlan) -> Self {
+        let mut work = BlasWork {
+            frees: plan.frees.len() as u64,
+            ..BlasWork::default()
+        };
+        for u in plan.updates() {
+            match u.mode {
+                UpdateMode::Refit => {
+                    work.refits += 1;
+                    work.primitives_refit += u.primitives;
+                }
+                UpdateMode::Rebuild => {
+                    work.builds += 1;
+                    work.primitives_built += u.primitives;
+                }
+            }
+        }
+        for b in plan.builds() {
+            work.builds += 1;
+            work.primitives_built += b.primitives;
+        }
+        work
+    }
+
     /// Adds `o`.
     pub fn add(&mut self, o: &BlasWork) {
         self.builds += o.builds;
@@ -225,25 +251,8 @@ fn plan_and_ack(
     next_address: &mut u64,
 ) -> Result<BlasWork, SimError> {
     let plan = scheduler.plan(budgets).map_err(SimError::core)?;
-    let mut work = BlasWork {
-        frees: plan.frees.len() as u64,
-        ..BlasWork::default()
-    };
-    for u in plan.updates() {
-        match u.mode {
-            UpdateMode::Refit => {
-                work.refits += 1;
-                work.primitives_refit += u.primitives;
-            }
-            UpdateMode::Rebuild => {
-                work.builds += 1;
-                work.primitives_built += u.primitives;
-            }
-        }
-    }
+    let work = BlasWork::of_plan(&plan);
     for b in plan.builds() {
-        work.builds += 1;
-        work.primitives_built += b.primitives;
         *next_address += 0x100;
         scheduler
             .ack_built(b.id, b.result_bytes, *next_address)

@@ -47,7 +47,7 @@ use lipac_core::trace::{Frame, InstanceEvent, LodInfo, MeshInfo, TraceHeader};
 use obvhs::triangle::Triangle;
 use serde::Deserialize;
 
-use crate::compare::{CompareConfig, CompareReport, Comparison};
+use crate::compare::{CompareReport, Comparison};
 use crate::error::SimError;
 use crate::mesh::{material, LodTriangles, Mesh, MeshKind, MeshLibrary, LOD_COUNT};
 use crate::pathtrace::PathTraceConfig;
@@ -55,7 +55,6 @@ use crate::record::{from_trace_camera, SceneRef};
 use crate::replay::{empty_frame, replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
 use crate::scene::{flags, Scene, SceneConfig, SceneInstance};
 use crate::snapshot::Snapshot;
-use crate::strategy::StrategyKind;
 
 /// How far below the world a slot that is not live waits, metres.
 pub const PARK_DEPTH: f32 = 1.0e5;
@@ -641,19 +640,7 @@ pub fn replay_trace<R: Read>(
         ));
     }
     let mut ts = TraceScene::new(&header, &plan, options)?;
-    let strategies = if config.strategies.is_empty() {
-        StrategyKind::ALL.to_vec()
-    } else {
-        config.strategies.clone()
-    };
-    let cc = CompareConfig {
-        frames: None,
-        width: config.width,
-        height: config.height,
-        strategies,
-        share_ground_truth: true,
-        threads: config.threads,
-    };
+    let cc = config.compare_config();
     let name = if ts.box_proxies().is_empty() {
         header.scene_name.clone()
     } else {
