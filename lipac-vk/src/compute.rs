@@ -15,6 +15,25 @@ pub(crate) const LOCAL_SIZE: u32 = 64;
 /// Work groups per dispatch at most; the shaders stride over larger counts.
 const MAX_GROUPS: u32 = 65_535;
 
+/// The pipeline layout of a compute pipeline: one descriptor set
+/// (`set_layout`) and `push_size` bytes of compute push constants.
+pub(crate) fn compute_pipeline_layout(
+    ctx: &DeviceContext,
+    set_layout: vk::DescriptorSetLayout,
+    push_size: u32,
+) -> Result<vk::PipelineLayout> {
+    let set_layouts = [set_layout];
+    let push = [vk::PushConstantRange::default()
+        .stage_flags(vk::ShaderStageFlags::COMPUTE)
+        .offset(0)
+        .size(push_size)];
+    let info = vk::PipelineLayoutCreateInfo::default()
+        .set_layouts(&set_layouts)
+        .push_constant_ranges(&push);
+    // SAFETY: valid device; `set_layout` is a live layout of that device.
+    unsafe { ctx.device().create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")
+}
+
 /// Pipelines sharing one layout of `bindings` storage buffers and a
 /// `push_size`-byte push-constant block.
 #[derive(Debug)]
@@ -65,17 +84,7 @@ impl ComputeKernels {
             pipelines: Vec::with_capacity(shaders.len()),
             bindings,
         };
-        let set_layouts = [set_layout];
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .offset(0)
-            .size(push_size)];
-        let info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&set_layouts)
-            .push_constant_ranges(&push);
-        // SAFETY: valid device; the set layout was created above.
-        this.layout =
-            unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
+        this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
         for spv in shaders {
             let words = spirv_words(spv)?;
             let info = vk::ShaderModuleCreateInfo::default().code(&words);

@@ -3,6 +3,7 @@
 //! ([`crate::RayQueryTestPipeline`], [`crate::CameraTracer`]).
 
 use crate::compute::allocate_one_set;
+use crate::compute::compute_pipeline_layout;
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkContext, VkError};
@@ -59,17 +60,7 @@ impl RayQueryPipeline {
             pipeline: vk::Pipeline::null(),
             storage_bindings,
         };
-        let set_layouts = [set_layout];
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .offset(0)
-            .size(push_size)];
-        let info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&set_layouts)
-            .push_constant_ranges(&push);
-        // SAFETY: valid device; the set layout was created above.
-        this.layout =
-            unsafe { device.create_pipeline_layout(&info, None) }.ctx("vkCreatePipelineLayout")?;
+        this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
         let words = crate::shaders::spirv_words(spv)?;
         let info = vk::ShaderModuleCreateInfo::default().code(&words);
         // SAFETY: valid device; `words` is embedded, validated SPIR-V.
