@@ -25,7 +25,7 @@ use std::collections::BTreeMap;
 use lipac::core::blas_cache::BlasOwner;
 use lipac::core::build_plan::FramePlan;
 use lipac::core::culling::{ProcessStats, Readback};
-use lipac::core::layout::TlasInstance;
+use lipac::core::layout::tlas_multiset;
 use lipac::core::manager::{Ack, FrameBudgets, Manager, ManagerPlan};
 use lipac::core::MeshId;
 use lipac::vk::{
@@ -80,23 +80,6 @@ fn vk_city_keeps_frames_in_flight_without_lipac_waits() {
     assert!(s.builds > 0 && s.compactions > 0, "{s:?}");
     assert!(s.commands > 0 && s.max_tlas_records > 0, "{s:?}");
     assert!(s.validation_errors.is_empty(), "{:?}", s.validation_errors);
-}
-
-/// The records as sorted bit patterns (a multiset, bit-exact floats).
-fn bits(records: &[TlasInstance]) -> Vec<([u32; 12], u32, u32, u64)> {
-    let mut v: Vec<_> = records
-        .iter()
-        .map(|r| {
-            (
-                r.transform.map(f32::to_bits),
-                r.custom_index_and_mask,
-                r.sbt_offset_and_flags,
-                r.acceleration_structure_reference,
-            )
-        })
-        .collect();
-    v.sort_unstable();
-    v
 }
 
 /// A plan's data uploads without the handles (they name their manager).
@@ -168,7 +151,7 @@ impl CpuReplay {
             cpu.assemble(&mut tlas).unwrap();
             assert_eq!(tlas.len() as u32, r.tlas_records, "frame {g}: TLAS records");
             assert!(
-                bits(&tlas) == bits(&diag.tlas_instances),
+                tlas_multiset(&tlas) == tlas_multiset(&diag.tlas_instances),
                 "frame {g}: TLAS record multisets differ"
             );
             self.totals.1 += tlas
