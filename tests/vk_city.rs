@@ -29,8 +29,8 @@ use lipac::core::layout::tlas_multiset;
 use lipac::core::manager::{Ack, FrameBudgets, Manager, ManagerPlan};
 use lipac::core::MeshId;
 use lipac::vk::{
-    Buffer, CameraTraceBuffers, CameraTracer, FrameReadback, FrameSubmitter, HeadlessContext,
-    LipacVk, LipacVkConfig, MemoryLocation, Validation,
+    Buffer, CameraTracer, FrameReadback, FrameSubmitter, HeadlessContext, LipacVk, LipacVkConfig,
+    MemoryLocation, Validation,
 };
 use vk_city::{City, Options};
 
@@ -258,21 +258,13 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
         let camera = city.path.camera_at(f as u32);
         let city_ref = &city;
         let geometry = |owner: &BlasOwner| city_ref.geometry(owner);
+        let view = vk_city::view(&camera, &o, f);
         submitter
             .submit(&[], &[(&timeline, value)], |rec| {
-                lipac.record_frame(rec, &plan, &gpu, &geometry, &vk_city::albedo)?;
-                let (hits, data, offsets) = lipac.trace_targets()?;
-                let bindings = tracer.bind(&CameraTraceBuffers {
-                    tlas: lipac.tlas(),
-                    instance_hits: hits,
-                    hitboxes: lipac.hitbox_records(),
-                    data,
-                    data_offsets: offsets,
-                    image: &image,
-                })?;
-                tracer.record(rec, &bindings, &vk_city::view(&camera, &o, f))?;
-                lipac.retire_after_frame(bindings);
-                lipac.record_feedback(rec)
+                let (lipac, data) = (&mut lipac, &vk_city::albedo);
+                vk_city::record_frame(
+                    rec, lipac, &plan, &gpu, &geometry, data, &tracer, &image, &view,
+                )
             })
             .unwrap();
     }
