@@ -45,8 +45,9 @@ pub(crate) struct ComputeKernels {
     bindings: u32,
 }
 
-/// A descriptor set of storage buffers (with its own pool) for
-/// [`ComputeKernels`]; keep it alive until dispatches using it have executed.
+/// A descriptor set (with its own pool) for [`ComputeKernels`] (storage
+/// buffers) or a ray-query pipeline (a TLAS and storage buffers, see
+/// `ray_query`); keep it alive until dispatches using it have executed.
 #[derive(Debug)]
 pub(crate) struct StorageSet {
     ctx: DeviceContext,
@@ -164,11 +165,7 @@ impl ComputeKernels {
             .collect();
         // SAFETY: the set is fresh and unused; every write matches the layout.
         unsafe { device.update_descriptor_sets(&writes, &[]) };
-        Ok(StorageSet {
-            ctx: self.ctx.clone(),
-            pool,
-            set,
-        })
+        Ok(StorageSet::new(&self.ctx, pool, set))
     }
 
     /// Records a dispatch of pipeline `kernel` over `items` items (nothing
@@ -191,30 +188,61 @@ impl ComputeKernels {
             return Ok(());
         }
         let groups = items.div_ceil(LOCAL_SIZE).min(MAX_GROUPS);
-        let device = self.ctx.device();
-        // SAFETY: recording on this device (Recorder contract); pipeline, layout
-        // and set are live and compatible; `push` fits the layout's push range
-        // (callers pass their fixed-size push struct).
-        unsafe {
-            device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, pipeline);
-            device.cmd_bind_descriptor_sets(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.layout,
-                0,
-                &[set.set],
-                &[],
-            );
-            device.cmd_push_constants(
-                rec.raw(),
-                self.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                push,
-            );
-            device.cmd_dispatch(rec.raw(), groups, 1, 1);
-        }
+        // Checked above: recorder and set are of this device.
+        record_dispatch(rec, pipeline, self.layout, set, push, [groups, 1, 1]);
         Ok(())
+    }
+}
+
+impl StorageSet {
+    /// Takes ownership of `set` and the `pool` it was allocated from (the
+    /// pool is destroyed on drop).
+    pub(crate) fn new(
+        ctx: &DeviceContext,
+        pool: vk::DescriptorPool,
+        set: vk::DescriptorSet,
+    ) -> Self {
+        Self {
+            ctx: ctx.clone(),
+            pool,
+            set,
+        }
+    }
+
+    pub(crate) fn context(&self) -> &DeviceContext {
+        &self.ctx
+    }
+}
+
+/// Records binding compute `pipeline` (of `layout`) and `set`, the push
+/// constants `push` at offset 0 and a dispatch of `groups` work groups. The
+/// caller checked that `rec` records on the device of the pipeline and the
+/// set, and that `push` fits the layout's push range (each passes its
+/// fixed-size push struct).
+pub(crate) fn record_dispatch(
+    rec: &mut Recorder<'_>,
+    pipeline: vk::Pipeline,
+    layout: vk::PipelineLayout,
+    set: &StorageSet,
+    push: &[u8],
+    groups: [u32; 3],
+) {
+    let device = set.ctx.device();
+    // SAFETY: recording on this device (Recorder contract, checked by the
+    // caller); pipeline, layout and set are live and compatible; `push` fits
+    // the layout's push range.
+    unsafe {
+        device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, pipeline);
+        device.cmd_bind_descriptor_sets(
+            rec.raw(),
+            vk::PipelineBindPoint::COMPUTE,
+            layout,
+            0,
+            &[set.set],
+            &[],
+        );
+        device.cmd_push_constants(rec.raw(), layout, vk::ShaderStageFlags::COMPUTE, 0, push);
+        device.cmd_dispatch(rec.raw(), groups[0], groups[1], groups[2]);
     }
 }
 

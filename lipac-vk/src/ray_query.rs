@@ -2,8 +2,9 @@
 //! configuration as specialization constants: the shape of lipac's tracers
 //! ([`crate::RayQueryTestPipeline`], [`crate::CameraTracer`]).
 
-use crate::compute::allocate_one_set;
-use crate::compute::compute_pipeline_layout;
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::compute::{allocate_one_set, compute_pipeline_layout, record_dispatch, StorageSet};
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkContext, VkError};
@@ -117,16 +118,58 @@ impl Drop for RayQueryPipeline {
     }
 }
 
+impl RayQueryPipeline {
+    /// A descriptor set for this pipeline: `tlas` at binding 0, `storage[i]`
+    /// at binding `i + 1` (whole buffers, each of this context with
+    /// `STORAGE_BUFFER` usage, else [`VkError::MissingUsage`]`(missing_usage)`).
+    pub(crate) fn bind(
+        &self,
+        tlas: &GpuTlas,
+        storage: &[&Buffer],
+        missing_usage: &'static str,
+    ) -> Result<StorageSet> {
+        for b in storage {
+            same_context(&self.ctx, b.context())?;
+            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
+                return Err(VkError::MissingUsage(missing_usage));
+            }
+        }
+        let (pool, set) = bind_ray_query_set(&self.ctx, self, tlas, storage)?;
+        Ok(StorageSet::new(&self.ctx, pool, set))
+    }
+
+    /// Checks that `rec` records on this pipeline's device and `set` was
+    /// made there (call before recording anything, so that a refused
+    /// trace records nothing).
+    pub(crate) fn check_recorder(&self, rec: &Recorder<'_>, set: &StorageSet) -> Result<()> {
+        same_context(rec.context(), &self.ctx)?;
+        same_context(rec.context(), set.context())
+    }
+
+    /// Records binding the pipeline and `set`, the push constants `push`
+    /// and a dispatch of `groups` work groups (checked by
+    /// [`check_recorder`](Self::check_recorder)).
+    pub(crate) fn dispatch(
+        &self,
+        rec: &mut Recorder<'_>,
+        set: &StorageSet,
+        push: &[u8],
+        groups: [u32; 3],
+    ) {
+        record_dispatch(rec, self.pipeline, self.layout, set, push, groups);
+    }
+}
+
 /// A descriptor set (with its own pool) for `pipeline`: `tlas` at binding 0,
 /// `storage[i]` at binding `i + 1` (whole buffers). The caller checked the
 /// buffers' context and usage.
-pub(crate) fn bind_ray_query_set(
+fn bind_ray_query_set(
     ctx: &DeviceContext,
     pipeline: &RayQueryPipeline,
     tlas: &GpuTlas,
     storage: &[&Buffer],
 ) -> Result<(vk::DescriptorPool, vk::DescriptorSet)> {
-    crate::accel::same_context(ctx, tlas.accel().context())?;
+    same_context(ctx, tlas.accel().context())?;
     if storage.len() != pipeline.storage_bindings as usize {
         return Err(VkError::InvalidArgument(format!(
             "{} storage buffers for {} bindings",
