@@ -19,6 +19,7 @@ use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, InstanceDesc, InstanceFlags,
     InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
 };
+use lipac_test_support::synthetic::ImmediateAcks;
 
 const UNIT: u64 = 0xC0BE;
 
@@ -75,7 +76,7 @@ fn pose_of(d: &InstanceDesc) -> Pose {
 struct Loop {
     ring: ReadbackRing,
     acks: Vec<Ack>,
-    next_address: u64,
+    immediate: ImmediateAcks,
     tlas: Vec<lipac_core::TlasInstance>,
     /// Hits the stub tracer wrote, per frame.
     traced: Vec<u64>,
@@ -86,7 +87,7 @@ impl Loop {
         Self {
             ring: ReadbackRing::new(1).unwrap(),
             acks: Vec::new(),
-            next_address: 0,
+            immediate: ImmediateAcks::new(0x1_0000),
             tlas: Vec::new(),
             traced: Vec::new(),
         }
@@ -102,14 +103,7 @@ impl Loop {
     }
     fn plan_and_trace(&mut self, m: &mut Manager) {
         let plan = m.plan(&FrameBudgets::default()).unwrap();
-        for b in plan.blas.builds() {
-            self.next_address += 0x1_0000;
-            self.acks.push(Ack::Built {
-                build: b.id,
-                result_bytes: b.result_bytes,
-                address: self.next_address,
-            });
-        }
+        self.acks.extend(self.immediate.acks(&plan.blas));
         m.assemble(&mut self.tlas).unwrap();
         let mut total = 0;
         for t in &self.tlas {
