@@ -371,6 +371,39 @@ pub struct Summary {
     pub validation_errors: Vec<String>,
 }
 
+/// The run's settings and the per-frame table's header.
+fn print_header(city: &City, o: &Options, ctx: &DeviceContext) {
+    println!(
+        "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, device: {}",
+        city.descs.len(),
+        city.grid.len(),
+        o.width,
+        o.height,
+        o.frames,
+        o.in_flight,
+        ctx.device_name()
+    );
+    println!(
+        "frame | host waits lipac pacing | read back: frame TLAS-records boxes cmds \
+         | builds compact freed | lipac device bytes"
+    );
+}
+
+/// Writes the `width × height` RGBA8 `image` as an RGB PNG.
+fn write_png(image: &Buffer, o: &Options, path: &str) -> AnyResult<()> {
+    let px: Vec<u32> = image.read(0, (o.width * o.height) as usize)?;
+    let rgb: Vec<u8> = px
+        .iter()
+        .flat_map(|p| p.to_le_bytes()[..3].to_vec())
+        .collect();
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, o.width, o.height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.write_header()?.write_image_data(&rgb)?;
+    Ok(())
+}
+
 // ---- the integration ------------------------------------------------------
 
 /// One frame's GPU work in the engine's command buffer: lipac's part
@@ -431,20 +464,7 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
     // records are counting boxes).
     let mut with_blas = HashMap::new();
     if o.print {
-        println!(
-            "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, device: {}",
-            city.descs.len(),
-            city.grid.len(),
-            o.width,
-            o.height,
-            o.frames,
-            o.in_flight,
-            ctx.device_name()
-        );
-        println!(
-            "frame | host waits lipac pacing | read back: frame TLAS-records boxes cmds \
-             | builds compact freed | lipac device bytes"
-        );
+        print_header(&city, o, ctx);
     }
     for f in 1..=u64::from(o.frames) {
         let waits_before = (ctx.host_waits(), submitter.blocking_waits());
@@ -512,16 +532,7 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
     polled.deliver(&mut manager)?;
     s.frames_read_back += polled.readbacks.len() as u64;
     if let Some(out) = &o.out {
-        let px: Vec<u32> = image.read(0, pixels as usize)?;
-        let rgb: Vec<u8> = px
-            .iter()
-            .flat_map(|p| p.to_le_bytes()[..3].to_vec())
-            .collect();
-        let file = std::io::BufWriter::new(std::fs::File::create(out)?);
-        let mut encoder = png::Encoder::new(file, o.width, o.height);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        encoder.write_header()?.write_image_data(&rgb)?;
+        write_png(&image, o, out)?;
     }
     if o.print {
         let st = lipac.stats();
