@@ -9,6 +9,7 @@ use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::layout::{hitbox_bits, HitboxRecord, TlasInstance};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     counting_box_instance, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay, GpuTlas,
     HitboxCounting, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline,
@@ -120,14 +121,14 @@ fn trace_counts_into_hitbox_records_saturating() {
 
     // Rays per lane: 8, 5, 4, 6, 7, spread over the boxes' cross-section.
     let per_lane = [8u32, 5, 4, 6, 7];
-    let mut rng = Lcg(7);
+    let mut rng = SplitMix64::new(7);
     let mut rays = Vec::new();
     for (k, &n) in per_lane.iter().enumerate() {
         for _ in 0..n {
             rays.push(GpuRay {
                 origin: [
-                    lane_x(k as u32) + 0.6 * (rng.next() - 0.5),
-                    0.6 * (rng.next() - 0.5),
+                    lane_x(k as u32) + 0.6 * (rng.unit_f32() - 0.5),
+                    0.6 * (rng.unit_f32() - 0.5),
                     0.0,
                 ],
                 t_min: 0.0,

@@ -343,18 +343,6 @@ pub fn trace(
     (tlas, outcome)
 }
 
-/// Deterministic pseudo-random numbers in [0, 1).
-pub struct Lcg(pub u64);
-impl Lcg {
-    pub fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
-}
-
 /// Compares GPU hits with the CPU reference; returns how many rays were
 /// compared and how many of them hit.
 pub fn compare_with_cpu(
