@@ -320,6 +320,7 @@ pub struct SweepPoint {
     /// Mean BLAS builds per frame.
     pub builds_per_frame: f64,
     /// Error per frame.
+    #[serde(with = "crate::json_float::vec")]
     pub frame_errors: Vec<f64>,
     /// On the (trace time, error) Pareto front of its scene.
     pub front_time: bool,
