@@ -1,7 +1,7 @@
 //! [`CameraTracer`]: GPU ray generation with lipac's counting.
 
 use crate::commands::Recorder;
-use crate::compute::StorageSet;
+use crate::compute::{compute_to_everything, StorageSet};
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
@@ -190,14 +190,7 @@ impl CameraTracer {
         let push = bytemuck::bytes_of(&push);
         self.pipeline
             .dispatch(rec, &bindings.set, push, [gx, gy, 1]);
-        rec.memory_barrier(
-            vk::PipelineStageFlags2::COMPUTE_SHADER,
-            vk::AccessFlags2::SHADER_STORAGE_WRITE,
-            vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST,
-            vk::AccessFlags2::MEMORY_READ
-                | vk::AccessFlags2::MEMORY_WRITE
-                | vk::AccessFlags2::HOST_READ,
-        );
+        compute_to_everything(rec);
         Ok(())
     }
 }

@@ -15,6 +15,69 @@ pub(crate) const LOCAL_SIZE: u32 = 64;
 /// Work groups per dispatch at most; the shaders stride over larger counts.
 const MAX_GROUPS: u32 = 65_535;
 
+/// A descriptor set layout of compute-stage bindings: `kinds[i]` (one
+/// descriptor each) at binding `i`.
+pub(crate) fn compute_set_layout(
+    ctx: &DeviceContext,
+    kinds: &[vk::DescriptorType],
+) -> Result<vk::DescriptorSetLayout> {
+    let bindings: Vec<_> = kinds
+        .iter()
+        .enumerate()
+        .map(|(b, &kind)| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(b as u32)
+                .descriptor_type(kind)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::COMPUTE)
+        })
+        .collect();
+    let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+    // SAFETY: valid device and create info.
+    unsafe { ctx.device().create_descriptor_set_layout(&info, None) }
+        .ctx("vkCreateDescriptorSetLayout")
+}
+
+/// The compute pipeline of `spv` (entry `main`) with `layout`, and the
+/// specialization constants `spec` if any; the shader module is destroyed
+/// again before this returns.
+pub(crate) fn create_compute_pipeline(
+    ctx: &DeviceContext,
+    spv: &[u8],
+    layout: vk::PipelineLayout,
+    spec: Option<&vk::SpecializationInfo<'_>>,
+) -> Result<vk::Pipeline> {
+    let device = ctx.device();
+    let words = spirv_words(spv)?;
+    let info = vk::ShaderModuleCreateInfo::default().code(&words);
+    // SAFETY: valid device; `words` is embedded SPIR-V checked by spirv-val.
+    let module = unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
+    let mut stage = vk::PipelineShaderStageCreateInfo::default()
+        .stage(vk::ShaderStageFlags::COMPUTE)
+        .module(module)
+        .name(c"main");
+    if let Some(spec) = spec {
+        stage = stage.specialization_info(spec);
+    }
+    let info = [vk::ComputePipelineCreateInfo::default()
+        .stage(stage)
+        .layout(layout)];
+    // SAFETY: valid device, module and a layout matching the shader's
+    // interface (the callers' bindings and push block).
+    let created =
+        unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
+    // SAFETY: the module is no longer needed once pipeline creation returned.
+    unsafe { device.destroy_shader_module(module, None) };
+    created
+        .map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?
+        .first()
+        .copied()
+        .ok_or(VkError::vk(
+            "vkCreateComputePipelines",
+            vk::Result::ERROR_UNKNOWN,
+        ))
+}
+
 /// The pipeline layout of a compute pipeline: one descriptor set
 /// (`set_layout`) and `push_size` bytes of compute push constants.
 pub(crate) fn compute_pipeline_layout(
@@ -63,20 +126,8 @@ impl ComputeKernels {
         push_size: u32,
         shaders: &[&[u8]],
     ) -> Result<Self> {
-        let device = ctx.device();
-        let binding_info: Vec<_> = (0..bindings)
-            .map(|b| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding_info);
-        // SAFETY: valid device and create info.
-        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .ctx("vkCreateDescriptorSetLayout")?;
+        let kinds = vec![vk::DescriptorType::STORAGE_BUFFER; bindings as usize];
+        let set_layout = compute_set_layout(ctx, &kinds)?;
         // From here on, Drop frees whatever was created (null handles are ignored).
         let mut this = Self {
             ctx: ctx.clone(),
@@ -87,32 +138,7 @@ impl ComputeKernels {
         };
         this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
         for spv in shaders {
-            let words = spirv_words(spv)?;
-            let info = vk::ShaderModuleCreateInfo::default().code(&words);
-            // SAFETY: valid device; `words` is embedded SPIR-V checked by spirv-val.
-            let module =
-                unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(module)
-                .name(c"main");
-            let info = [vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(this.layout)];
-            // SAFETY: valid device, module and a layout matching the shader's
-            // interface (storage buffers at 0..bindings, push block of push_size).
-            let created =
-                unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
-            // SAFETY: the module is no longer needed once pipeline creation returned.
-            unsafe { device.destroy_shader_module(module, None) };
-            let pipeline = created
-                .map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?
-                .first()
-                .copied()
-                .ok_or(VkError::vk(
-                    "vkCreateComputePipelines",
-                    vk::Result::ERROR_UNKNOWN,
-                ))?;
+            let pipeline = create_compute_pipeline(ctx, spv, this.layout, None)?;
             this.pipelines.push(pipeline);
         }
         Ok(this)

@@ -4,10 +4,13 @@
 
 use crate::accel::same_context;
 use crate::commands::Recorder;
-use crate::compute::{allocate_one_set, compute_pipeline_layout, record_dispatch, StorageSet};
+use crate::compute::{
+    allocate_one_set, compute_pipeline_layout, compute_set_layout, create_compute_pipeline,
+    record_dispatch, StorageSet,
+};
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
-use crate::error::{Result, VkContext, VkError};
+use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::tlas::GpuTlas;
 use ash::vk;
@@ -34,25 +37,12 @@ impl RayQueryPipeline {
         push_size: u32,
     ) -> Result<Self> {
         config.validate()?;
-        let device = ctx.device();
-        let mut bindings = vec![vk::DescriptorSetLayoutBinding::default()
-            .binding(0)
-            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-            .descriptor_count(1)
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)];
-        for b in 1..=storage_bindings {
-            bindings.push(
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE),
-            );
-        }
-        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        // SAFETY: valid device and create info.
-        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .ctx("vkCreateDescriptorSetLayout")?;
+        let mut kinds = vec![vk::DescriptorType::ACCELERATION_STRUCTURE_KHR];
+        kinds.resize(
+            1 + storage_bindings as usize,
+            vk::DescriptorType::STORAGE_BUFFER,
+        );
+        let set_layout = compute_set_layout(ctx, &kinds)?;
         // From here on, Drop frees whatever was created (null handles are ignored).
         let mut this = Self {
             ctx: ctx.clone(),
@@ -62,11 +52,6 @@ impl RayQueryPipeline {
             storage_bindings,
         };
         this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
-        let words = crate::shaders::spirv_words(spv)?;
-        let info = vk::ShaderModuleCreateInfo::default().code(&words);
-        // SAFETY: valid device; `words` is embedded, validated SPIR-V.
-        let module =
-            unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
         let spec_data: [u32; 3] = [
             config.omitted_box_sbt_offset,
             config.hitbox_box_sbt_offset,
@@ -83,24 +68,7 @@ impl RayQueryPipeline {
         let spec = vk::SpecializationInfo::default()
             .map_entries(&entries)
             .data(bytemuck::cast_slice(&spec_data));
-        let stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
-            .name(c"main")
-            .specialization_info(&spec);
-        let info = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(this.layout)];
-        // SAFETY: valid device, module and layout matching the shader's interface.
-        let created =
-            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
-        // SAFETY: the module is no longer needed once pipeline creation returned.
-        unsafe { device.destroy_shader_module(module, None) };
-        let pipelines = created.map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?;
-        this.pipeline = pipelines.first().copied().ok_or(VkError::vk(
-            "vkCreateComputePipelines",
-            vk::Result::ERROR_UNKNOWN,
-        ))?;
+        this.pipeline = create_compute_pipeline(ctx, spv, this.layout, Some(&spec))?;
         Ok(this)
     }
 }
