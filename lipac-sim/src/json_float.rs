@@ -80,7 +80,7 @@ impl Visitor<'_> for F64Visitor {
     }
 }
 
-/// [`serialize`](super::serialize) and [`deserialize`](super::deserialize)
+/// [`serialize`] and [`deserialize`]
 /// for every element of a `Vec<f64>`.
 pub mod vec {
     use super::*;
