@@ -39,7 +39,8 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::{make_contender, mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
+use super::variants::make_contender;
+use super::{mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
 use crate::camera::CameraPath;
 use crate::compare::{run_contenders, CompareConfig};
 use crate::error::SimError;
