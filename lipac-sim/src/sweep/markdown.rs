@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 
 use super::{SweepReport, COSTS};
+use crate::metrics::TIMING_NOTE;
 
 /// The Markdown report: per scene a table of every variant, fronts marked.
 pub fn sweep_markdown(r: &SweepReport) -> String {
@@ -16,8 +17,9 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
         s,
         "{} frames of the fly-through per scene at {}x{} ({} camera rays per frame). \
          Wall time {:.1} s. Every configuration of a scene renders against the same ground \
-         truth (rendered once per frame). Front columns: T = on the (trace time, error) Pareto \
-         front, M = (memory, error), B = (builds, error); the oracle (it reads the ground truth's \
+         truth (rendered once per frame). Front columns: T = on the (frame time, error) Pareto \
+         front (measured on the CPU), G = (modelled GPU frame time, error), M = (memory, error), \
+         B = (builds, error); the oracle (it reads the ground truth's \
          hits) is a reference, never on a front.\n",
         r.frames, r.width, r.height, r.rays_per_frame, r.wall_s
     );
@@ -43,11 +45,11 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
         let _ = writeln!(
             s,
             "| configuration | θa θd σa σo n_a n_d | cell m | memory MiB mean (BLAS) | builds / frame | refits | \
-             cycles | latency mean | error mean | max | trace ms | front |"
+             cycles | latency mean | error mean | max | trace ms | frame ms (CPU) | GPU ms (model) | front |"
         );
         let _ = writeln!(
             s,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
         );
         for p in r.points.iter().filter(|p| p.scene == sc.name) {
             let m = &p.summary;
@@ -57,6 +59,7 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
                 .unwrap_or_else(|| "–".into());
             let front: String = [
                 (p.front_time, 'T'),
+                (p.front_gpu_time, 'G'),
                 (p.front_memory, 'M'),
                 (p.front_builds, 'B'),
             ]
@@ -66,7 +69,7 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
             .collect();
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {:.2} ({:.2}) | {:.1} | {} | {} | {:.1} | {:.4} | {:.4} | {:.1} | {} |",
+                "| {} | {} | {} | {:.2} ({:.2}) | {:.1} | {} | {} | {:.1} | {:.4} | {:.4} | {:.1} | {:.1} | {:.3} | {} |",
                 p.name,
                 th,
                 p.cell_size.map(|c| c.to_string()).unwrap_or_else(|| "–".into()),
@@ -79,6 +82,8 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
                 m.mean_error,
                 m.max_error,
                 m.mean_trace_ms,
+                m.mean_frame_ms,
+                m.mean_gpu_frame_ms,
                 front
             );
         }
@@ -92,10 +97,7 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
         s,
         "Data: [sweep.csv](sweep.csv); everything, with per-frame errors: [sweep.json](sweep.json).\n\n\
          Memory is modelled on lavapipe's acceleration-structure sizes (docs/MEMORY_MODEL.md). \
-         Trace times are the CPU time (summed over threads) of the bounce and shadow rays traced \
-         against each configuration's TLAS, on whatever else the machine ran; primary hits and the \
-         rasterized-shadow fallback stand in for rasterization and are excluded. The full-scene \
-         strategy's is the ground truth's (its render is reused)."
+         {TIMING_NOTE}"
     );
     s
 }

@@ -16,7 +16,8 @@
 //! low factors round to the same thresholds; such duplicates are run once
 //! (the later names are listed in [`SweepReport::skipped`]).
 //!
-//! For each scene and each cost (trace time, memory, builds) the points not
+//! For each scene and each cost of [`COSTS`] (frame time measured on the
+//! CPU, modelled GPU frame time, memory, builds) the points not
 //! dominated in (cost, error) form the Pareto front ([`pareto_front`]). The
 //! oracle is plotted as a reference but kept off the fronts: it reads the
 //! ground truth's hits, no renderer can do that, and its zero error would
@@ -61,16 +62,17 @@ pub fn run(
 }
 
 /// Names of every file [`write_sweep`] writes.
-pub const SWEEP_FILES: [&str; 6] = [
+pub const SWEEP_FILES: [&str; 7] = [
     "sweep.md",
     "sweep.json",
     "sweep.csv",
     COSTS[0].0,
     COSTS[1].0,
     COSTS[2].0,
+    COSTS[3].0,
 ];
 
-/// Writes `sweep.md`, `sweep.json`, `sweep.csv` and the three Pareto plots
+/// Writes `sweep.md`, `sweep.json`, `sweep.csv` and the four Pareto plots
 /// into `dir` (created if missing); returns the paths written.
 pub fn write_sweep(r: &SweepReport, dir: &Path) -> Result<Vec<PathBuf>, SimError> {
     std::fs::create_dir_all(dir)?;
@@ -82,6 +84,7 @@ pub fn write_sweep(r: &SweepReport, dir: &Path) -> Result<Vec<PathBuf>, SimError
         pareto_plot(r, 0)?,
         pareto_plot(r, 1)?,
         pareto_plot(r, 2)?,
+        pareto_plot(r, 3)?,
     ];
     let mut paths = Vec::new();
     for (name, body) in SWEEP_FILES.iter().zip(bodies) {

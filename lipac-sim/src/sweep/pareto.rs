@@ -5,8 +5,7 @@
 use super::{SweepPoint, SweepReport};
 use crate::strategy::StrategyKind;
 
-/// The three costs plotted against error: file name, title, axis label,
-/// value.
+/// A cost plotted against error: file name, title, axis label, value.
 pub type Cost = (
     &'static str,
     &'static str,
@@ -14,13 +13,20 @@ pub type Cost = (
     fn(&SweepPoint) -> f64,
 );
 
-/// Plot files [`super::write_sweep`] writes, with their cost axis.
-pub const COSTS: [Cost; 3] = [
+/// The costs with a Pareto front, in [`SweepPoint::fronts`] order, and the
+/// plot files [`super::write_sweep`] writes for them.
+pub const COSTS: [Cost; 4] = [
     (
         "sweep_time.svg",
-        "Trace time against error",
-        "mean trace time per frame, ms",
-        |p| p.summary.mean_trace_ms,
+        "Frame time (AS work + trace, measured on CPU) against error",
+        "mean frame time (BLAS builds, refits, TLAS, trace), CPU ms",
+        |p| p.summary.mean_frame_ms,
+    ),
+    (
+        "sweep_gpu_time.svg",
+        "Modelled GPU frame time against error (published throughput)",
+        "modelled GPU frame time (AS work + trace), ms",
+        |p| p.summary.mean_gpu_frame_ms,
     ),
     (
         "sweep_memory.svg",
@@ -73,9 +79,7 @@ pub fn mark_fronts(report: &mut SweepReport) {
         }
         mark_scene_fronts(&mut pts);
         for p in report.points.iter_mut().filter(|p| p.scene == name) {
-            p.front_time = false;
-            p.front_memory = false;
-            p.front_builds = false;
+            p.set_fronts([false; 4]);
         }
         for (i, p) in idx.into_iter().zip(pts) {
             report.points[i] = p;
@@ -84,12 +88,7 @@ pub fn mark_fronts(report: &mut SweepReport) {
 }
 
 fn mark_scene_fronts(points: &mut [SweepPoint]) {
-    let fronts = [
-        |p: &SweepPoint| p.summary.mean_trace_ms,
-        |p: &SweepPoint| p.summary.mean_mib,
-        |p: &SweepPoint| p.builds_per_frame,
-    ]
-    .map(|cost| {
+    let fronts = COSTS.map(|(_, _, _, cost)| {
         pareto_front(
             &points
                 .iter()
@@ -98,8 +97,6 @@ fn mark_scene_fronts(points: &mut [SweepPoint]) {
         )
     });
     for (i, p) in points.iter_mut().enumerate() {
-        p.front_time = fronts[0][i];
-        p.front_memory = fronts[1][i];
-        p.front_builds = fronts[2][i];
+        p.set_fronts(fronts.each_ref().map(|f| f[i]));
     }
 }

@@ -31,12 +31,44 @@ pub struct SweepPoint {
     pub builds_per_frame: f64,
     /// Error per frame.
     pub frame_errors: Vec<f64>,
-    /// On the (trace time, error) Pareto front of its scene.
+    /// On the (frame time, error) Pareto front of its scene (frame time
+    /// measured on the CPU: BLAS builds and refits, TLAS build, trace).
     pub front_time: bool,
+    /// On the (modelled GPU frame time, error) Pareto front of its scene.
+    #[serde(default)]
+    pub front_gpu_time: bool,
     /// On the (memory, error) Pareto front of its scene.
     pub front_memory: bool,
     /// On the (builds, error) Pareto front of its scene.
     pub front_builds: bool,
+}
+
+impl SweepPoint {
+    /// Whether it is on the front of cost `cost` (an index into
+    /// [`super::COSTS`]; false past its end).
+    pub fn on_front(&self, cost: usize) -> bool {
+        self.fronts().get(cost).copied().unwrap_or(false)
+    }
+
+    /// Its front flags in [`super::COSTS`] order.
+    pub fn fronts(&self) -> [bool; 4] {
+        [
+            self.front_time,
+            self.front_gpu_time,
+            self.front_memory,
+            self.front_builds,
+        ]
+    }
+
+    /// Sets its front flags from `fronts` ([`super::COSTS`] order).
+    pub fn set_fronts(&mut self, fronts: [bool; 4]) {
+        [
+            self.front_time,
+            self.front_gpu_time,
+            self.front_memory,
+            self.front_builds,
+        ] = fronts;
+    }
 }
 
 /// Ground truth and timing of one scene of a sweep.

@@ -71,3 +71,82 @@ fn variants_follow_the_config_and_drop_duplicates() {
     };
     assert!(bad.variants().is_err());
 }
+
+fn point(
+    scene: &str,
+    name: &str,
+    strategy: &str,
+    frame_ms: f64,
+    gpu_ms: f64,
+    error: f64,
+) -> SweepPoint {
+    SweepPoint {
+        scene: scene.into(),
+        name: name.into(),
+        family: Family::Baseline,
+        strategy: strategy.into(),
+        factor: None,
+        cell_size: None,
+        thresholds: None,
+        latency: None,
+        summary: crate::metrics::Summary {
+            mean_frame_ms: frame_ms,
+            mean_gpu_frame_ms: gpu_ms,
+            mean_error: error,
+            mean_mib: 1.0,
+            ..Default::default()
+        },
+        builds_per_frame: 1.0,
+        frame_errors: vec![error],
+        front_time: true,
+        front_gpu_time: true,
+        front_memory: true,
+        front_builds: true,
+    }
+}
+
+#[test]
+fn time_fronts_of_a_hand_made_sweep() {
+    // Scene a, (frame ms, GPU ms, error). By hand, frame time: full (40,
+    // error 0) and cheap (10, 0.2) trade off; mid (20, 0.1) too; worse
+    // (30, 0.1) is dominated by mid; the oracle (5, 0) would dominate all
+    // but is never on a front. GPU time ranks them differently: mid's 3.0
+    // is dominated by worse's 1.0 at the same error.
+    let mut r = SweepReport {
+        frames: 1,
+        width: 1,
+        height: 1,
+        rays_per_frame: 1,
+        scenes: ["a", "b"]
+            .map(|n| SweepScene {
+                name: n.into(),
+                instances: 1,
+                ground_truth_ms: 0.0,
+                traced_rays_per_frame: 0.0,
+                wall_s: 0.0,
+            })
+            .to_vec(),
+        points: vec![
+            point("a", "full", "full", 40.0, 9.0, 0.0),
+            point("a", "cheap", "lipac", 10.0, 0.5, 0.2),
+            point("a", "mid", "lipac", 20.0, 3.0, 0.1),
+            point("a", "worse", "lipac", 30.0, 1.0, 0.1),
+            point("a", "oracle", "oracle", 5.0, 0.1, 0.0),
+            // Scene b is its own front: its one point is on it although
+            // scene a's cheap point would dominate it.
+            point("b", "mid", "lipac", 50.0, 5.0, 0.3),
+        ],
+        skipped: vec![],
+        wall_s: 0.0,
+    };
+    mark_fronts(&mut r);
+    let on = |f: fn(&SweepPoint) -> bool| -> Vec<bool> { r.points.iter().map(f).collect() };
+    assert_eq!(on(|p| p.front_time), [true, true, true, false, false, true]);
+    assert_eq!(
+        on(|p| p.front_gpu_time),
+        [true, true, false, true, false, true]
+    );
+    // The fronts follow COSTS' order: 0 is frame time, 1 modelled GPU time.
+    assert_eq!(r.points[2].fronts(), [true, false, false, false]);
+    assert!(r.points[2].on_front(0) && !r.points[2].on_front(1) && !r.points[2].on_front(9));
+}
