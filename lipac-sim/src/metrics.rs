@@ -41,7 +41,7 @@ in for rasterization and are excluded; the full-scene strategy's is the ground t
 Modelled GPU time (a model, not a measurement) = triangles built / 0.31 G/s + triangles \
 refit / 3.03 G/s (NVIDIA's vk_animated_clusters sample, RTX 6000 Ada) + TLAS instances / \
 0.31 G/s (assumed: an instance costs a triangle of a full build) + bounce and shadow rays / \
-1 G/s (assumed); docs/BENCHMARKS.md, \"Run time against error\".";
+1 G/s (assumed); docs/EVALUATION.md, \"Run time against error\".";
 
 /// Frames within which leaving and re-entering the TLAS counts as a cycle.
 pub const CYCLE_WINDOW: u32 = 30;
@@ -294,7 +294,7 @@ impl GpuModel {
     /// triangles/s. TLAS: an assumption, an instance costs what a
     /// triangle of a full build does (0.310 G/s). Rays: an assumption,
     /// 1 G incoherent bounce and shadow rays/s (the sample publishes its
-    /// render time but not its ray count). docs/BENCHMARKS.md, "Run time
+    /// render time but not its ray count). docs/EVALUATION.md, "Run time
     /// against error".
     pub const PUBLISHED: GpuModel = GpuModel {
         build_triangles_per_s: 0.843e6 / 2.718e-3,
