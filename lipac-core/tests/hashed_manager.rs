@@ -325,3 +325,41 @@ fn with_eviction_emptied_cells_are_dropped_and_indices_reused() {
     }
     assert!(index.len() <= 64);
 }
+
+#[test]
+fn a_hashed_manager_records_an_unbounded_world() {
+    use lipac_core::manager::{RecorderOptions, TraceRecorder};
+    use lipac_core::trace::{InstanceEvent, TraceReader};
+    let mut m = Manager::new(hashed(64), config(), catalog()).unwrap();
+    m.attach_recorder(TraceRecorder::new(Vec::new(), RecorderOptions::default()))
+        .unwrap();
+    // 2000 km apart: no bounds needed.
+    m.register(desc(-1.0e6, 3.0, 1)).unwrap();
+    m.register(desc(1.0e6, -7.0, 2)).unwrap();
+    m.begin_frame(0).unwrap();
+    m.plan(&FrameBudgets::default()).unwrap();
+    assert_eq!(m.hitboxes().len(), 2);
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    let world = r.header().world;
+    assert!(!world.is_bounded());
+    assert_eq!(world.cell_size, CELL);
+    let f0 = r.next_frame().unwrap().unwrap();
+    assert_eq!(
+        f0.events
+            .iter()
+            .filter(|e| matches!(e, InstanceEvent::Add(_)))
+            .count(),
+        2
+    );
+    // Another origin has no unbounded world of its own: the caller names it.
+    let moved = HashedHitboxes::new(HashedConfig {
+        origin: [8.0, 0.0],
+        ..HashedConfig::default()
+    })
+    .unwrap();
+    let mut m = Manager::new(moved, config(), catalog()).unwrap();
+    assert!(m
+        .attach_recorder(TraceRecorder::new(Vec::new(), RecorderOptions::default()))
+        .is_err());
+}
