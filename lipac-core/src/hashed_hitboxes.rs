@@ -522,5 +522,70 @@ impl HitboxIndex for HashedHitboxes {
     }
 }
 
+/// The hitbox structure a trace's world asks for: the dense
+/// [`HitboxGrid`](crate::grid::HitboxGrid) for a bounded world, the sparse
+/// [`HashedHitboxes`] for an unbounded one
+/// ([`crate::trace::WorldInfo::unbounded`]). One type, so that a replay
+/// holds one `Manager<WorldHitboxes>` whatever the trace.
+#[derive(Clone, Debug)]
+pub enum WorldHitboxes {
+    /// A bounded world's grid.
+    Grid(crate::grid::HitboxGrid),
+    /// An unbounded world's hashed grid.
+    Hashed(HashedHitboxes),
+}
+
+impl WorldHitboxes {
+    /// The structure for `world`: its grid if it is bounded (at most
+    /// `max_grid_cells` cells, see
+    /// [`HitboxGrid::with_max_cells`](crate::grid::HitboxGrid::with_max_cells)),
+    /// else a hashed grid of its cells ([`crate::trace::WorldInfo::hashed_config`]).
+    pub fn for_world(
+        world: &crate::trace::WorldInfo,
+        max_grid_cells: u64,
+    ) -> Result<Self, CoreError> {
+        if world.is_bounded() {
+            crate::grid::HitboxGrid::with_max_cells(world.grid_config(), max_grid_cells)
+                .map(Self::Grid)
+        } else {
+            HashedHitboxes::new(world.hashed_config()).map(Self::Hashed)
+        }
+    }
+}
+
+/// Forwards to the structure held.
+macro_rules! both {
+    ($self:ident, $i:ident => $e:expr) => {
+        match $self {
+            WorldHitboxes::Grid($i) => $e,
+            WorldHitboxes::Hashed($i) => $e,
+        }
+    };
+}
+
+impl HitboxIndex for WorldHitboxes {
+    fn len(&self) -> u32 {
+        both!(self, i => i.len())
+    }
+    fn hitbox_at(&self, p: Vec3) -> Option<u32> {
+        both!(self, i => i.hitbox_at(p))
+    }
+    fn hitbox_of(&self, aabb: &Aabb) -> Option<u32> {
+        both!(self, i => i.hitbox_of(aabb))
+    }
+    fn xz_bounds(&self, index: u32) -> Option<(Vec2, Vec2)> {
+        both!(self, i => i.xz_bounds(index))
+    }
+    fn occupy(&mut self, aabb: &Aabb) -> Result<u32, CoreError> {
+        both!(self, i => i.occupy(aabb))
+    }
+    fn vacate(&mut self, hitbox: u32) {
+        both!(self, i => i.vacate(hitbox))
+    }
+    fn begin_frame(&mut self, frame: u64, evicted: &mut Vec<u32>) {
+        both!(self, i => i.begin_frame(frame, evicted))
+    }
+}
+
 #[cfg(test)]
 mod tests;

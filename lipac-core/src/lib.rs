@@ -74,7 +74,7 @@ pub use assembly::AssemblyConfig;
 pub use build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig};
 pub use culling::CullingConfig;
 pub use grid::{GridConfig, HitboxGrid};
-pub use hashed_hitboxes::{HashedConfig, HashedHitboxes};
+pub use hashed_hitboxes::{HashedConfig, HashedHitboxes, WorldHitboxes};
 pub use hitbox_index::HitboxIndex;
 pub use latency::{ActivationHeuristic, Frustum};
 pub use thresholds::Thresholds;

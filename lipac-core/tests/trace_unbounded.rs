@@ -86,3 +86,20 @@ fn half_declared_or_invalid_unbounded_worlds_are_refused() {
     assert!(e2.to_string().contains("world grid"), "{e2}");
     assert!(e.is_some(), "the writer refuses the header too");
 }
+
+#[test]
+fn the_world_picks_the_hitbox_structure() {
+    use lipac_core::hitbox_index::HitboxIndex;
+    use lipac_core::WorldHitboxes;
+    let (h, _) = tiny_trace();
+    let grid = WorldHitboxes::for_world(&h.world, 1 << 24).unwrap();
+    assert!(matches!(grid, WorldHitboxes::Grid(_)));
+    assert_eq!(grid.len(), 64, "128 m / 16 m cells squared");
+    assert!(WorldHitboxes::for_world(&h.world, 63).is_err());
+    let mut hashed = WorldHitboxes::for_world(&WorldInfo::unbounded(16.0), 1).unwrap();
+    assert!(matches!(hashed, WorldHitboxes::Hashed(_)));
+    assert_eq!(hashed.len(), 0);
+    let far = lipac_core::Aabb::new(glam::Vec3::splat(5.0e5), glam::Vec3::splat(5.0e5 + 1.0));
+    assert_eq!(hashed.occupy(&far), Ok(0));
+    assert_eq!(hashed.hitbox_of(&far), Some(0));
+}
