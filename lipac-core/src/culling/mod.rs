@@ -507,6 +507,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// BLAS. Its state write is an upload override.
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
         let handle = self.registry.register(desc)?;
+        self.sync_hitbox_count();
         let slot = self.registry.slot(handle)?;
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
@@ -536,7 +537,18 @@ impl<H: HitboxIndex> Culling<H> {
         handle: InstanceHandle,
         desc: InstanceDesc,
     ) -> Result<InstanceDesc, CoreError> {
-        self.registry.update(handle, desc)
+        let old = self.registry.update(handle, desc)?;
+        self.sync_hitbox_count();
+        Ok(old)
+    }
+
+    /// Grows the hitbox records to the index's [`HitboxIndex::len`] (a
+    /// structure that creates hitboxes on demand may have made one).
+    fn sync_hitbox_count(&mut self) {
+        let n = self.registry.hitbox_index().len() as usize;
+        if self.hitboxes.len() < n {
+            self.hitboxes.resize(n, HitboxRecord::default());
+        }
     }
 
     /// Moves an instance ([`InstanceRegistry::set_transform`]). An active
@@ -548,7 +560,9 @@ impl<H: HitboxIndex> Culling<H> {
         transform: Affine3A,
         aabb: Aabb,
     ) -> Result<(), CoreError> {
-        self.registry.set_transform(handle, transform, aabb)
+        self.registry.set_transform(handle, transform, aabb)?;
+        self.sync_hitbox_count();
+        Ok(())
     }
 
     /// Removes an instance: its slot is quarantined, its pending command
@@ -605,6 +619,14 @@ impl<H: HitboxIndex> Culling<H> {
         }
         self.registry.begin_frame(frame)?;
         crate::assembly::begin_frame(&mut self.hitboxes);
+        // Hitboxes the index dropped (empty cells) start over, inactive, on
+        // the GPU too (an override clears the active bit and streak).
+        for &index in self.registry.evicted_hitboxes() {
+            if let Some(h) = self.hitboxes.get_mut(index as usize) {
+                *h = HitboxRecord::default();
+                self.hitbox_overrides.insert(index, false);
+            }
+        }
         self.instance_hits.fill(0);
         self.fed_back = false;
         Ok(())

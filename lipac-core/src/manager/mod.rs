@@ -694,13 +694,17 @@ impl<H: HitboxIndex> Manager<H> {
         self.events = events;
         result?;
 
-        // 2. Priorities of waiting instances.
-        for slot in 0..self.slots.len() as u32 {
-            let entry = self.slots[slot as usize];
+        // 2. Priorities of waiting instances (only those: a scheduler lookup
+        // per slot was ~13 % of a frame at 100k instances).
+        let waiting: Vec<InstanceKey> = self.scheduler.waiting_instances().collect();
+        for key in waiting {
+            let slot = key.0;
+            let Some(entry) = self.slots.get(slot as usize).copied() else {
+                continue;
+            };
             let Some(s) = entry.instance else {
                 continue;
             };
-            let key = InstanceKey(slot);
             if s.scheduled && self.scheduler.pending_lod(key).is_some() {
                 let visible = self.visible(slot);
                 self.scheduler.set_feedback(key, entry.last_hits, visible)?;

@@ -44,8 +44,12 @@ struct HeaderProbe {
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct WorldDto {
-    min: [f64; 2],
-    max: [f64; 2],
+    /// Absent for an unbounded world (`WorldInfo::unbounded`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    min: Option<[f64; 2]>,
+    /// Absent for an unbounded world.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    max: Option<[f64; 2]>,
     cell_size: f64,
 }
 
@@ -212,8 +216,8 @@ fn header_dto(h: &TraceHeader) -> HeaderDto {
         version: TRACE_VERSION.into(),
         scene: h.scene_name.clone(),
         world: WorldDto {
-            min: h.world.min,
-            max: h.world.max,
+            min: h.world.is_bounded().then_some(h.world.min),
+            max: h.world.is_bounded().then_some(h.world.max),
             cell_size: h.world.cell_size,
         },
         meshes: h
@@ -242,8 +246,8 @@ fn header_of(d: HeaderDto) -> TraceHeader {
     TraceHeader {
         scene_name: d.scene,
         world: WorldInfo {
-            min: d.world.min,
-            max: d.world.max,
+            min: d.world.min.unwrap_or([f64::NEG_INFINITY; 2]),
+            max: d.world.max.unwrap_or([f64::INFINITY; 2]),
             cell_size: d.world.cell_size,
         },
         meshes: d
