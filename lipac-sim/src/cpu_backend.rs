@@ -144,6 +144,8 @@ impl CpuBackend {
             culling,
             scheduler: scheduler_config(config.build_priority),
             data: DataConfig::default(),
+            target: config.target,
+            controller: config.controller,
         };
         Ok(Self {
             manager: Manager::new(grid, manager_config, catalog).map_err(core)?,
