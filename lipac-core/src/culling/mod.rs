@@ -371,6 +371,20 @@ impl<H: HitboxIndex> Culling<H> {
         &self.config
     }
 
+    /// Replaces the thresholds Algorithm 2 runs with (the Manager's
+    /// closed-loop controller, [`crate::controller`]); a GPU backend reads
+    /// them from [`Culling::config`] when it records the frame. Fails,
+    /// changing nothing, for thresholds [`Thresholds::validate`] rejects.
+    pub fn set_thresholds(&mut self, thresholds: Thresholds) -> Result<(), CoreError> {
+        thresholds
+            .validate()
+            .map_err(|e| CoreError::InvalidConfig {
+                what: format!("thresholds: {e}"),
+            })?;
+        self.config.thresholds = thresholds;
+        Ok(())
+    }
+
     /// The instance registry (read-only; change instances through
     /// [`Culling`] so that commands, hit counters and uploads follow).
     pub fn registry(&self) -> &InstanceRegistry<H> {
