@@ -143,6 +143,10 @@ pub mod instance_bits {
     pub const VEGETATION: u32 = 1 << 4;
     /// Bit 5: static (its shared BLAS may be compacted).
     pub const STATIC: u32 = 1 << 5;
+    /// Bit 6: pinned: always traced with its own BLAS (terrain, the player,
+    /// large occluders, emitters); never culled, never a counting box, and
+    /// skipped by Algorithm 2's decisions.
+    pub const PINNED: u32 = 1 << 6;
     /// Bits 8..16: the engine's TLAS visibility mask for this instance.
     pub const MASK_SHIFT: u32 = 8;
     /// Bits 16..24: `VkGeometryInstanceFlagsKHR` for this instance.
@@ -190,6 +194,10 @@ impl InstanceRecord {
     /// Whether the instance needs a unique BLAS.
     pub fn needs_unique_blas(&self) -> bool {
         self.packed & instance_bits::UNIQUE_BLAS != 0
+    }
+    /// Whether the instance is pinned ([`instance_bits::PINNED`]).
+    pub fn is_pinned(&self) -> bool {
+        self.packed & instance_bits::PINNED != 0
     }
     /// The engine's visibility mask.
     pub fn mask(&self) -> u8 {

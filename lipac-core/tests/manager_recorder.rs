@@ -181,7 +181,7 @@ fn scripted_scene_round_trips_through_the_trace() {
     for i in 0..6u32 {
         let mut d = desc(if i % 3 == 0 { 7 } else { 1 }, 8.0 + 16.0 * i as f32, 8.0);
         if i == 4 {
-            d.flags = InstanceFlags::STATIC;
+            d.flags = InstanceFlags::STATIC | InstanceFlags::PINNED;
             d.mask = 0x0F;
         }
         let (id, h) = add(&mut m, 0, d, &mut expected);
@@ -236,6 +236,18 @@ fn scripted_scene_round_trips_through_the_trace() {
                     lod: Some(1),
                     mask: Some(0x3),
                     ..upd(5)
+                }));
+            }
+            6 => {
+                // Unpinned: the flag change is recorded.
+                let mut d = desc(1, 8.0 + 16.0 * 4.0, 8.0);
+                d.flags = InstanceFlags::STATIC;
+                d.mask = 0x0F;
+                m.update(handles[&4], d).unwrap();
+                expected[f].push(InstanceEvent::Update(UpdateInstance {
+                    pose: Some(pose_of(&d)),
+                    flags: Some(InstanceFlags::STATIC),
+                    ..upd(4)
                 }));
             }
             7 => {
@@ -302,6 +314,22 @@ fn scripted_scene_round_trips_through_the_trace() {
     assert!(r.next_frame().unwrap().is_none());
     assert!(r.is_finished());
     assert!(hit_frames >= 6, "{hit_frames} frames with hits");
+    // The pinned flag survives the JSON-lines form too.
+    let jsonl = lipac_core::trace::binary_to_jsonl(
+        bytes.as_slice(),
+        Vec::new(),
+        lipac_core::trace::TraceLimits::default(),
+    )
+    .unwrap();
+    let text = String::from_utf8(jsonl.clone()).unwrap();
+    assert!(text.contains(r#""flags":["static","pinned"]"#), "{text}");
+    let back = lipac_core::trace::jsonl_to_binary(
+        jsonl.as_slice(),
+        Vec::new(),
+        lipac_core::trace::TraceLimits::default(),
+    )
+    .unwrap();
+    assert_eq!(back, bytes);
 }
 
 #[test]

@@ -128,12 +128,14 @@ enum FlagName {
     UniqueBlas,
     Vegetation,
     Static,
+    Pinned,
 }
 
-const FLAG_NAMES: [(FlagName, InstanceFlags); 3] = [
+const FLAG_NAMES: [(FlagName, InstanceFlags); 4] = [
     (FlagName::UniqueBlas, InstanceFlags::UNIQUE_BLAS),
     (FlagName::Vegetation, InstanceFlags::VEGETATION),
     (FlagName::Static, InstanceFlags::STATIC),
+    (FlagName::Pinned, InstanceFlags::PINNED),
 ];
 
 fn flags_to_names(f: InstanceFlags) -> Vec<FlagName> {
