@@ -80,6 +80,7 @@ pub struct FrameMetrics {
     /// Instances hit by this frame's ground-truth paths missing from the TLAS.
     pub needed_missing: u64,
     /// Relative RMSE of the indirect light against the ground truth.
+    #[serde(with = "crate::json_float")]
     pub error: f64,
     /// CPU time (summed over threads) of the bounce and shadow rays traced
     /// against the strategy's TLAS, ms. Primary hits and the rasterized-shadow
@@ -204,8 +205,10 @@ pub struct Summary {
     /// Mean needed-but-missing instances per frame.
     pub mean_needed_missing: f64,
     /// Mean error.
+    #[serde(with = "crate::json_float")]
     pub mean_error: f64,
     /// Largest error of a frame.
+    #[serde(with = "crate::json_float")]
     pub max_error: f64,
     /// Mean trace time, ms.
     pub mean_trace_ms: f64,

@@ -30,6 +30,7 @@ pub struct SweepPoint {
     /// Mean BLAS builds per frame.
     pub builds_per_frame: f64,
     /// Error per frame.
+    #[serde(with = "crate::json_float::vec")]
     pub frame_errors: Vec<f64>,
     /// On the (frame time, error) Pareto front of its scene (frame time
     /// measured on the CPU: BLAS builds and refits, TLAS build, trace).
