@@ -71,7 +71,7 @@ pub use registry::{InstanceHandle, RegistryConfig, RemovedInstance};
 // Settings inside `ManagerConfig`.
 pub use assembly::AssemblyConfig;
 pub use build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig};
-pub use culling::CullingConfig;
+pub use culling::{CullingConfig, Selection};
 pub use grid::{GridConfig, HitboxGrid};
 pub use hitbox_index::HitboxIndex;
 pub use latency::{ActivationHeuristic, Frustum};
