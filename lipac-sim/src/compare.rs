@@ -196,16 +196,17 @@ pub fn make_strategy(
     scene: &Scene,
     lipac: &LipacConfig,
 ) -> Result<Box<dyn Strategy>, SimError> {
-    let n = scene.instances().len();
     Ok(match kind {
-        StrategyKind::Full => Box::new(Full::new(n)?),
-        StrategyKind::Frustum => Box::new(FrustumRadius::new(n, FrustumRadius::DEFAULT_RADIUS)?),
-        StrategyKind::Heuristic => Box::new(Heuristic::new(n, Default::default())?),
+        StrategyKind::Full => Box::new(Full::new(scene)?),
+        StrategyKind::Frustum => {
+            Box::new(FrustumRadius::new(scene, FrustumRadius::DEFAULT_RADIUS)?)
+        }
+        StrategyKind::Heuristic => Box::new(Heuristic::new(scene, Default::default())?),
         StrategyKind::Lipac => Box::new(Lipac::new(scene, lipac.clone())?),
         StrategyKind::LipacLatency => {
             Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
         }
-        StrategyKind::Oracle => Box::new(Oracle::new(n)?),
+        StrategyKind::Oracle => Box::new(Oracle::new(scene)?),
     })
 }
 

@@ -487,6 +487,9 @@ impl TraceScene {
         if f.contains(InstanceFlags::VEGETATION) {
             out |= flags::VEGETATION;
         }
+        if f.contains(InstanceFlags::PINNED) {
+            out |= flags::PINNED;
+        }
         if self.dynamic.get(slot as usize).copied().unwrap_or(true) {
             out |= flags::ANIMATED;
         } else if f.contains(InstanceFlags::STATIC) {

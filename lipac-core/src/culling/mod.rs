@@ -87,6 +87,28 @@ pub struct CullingConfig {
     /// (the read-back ring's depth, at least 1). Must be below
     /// [`RegistryConfig::quarantine_frames`].
     pub readback_latency: u32,
+    /// Who decides which instances are active: LiPaC's hit feedback (the
+    /// default) or the engine alone, through the pinned flag.
+    pub selection: Selection,
+}
+
+/// Who decides which instances are active ([`CullingConfig::selection`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Selection {
+    /// LiPaC: Algorithm 2's hit feedback, and the pinned instances
+    /// ([`InstanceFlags::PINNED`]), which are always active.
+    #[default]
+    HitFeedback,
+    /// The engine alone, without hit feedback: exactly the pinned instances
+    /// are active. Every hitbox is active from the start (so Algorithm 1
+    /// emits no counting box: the TLAS holds the pinned instances with a
+    /// BLAS), [`Culling::process_feedback`] changes nothing and writes no
+    /// command (a GPU backend skips Algorithm 2 and the read-back), and
+    /// clearing [`InstanceFlags::PINNED`] makes the instance inactive at
+    /// once, its BLAS released by the next command processing. For an
+    /// engine (or a baseline) that chooses its own set each frame and lets
+    /// lipac own the BLASes. Latency mitigation must be off.
+    EngineSelected,
 }
 
 impl CullingConfig {
@@ -102,6 +124,7 @@ impl CullingConfig {
             command_capacity: 1 << 16,
             latency_mitigation: Some(ActivationHeuristic::default()),
             readback_latency: 2,
+            selection: Selection::HitFeedback,
         }
     }
 
@@ -150,6 +173,13 @@ impl CullingConfig {
             }
         }
         if let Some(h) = self.latency_mitigation {
+            if self.selection == Selection::EngineSelected {
+                return invalid(
+                    "latency_mitigation must be None with Selection::EngineSelected: nothing \
+                     would deactivate what it activates"
+                        .into(),
+                );
+            }
             LatencyMitigation::new(h)?;
         }
         Ok(())
@@ -341,7 +371,8 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
 
 impl<H: HitboxIndex> Culling<H> {
     /// A loop over the hitbox structure `index` with all hitboxes inactive
-    /// and no instances, at frame 0. Fails for an invalid `config`.
+    /// (active with [`Selection::EngineSelected`]) and no instances, at
+    /// frame 0. Fails for an invalid `config`.
     pub fn new(index: H, config: CullingConfig) -> Result<Self, CoreError> {
         config.validate()?;
         let hitbox_count = index.len() as usize;
@@ -349,9 +380,24 @@ impl<H: HitboxIndex> Culling<H> {
             .latency_mitigation
             .map(LatencyMitigation::new)
             .transpose()?;
+        let engine_selected = config.selection == Selection::EngineSelected;
+        let hitbox = HitboxRecord {
+            packed: if engine_selected {
+                hitbox_bits::ACTIVE
+            } else {
+                0
+            },
+            ..HitboxRecord::default()
+        };
+        // A GPU backend learns the active hitboxes from the first upload.
+        let hitbox_overrides = if engine_selected {
+            (0..hitbox_count as u32).map(|i| (i, true)).collect()
+        } else {
+            HashMap::new()
+        };
         Ok(Self {
             registry: InstanceRegistry::new(index, config.registry)?,
-            hitboxes: vec![HitboxRecord::default(); hitbox_count],
+            hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
             slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
@@ -360,7 +406,7 @@ impl<H: HitboxIndex> Culling<H> {
             queue: CommandQueue::new(MAX_SLOTS),
             latency,
             state_overrides: StateOverrides::default(),
-            hitbox_overrides: HashMap::new(),
+            hitbox_overrides,
             scratch: Vec::new(),
             config,
         })
@@ -547,6 +593,25 @@ impl<H: HitboxIndex> Culling<H> {
         Ok(handle)
     }
 
+    /// [`Selection::EngineSelected`]: the instance in `slot` (live) was
+    /// unpinned, so it is inactive now; a queued `remove` makes the next
+    /// [`Culling::process_commands`] release its BLAS or cancel its build.
+    fn unpin(&mut self, slot: u32) -> Result<(), CoreError> {
+        let frame = self.registry.frame();
+        self.registry.set_state(slot, InstanceState::Inactive)?;
+        self.state_overrides.insert(slot, InstanceState::Inactive);
+        let view = &mut self.slots[slot as usize];
+        view.commanded_active = false;
+        view.decided_at = frame;
+        let remove = Command {
+            slot,
+            kind: CommandKind::Remove,
+            priority: 0,
+        };
+        self.queue.push(remove, &mut IngestSummary::default());
+        Ok(())
+    }
+
     /// The loop's decision for a pinned instance in `slot` (live): active
     /// now (record, upload override, commanded state), waiting for its BLAS
     /// unless it holds one or one is promised.
@@ -578,12 +643,16 @@ impl<H: HitboxIndex> Culling<H> {
     ) -> Result<InstanceDesc, CoreError> {
         let old = self.registry.update(handle, desc)?;
         self.sync_hitbox_count();
+        let slot = self.registry.slot(handle)?;
         if desc.flags.contains(InstanceFlags::PINNED) {
-            let slot = self.registry.slot(handle)?;
             let view = self.slots[slot as usize];
             if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
                 self.pin(slot);
             }
+        } else if old.flags.contains(InstanceFlags::PINNED)
+            && self.config.selection == Selection::EngineSelected
+        {
+            self.unpin(slot)?;
         }
         Ok(old)
     }
@@ -893,7 +962,9 @@ impl<H: HitboxIndex> Culling<H> {
 
     /// Algorithm 2 ([`process_feedback`]) over this frame's hits: hitbox and
     /// instance transitions, commands into the bounded buffer. Once per
-    /// frame, after the previous frame's commands were taken.
+    /// frame, after the previous frame's commands were taken. With
+    /// [`Selection::EngineSelected`] it changes nothing and writes no
+    /// command (the call order still holds).
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, CoreError> {
         if self.fed_back {
             return Err(CoreError::CallOrder {
@@ -909,6 +980,12 @@ impl<H: HitboxIndex> Culling<H> {
             });
         }
         self.commands.clear();
+        if self.config.selection == Selection::EngineSelected {
+            // No hit feedback: nothing moves, no command is written.
+            self.fed_back = true;
+            self.untaken = true;
+            return Ok(FeedbackStats::default());
+        }
         let stats = process_feedback(
             self.registry.records_mut(),
             &self.instance_hits,

@@ -578,6 +578,33 @@ impl<H: HitboxIndex> Manager<H> {
         Ok(old)
     }
 
+    /// Pins (`true`) or unpins an instance: [`Manager::update`] of its
+    /// flags with [`InstanceFlags::PINNED`] set or cleared, everything else
+    /// kept. Returns whether it was pinned. With
+    /// [`Selection::EngineSelected`](crate::culling::Selection) this is how
+    /// an engine chooses its set each frame: pinned = active and traced,
+    /// unpinned = inactive at once (its BLAS released in the next plan).
+    pub fn set_pinned(
+        &mut self,
+        handle: InstanceHandle,
+        pinned: bool,
+    ) -> Result<bool, ManagerError> {
+        let (_, s) = self.slot_of(handle)?;
+        let mut desc = self.culling.registry().desc(handle)?;
+        let was = desc.flags.contains(InstanceFlags::PINNED);
+        if was == pinned {
+            return Ok(was);
+        }
+        if pinned {
+            desc.flags.insert(InstanceFlags::PINNED);
+        } else {
+            desc.flags.remove(InstanceFlags::PINNED);
+        }
+        desc.lod = s.requested_lod.into();
+        self.update(handle, desc)?;
+        Ok(was)
+    }
+
     /// Moves an instance (new transform and world AABB).
     pub fn set_transform(
         &mut self,

@@ -22,8 +22,7 @@
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::controller::{ControlTarget, ControllerConfig};
-use lipac_core::grid::{GridConfig, HitboxGrid};
-use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
+use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::registry::InstanceHandle;
@@ -33,7 +32,7 @@ use super::{FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, lipac_overhead_bytes};
-use crate::scene::{flags, Scene};
+use crate::scene::Scene;
 use crate::scene_blas::instance_mask;
 use crate::tlas::CountingBoxes;
 use crate::traversal::Counters;
@@ -154,20 +153,7 @@ impl Lipac {
     /// Registers every instance of `scene` (frame 0 state) in a
     /// [`CpuBackend`] whose hitbox grid covers the scene.
     pub fn new(scene: &Scene, config: LipacConfig) -> Result<Self, SimError> {
-        let b = scene.bounds();
-        let c = config.cell_size;
-        let grid = HitboxGrid::new(GridConfig {
-            min: [
-                (f64::from(b.min.x) / c).floor() * c,
-                (f64::from(b.min.z) / c).floor() * c,
-            ],
-            max: [
-                ((f64::from(b.max.x) / c).floor() + 1.0) * c,
-                ((f64::from(b.max.z) / c).floor() + 1.0) * c,
-            ],
-            cell_size: c,
-        })
-        .map_err(SimError::core)?;
+        let grid = super::scene_grid(scene, config.cell_size)?;
         let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
         let mut backend = CpuBackend::new(grid, &config, catalog)?;
         let n = scene.instances().len();
@@ -175,16 +161,7 @@ impl Lipac {
         let mut handles = Vec::with_capacity(n);
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
-            let mut f = InstanceFlags::empty();
-            if inst.is_unique() {
-                f |= InstanceFlags::UNIQUE_BLAS;
-            }
-            if inst.is_vegetation() {
-                f |= InstanceFlags::VEGETATION;
-            }
-            if inst.flags & flags::STATIC != 0 {
-                f |= InstanceFlags::STATIC;
-            }
+            let f = inst.instance_flags();
             if inst.is_animated() {
                 units.push(slot as u32);
             }
