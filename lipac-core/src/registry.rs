@@ -442,7 +442,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         Ok(rows)
     }
 
-    /// Registers an instance. It starts [`InstanceState::Inactive`] with no
+    /// Registers an instance. It starts [`InstanceState::Inactive`]
+    /// ([`InstanceState::Active`] if [`InstanceFlags::PINNED`]) with no
     /// BLAS, in the lowest free slot (or a new slot at the end).
     ///
     /// Errors: non-finite transform, invalid AABB, SBT offset over 24 bits,
@@ -476,7 +477,12 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             mesh: desc.mesh,
         });
         let handle = self.handle(key);
-        self.records[slot as usize] = build_record(&desc, rows, hitbox, InstanceState::Inactive, 0);
+        let state = if desc.flags.contains(InstanceFlags::PINNED) {
+            InstanceState::Active
+        } else {
+            InstanceState::Inactive
+        };
+        self.records[slot as usize] = build_record(&desc, rows, hitbox, state, 0);
         self.occupants[slot as usize] = SlotOccupant {
             handle: Some(key),
             serial: self.registrations,
@@ -487,7 +493,9 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     }
 
     /// Replaces an instance's description and returns the previous one. Its
-    /// slot, state and BLAS stay; if the mesh, LOD or
+    /// slot, state and BLAS stay (a [`InstanceFlags::PINNED`] description
+    /// makes the state [`InstanceState::Active`]; clearing the flag keeps
+    /// the state); if the mesh, LOD or
     /// [`InstanceFlags::UNIQUE_BLAS`] changed, the caller acquires the new
     /// BLAS, calls [`InstanceRegistry::set_blas`] and releases the old one.
     /// On error nothing changes.
@@ -503,7 +511,12 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let record = &mut self.records[entry.slot as usize];
         self.index.vacate(record.hitbox);
         let old = desc_from_record(record, entry.mesh);
-        *record = build_record(&desc, rows, hitbox, record.state(), record.blas);
+        let state = if desc.flags.contains(InstanceFlags::PINNED) {
+            InstanceState::Active
+        } else {
+            record.state()
+        };
+        *record = build_record(&desc, rows, hitbox, state, record.blas);
         self.dirty.mark(entry.slot);
         self.instances[key].mesh = desc.mesh;
         Ok(old)

@@ -143,6 +143,8 @@ impl<H: HitboxIndex> CpuBackend<H> {
             culling,
             scheduler: scheduler_config(config.build_priority),
             data: DataConfig::default(),
+            target: config.target,
+            controller: config.controller,
         };
         Ok(Self {
             manager: Manager::new(grid, manager_config, catalog).map_err(core)?,

@@ -722,10 +722,11 @@ impl TraceRecorder {
 }
 
 /// Whether Algorithm 1 reduces the instance into its hitbox's counting box:
-/// inactive, or in an inactive hitbox (`crate::assembly`).
+/// inactive, or in an inactive hitbox, and not pinned (`crate::assembly`).
 fn culled(r: &InstanceRecord, boxes: &[HitboxRecord]) -> bool {
-    r.state() == InstanceState::Inactive
-        || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active())
+    !r.is_pinned()
+        && (r.state() == InstanceState::Inactive
+            || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active()))
 }
 
 fn pose(desc: &InstanceDesc) -> Pose {

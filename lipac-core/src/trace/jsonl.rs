@@ -128,12 +128,14 @@ enum FlagName {
     UniqueBlas,
     Vegetation,
     Static,
+    Pinned,
 }
 
-const FLAG_NAMES: [(FlagName, InstanceFlags); 3] = [
+const FLAG_NAMES: [(FlagName, InstanceFlags); 4] = [
     (FlagName::UniqueBlas, InstanceFlags::UNIQUE_BLAS),
     (FlagName::Vegetation, InstanceFlags::VEGETATION),
     (FlagName::Static, InstanceFlags::STATIC),
+    (FlagName::Pinned, InstanceFlags::PINNED),
 ];
 
 fn flags_to_names(f: InstanceFlags) -> Vec<FlagName> {
@@ -1051,6 +1053,8 @@ fn peek_frame_number(line: &[u8]) -> Option<u64> {
 
 #[cfg(test)]
 mod tests {
+    use lipac_test_support::{Rng64, SplitMix64};
+
     use super::format_f32;
 
     fn round_trip(v: f32) -> f32 {
@@ -1078,13 +1082,10 @@ mod tests {
         for v in special {
             assert_eq!(round_trip(v).to_bits(), v.to_bits(), "{v:?}");
         }
-        // A spread of bit patterns over every exponent (xorshift).
-        let mut x = 0x1234_5678_9ABC_DEF0u64;
+        // A spread of bit patterns over every exponent.
+        let mut rng = SplitMix64::new(0x1234_5678_9ABC_DEF0);
         for _ in 0..200_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            let v = f32::from_bits(x as u32);
+            let v = f32::from_bits(rng.next_u32());
             if v.is_finite() {
                 assert_eq!(
                     round_trip(v).to_bits(),

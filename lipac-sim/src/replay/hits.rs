@@ -484,6 +484,9 @@ pub fn replay_hits_with<R: Read>(
             // Hits-only replay traces no rays.
             traced_rays_per_frame: 0.0,
             wall_s: start.elapsed().as_secs_f64(),
+            // No BLAS is built or timed: BLAS and frame times stay 0.
+            blas_throughput: Default::default(),
+            gpu_model: Default::default(),
             strategies,
         },
         fp,
