@@ -871,12 +871,15 @@ impl<H: HitboxIndex> Manager<H> {
     /// for CPU backends. The hits are kept to prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
         self.record_frame_hits(None); // before Algorithm 2 changes states
-        self.observe_escape(control::escape_sample(
+        let escape = control::escape_sample(
             self.culling.registry().records(),
             self.culling.instance_hits(),
             self.culling.hitboxes(),
-        ));
+        );
         let stats = self.culling.process_feedback()?;
+        // Only a call that ran feeds the controller (a refused one changes
+        // nothing).
+        self.observe_escape(escape);
         for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
             e.last_hits = h;
         }
