@@ -111,7 +111,7 @@ pub enum MeshKind {
 pub struct LodTriangles {
     /// Triangles in object space.
     pub triangles: Vec<Triangle>,
-    /// Material byte per triangle (see [`material`]).
+    /// Material byte per triangle (see [`mod@material`]).
     pub materials: Vec<u8>,
     /// Whether the triangle is alpha tested with [`leaf_opaque`].
     pub alpha_tested: Vec<bool>,

@@ -877,8 +877,7 @@ impl<H: HitboxIndex> Manager<H> {
             self.culling.hitboxes(),
         );
         let stats = self.culling.process_feedback()?;
-        // Only a call that ran feeds the controller (a refused one changes
-        // nothing).
+        // Only once Algorithm 2 ran: a refused call changes nothing.
         self.observe_escape(escape);
         for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
             e.last_hits = h;
