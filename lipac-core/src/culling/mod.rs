@@ -54,7 +54,7 @@ use glam::{Affine3A, Vec3};
 use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
 use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
-use crate::feedback::{process_feedback, FeedbackStats};
+use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
@@ -324,6 +324,9 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     registry: InstanceRegistry<H>,
     hitboxes: Vec<HitboxRecord>,
     instance_hits: Vec<u32>,
+    /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
+    /// decayed rule's, kept across frames).
+    instance_rates: Vec<u32>,
     /// The one per-slot table of the loop (length = the registry's slot
     /// count): the commanded state and the pending BLAS promise.
     slots: Vec<SlotView>,
@@ -353,6 +356,7 @@ impl<H: HitboxIndex> Culling<H> {
             registry: InstanceRegistry::new(index, config.registry)?,
             hitboxes: vec![HitboxRecord::default(); hitbox_count],
             instance_hits: Vec::new(),
+            instance_rates: Vec::new(),
             slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
@@ -404,6 +408,13 @@ impl<H: HitboxIndex> Culling<H> {
         &mut self.instance_hits
     }
 
+    /// The per-slot decayed hit rates (16.16) Algorithm 2 keeps under
+    /// [`crate::thresholds::DecisionRule::Decayed`] (all 0 under the
+    /// paper's rule); a GPU backend keeps its own copy on the GPU.
+    pub fn instance_rates(&self) -> &[u32] {
+        &self.instance_rates
+    }
+
     /// Commands waiting for processing.
     pub fn pending_commands(&self) -> usize {
         self.queue.len()
@@ -435,7 +446,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// use lipac_core::grid::{GridConfig, HitboxGrid};
     /// let culling = Culling::new(HitboxGrid::new(GridConfig::default())?, CullingConfig::new(1))?;
     /// let m = culling.memory_usage();
-    /// assert_eq!(m.hitboxes, 512 * 512 * 12); // 3 MiB of hitbox records
+    /// assert_eq!(m.hitboxes, 512 * 512 * 20); // 5 MiB of hitbox records
     /// assert_eq!(m.records, 0); // no instances yet
     /// # Ok::<(), lipac_core::error::CoreError>(())
     /// ```
@@ -448,7 +459,9 @@ impl<H: HitboxIndex> Culling<H> {
             slot_occupants,
             free_lists,
             dirty,
-            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity()),
+            // The hit counters and the decayed rates, 4 bytes a slot each.
+            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
+                + vec_bytes::<u32>(self.instance_rates.capacity()),
             awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
             latency_bits: self
                 .latency
@@ -496,6 +509,8 @@ impl<H: HitboxIndex> Culling<H> {
         let slots = self.registry.reserve_slots(additional);
         self.instance_hits
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
+        self.instance_rates
+            .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
         self.slots
             .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
@@ -511,9 +526,11 @@ impl<H: HitboxIndex> Culling<H> {
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
+            self.instance_rates.resize(n, 0);
             self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
+        self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
         self.slots[slot as usize] = SlotView {
             commanded_active: false,
@@ -823,7 +840,7 @@ impl<H: HitboxIndex> Culling<H> {
         .map_err(CoreError::Assembly)
     }
 
-    /// Algorithm 2 ([`process_feedback`]) over this frame's hits: hitbox and
+    /// Algorithm 2 ([`process_feedback_with_rates`]) over this frame's hits: hitbox and
     /// instance transitions, commands into the bounded buffer. Once per
     /// frame, after the previous frame's commands were taken.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, CoreError> {
@@ -841,9 +858,10 @@ impl<H: HitboxIndex> Culling<H> {
             });
         }
         self.commands.clear();
-        let stats = process_feedback(
+        let stats = process_feedback_with_rates(
             self.registry.records_mut(),
             &self.instance_hits,
+            &mut self.instance_rates,
             &mut self.hitboxes,
             &self.config.thresholds,
             &mut self.commands,
