@@ -476,7 +476,11 @@ impl Thresholds {
     /// Every hit threshold (θa, θd, σa, σo and the decayed rule's rates)
     /// multiplied by `factor`, as [`Self::for_rays_per_frame`] rounds them
     /// (at least 1, each lower one below its upper one); streaks and the
-    /// decay shift stay. The one knob a threshold controller turns.
+    /// decay shift stay: the closed-loop controller's output
+    /// ([`crate::controller`]). `scaled(1.0)` of valid thresholds is
+    /// themselves; a `factor` that is NaN, infinite, zero or negative is
+    /// [`ThresholdError::InvalidScale`], one that pushes a threshold past its
+    /// counter an error too.
     ///
     /// ```
     /// use lipac_core::thresholds::Thresholds;
@@ -633,6 +637,27 @@ mod tests {
         let e = Thresholds::for_rays_per_frame(REFERENCE_RAYS_PER_FRAME * 10_000.0).unwrap_err();
         assert!(matches!(e, ThresholdError::ActivationTooLarge { .. }));
         assert!(e.to_string().contains("24-bit"));
+    }
+
+    #[test]
+    fn scaled_multiplies_hit_thresholds_and_keeps_order() {
+        let p = Thresholds::paper();
+        let t = p.scaled(2.5).unwrap();
+        assert_eq!(
+            (t.theta_a, t.theta_d, t.sigma_a, t.sigma_o),
+            (2500, 250, 2500, 250)
+        );
+        assert_eq!((t.n_a, t.n_d), (p.n_a, p.n_d));
+        // Tiny factors keep every threshold >= 1 and the bands non-empty.
+        let t = p.scaled(1e-9).unwrap();
+        assert_eq!((t.theta_d, t.theta_a, t.sigma_o, t.sigma_a), (1, 2, 1, 2));
+        for f in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+            assert!(matches!(p.scaled(f), Err(ThresholdError::InvalidScale(_))));
+        }
+        assert!(matches!(
+            p.scaled(1e5),
+            Err(ThresholdError::ActivationTooLarge { .. })
+        ));
     }
 
     #[test]

@@ -14,7 +14,8 @@ void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
         uint packed = instances[slot].packed;
         bool decayed = pc.rule == LIPAC_RULE_DECAYED;
-        if ((packed & LIPAC_INSTANCE_ALIVE) == 0u) {
+        // Dead, or pinned (never moved by Algorithm 2); the rate of either is 0.
+        if ((packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_PINNED)) != LIPAC_INSTANCE_ALIVE) {
             if (decayed && instanceRates[slot] != 0u) {
                 instanceRates[slot] = 0u;
             }
