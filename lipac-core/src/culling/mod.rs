@@ -54,7 +54,7 @@ use glam::{Affine3A, Vec3};
 use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
 use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
-use crate::feedback::{process_feedback, FeedbackStats};
+use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
@@ -354,6 +354,9 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     registry: InstanceRegistry<H>,
     hitboxes: Vec<HitboxRecord>,
     instance_hits: Vec<u32>,
+    /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
+    /// decayed rule's, kept across frames).
+    instance_rates: Vec<u32>,
     /// The one per-slot table of the loop (length = the registry's slot
     /// count): the commanded state and the pending BLAS promise.
     slots: Vec<SlotView>,
@@ -399,6 +402,7 @@ impl<H: HitboxIndex> Culling<H> {
             registry: InstanceRegistry::new(index, config.registry)?,
             hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
+            instance_rates: Vec::new(),
             slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
@@ -464,6 +468,13 @@ impl<H: HitboxIndex> Culling<H> {
         &mut self.instance_hits
     }
 
+    /// The per-slot decayed hit rates (16.16) Algorithm 2 keeps under
+    /// [`crate::thresholds::DecisionRule::Decayed`] (all 0 under the
+    /// paper's rule); a GPU backend keeps its own copy on the GPU.
+    pub fn instance_rates(&self) -> &[u32] {
+        &self.instance_rates
+    }
+
     /// Commands waiting for processing.
     pub fn pending_commands(&self) -> usize {
         self.queue.len()
@@ -495,7 +506,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// use lipac_core::grid::{GridConfig, HitboxGrid};
     /// let culling = Culling::new(HitboxGrid::new(GridConfig::default())?, CullingConfig::new(1))?;
     /// let m = culling.memory_usage();
-    /// assert_eq!(m.hitboxes, 512 * 512 * 12); // 3 MiB of hitbox records
+    /// assert_eq!(m.hitboxes, 512 * 512 * 20); // 5 MiB of hitbox records
     /// assert_eq!(m.records, 0); // no instances yet
     /// # Ok::<(), lipac_core::error::CoreError>(())
     /// ```
@@ -508,7 +519,9 @@ impl<H: HitboxIndex> Culling<H> {
             slot_occupants,
             free_lists,
             dirty,
-            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity()),
+            // The hit counters and the decayed rates, 4 bytes a slot each.
+            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
+                + vec_bytes::<u32>(self.instance_rates.capacity()),
             awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
             latency_bits: self
                 .latency
@@ -556,6 +569,8 @@ impl<H: HitboxIndex> Culling<H> {
         let slots = self.registry.reserve_slots(additional);
         self.instance_hits
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
+        self.instance_rates
+            .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
         self.slots
             .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
@@ -574,9 +589,11 @@ impl<H: HitboxIndex> Culling<H> {
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
+            self.instance_rates.resize(n, 0);
             self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
+        self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
         self.slots[slot as usize] = SlotView {
             commanded_active: false,
@@ -960,7 +977,7 @@ impl<H: HitboxIndex> Culling<H> {
         .map_err(CoreError::Assembly)
     }
 
-    /// Algorithm 2 ([`process_feedback`]) over this frame's hits: hitbox and
+    /// Algorithm 2 ([`process_feedback_with_rates`]) over this frame's hits: hitbox and
     /// instance transitions, commands into the bounded buffer. Once per
     /// frame, after the previous frame's commands were taken. With
     /// [`Selection::EngineSelected`] it changes nothing and writes no
@@ -986,9 +1003,10 @@ impl<H: HitboxIndex> Culling<H> {
             self.untaken = true;
             return Ok(FeedbackStats::default());
         }
-        let stats = process_feedback(
+        let stats = process_feedback_with_rates(
             self.registry.records_mut(),
             &self.instance_hits,
+            &mut self.instance_rates,
             &mut self.hitboxes,
             &self.config.thresholds,
             &mut self.commands,

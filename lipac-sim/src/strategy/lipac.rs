@@ -26,7 +26,7 @@ use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::registry::InstanceHandle;
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 
 use super::{FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
@@ -77,6 +77,19 @@ impl LipacConfig {
     /// less error.
     pub const DEFAULT_CELL_SIZE: f64 = 32.0;
 
+    /// The default decision rule's settings (hits per frame at 1080p, 1 spp,
+    /// scaled to the rays like the paper's θa = 1000): see
+    /// docs/EVALUATION.md, "The decayed rule".
+    pub const DEFAULT_DECAYED: DecayedSettings = DecayedSettings {
+        half_life_frames: 5.0,
+        activate: 300.0,
+        deactivate: 60.0,
+        instance_activate: 300.0,
+        instance_omit: 60.0,
+        per_shared: 0.0,
+        per_unique: 0.0,
+    };
+
     /// Paper settings for `rays_per_frame` camera rays: scaled thresholds,
     /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, 4096 commands per frame,
     /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
@@ -113,6 +126,26 @@ impl LipacConfig {
             frustum_bonus: 0,
             ..PriorityConfig::default()
         }
+    }
+    /// The same deciding with the paper's rule (θa, θd, σa, σo, n_a, n_d on
+    /// this frame's hits) instead of the decayed rate.
+    pub fn with_paper_rule(mut self) -> Self {
+        self.thresholds.rule = DecisionRule::Paper;
+        self
+    }
+    /// The same deciding with the decayed rule `settings` scaled to
+    /// `rays_per_frame` camera rays; settings that cannot be met (NaN, zero
+    /// or negative rates, a half-life outside 0.5..=400 frames) are an error.
+    pub fn with_decayed_rule(
+        mut self,
+        settings: &DecayedSettings,
+        rays_per_frame: u64,
+    ) -> Result<Self, SimError> {
+        let rule = settings
+            .rule_for_rays_per_frame(rays_per_frame as f64)
+            .map_err(SimError::core)?;
+        self.thresholds.rule = DecisionRule::Decayed(rule);
+        Ok(self)
     }
     /// The same with latency mitigation (lipac-core's default heuristic).
     pub fn with_latency_mitigation(mut self) -> Self {
@@ -308,3 +341,7 @@ impl Strategy for Lipac {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "lipac_tests.rs"]
+mod tests;
