@@ -483,6 +483,7 @@ pub fn replay_hits_with<R: Read>(
             traced_rays_per_frame: 0.0,
             wall_s: start.elapsed().as_secs_f64(),
             strategies,
+            camera_cuts: Vec::new(),
         },
         fp,
     ))
