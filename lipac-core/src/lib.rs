@@ -47,6 +47,7 @@ mod dirty;
 pub mod error;
 pub mod feedback;
 pub mod grid;
+pub mod hashed_hitboxes;
 pub mod hitbox_index;
 pub mod instance;
 pub mod latency;
@@ -78,6 +79,7 @@ pub use controller::{
 };
 pub use culling::CullingConfig;
 pub use grid::{GridConfig, HitboxGrid};
+pub use hashed_hitboxes::{HashedConfig, HashedHitboxes, WorldHitboxes};
 pub use hitbox_index::HitboxIndex;
 pub use latency::{ActivationHeuristic, Frustum};
 pub use thresholds::Thresholds;

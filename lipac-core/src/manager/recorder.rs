@@ -722,10 +722,11 @@ impl TraceRecorder {
 }
 
 /// Whether Algorithm 1 reduces the instance into its hitbox's counting box:
-/// inactive, or in an inactive hitbox (`crate::assembly`).
+/// inactive, or in an inactive hitbox, and not pinned (`crate::assembly`).
 fn culled(r: &InstanceRecord, boxes: &[HitboxRecord]) -> bool {
-    r.state() == InstanceState::Inactive
-        || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active())
+    !r.is_pinned()
+        && (r.state() == InstanceState::Inactive
+            || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active()))
 }
 
 fn pose(desc: &InstanceDesc) -> Pose {
@@ -739,15 +740,22 @@ impl<H: HitboxIndex + 'static> Manager<H> {
     /// Attaches `recorder`: from now on every instance change, camera and
     /// (optionally) the hits are recorded (see [`recorder`](self)). Fails
     /// if one is attached, or if there is no world for the header (a hitbox
-    /// structure other than [`HitboxGrid`] without
+    /// structure other than [`HitboxGrid`] or a
+    /// [`HashedHitboxes`](crate::hashed_hitboxes::HashedHitboxes) anchored
+    /// at the origin, whose world is [`WorldInfo::unbounded`], without
     /// [`RecorderOptions::world`]). Instances registered before are not in
     /// the trace.
     pub fn attach_recorder(&mut self, mut recorder: TraceRecorder) -> Result<(), RecorderError> {
         if self.recorder.is_some() {
             return Err(RecorderError::AlreadyAttached);
         }
-        let grid =
-            (self.culling.registry().hitbox_index() as &dyn Any).downcast_ref::<HitboxGrid>();
+        let index = self.culling.registry().hitbox_index() as &dyn Any;
+        let grid = index.downcast_ref::<HitboxGrid>();
+        // A hashed index anchored at the origin records an unbounded world.
+        let hashed = index
+            .downcast_ref::<crate::hashed_hitboxes::HashedHitboxes>()
+            .filter(|h| h.config().origin == [0.0, 0.0])
+            .map(|h| WorldInfo::unbounded(h.config().cell_size));
         let world = recorder
             .options
             .world
@@ -758,6 +766,7 @@ impl<H: HitboxIndex + 'static> Manager<H> {
                     cell_size: g.cell_size(),
                 })
             })
+            .or(hashed)
             .ok_or_else(|| RecorderError::Header {
                 what: "no world: not a HitboxGrid manager and RecorderOptions::world unset".into(),
             })?;

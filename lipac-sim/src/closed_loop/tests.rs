@@ -70,6 +70,8 @@ fn report(strategies: Vec<StrategyRun>) -> CompareReport {
         wall_s: 0.0,
         strategies,
         camera_cuts: vec![100],
+        blas_throughput: Default::default(),
+        gpu_model: Default::default(),
     }
 }
 
