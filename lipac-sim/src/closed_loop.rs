@@ -106,14 +106,22 @@ pub fn sim_controller() -> ControllerConfig {
 }
 
 /// LiPaC's configuration for `rays_per_frame` holding `target` with
-/// [`sim_controller`].
+/// [`sim_controller`]. A memory budget is a ceiling here: the scale never
+/// falls below 1 (`min_scale` = 1), since spending spare budget by lowering
+/// the thresholds drove the scale to its floor wherever the scene needed
+/// less than the budget (high above the city), and it then rose too late
+/// when the camera came down (docs/EVALUATION.md).
 pub fn lipac_with_target(
     rays_per_frame: u64,
     target: ControlTarget,
 ) -> Result<LipacConfig, SimError> {
+    let mut controller = sim_controller();
+    if matches!(target, ControlTarget::MemoryBudget { .. }) {
+        controller.min_scale = 1.0;
+    }
     Ok(LipacConfig {
         target: Some(target),
-        controller: sim_controller(),
+        controller,
         ..LipacConfig::for_rays_per_frame(rays_per_frame)?
     })
 }
