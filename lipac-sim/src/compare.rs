@@ -163,6 +163,9 @@ pub struct CompareReport {
     pub gpu_model: GpuModel,
     /// Per strategy.
     pub strategies: Vec<StrategyRun>,
+    /// Frames at which the camera path jumps ([`CameraPath::cuts`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub camera_cuts: Vec<u32>,
 }
 
 impl CompareReport {
@@ -292,7 +295,7 @@ pub fn run_contenders(
     run_path(scene_name, scene, path, config, contenders, &[], progress).map(|(r, _)| r)
 }
 
-fn run_path(
+pub(crate) fn run_path(
     scene_name: &str,
     scene: &mut Scene,
     path: &CameraPath,
@@ -312,7 +315,14 @@ fn run_path(
         c.frame(scene, frame, &path.camera_at(frame))?;
         progress(frame + 1, frames);
     }
-    c.finish_with_snapshots()
+    let (mut report, snaps) = c.finish_with_snapshots()?;
+    report.camera_cuts = path
+        .cuts()
+        .iter()
+        .copied()
+        .filter(|&f| f < frames)
+        .collect();
+    Ok((report, snaps))
 }
 
 /// The comparison one frame at a time, for callers whose frames come from
@@ -753,6 +763,7 @@ impl Comparison {
             blas_throughput: self.throughput,
             gpu_model: self.gpu,
             strategies,
+            camera_cuts: Vec::new(),
         };
         Ok((report, self.snapshots))
     }

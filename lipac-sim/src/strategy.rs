@@ -271,7 +271,7 @@ pub struct FrameContext<'a> {
 }
 
 /// What a strategy reports for one frame (besides its records).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StrategyFrame {
     /// BLAS work done this frame.
     pub work: BlasWork,
@@ -279,6 +279,24 @@ pub struct StrategyFrame {
     pub blas_bytes: u64,
     /// Modelled bytes of its own buffers (LiPaC: hitboxes, hit counters).
     pub overhead_bytes: u64,
+    /// LiPaC: the closed-loop view of the frame ([`ControlFrame`]).
+    pub control: Option<ControlFrame>,
+}
+
+/// LiPaC's closed-loop thresholds in one frame ([`lipac_core::controller`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ControlFrame {
+    /// Escape fraction of the hits the Manager counted last (the previous
+    /// frame's trace), `None` without hits.
+    pub escape_fraction: Option<f64>,
+    /// The scale on the thresholds (1 without a target).
+    pub threshold_scale: f64,
+    /// The bytes a memory budget holds, as the Manager accounts them.
+    pub controlled_bytes: u64,
+    /// The target (bytes or fraction), `None` without one.
+    pub target: Option<f64>,
+    /// The controller reports its target unreachable.
+    pub unreachable: bool,
 }
 
 /// A culling strategy (see the module docs).
@@ -422,6 +440,7 @@ impl SetStrategy {
             work: f.work,
             blas_bytes: self.backend.blas_bytes(),
             overhead_bytes: 0,
+            control: None,
         })
     }
 }

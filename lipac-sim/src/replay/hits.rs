@@ -447,6 +447,7 @@ pub fn replay_hits_with<R: Read>(
             blas_throughput: Default::default(),
             gpu_model: Default::default(),
             strategies,
+            camera_cuts: Vec::new(),
         },
         fp,
     ))

@@ -28,7 +28,7 @@ use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 
-use super::{FrameContext, InstanceCatalog, Strategy, StrategyFrame};
+use super::{ControlFrame, FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, lipac_overhead_bytes};
@@ -334,10 +334,20 @@ impl Strategy for Lipac {
         }
         let hitboxes = self.backend.hitboxes();
         self.stats.active_hitboxes = hitboxes.iter().filter(|h| h.is_active()).count() as u32;
+        let manager = self.backend.manager();
+        let stats = manager.stats();
+        let control = ControlFrame {
+            escape_fraction: stats.escape.and_then(|e| e.fraction()),
+            threshold_scale: stats.controller.map_or(1.0, |c| c.scale),
+            controlled_bytes: manager.controlled_bytes(),
+            target: stats.controller.map(|c| c.target),
+            unreachable: stats.controller.is_some_and(|c| c.unreachable),
+        };
         Ok(StrategyFrame {
             work: f.work,
             blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
             overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64),
+            control: Some(control),
         })
     }
 }
