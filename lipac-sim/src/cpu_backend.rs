@@ -163,6 +163,13 @@ impl CpuBackend {
         &self.manager
     }
 
+    /// The Manager, e.g. to attach a trace recorder
+    /// ([`Manager::attach_recorder`]) and pass it the camera. Driving its
+    /// frame (begin, plan, feedback) directly bypasses this backend.
+    pub fn manager_mut(&mut self) -> &mut Manager<HitboxGrid> {
+        &mut self.manager
+    }
+
     // ---- instances ------------------------------------------------------
 
     /// Reserves room for `additional` more instances.
