@@ -39,8 +39,9 @@ use lipac::sim::camera::{Camera, CameraPath};
 use lipac::sim::mesh::TERRAIN_RESOLUTION;
 use lipac::sim::scene::{LodPolicy, Scene, SceneConfig, TERRAIN_MESH};
 use lipac::vk::{
-    Buffer, CameraTraceBuffers, CameraTracer, CameraView, DeviceContext, FrameSubmitter, GpuBlas,
-    HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, TriangleGeometry, Validation,
+    BlasGeometrySource, Buffer, CameraTraceBuffers, CameraTracer, CameraView, DeviceContext,
+    FrameSubmitter, GpuBlas, HeadlessContext, InstanceDataSource, LipacVk, LipacVkConfig,
+    MemoryLocation, RecordedFrame, Recorder, TriangleGeometry, Validation,
 };
 use std::collections::HashMap;
 use std::error::Error;
@@ -370,7 +371,73 @@ pub struct Summary {
     pub validation_errors: Vec<String>,
 }
 
+/// The run's settings and the per-frame table's header.
+fn print_header(city: &City, o: &Options, ctx: &DeviceContext) {
+    println!(
+        "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, device: {}",
+        city.descs.len(),
+        city.grid.len(),
+        o.width,
+        o.height,
+        o.frames,
+        o.in_flight,
+        ctx.device_name()
+    );
+    println!(
+        "frame | host waits lipac pacing | read back: frame TLAS-records boxes cmds \
+         | builds compact freed | lipac device bytes"
+    );
+}
+
+/// Writes the `width × height` RGBA8 `image` as an RGB PNG.
+fn write_png(image: &Buffer, o: &Options, path: &str) -> AnyResult<()> {
+    let px: Vec<u32> = image.read(0, (o.width * o.height) as usize)?;
+    let rgb: Vec<u8> = px
+        .iter()
+        .flat_map(|p| p.to_le_bytes()[..3].to_vec())
+        .collect();
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, o.width, o.height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.write_header()?.write_image_data(&rgb)?;
+    Ok(())
+}
+
 // ---- the integration ------------------------------------------------------
+
+/// One frame's GPU work in the engine's command buffer: lipac's part
+/// (growth, data and record uploads, BLAS batches, Algorithm 1, TLAS), the
+/// engine's own ray-query pass counting through lipac's include, then
+/// Algorithm 2 and the read-back copies (`record_feedback` signals the
+/// frame's timeline value, as submitted).
+#[allow(clippy::too_many_arguments)]
+pub fn record_frame(
+    rec: &mut Recorder<'_>,
+    lipac: &mut LipacVk,
+    plan: &ManagerPlan,
+    manager: &Manager,
+    geometry: &dyn BlasGeometrySource,
+    data: &dyn InstanceDataSource,
+    tracer: &CameraTracer,
+    image: &Buffer,
+    view: &CameraView,
+) -> lipac::vk::Result<RecordedFrame> {
+    let recorded = lipac.record_frame(rec, plan, manager, geometry, data)?;
+    let (hits, data, offsets) = lipac.trace_targets()?;
+    let bindings = tracer.bind(&CameraTraceBuffers {
+        tlas: lipac.tlas(),
+        instance_hits: hits,
+        hitboxes: lipac.hitbox_records(),
+        data,
+        data_offsets: offsets,
+        image,
+    })?;
+    tracer.record(rec, &bindings, view)?;
+    lipac.retire_after_frame(bindings); // destroyed once the GPU passed it
+    lipac.record_feedback(rec)?;
+    Ok(recorded)
+}
 
 /// Renders `o.frames` frames of the city on `headless`.
 pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
@@ -397,20 +464,7 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
     // records are counting boxes).
     let mut with_blas = HashMap::new();
     if o.print {
-        println!(
-            "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, device: {}",
-            city.descs.len(),
-            city.grid.len(),
-            o.width,
-            o.height,
-            o.frames,
-            o.in_flight,
-            ctx.device_name()
-        );
-        println!(
-            "frame | host waits lipac pacing | read back: frame TLAS-records boxes cmds \
-             | builds compact freed | lipac device bytes"
-        );
+        print_header(&city, o, ctx);
     }
     for f in 1..=u64::from(o.frames) {
         let waits_before = (ctx.host_waits(), submitter.blocking_waits());
@@ -426,22 +480,19 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
         let value = lipac.next_frame_value();
         let city_ref = &city;
         let geometry = |owner: &BlasOwner| city_ref.geometry(owner);
+        let camera_view = view(&camera, o, f);
         let recorded = submitter.submit(&[], &[(&timeline, value)], |rec| {
-            let recorded = lipac.record_frame(rec, &plan, &manager, &geometry, &albedo)?;
-            // The engine's own ray-query pass, counting through the include.
-            let (hits, data, offsets) = lipac.trace_targets()?;
-            let bindings = tracer.bind(&CameraTraceBuffers {
-                tlas: lipac.tlas(),
-                instance_hits: hits,
-                hitboxes: lipac.hitbox_records(),
-                data,
-                data_offsets: offsets,
-                image: &image,
-            })?;
-            tracer.record(rec, &bindings, &view(&camera, o, f))?;
-            lipac.retire_after_frame(bindings);
-            lipac.record_feedback(rec)?; // signals `value`, as submitted
-            Ok(recorded)
+            record_frame(
+                rec,
+                &mut lipac,
+                &plan,
+                &manager,
+                &geometry,
+                &albedo,
+                &tracer,
+                &image,
+                &camera_view,
+            )
         })?;
         let pacing = submitter.blocking_waits() - waits_before.1;
         let lipac_waits = ctx.host_waits() - waits_before.0 - pacing;
@@ -481,16 +532,7 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
     polled.deliver(&mut manager)?;
     s.frames_read_back += polled.readbacks.len() as u64;
     if let Some(out) = &o.out {
-        let px: Vec<u32> = image.read(0, pixels as usize)?;
-        let rgb: Vec<u8> = px
-            .iter()
-            .flat_map(|p| p.to_le_bytes()[..3].to_vec())
-            .collect();
-        let file = std::io::BufWriter::new(std::fs::File::create(out)?);
-        let mut encoder = png::Encoder::new(file, o.width, o.height);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        encoder.write_header()?.write_image_data(&rgb)?;
+        write_png(&image, o, out)?;
     }
     if o.print {
         let st = lipac.stats();

@@ -35,6 +35,8 @@ use lipac_core::{
     InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
     TlasInstance,
 };
+use lipac_test_support::synthetic::ImmediateAcks;
+use lipac_test_support::{Rng64, XorShift64Star};
 
 const CELL: f64 = 16.0;
 const CUBE: u64 = 0xC0BE;
@@ -48,20 +50,16 @@ struct Loop {
     handles: Vec<InstanceHandle>,
     frame: u64,
     columns: u32,
-    next_blas: u64,
-    rng: u64,
+    immediate: ImmediateAcks,
+    rng: XorShift64Star,
 }
 
 impl Loop {
     fn rand(&mut self) -> u64 {
-        // xorshift64*
-        self.rng ^= self.rng >> 12;
-        self.rng ^= self.rng << 25;
-        self.rng ^= self.rng >> 27;
-        self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.rng.next_u64()
     }
     fn unit(&mut self) -> f32 {
-        (self.rand() >> 40) as f32 / (1u64 << 24) as f32
+        self.rng.unit_f32()
     }
     fn desc(&mut self) -> InstanceDesc {
         let side = f64::from(self.columns) * CELL;
@@ -119,8 +117,8 @@ impl Loop {
             handles: Vec::new(),
             frame: 0,
             columns,
-            next_blas: 0,
-            rng: 0x9E37_79B9_7F4A_7C15,
+            immediate: ImmediateAcks::new(0x1_0000),
+            rng: XorShift64Star::new(0x9E37_79B9_7F4A_7C15),
         };
         if let Some(record_hits) = record {
             let options = RecorderOptions {
@@ -179,14 +177,7 @@ impl Loop {
         );
         self.m.record_camera(cam).expect("camera");
         let plan = self.m.plan(&FrameBudgets::default()).expect("plan");
-        for b in plan.blas.builds() {
-            self.next_blas += 0x1_0000;
-            self.acks.push(Ack::Built {
-                build: b.id,
-                result_bytes: b.result_bytes,
-                address: self.next_blas,
-            });
-        }
+        self.acks.extend(self.immediate.acks(&plan.blas));
         self.m.assemble(&mut self.tlas).expect("assemble");
         // Stub tracer: a hot band of hitbox columns moving every 8 frames.
         let hot_start = (frame / 8) as u32 % self.columns;

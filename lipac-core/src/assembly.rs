@@ -15,7 +15,10 @@
 //! hitbox's height range; finally every **inactive** hitbox with an inactive
 //! instance gets a counting box (custom index = hitbox index). An active or
 //! omitted instance in an inactive hitbox counts as inactive
-//! ([`AssemblyStats::in_inactive_hitbox`]). The backend clears the
+//! ([`AssemblyStats::in_inactive_hitbox`]). A *pinned* instance
+//! ([`crate::layout::instance_bits::PINNED`]) counts as active whatever its
+//! state bits and its hitbox: its own record once its BLAS exists, never a
+//! counting box, never in a hitbox's height range. The backend clears the
 //! per-instance hit buffer before tracing.
 //!
 //! Counting boxes contain their target box in f32 at any distance from the
@@ -275,10 +278,17 @@ pub fn assemble_tlas(
             continue;
         }
         let slot = slot as u32;
-        let mut state = m.state();
+        // A pinned instance is active whatever its state bits and hitbox say.
+        let pinned = m.is_pinned();
+        let mut state = if pinned {
+            InstanceState::Active
+        } else {
+            m.state()
+        };
         // An active or omitted instance whose hitbox is inactive counts as
         // inactive here (see the module docs, "in an inactive hitbox").
-        if state != InstanceState::Inactive
+        if !pinned
+            && state != InstanceState::Inactive
             && hitboxes
                 .get(m.hitbox as usize)
                 .is_some_and(|h| !h.is_active())
@@ -613,6 +623,39 @@ mod tests {
         assert_eq!(out[0].acceleration_structure_reference, 0xBEEF);
         assert_eq!((out[1].custom_index(), out[1].sbt_offset()), (0, 6));
         assert_eq!((hb[0].min_y, hb[0].max_y), (-2.0, 6.0));
+    }
+
+    #[test]
+    fn pinned_is_traced_whatever_its_state_and_hitbox() {
+        let pinned = |state| {
+            let mut m = inst(state, 0, [1.0, 0.0, 1.0], [2.0, 9.0, 2.0]);
+            m.packed |= instance_bits::PINNED;
+            m.blas = 0xABCD;
+            m
+        };
+        let mut no_blas = pinned(InstanceState::Inactive);
+        no_blas.blas = 0;
+        let other = inst(InstanceState::Inactive, 0, [3.0, 1.0, 1.0], [4.0, 2.0, 2.0]);
+        let mut hb = [HitboxRecord::default()]; // inactive
+        let instances = [
+            pinned(InstanceState::Active),
+            pinned(InstanceState::Omitted),
+            pinned(InstanceState::Inactive),
+            no_blas,
+            other,
+        ];
+        let (stats, out) = run(&instances, &mut hb);
+        assert_eq!((stats.active, stats.active_without_blas), (3, 1));
+        assert_eq!((stats.omitted_boxes, stats.in_inactive_hitbox), (0, 0));
+        assert_eq!((stats.inactive, stats.hitbox_boxes), (1, 1));
+        // Own records for slots 0..3, then the hitbox's box over `other` only.
+        let own: Vec<u32> = out[..3].iter().map(TlasInstance::custom_index).collect();
+        assert_eq!(own, vec![0, 1, 2]);
+        assert!(out[..3]
+            .iter()
+            .all(|r| r.acceleration_structure_reference == 0xABCD));
+        assert_eq!(out[3].acceleration_structure_reference, CUBE);
+        assert_eq!((hb[0].min_y, hb[0].max_y), (1.0, 2.0));
     }
 
     #[test]

@@ -920,6 +920,13 @@ impl BuildScheduler {
         Some(self.slots.get(&instance)?.pending?.lod)
     }
 
+    /// The instances that wait for a build (those with a
+    /// [`BuildScheduler::pending_lod`]), in no particular order: O(waiting)
+    /// rather than a [`BuildScheduler::pending_lod`] lookup per instance.
+    pub fn waiting_instances(&self) -> impl Iterator<Item = InstanceKey> + '_ {
+        self.waiters.values().flatten().copied()
+    }
+
     /// Instances whose BLAS address changed since the last call (first BLAS
     /// built, LOD switched, compacted), in key order.
     pub fn take_address_changes(&mut self) -> Vec<InstanceKey> {

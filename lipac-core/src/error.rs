@@ -51,6 +51,15 @@ pub enum CoreError {
         /// The offending position.
         center: Vec3,
     },
+    /// A hitbox structure that creates hitboxes as cells get occupied
+    /// ([`crate::hashed_hitboxes::HashedHitboxes`]) has reached its cell
+    /// limit.
+    TooManyHitboxes {
+        /// The cell limit.
+        limit: u32,
+        /// The position (an instance's AABB centre) whose cell was new.
+        center: Vec3,
+    },
     /// Every GPU slot is in use or waiting in quarantine.
     TooManyInstances {
         /// The slot limit (at most [`crate::layout::MAX_SLOTS`]).
@@ -121,6 +130,11 @@ impl fmt::Display for CoreError {
             Self::OutsideWorld { center } => write!(
                 f,
                 "position {center} lies outside the region covered by the hitbox index"
+            ),
+            Self::TooManyHitboxes { limit, center } => write!(
+                f,
+                "too many hitboxes: the cell of {center} would be a new hitbox, but all \
+                 {limit} hitboxes of the index are occupied"
             ),
             Self::TooManyInstances { limit, quarantined } => write!(
                 f,

@@ -15,6 +15,10 @@
 //!   GPU the `atomicAdd` index is below the capacity); otherwise the instance
 //!   keeps its state and the transition is retried next frame: nothing lost,
 //!   nothing duplicated ([`FeedbackStats::overflowed`]).
+//! * **Pinned instances** ([`instance_bits::PINNED`]) are skipped by every
+//!   decision: their hits are not added to their hitbox (line 4) and no
+//!   transition or command is made for them (lines 14–38), whatever their
+//!   hitbox does.
 //! * **Who resets what.** Hit counts are this frame's; the hitbox counts stay
 //!   readable after this call and are zeroed by
 //!   [`crate::assembly::begin_frame`] next frame; the backend clears the
@@ -182,7 +186,8 @@ pub fn process_feedback(
     const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
     for (m, &hits) in instances.iter().zip(instance_hits) {
         let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-        if key == LIVE_OMITTED || key == LIVE_ACTIVE {
+        // Pinned instances are not the hitbox's to decide on: their hits stay out.
+        if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
             if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
                 h.add_hits(hits); // line 4
             }
@@ -199,7 +204,8 @@ pub fn process_feedback(
 
     // Lines 14–38: one thread per slot.
     for (slot, (m, &hits)) in instances.iter_mut().zip(instance_hits).enumerate() {
-        if m.packed & instance_bits::ALIVE == 0 {
+        // Dead, or pinned: Algorithm 2 never moves a pinned instance.
+        if m.packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
             continue;
         }
         let Some(h) = hitboxes.get(m.hitbox as usize) else {
@@ -546,6 +552,50 @@ mod tests {
         // Not yet built, so not in the TLAS: its zero hits do not demote it.
         assert_eq!(f.state(2), InstanceState::Active);
         assert_eq!(cmds, vec![remove(0, TH.sigma_o - 1)]);
+    }
+
+    fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+        let mut r = inst(state, hitbox, unique);
+        r.packed |= instance_bits::PINNED;
+        r
+    }
+
+    #[test]
+    fn pinned_instances_are_never_moved_and_their_hits_stay_out() {
+        let mut f = Frame::new(
+            vec![
+                pinned(InstanceState::Active, 0, false),
+                pinned(InstanceState::Active, 0, true),
+                pinned(InstanceState::Active, 1, true),
+                inst(InstanceState::Active, 0, false),
+            ],
+            vec![hitbox(true), hitbox(true)],
+        );
+        // Pinned hits far above θd do not keep hitbox 0 alive; zero hits on
+        // a pinned unique instance do not omit it (σo).
+        f.hits = vec![100_000, 0, 100_000, 0];
+        let mut deactivated = false;
+        for _ in 0..1000 {
+            let (s, cmds) = f.run(&[0, 0], 8);
+            deactivated |= s.hitboxes_deactivated > 0;
+            for slot in 0..3 {
+                assert_eq!(f.state(slot), InstanceState::Active);
+                assert!(cmds.iter().all(|c| c.slot != slot as u32), "{cmds:?}");
+            }
+            assert_eq!(f.hitboxes[0].hits(), 0);
+        }
+        assert!(deactivated);
+        assert!(!f.hitboxes[0].is_active() && !f.hitboxes[1].is_active());
+        // The unpinned instance of hitbox 0 followed the normal rule.
+        assert_eq!(f.state(3), InstanceState::Inactive);
+
+        // Unpinned, slot 0 returns to its (inactive) hitbox's state.
+        f.instances[0].packed &= !instance_bits::PINNED;
+        f.hits[0] = 0; // (its hits would now count: 100k would activate hitbox 0)
+        let (s, cmds) = f.run(&[0, 0], 8);
+        assert_eq!(s.active_to_inactive, 1);
+        assert_eq!(cmds, vec![remove(0, 0)]);
+        assert_eq!(f.state(0), InstanceState::Inactive);
     }
 
     #[test]

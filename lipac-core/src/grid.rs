@@ -296,7 +296,7 @@ impl HitboxGrid {
 /// `hi + lo` (`hi` the nearest `f64`, `|lo| <= ulp(hi) / 2`): Knuth's TwoSum
 /// of the widened values, halved. Exact for every pair of finite `f32`
 /// (no overflow in `f64`; halving a multiple of 2^-149 stays exact).
-fn exact_center(a: f32, b: f32) -> (f64, f64) {
+pub(crate) fn exact_center(a: f32, b: f32) -> (f64, f64) {
     let (a, b) = (f64::from(a), f64::from(b));
     let s = a + b;
     let bb = s - a;
@@ -350,21 +350,28 @@ impl HitboxIndex for HitboxGrid {
     /// bounds (and then no counting box).
     fn xz_bounds(&self, index: u32) -> Option<(Vec2, Vec2)> {
         let (lo, hi) = self.bounds_f64(index)?;
-        let down = |v: f64| {
-            if v < -f64::from(f32::MAX) {
-                f32::NEG_INFINITY
-            } else if v > f64::from(f32::MAX) {
-                f32::MAX
-            } else {
-                f32_down(v)
-            }
-        };
-        let up = |v: f64| -down(-v);
-        Some((
-            Vec2::new(down(lo[0]), down(lo[1])),
-            Vec2::new(up(hi[0]), up(hi[1])),
-        ))
+        Some(outward_f32_bounds(lo, hi))
     }
+}
+
+/// Exact (`f64`) cell bounds `lo..hi` rounded *outwards* to `f32` (minimum
+/// down, maximum up), so they contain the exact cell; beyond the `f32` range
+/// they become infinite.
+pub(crate) fn outward_f32_bounds(lo: [f64; 2], hi: [f64; 2]) -> (Vec2, Vec2) {
+    let down = |v: f64| {
+        if v < -f64::from(f32::MAX) {
+            f32::NEG_INFINITY
+        } else if v > f64::from(f32::MAX) {
+            f32::MAX
+        } else {
+            f32_down(v)
+        }
+    };
+    let up = |v: f64| -down(-v);
+    (
+        Vec2::new(down(lo[0]), down(lo[1])),
+        Vec2::new(up(hi[0]), up(hi[1])),
+    )
 }
 
 #[cfg(test)]

@@ -2,8 +2,18 @@
 //!
 //! Algorithms 1 and 2 only need three things from it, so the regular grid of
 //! the paper ([`crate::grid::HitboxGrid`]) can be replaced by another structure
-//! (a sparse hashed grid for unbounded worlds, say) behind this trait.
+//! (the sparse hashed grid [`crate::hashed_hitboxes::HashedHitboxes`] for
+//! unbounded worlds) behind this trait.
+//!
+//! A structure whose hitboxes are fixed (the grid) implements the three
+//! queries only. One that creates hitboxes as cells get occupied and drops
+//! them when they stay empty (the hashed grid) also implements the
+//! registration hooks [`HitboxIndex::occupy`], [`HitboxIndex::vacate`] and
+//! [`HitboxIndex::begin_frame`], which the registry calls for every
+//! registration, move or removal and at every frame start; their defaults do
+//! nothing beyond [`HitboxIndex::hitbox_of`].
 
+use crate::error::CoreError;
 use crate::math::Aabb;
 use glam::{Vec2, Vec3};
 
@@ -33,6 +43,36 @@ pub trait HitboxIndex {
         self.hitbox_at(aabb.center())
     }
     /// Horizontal bounds `(min (x, z), max (x, z))` of hitbox `index`, or
-    /// `None` for an index out of range.
+    /// `None` for an index out of range (or one that holds no cell now).
     fn xz_bounds(&self, index: u32) -> Option<(Vec2, Vec2)>;
+
+    /// Registration hook: an instance with world bounds `aabb` is added to
+    /// (or moved into) the structure; returns its hitbox, creating it if the
+    /// structure creates hitboxes on demand ([`HitboxIndex::len`] may grow).
+    /// Every successful call is matched by one [`HitboxIndex::vacate`] of
+    /// the returned hitbox when the instance leaves it.
+    ///
+    /// The default is [`HitboxIndex::hitbox_of`], with
+    /// [`CoreError::OutsideWorld`] for `None`. On error nothing changes.
+    fn occupy(&mut self, aabb: &Aabb) -> Result<u32, CoreError> {
+        self.hitbox_of(aabb).ok_or(CoreError::OutsideWorld {
+            center: aabb.center(),
+        })
+    }
+
+    /// Registration hook: an instance that [`HitboxIndex::occupy`] placed in
+    /// `hitbox` left it (removed, or moved to another hitbox). The default
+    /// does nothing.
+    fn vacate(&mut self, hitbox: u32) {
+        let _ = hitbox;
+    }
+
+    /// Frame hook, at the registry's frame start: a structure may drop
+    /// hitboxes that stayed empty (their indices can then be handed out
+    /// again by [`HitboxIndex::occupy`]); it appends the dropped indices to
+    /// `evicted`, whose hitbox records the caller resets. The default drops
+    /// nothing.
+    fn begin_frame(&mut self, frame: u64, evicted: &mut Vec<u32>) {
+        let _ = (frame, evicted);
+    }
 }

@@ -26,9 +26,20 @@ impl InstanceFlags {
     pub const VEGETATION: Self = Self(instance_bits::VEGETATION);
     /// Static: its shared BLAS may be compacted.
     pub const STATIC: Self = Self(instance_bits::STATIC);
+    /// Always traced (terrain, the player, large occluders, emitters): the
+    /// instance is active from registration, its BLAS requested at once, it
+    /// is never culled nor represented by a counting box, and Algorithm 2
+    /// neither moves its state nor counts its hits into its hitbox.
+    /// Clearing it (an update) hands the instance back to its hitbox: it
+    /// stays active until Algorithm 2's normal rule says otherwise.
+    pub const PINNED: Self = Self(instance_bits::PINNED);
     /// Every defined flag.
-    pub const ALL: Self =
-        Self(instance_bits::UNIQUE_BLAS | instance_bits::VEGETATION | instance_bits::STATIC);
+    pub const ALL: Self = Self(
+        instance_bits::UNIQUE_BLAS
+            | instance_bits::VEGETATION
+            | instance_bits::STATIC
+            | instance_bits::PINNED,
+    );
 
     /// No flags.
     pub const fn empty() -> Self {
@@ -101,6 +112,7 @@ impl fmt::Debug for InstanceFlags {
             (Self::UNIQUE_BLAS, "UNIQUE_BLAS"),
             (Self::VEGETATION, "VEGETATION"),
             (Self::STATIC, "STATIC"),
+            (Self::PINNED, "PINNED"),
         ];
         let mut set = names.iter().filter(|(flag, _)| self.contains(*flag));
         write!(f, "InstanceFlags(")?;
@@ -167,7 +179,12 @@ mod tests {
         assert!(f.contains(InstanceFlags::STATIC));
         assert!(!f.contains(InstanceFlags::VEGETATION));
         assert_eq!(f.bits(), instance_bits::UNIQUE_BLAS | instance_bits::STATIC);
-        assert_eq!(!f, InstanceFlags::VEGETATION);
+        assert_eq!(!f, InstanceFlags::VEGETATION | InstanceFlags::PINNED);
+        assert_eq!(InstanceFlags::PINNED.bits(), 1 << 6);
+        assert_eq!(
+            format!("{:?}", InstanceFlags::STATIC | InstanceFlags::PINNED),
+            "InstanceFlags(STATIC | PINNED)"
+        );
         assert_eq!(InstanceFlags::from_bits(1), None);
         assert_eq!(InstanceFlags::from_bits_truncate(f.bits() | 1), f);
         let mut g = f;

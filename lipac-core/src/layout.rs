@@ -71,6 +71,30 @@ impl TlasInstance {
     pub fn flags(&self) -> u8 {
         (self.sbt_offset_and_flags >> 24) as u8
     }
+    /// The record's 64 bytes as 16 little-endian words, exactly as a GPU
+    /// buffer holds it: floats compare by bit pattern (`-0.0 != 0.0`, NaN
+    /// payloads count), the BLAS reference is words 14 (low) and 15 (high).
+    pub fn to_bits(&self) -> [u32; 16] {
+        bytemuck::cast(*self)
+    }
+}
+
+/// The records as a sorted multiset of their bit patterns
+/// ([`TlasInstance::to_bits`]): two TLAS buffers that hold the same records
+/// in any order, bit for bit, give equal vectors.
+///
+/// ```
+/// use lipac_core::layout::{tlas_multiset, TlasInstance};
+///
+/// let a = TlasInstance::new([1.0; 12], 3, 0xFF, 0, 0, 0x100);
+/// let b = TlasInstance::new([2.0; 12], 4, 0xFF, 0, 0, 0x200);
+/// assert_eq!(tlas_multiset(&[a, b]), tlas_multiset(&[b, a]));
+/// assert_ne!(tlas_multiset(&[a, a]), tlas_multiset(&[a, b]));
+/// ```
+pub fn tlas_multiset(records: &[TlasInstance]) -> Vec<[u32; 16]> {
+    let mut v: Vec<[u32; 16]> = records.iter().map(TlasInstance::to_bits).collect();
+    v.sort_unstable();
+    v
 }
 
 /// `VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR`.
@@ -119,6 +143,10 @@ pub mod instance_bits {
     pub const VEGETATION: u32 = 1 << 4;
     /// Bit 5: static (its shared BLAS may be compacted).
     pub const STATIC: u32 = 1 << 5;
+    /// Bit 6: pinned: always traced with its own BLAS (terrain, the player,
+    /// large occluders, emitters); never culled, never a counting box, and
+    /// skipped by Algorithm 2's decisions.
+    pub const PINNED: u32 = 1 << 6;
     /// Bits 8..16: the engine's TLAS visibility mask for this instance.
     pub const MASK_SHIFT: u32 = 8;
     /// Bits 16..24: `VkGeometryInstanceFlagsKHR` for this instance.
@@ -166,6 +194,10 @@ impl InstanceRecord {
     /// Whether the instance needs a unique BLAS.
     pub fn needs_unique_blas(&self) -> bool {
         self.packed & instance_bits::UNIQUE_BLAS != 0
+    }
+    /// Whether the instance is pinned ([`instance_bits::PINNED`]).
+    pub fn is_pinned(&self) -> bool {
+        self.packed & instance_bits::PINNED != 0
     }
     /// The engine's visibility mask.
     pub fn mask(&self) -> u8 {
@@ -258,6 +290,30 @@ mod tests {
         assert_eq!(&bytes[48..52], &[0x56, 0x34, 0x12, 0xAB]);
         assert_eq!(&bytes[52..56], &[0x21, 0x43, 0x65, 0x05]);
         assert_eq!(&bytes[56..64], &42u64.to_le_bytes());
+    }
+
+    #[test]
+    fn tlas_multiset_is_order_free_and_bit_exact() {
+        let t = TlasInstance::new([0.5; 12], 7, 0xFF, 1, 0x04, 0x1234_5678_9ABC_DEF0);
+        let bits = t.to_bits();
+        assert_eq!(bits[0], 0.5f32.to_bits());
+        assert_eq!(bits[12], t.custom_index_and_mask);
+        assert_eq!(bits[13], t.sbt_offset_and_flags);
+        assert_eq!((bits[14], bits[15]), (0x9ABC_DEF0, 0x1234_5678));
+        let mut u = t;
+        u.transform[5] = 1.0;
+        assert_eq!(tlas_multiset(&[t, u, t]), tlas_multiset(&[u, t, t]));
+        assert_ne!(tlas_multiset(&[t, u]), tlas_multiset(&[t, t]));
+        // Bit-exact: -0.0 is not 0.0 (PartialEq on f32 would say equal).
+        let (mut zero, mut negative) = (t, t);
+        zero.transform[3] = 0.0;
+        negative.transform[3] = -0.0;
+        assert_eq!(zero, negative);
+        assert_ne!(tlas_multiset(&[zero]), tlas_multiset(&[negative]));
+        // Every field takes part: only the BLAS reference's high word differs.
+        let mut far = t;
+        far.acceleration_structure_reference ^= 1 << 40;
+        assert_ne!(tlas_multiset(&[t]), tlas_multiset(&[far]));
     }
 
     #[test]

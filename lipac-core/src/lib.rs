@@ -29,7 +29,8 @@
 //!   [`latency`] (latency mitigation);
 //! * the CPU references of the GPU algorithms a GPU backend tests its shaders
 //!   against: [`assembly`] (Algorithm 1), [`feedback`] (Algorithm 2),
-//!   [`state`] (the state machine), [`thresholds`];
+//!   [`state`] (the state machine), [`thresholds`] (and [`controller`], the
+//!   closed loop on them);
 //! * [`trace`]: recorded instance traces.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -40,11 +41,13 @@ pub mod blas_cache;
 pub mod blas_ids;
 pub mod build_plan;
 pub mod command;
+pub mod controller;
 pub mod culling;
 mod dirty;
 pub mod error;
 pub mod feedback;
 pub mod grid;
+pub mod hashed_hitboxes;
 pub mod hitbox_index;
 pub mod instance;
 pub mod latency;
@@ -71,8 +74,12 @@ pub use registry::{InstanceHandle, RegistryConfig, RemovedInstance};
 // Settings inside `ManagerConfig`.
 pub use assembly::AssemblyConfig;
 pub use build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig};
+pub use controller::{
+    ControlTarget, ControllerConfig, ControllerError, ControllerStats, EscapeSample,
+};
 pub use culling::CullingConfig;
 pub use grid::{GridConfig, HitboxGrid};
+pub use hashed_hitboxes::{HashedConfig, HashedHitboxes, WorldHitboxes};
 pub use hitbox_index::HitboxIndex;
 pub use latency::{ActivationHeuristic, Frustum};
 pub use thresholds::Thresholds;

@@ -208,6 +208,8 @@ pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
     frame: u64,
     registrations: u64,
     dirty: DirtySet,
+    /// Hitboxes the index evicted at the last [`InstanceRegistry::begin_frame`].
+    evicted: Vec<u32>,
 }
 
 fn stale(h: InstanceHandle) -> CoreError {
@@ -341,6 +343,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             frame: 0,
             registrations: 0,
             dirty: DirtySet::default(),
+            evicted: Vec::new(),
         })
     }
 
@@ -358,15 +361,16 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// and returns the old one. If any live instance's centre lies outside
     /// the new structure, fails with [`CoreError::OutsideWorld`] and changes
     /// nothing.
-    pub fn set_hitbox_index(&mut self, index: H) -> Result<H, CoreError> {
-        let mut hitboxes = Vec::with_capacity(self.instances.len());
-        for entry in self.instances.values() {
-            let r = &self.records[entry.slot as usize];
+    /// The live instances are placed in it with [`HitboxIndex::occupy`]
+    /// (in slot order), as registration would.
+    pub fn set_hitbox_index(&mut self, mut index: H) -> Result<H, CoreError> {
+        let mut slots: Vec<u32> = self.instances.values().map(|e| e.slot).collect();
+        slots.sort_unstable();
+        let mut hitboxes = Vec::with_capacity(slots.len());
+        for slot in slots {
+            let r = &self.records[slot as usize];
             let aabb = Aabb::new(Vec3::from_array(r.aabb_min), Vec3::from_array(r.aabb_max));
-            let hitbox = index.hitbox_of(&aabb).ok_or(CoreError::OutsideWorld {
-                center: aabb.center(),
-            })?;
-            hitboxes.push((entry.slot, hitbox));
+            hitboxes.push((slot, index.occupy(&aabb)?));
         }
         for (slot, hitbox) in hitboxes {
             let record = &mut self.records[slot as usize];
@@ -422,9 +426,10 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         self.instances.capacity().min(slots)
     }
 
-    /// Checks `desc` and finds its hitbox; returns the transform rows and the
-    /// hitbox. Touches nothing.
-    fn check(&self, desc: &InstanceDesc) -> Result<([f32; 12], u32), CoreError> {
+    /// Checks `desc`; returns the transform rows. Touches nothing (the
+    /// hitbox comes from [`HitboxIndex::occupy`] once the rest is known to
+    /// succeed).
+    fn check(&self, desc: &InstanceDesc) -> Result<[f32; 12], CoreError> {
         let rows = validate_transform(&desc.transform)?;
         validate_aabb(&desc.aabb, self.config.max_aabb_extent)?;
         if desc.sbt_offset > MAX_SBT_OFFSET {
@@ -434,23 +439,19 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
                 max: MAX_SBT_OFFSET.into(),
             });
         }
-        let hitbox = self
-            .index
-            .hitbox_of(&desc.aabb)
-            .ok_or(CoreError::OutsideWorld {
-                center: desc.aabb.center(),
-            })?;
-        Ok((rows, hitbox))
+        Ok(rows)
     }
 
-    /// Registers an instance. It starts [`InstanceState::Inactive`] with no
+    /// Registers an instance. It starts [`InstanceState::Inactive`]
+    /// ([`InstanceState::Active`] if [`InstanceFlags::PINNED`]) with no
     /// BLAS, in the lowest free slot (or a new slot at the end).
     ///
     /// Errors: non-finite transform, invalid AABB, SBT offset over 24 bits,
-    /// AABB centre outside the hitbox structure, no slot left. On error
-    /// nothing changes.
+    /// no slot left, AABB centre outside the hitbox structure (or a new
+    /// cell of a full one, [`HitboxIndex::occupy`]). On error nothing
+    /// changes.
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
-        let (rows, hitbox) = self.check(&desc)?;
+        let rows = self.check(&desc)?;
         let slot = match self.free.peek() {
             Some(&Reverse(slot)) => slot,
             None if self.records.len() < self.config.max_slots as usize => {
@@ -463,6 +464,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
                 })
             }
         };
+        let hitbox = self.index.occupy(&desc.aabb)?;
         // Nothing below fails.
         if self.free.peek().is_some() {
             self.free.pop();
@@ -475,7 +477,12 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             mesh: desc.mesh,
         });
         let handle = self.handle(key);
-        self.records[slot as usize] = build_record(&desc, rows, hitbox, InstanceState::Inactive, 0);
+        let state = if desc.flags.contains(InstanceFlags::PINNED) {
+            InstanceState::Active
+        } else {
+            InstanceState::Inactive
+        };
+        self.records[slot as usize] = build_record(&desc, rows, hitbox, state, 0);
         self.occupants[slot as usize] = SlotOccupant {
             handle: Some(key),
             serial: self.registrations,
@@ -486,7 +493,9 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     }
 
     /// Replaces an instance's description and returns the previous one. Its
-    /// slot, state and BLAS stay; if the mesh, LOD or
+    /// slot, state and BLAS stay (a [`InstanceFlags::PINNED`] description
+    /// makes the state [`InstanceState::Active`]; clearing the flag keeps
+    /// the state); if the mesh, LOD or
     /// [`InstanceFlags::UNIQUE_BLAS`] changed, the caller acquires the new
     /// BLAS, calls [`InstanceRegistry::set_blas`] and releases the old one.
     /// On error nothing changes.
@@ -497,10 +506,17 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     ) -> Result<InstanceDesc, CoreError> {
         let key = self.key(handle)?;
         let entry = self.entry(handle)?;
-        let (rows, hitbox) = self.check(&desc)?;
+        let rows = self.check(&desc)?;
+        let hitbox = self.index.occupy(&desc.aabb)?;
         let record = &mut self.records[entry.slot as usize];
+        self.index.vacate(record.hitbox);
         let old = desc_from_record(record, entry.mesh);
-        *record = build_record(&desc, rows, hitbox, record.state(), record.blas);
+        let state = if desc.flags.contains(InstanceFlags::PINNED) {
+            InstanceState::Active
+        } else {
+            record.state()
+        };
+        *record = build_record(&desc, rows, hitbox, state, record.blas);
         self.dirty.mark(entry.slot);
         self.instances[key].mesh = desc.mesh;
         Ok(old)
@@ -552,6 +568,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let entry = self.instances.remove(key).ok_or_else(|| stale(handle))?;
         let slot = entry.slot;
         let record = std::mem::take(&mut self.records[slot as usize]);
+        self.index.vacate(record.hitbox);
         self.occupants[slot as usize].handle = None;
         self.dirty.mark(slot);
         if self.config.quarantine_frames == 0 {
@@ -582,6 +599,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             });
         }
         self.frame = frame;
+        self.evicted.clear();
+        self.index.begin_frame(frame, &mut self.evicted);
         let mut released = 0;
         while let Some(&(release, slot)) = self.quarantine.front() {
             if release > frame {
@@ -592,6 +611,14 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             released += 1;
         }
         Ok(released)
+    }
+
+    /// The hitboxes the index evicted at the last
+    /// [`InstanceRegistry::begin_frame`] ([`HitboxIndex::begin_frame`]):
+    /// empty cells dropped, whose indices may be handed out again. Their
+    /// hitbox records must be reset ([`crate::culling::Culling`] does).
+    pub fn evicted_hitboxes(&self) -> &[u32] {
+        &self.evicted
     }
 
     /// The current frame (last [`InstanceRegistry::begin_frame`]).

@@ -179,6 +179,47 @@ impl Thresholds {
         Ok(t)
     }
 
+    /// These thresholds with the four hit thresholds multiplied by `factor`
+    /// (the closed-loop controller's output, [`crate::controller`]): each of
+    /// θa, θd, σa, σo becomes `round(value · factor)`, at least 1, with an
+    /// upper one raised to lower + 1 where rounding made them meet; the
+    /// streak lengths are frame counts and stay. `scaled(1.0)` of valid
+    /// thresholds is themselves. The result is validated: a `factor` that is
+    /// NaN, infinite, zero or negative is [`ThresholdError::InvalidRayCount`],
+    /// one that pushes 2·θa past the 24-bit hit counter is
+    /// [`ThresholdError::ActivationTooLarge`].
+    ///
+    /// ```
+    /// use lipac_core::thresholds::Thresholds;
+    /// let t = Thresholds::paper().scaled(0.5).unwrap();
+    /// assert_eq!((t.theta_a, t.theta_d, t.sigma_a, t.sigma_o), (500, 50, 500, 50));
+    /// assert_eq!((t.n_a, t.n_d), (4, 15));
+    /// assert_eq!(Thresholds::paper().scaled(1.0).unwrap(), Thresholds::paper());
+    /// assert!(Thresholds::paper().scaled(f64::NAN).is_err());
+    /// ```
+    pub fn scaled(&self, factor: f64) -> Result<Self, ThresholdError> {
+        if !factor.is_finite() || factor <= 0.0 {
+            return Err(ThresholdError::InvalidRayCount(factor));
+        }
+        let scale = |v: u32| -> u32 {
+            // Saturating float -> int cast; validation below rejects overflow.
+            ((f64::from(v) * factor).round() as u32).max(1)
+        };
+        let theta_d = scale(self.theta_d);
+        let theta_a = scale(self.theta_a).max(theta_d.saturating_add(1));
+        let sigma_o = scale(self.sigma_o);
+        let sigma_a = scale(self.sigma_a).max(sigma_o.saturating_add(1));
+        let t = Self {
+            theta_a,
+            theta_d,
+            sigma_a,
+            sigma_o,
+            ..*self
+        };
+        t.validate()?;
+        Ok(t)
+    }
+
     /// Checks θd < θa, σo < σa, 1 ≤ n_a, n_d ≤ 127 and 2·θa < 2^24 − 1.
     ///
     /// ```
@@ -259,6 +300,30 @@ mod tests {
         let e = Thresholds::for_rays_per_frame(REFERENCE_RAYS_PER_FRAME * 10_000.0).unwrap_err();
         assert!(matches!(e, ThresholdError::ActivationTooLarge { .. }));
         assert!(e.to_string().contains("24-bit"));
+    }
+
+    #[test]
+    fn scaled_multiplies_hit_thresholds_and_keeps_order() {
+        let p = Thresholds::paper();
+        let t = p.scaled(2.5).unwrap();
+        assert_eq!(
+            (t.theta_a, t.theta_d, t.sigma_a, t.sigma_o),
+            (2500, 250, 2500, 250)
+        );
+        assert_eq!((t.n_a, t.n_d), (p.n_a, p.n_d));
+        // Tiny factors keep every threshold >= 1 and the bands non-empty.
+        let t = p.scaled(1e-9).unwrap();
+        assert_eq!((t.theta_d, t.theta_a, t.sigma_o, t.sigma_a), (1, 2, 1, 2));
+        for f in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+            assert!(matches!(
+                p.scaled(f),
+                Err(ThresholdError::InvalidRayCount(_))
+            ));
+        }
+        assert!(matches!(
+            p.scaled(1e5),
+            Err(ThresholdError::ActivationTooLarge { .. })
+        ));
     }
 
     #[test]

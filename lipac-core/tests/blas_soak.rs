@@ -7,98 +7,15 @@
 //! releasing everything and advancing the frames in flight leaves zero bytes
 //! and no entries.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 
 use lipac_core::blas_cache::CacheConfig;
-use lipac_core::blas_ids::{BuildId, InstanceKey, Lod};
+use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::*;
 use lipac_core::MeshId;
+use lipac_test_support::synthetic::LateAcks;
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use proptest::prelude::*;
-
-enum Ack {
-    Built(BuildId, u64, bool),
-    Size(BuildId, u64),
-    Compacted(BuildId, u64),
-}
-
-struct Backend {
-    next_addr: u64,
-    /// address -> bytes of every acceleration structure that exists.
-    live: HashMap<u64, u64>,
-    /// address -> last frame whose TLAS used it.
-    last_used: HashMap<u64, u64>,
-    /// acknowledgements and the frame they arrive in.
-    acks: Vec<(u64, Ack)>,
-    /// sizes of compactions handed out.
-    compaction_sizes: HashMap<BuildId, u64>,
-}
-
-impl Backend {
-    fn alloc(&mut self, bytes: u64) -> u64 {
-        self.next_addr += 0x100;
-        self.live.insert(self.next_addr, bytes);
-        self.next_addr
-    }
-
-    fn deliver(&mut self, s: &mut BuildScheduler, frame: u64, rng: &mut Rng, all: bool) {
-        let (due, rest): (Vec<_>, Vec<_>) = std::mem::take(&mut self.acks)
-            .into_iter()
-            .partition(|(f, _)| *f <= frame && (all || rng.below(4) != 0));
-        self.acks = rest;
-        for (_, ack) in due {
-            match ack {
-                Ack::Built(id, bytes, compactable) => {
-                    let addr = self.alloc(bytes);
-                    s.ack_built(id, bytes, addr).unwrap();
-                    if compactable {
-                        let at = frame + 1 + rng.below(3);
-                        self.acks.push((at, Ack::Size(id, bytes / 2 + 1)));
-                    }
-                }
-                Ack::Size(id, bytes) => s.ack_compacted_size(id, bytes).unwrap(),
-                Ack::Compacted(id, bytes) => {
-                    let addr = self.alloc(bytes);
-                    s.ack_compacted(id, addr).unwrap();
-                }
-            }
-        }
-    }
-
-    fn execute(&mut self, plan: &FramePlan, fif: u64, rng: &mut Rng) {
-        let f = plan.frame;
-        for free in &plan.frees {
-            assert_eq!(
-                self.live.remove(&free.address),
-                Some(free.bytes),
-                "free of a dead or mis-sized structure"
-            );
-            if let Some(&used) = self.last_used.get(&free.address) {
-                assert!(
-                    used + fif <= f,
-                    "freed at {f}, used at {used}, {fif} in flight"
-                );
-            }
-        }
-        for b in &plan.batches {
-            for u in &b.updates {
-                assert!(self.live.contains_key(&u.address), "update of a dead BLAS");
-            }
-            for x in &b.builds {
-                let bytes = x.result_bytes - rng.below(x.result_bytes / 4 + 1);
-                let at = f + rng.below(4);
-                self.acks
-                    .push((at, Ack::Built(x.id, bytes.max(1), x.allow_compaction)));
-            }
-        }
-        for c in &plan.compactions {
-            assert!(self.live.contains_key(&c.src_address));
-            self.compaction_sizes.insert(c.id, c.compacted_bytes);
-            self.acks
-                .push((f + rng.below(3), Ack::Compacted(c.id, c.compacted_bytes)));
-        }
-    }
-}
 
 fn estimate(mesh: u32, lod: u8) -> BuildEstimate {
     let result = (1000 + u64::from(mesh) * 137) >> lod;
@@ -143,15 +60,10 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         priority: PriorityConfig::default(),
     })
     .unwrap();
-    let mut be = Backend {
-        next_addr: 0,
-        live: HashMap::new(),
-        last_used: HashMap::new(),
-        acks: Vec::new(),
-        compaction_sizes: HashMap::new(),
-    };
+    // Acknowledgements arrive 0–3 frames late, compactions 0–2.
+    let mut be = LateAcks::new(fif, 0);
+    be.compaction_delay = 3;
     let mut active: BTreeSet<u32> = BTreeSet::new();
-    let fif64 = u64::from(fif);
     for f in 1..=frames {
         s.begin_frame(f).unwrap();
         be.deliver(&mut s, f, &mut rng, false);
@@ -192,7 +104,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
             max_compactions: 2,
         };
         let plan = s.plan(&budgets).unwrap();
-        be.execute(&plan, fif64, &mut rng);
+        be.execute_blas(&plan, &mut rng);
         be.deliver(&mut s, f, &mut rng, false);
         assert!(
             s.cache().live_bytes() <= budget,
@@ -201,27 +113,26 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         // TLAS assembly for this frame.
         for &k in &active {
             if let Some(addr) = s.blas_address(InstanceKey(k)) {
-                assert!(be.live.contains_key(&addr), "TLAS would use a dead BLAS");
-                be.last_used.insert(addr, f);
+                be.device.traced(addr, f);
             }
         }
         s.take_address_changes();
     }
 
     let churn = s.stats();
-    let compactions = be.compaction_sizes.len();
+    let compactions = be.device.compactions as usize;
 
     // Release everything, let all acknowledgements arrive.
     let mut f = frames;
     for &k in &active {
         s.deactivate(InstanceKey(k)).unwrap();
     }
-    while !be.acks.is_empty() || s.stats().in_flight > 0 {
+    while !be.queue.is_empty() || s.stats().in_flight > 0 {
         f += 1;
         s.begin_frame(f).unwrap();
         be.deliver(&mut s, f + 10, &mut rng, true);
         let plan = s.plan(&BuildBudgets::default()).unwrap();
-        be.execute(&plan, fif64, &mut rng);
+        be.execute_blas(&plan, &mut rng);
         assert!(f < frames + 100, "operations never settle");
     }
     s.trim_cache();
@@ -230,7 +141,7 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
         s.begin_frame(f).unwrap();
         let plan = s.plan(&BuildBudgets::default()).unwrap();
         assert!(plan.batches.is_empty() && plan.compactions.is_empty());
-        be.execute(&plan, fif64, &mut rng);
+        be.execute_blas(&plan, &mut rng);
     }
     let st = s.stats();
     assert_eq!(st.cache.live_bytes(), 0);
@@ -239,7 +150,8 @@ fn soak(seed: u64, frames: u64, fif: u32) -> (SchedulerStats, usize) {
     assert_eq!(st.cache.pending_frees, 0);
     assert_eq!(st.cache.pending_free_bytes, 0);
     assert_eq!((st.queued_builds, st.in_flight, st.instances), (0, 0, 0));
-    assert!(be.live.is_empty(), "structures never freed: {:?}", be.live);
+    let live = &be.device.live;
+    assert!(live.is_empty(), "structures never freed: {live:?}");
     (churn, compactions)
 }
 

@@ -35,13 +35,11 @@
 
 use std::collections::HashMap;
 
-use glam::camera::rh::{proj, view};
 use glam::{Affine3A, Vec3};
 use lipac_core::blas_cache::{CacheConfig, MAX_BLAS_BYTES, MAX_FRAME};
 use lipac_core::blas_ids::BuildId;
 use lipac_core::build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig, SchedulerStats};
 use lipac_core::culling::ReadbackRing;
-use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::latency::{ActivationHeuristic, Frustum};
 use lipac_core::layout::{InstanceRecord, TlasInstance};
@@ -52,6 +50,8 @@ use lipac_core::manager::{
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::scene::{frustums, random_instance, world_grid, WORLD};
+use lipac_test_support::synthetic::{Owed, SyntheticDevice};
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
 
 /// The three acknowledgements as calls, each sent through
@@ -82,7 +82,6 @@ impl SendAck for Manager {
 }
 
 const CUBE: u64 = 0xC0BE;
-const WORLD: f32 = 64.0;
 
 fn env(name: &str, default: u64) -> u64 {
     std::env::var(name)
@@ -121,23 +120,9 @@ fn mesh_lods(rng: &mut Rng, valid: bool) -> Vec<MeshLod> {
 }
 
 fn random_desc(rng: &mut Rng, meshes: &HashMap<MeshId, usize>) -> InstanceDesc {
-    let x = 1.0 + rng.below(62) as f32;
-    let z = 1.0 + rng.below(62) as f32;
-    let mut ids: Vec<MeshId> = meshes.keys().copied().collect();
-    ids.sort_by_key(|m| m.0);
-    let mesh = rng.pick(&ids).unwrap_or(MeshId(0));
-    let aabb = Aabb::new(
-        Vec3::new(x - 1.0, 0.0, z - 1.0),
-        Vec3::new(x + 1.0, 1.0 + rng.below(4) as f32, z + 1.0),
-    );
-    let mut d = InstanceDesc::new(mesh, Affine3A::from_translation(Vec3::new(x, 0.0, z)), aabb);
-    d.lod = rng.below(meshes.get(&mesh).copied().unwrap_or(1) as u64) as u32;
-    d.flags = match rng.below(6) {
-        0 => InstanceFlags::UNIQUE_BLAS,
-        1 | 2 => InstanceFlags::STATIC,
-        _ => InstanceFlags::empty(),
-    };
-    d
+    let mut lods: Vec<(MeshId, u32)> = meshes.iter().map(|(&m, &n)| (m, n as u32)).collect();
+    lods.sort_by_key(|m| m.0 .0);
+    random_instance(rng, &lods)
 }
 
 /// Makes a valid description invalid in one of several ways.
@@ -154,57 +139,19 @@ fn corrupt(rng: &mut Rng, d: &mut InstanceDesc) {
     }
 }
 
-fn frustums() -> Vec<(Vec3, Frustum)> {
-    let p = proj::vulkan::perspective(70f32.to_radians(), 1.0, 0.1, 500.0);
-    let at = |eye: Vec3, dir: Vec3| {
-        let v = view::look_to_mat4(eye, dir, Vec3::Y);
-        (eye, Frustum::from_view_projection(p * v).unwrap())
-    };
-    vec![
-        at(Vec3::new(-10.0, 5.0, 32.0), Vec3::X),
-        at(Vec3::new(74.0, 5.0, 32.0), Vec3::NEG_X),
-        at(Vec3::new(32.0, 5.0, -10.0), Vec3::Z),
-    ]
-}
-
-/// An acknowledgement the backend owes, or one it replays.
-#[derive(Clone, Copy, Debug)]
-enum Owed {
-    Built {
-        id: BuildId,
-        reserved: u64,
-        compactable: bool,
-    },
-    Size {
-        id: BuildId,
-        bytes: u64,
-    },
-    Compacted {
-        id: BuildId,
-        bytes: u64,
-    },
-}
-
-/// The synthetic device: structures exist from their acknowledgement until
-/// the plan that frees them.
+/// The synthetic device and the acknowledgements it owes, delivered one at
+/// a time in random order (and replayed as duplicates).
 #[derive(Default)]
 struct Backend {
-    next_address: u64,
-    /// address -> bytes of every acceleration structure that exists.
-    live: HashMap<u64, u64>,
-    /// address -> last frame whose TLAS used it.
-    last_used: HashMap<u64, u64>,
+    device: SyntheticDevice,
     owed: Vec<Owed>,
     /// Reserved bytes of builds and compactions handed out, not acked.
     in_flight: HashMap<BuildId, u64>,
     /// Acknowledgements already delivered (replayed as duplicates).
     delivered: Vec<Owed>,
-    data_capacity: u64,
-    fif: u64,
     /// A build came out larger than its estimate: the budget may be
     /// overrun (by design: the structure exists).
     overran: bool,
-    frees: u64,
     traced_with_blas: u64,
     ring: Option<ReadbackRing>,
     tlas: Vec<TlasInstance>,
@@ -212,62 +159,12 @@ struct Backend {
 
 impl Backend {
     fn execute(&mut self, plan: &ManagerPlan) {
-        let f = plan.frame;
-        if let Some(g) = plan.data_growth {
-            assert_eq!(
-                g.from, self.data_capacity,
-                "growth from a capacity we never had"
-            );
-            assert!(g.to > g.from);
-            self.data_capacity = g.to;
-        }
-        for u in &plan.data_uploads {
-            assert!(
-                u.offset + u.bytes <= self.data_capacity,
-                "upload past the buffer"
-            );
-        }
-        self.frees += plan.blas.frees.len() as u64;
-        for free in &plan.blas.frees {
-            assert_eq!(
-                self.live.remove(&free.address),
-                Some(free.bytes),
-                "free of a dead or mis-sized structure"
-            );
-            if let Some(used) = self.last_used.remove(&free.address) {
-                assert!(used + self.fif <= f, "freed at {f}, used by frame {used}");
+        for owed in self.device.execute(plan) {
+            if let Owed::Built { id, bytes, .. } | Owed::Compacted { id, bytes } = owed {
+                assert!(self.in_flight.insert(id, bytes).is_none());
             }
+            self.owed.push(owed);
         }
-        for b in &plan.blas.batches {
-            for u in &b.updates {
-                assert!(self.live.contains_key(&u.address), "update of a dead BLAS");
-            }
-            for x in &b.builds {
-                assert!(self.in_flight.insert(x.id, x.result_bytes).is_none());
-                self.owed.push(Owed::Built {
-                    id: x.id,
-                    reserved: x.result_bytes,
-                    compactable: x.allow_compaction,
-                });
-            }
-        }
-        for c in &plan.blas.compactions {
-            assert!(
-                self.live.contains_key(&c.src_address),
-                "compaction of a dead BLAS"
-            );
-            assert!(self.in_flight.insert(c.id, c.compacted_bytes).is_none());
-            self.owed.push(Owed::Compacted {
-                id: c.id,
-                bytes: c.compacted_bytes,
-            });
-        }
-    }
-
-    fn create(&mut self, bytes: u64) -> u64 {
-        self.next_address += 0x100;
-        self.live.insert(self.next_address, bytes);
-        self.next_address
     }
 
     /// Delivers owed acknowledgement `i` (removing it); returns the
@@ -277,7 +174,7 @@ impl Backend {
         let r = match owed {
             Owed::Built {
                 id,
-                reserved,
+                bytes: reserved,
                 compactable,
             } => {
                 // Mostly at or below the estimate; now and then above it
@@ -288,11 +185,14 @@ impl Backend {
                 } else {
                     (reserved - rng.below(reserved / 4 + 1)).max(1)
                 };
-                let address = self.next_address + 0x100;
-                let r = m.send_built(id, bytes, address);
+                let built = Owed::Built {
+                    id,
+                    bytes,
+                    compactable,
+                };
+                let r = self.device.acknowledge(m, built);
                 if r.is_ok() {
                     self.overran |= overrun;
-                    self.create(bytes);
                     self.in_flight.remove(&id);
                     if compactable {
                         // Usually smaller; the cache clamps a larger answer.
@@ -305,12 +205,10 @@ impl Backend {
                 }
                 r
             }
-            Owed::Size { id, bytes } => m.send_compacted_size(id, bytes),
-            Owed::Compacted { id, bytes } => {
-                let address = self.next_address + 0x100;
-                let r = m.send_compacted(id, address);
+            Owed::Size { .. } => self.device.acknowledge(m, owed),
+            Owed::Compacted { id, .. } => {
+                let r = self.device.acknowledge(m, owed);
                 if r.is_ok() {
-                    self.create(bytes);
                     self.in_flight.remove(&id);
                 }
                 r
@@ -416,15 +314,6 @@ impl Coverage {
     }
 }
 
-fn grid() -> HitboxGrid {
-    HitboxGrid::new(GridConfig {
-        min: [0.0, 0.0],
-        max: [f64::from(WORLD), f64::from(WORLD)],
-        cell_size: 16.0,
-    })
-    .unwrap()
-}
-
 impl Case {
     fn new(seed: u64) -> Self {
         let mut rng = Rng::new(seed);
@@ -472,14 +361,13 @@ impl Case {
             meshes.insert(MeshId(mesh), lods.len());
             catalog.insert(MeshId(mesh), lods).unwrap();
         }
-        let m = Manager::new(grid(), config, catalog.clone()).unwrap();
-        let mut other = Manager::new(grid(), config, catalog).unwrap();
+        let m = Manager::new(world_grid(), config, catalog.clone()).unwrap();
+        let mut other = Manager::new(world_grid(), config, catalog).unwrap();
         let foreign = (0..3)
             .filter_map(|_| other.register(random_desc(&mut rng, &meshes)).ok())
             .collect();
         let be = Backend {
-            data_capacity: initial,
-            fif: u64::from(fif),
+            device: SyntheticDevice::new(fif, initial),
             ring: Some(ReadbackRing::new(latency).unwrap()),
             ..Backend::default()
         };
@@ -588,9 +476,8 @@ impl Case {
                     for t in &self.be.tlas {
                         let a = t.acceleration_structure_reference;
                         if a != CUBE {
-                            assert!(self.be.live.contains_key(&a), "TLAS uses a dead BLAS");
+                            self.be.device.traced(a, self.frame);
                             self.be.traced_with_blas += 1;
-                            self.be.last_used.insert(a, self.frame);
                         }
                     }
                     // Trace: hits on what was traced.
@@ -826,7 +713,7 @@ impl Case {
             );
             if v.blas != 0 {
                 assert!(
-                    self.be.live.contains_key(&v.blas),
+                    self.be.device.live.contains_key(&v.blas),
                     "record holds a dead BLAS"
                 );
             }
@@ -856,7 +743,7 @@ impl Case {
         // BLAS accounting against the backend.
         let mem = &st.memory;
         let cache = mem.blas_shared + mem.blas_unique + mem.blas_compacted;
-        let held: u64 = self.be.live.values().sum();
+        let held: u64 = self.be.device.live.values().sum();
         assert_eq!(
             cache + mem.blas_pending_free,
             held + self.be.in_flight_bytes(),
@@ -922,9 +809,9 @@ impl Case {
         assert!(self.m.registry().is_empty());
         assert_eq!(st.instances.scheduled + st.instances.with_blas, 0);
         assert!(
-            self.be.live.is_empty(),
+            self.be.device.live.is_empty(),
             "structures never freed: {:?}",
-            self.be.live
+            self.be.device.live
         );
     }
 }
@@ -946,7 +833,7 @@ fn run_case(seed: u64, calls: u64) -> Coverage {
         c.teardown();
         assert_eq!(c.calls, calls);
         Coverage {
-            frees: c.be.frees,
+            frees: c.be.device.frees,
             traced_with_blas: c.be.traced_with_blas,
             ..c.cover
         }

@@ -19,6 +19,7 @@ use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, InstanceDesc, InstanceFlags,
     InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
 };
+use lipac_test_support::synthetic::ImmediateAcks;
 
 const UNIT: u64 = 0xC0BE;
 
@@ -75,7 +76,7 @@ fn pose_of(d: &InstanceDesc) -> Pose {
 struct Loop {
     ring: ReadbackRing,
     acks: Vec<Ack>,
-    next_address: u64,
+    immediate: ImmediateAcks,
     tlas: Vec<lipac_core::TlasInstance>,
     /// Hits the stub tracer wrote, per frame.
     traced: Vec<u64>,
@@ -86,7 +87,7 @@ impl Loop {
         Self {
             ring: ReadbackRing::new(1).unwrap(),
             acks: Vec::new(),
-            next_address: 0,
+            immediate: ImmediateAcks::new(0x1_0000),
             tlas: Vec::new(),
             traced: Vec::new(),
         }
@@ -102,14 +103,7 @@ impl Loop {
     }
     fn plan_and_trace(&mut self, m: &mut Manager) {
         let plan = m.plan(&FrameBudgets::default()).unwrap();
-        for b in plan.blas.builds() {
-            self.next_address += 0x1_0000;
-            self.acks.push(Ack::Built {
-                build: b.id,
-                result_bytes: b.result_bytes,
-                address: self.next_address,
-            });
-        }
+        self.acks.extend(self.immediate.acks(&plan.blas));
         m.assemble(&mut self.tlas).unwrap();
         let mut total = 0;
         for t in &self.tlas {
@@ -187,7 +181,7 @@ fn scripted_scene_round_trips_through_the_trace() {
     for i in 0..6u32 {
         let mut d = desc(if i % 3 == 0 { 7 } else { 1 }, 8.0 + 16.0 * i as f32, 8.0);
         if i == 4 {
-            d.flags = InstanceFlags::STATIC;
+            d.flags = InstanceFlags::STATIC | InstanceFlags::PINNED;
             d.mask = 0x0F;
         }
         let (id, h) = add(&mut m, 0, d, &mut expected);
@@ -242,6 +236,18 @@ fn scripted_scene_round_trips_through_the_trace() {
                     lod: Some(1),
                     mask: Some(0x3),
                     ..upd(5)
+                }));
+            }
+            6 => {
+                // Unpinned: the flag change is recorded.
+                let mut d = desc(1, 8.0 + 16.0 * 4.0, 8.0);
+                d.flags = InstanceFlags::STATIC;
+                d.mask = 0x0F;
+                m.update(handles[&4], d).unwrap();
+                expected[f].push(InstanceEvent::Update(UpdateInstance {
+                    pose: Some(pose_of(&d)),
+                    flags: Some(InstanceFlags::STATIC),
+                    ..upd(4)
                 }));
             }
             7 => {
@@ -308,6 +314,22 @@ fn scripted_scene_round_trips_through_the_trace() {
     assert!(r.next_frame().unwrap().is_none());
     assert!(r.is_finished());
     assert!(hit_frames >= 6, "{hit_frames} frames with hits");
+    // The pinned flag survives the JSON-lines form too.
+    let jsonl = lipac_core::trace::binary_to_jsonl(
+        bytes.as_slice(),
+        Vec::new(),
+        lipac_core::trace::TraceLimits::default(),
+    )
+    .unwrap();
+    let text = String::from_utf8(jsonl.clone()).unwrap();
+    assert!(text.contains(r#""flags":["static","pinned"]"#), "{text}");
+    let back = lipac_core::trace::jsonl_to_binary(
+        jsonl.as_slice(),
+        Vec::new(),
+        lipac_core::trace::TraceLimits::default(),
+    )
+    .unwrap();
+    assert_eq!(back, bytes);
 }
 
 #[test]
@@ -330,6 +352,33 @@ fn counting_box_hits_are_split_over_inactive_instances() {
     let f = r.next_frame().unwrap().unwrap();
     let hits: Vec<(u64, u32)> = f.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
     assert_eq!(hits, [(0, 834), (1, 834), (2, 833), (3, 2501)]);
+}
+
+#[test]
+fn a_pinned_instance_takes_no_counting_box_share() {
+    let mut m = manager();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    // Two inactive instances and a pinned one (always traced) in one cell.
+    for x in [3.0, 5.0] {
+        m.register(desc(1, x, 3.0)).unwrap();
+    }
+    let mut d = desc(1, 7.0, 3.0);
+    d.flags = InstanceFlags::PINNED;
+    m.register(d).unwrap();
+    let mut lp = Loop::new();
+    lp.before_plan(&mut m, 0);
+    lp.plan_and_trace(&mut m);
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    let f = r.next_frame().unwrap().unwrap();
+    let hits: Vec<(u64, u32)> = f.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
+    // The box's 2501 over the two inactive ones only (the pinned one is
+    // never reduced into the box; without its BLAS yet, it has no hits).
+    assert_eq!(hits, [(0, 1251), (1, 1250)]);
 }
 
 #[test]

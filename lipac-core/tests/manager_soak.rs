@@ -7,26 +7,20 @@
 //! budgets). At the end, removing everything and advancing past the frames
 //! in flight must leave zero bytes allocated and no handle leaked.
 
-use std::collections::HashMap;
-
-use glam::camera::rh::{proj, view};
-use glam::{Affine3A, Vec3};
 use lipac_core::blas_cache::CacheConfig;
-use lipac_core::blas_ids::{BuildId, InstanceKey};
+use lipac_core::blas_ids::InstanceKey;
 use lipac_core::build_plan::{
     BuildBudgets, BuildEstimate, PriorityConfig, SchedulerConfig, SchedulerStats,
 };
 use lipac_core::culling::ReadbackRing;
-use lipac_core::grid::{GridConfig, HitboxGrid};
-use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
-use lipac_core::latency::{ActivationHeuristic, Frustum};
+use lipac_core::instance::MeshId;
+use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
-use lipac_core::manager::{
-    DataConfig, FrameBudgets, Manager, ManagerConfig, ManagerPlan, MeshCatalog, MeshLod,
-};
-use lipac_core::math::Aabb;
+use lipac_core::manager::{DataConfig, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::scene::{frustums, random_instance, world_grid};
+use lipac_test_support::synthetic::{LateAcks, SyntheticDevice};
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
 
 const CUBE: u64 = 0xC0BE;
@@ -49,165 +43,8 @@ fn mesh_lod(mesh: u32, lod: u32) -> MeshLod {
     }
 }
 
-#[derive(Clone, Copy)]
-enum Ack {
-    Built(BuildId, u64, bool),
-    Size(BuildId, u64),
-    Compacted(BuildId, u64),
-}
-
-/// The synthetic backend: structures exist from the plan that creates them
-/// until the plan that frees them.
-struct Backend {
-    next_address: u64,
-    /// address -> bytes of every acceleration structure that exists.
-    live: HashMap<u64, u64>,
-    /// address -> last frame whose TLAS used it.
-    last_used: HashMap<u64, u64>,
-    acks: Vec<(u64, Ack)>,
-    due: Vec<Ack>,
-    data_capacity: u64,
-    builds: u64,
-    compactions: u64,
-}
-
-impl Backend {
-    fn create(&mut self, bytes: u64) -> u64 {
-        self.next_address += 0x100;
-        self.live.insert(self.next_address, bytes);
-        self.next_address
-    }
-
-    fn execute(&mut self, plan: &ManagerPlan, rng: &mut Rng) {
-        let f = plan.frame;
-        if let Some(g) = plan.data_growth {
-            assert_eq!(
-                g.from, self.data_capacity,
-                "growth from a capacity we never had"
-            );
-            assert!(g.to > g.from);
-            self.data_capacity = g.to;
-        }
-        for u in &plan.data_uploads {
-            assert!(
-                u.offset + u.bytes <= self.data_capacity,
-                "upload past the buffer"
-            );
-        }
-        for free in &plan.blas.frees {
-            assert_eq!(
-                self.live.remove(&free.address),
-                Some(free.bytes),
-                "free of a dead or mis-sized structure"
-            );
-            if let Some(used) = self.last_used.remove(&free.address) {
-                assert!(
-                    used + u64::from(FRAMES_IN_FLIGHT) <= f,
-                    "freed at {f}, used by frame {used}"
-                );
-            }
-        }
-        for b in &plan.blas.batches {
-            for u in &b.updates {
-                assert!(self.live.contains_key(&u.address), "update of a dead BLAS");
-            }
-            for x in &b.builds {
-                let bytes = (x.result_bytes - rng.below(x.result_bytes / 4 + 1)).max(1);
-                self.acks.push((
-                    f + rng.below(4),
-                    Ack::Built(x.id, bytes, x.allow_compaction),
-                ));
-                self.builds += 1;
-            }
-        }
-        for c in &plan.blas.compactions {
-            assert!(self.live.contains_key(&c.src_address));
-            self.acks
-                .push((f + rng.below(4), Ack::Compacted(c.id, c.compacted_bytes)));
-            self.compactions += 1;
-        }
-    }
-
-    /// Delivers the acknowledgements due at `frame` (all of them if `all`,
-    /// else each with probability 3/4: the rest arrive later).
-    fn deliver(&mut self, m: &mut Manager, frame: u64, rng: &mut Rng, all: bool) {
-        self.due.clear();
-        let mut i = 0;
-        while i < self.acks.len() {
-            if self.acks[i].0 <= frame && (all || rng.below(4) != 0) {
-                self.due.push(self.acks.swap_remove(i).1);
-            } else {
-                i += 1;
-            }
-        }
-        for k in 0..self.due.len() {
-            match self.due[k] {
-                Ack::Built(id, bytes, compactable) => {
-                    let address = self.create(bytes);
-                    let ack = lipac_core::Ack::Built {
-                        build: id,
-                        result_bytes: bytes,
-                        address,
-                    };
-                    m.handle_ack(ack).unwrap();
-                    if compactable {
-                        let at = frame + 1 + rng.below(3);
-                        self.acks.push((at, Ack::Size(id, bytes / 2 + 1)));
-                    }
-                }
-                Ack::Size(id, bytes) => m
-                    .handle_ack(lipac_core::Ack::CompactedSize {
-                        build: id,
-                        compacted_bytes: bytes,
-                    })
-                    .unwrap(),
-                Ack::Compacted(id, bytes) => {
-                    let address = self.create(bytes);
-                    m.handle_ack(lipac_core::Ack::Compacted { op: id, address })
-                        .unwrap();
-                }
-            }
-        }
-    }
-}
-
-fn frustums() -> [(Vec3, Frustum); 3] {
-    let p = proj::vulkan::perspective(70f32.to_radians(), 1.0, 0.1, 500.0);
-    let at = |eye: Vec3, dir: Vec3| {
-        let v = view::look_to_mat4(eye, dir, Vec3::Y);
-        (eye, Frustum::from_view_projection(p * v).unwrap())
-    };
-    [
-        at(Vec3::new(-10.0, 5.0, 32.0), Vec3::X),
-        at(Vec3::new(74.0, 5.0, 32.0), Vec3::NEG_X),
-        at(Vec3::new(32.0, 5.0, -10.0), Vec3::Z),
-    ]
-}
-
-fn random_desc(rng: &mut Rng) -> InstanceDesc {
-    let x = 1.0 + rng.below(62) as f32;
-    let z = 1.0 + rng.below(62) as f32;
-    let mesh = rng.below(u64::from(MESHES)) as u32;
-    let aabb = Aabb::new(
-        Vec3::new(x - 1.0, 0.0, z - 1.0),
-        Vec3::new(x + 1.0, 1.0 + rng.below(4) as f32, z + 1.0),
-    );
-    let mut d = InstanceDesc::new(
-        MeshId(mesh),
-        Affine3A::from_translation(Vec3::new(x, 0.0, z)),
-        aabb,
-    );
-    d.lod = rng.below(u64::from(LODS)) as u32;
-    d.flags = match rng.below(6) {
-        0 => InstanceFlags::UNIQUE_BLAS,
-        1 | 2 => InstanceFlags::STATIC,
-        _ => InstanceFlags::empty(),
-    };
-    d
-}
-
 /// Everything that must hold between frames.
-fn check_invariants(m: &Manager, be: &Backend, live: &[InstanceHandle]) {
+fn check_invariants(m: &Manager, be: &SyntheticDevice, live: &[InstanceHandle]) {
     let reg = m.registry();
     assert_eq!(reg.len(), live.len());
     let mut data_bytes = 0;
@@ -265,12 +102,7 @@ fn check_invariants(m: &Manager, be: &Backend, live: &[InstanceHandle]) {
 /// compactions handed out, and the most instances traced with a BLAS at once.
 fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
     let mut rng = Rng::new(seed | 1);
-    let grid = HitboxGrid::new(GridConfig {
-        min: [0.0, 0.0],
-        max: [64.0, 64.0],
-        cell_size: 16.0,
-    })
-    .unwrap();
+    let grid = world_grid();
     let mut config = ManagerConfig::new(CUBE);
     config.culling.thresholds = Thresholds {
         theta_a: 400,
@@ -301,6 +133,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         initial_capacity: 256,
         alignment: 16,
     };
+    let meshes: Vec<(MeshId, u32)> = (0..MESHES).map(|m| (MeshId(m), LODS)).collect();
     let mut catalog = MeshCatalog::new();
     for mesh in 0..MESHES {
         catalog
@@ -309,16 +142,8 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
     }
     let mut m = Manager::new(grid, config, catalog).unwrap();
     let mut ring = ReadbackRing::new(2).unwrap();
-    let mut be = Backend {
-        next_address: 0,
-        live: HashMap::new(),
-        last_used: HashMap::new(),
-        acks: Vec::new(),
-        due: Vec::new(),
-        data_capacity: 256,
-        builds: 0,
-        compactions: 0,
-    };
+    // Acknowledgements arrive 0–3 frames late (see `LateAcks`).
+    let mut be = LateAcks::new(FRAMES_IN_FLIGHT, 256);
     let frustums = frustums();
     let mut live: Vec<InstanceHandle> = Vec::with_capacity(MAX_LIVE);
     let mut tlas: Vec<TlasInstance> = Vec::new();
@@ -337,7 +162,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         for _ in 0..rng.below(3) {
             match rng.below(10) {
                 0..=2 if live.len() < MAX_LIVE => {
-                    live.push(m.register(random_desc(&mut rng)).unwrap());
+                    live.push(m.register(random_instance(&mut rng, &meshes)).unwrap());
                 }
                 0..=3 if !live.is_empty() => {
                     let i = rng.below(live.len() as u64) as usize;
@@ -349,7 +174,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
                 }
                 7 if !live.is_empty() => {
                     let h = live[rng.below(live.len() as u64) as usize];
-                    let d = random_desc(&mut rng);
+                    let d = random_instance(&mut rng, &meshes);
                     m.set_transform(h, d.transform, d.aabb).unwrap();
                 }
                 _ => {}
@@ -392,8 +217,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
                     m.instance_hits_mut()[i] += rng.below(500) as u32;
                 }
             } else {
-                assert!(be.live.contains_key(&address), "TLAS uses a dead BLAS");
-                be.last_used.insert(address, f);
+                be.device.traced(address, f);
                 active += 1;
                 m.instance_hits_mut()[i] += rng.below(800) as u32;
             }
@@ -402,10 +226,10 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         m.process_feedback().unwrap();
         ring.push(m.take_commands().unwrap()).unwrap();
         if f % 7 == 0 {
-            check_invariants(&m, &be, &live);
+            check_invariants(&m, &be.device, &live);
         }
     }
-    check_invariants(&m, &be, &live);
+    check_invariants(&m, &be.device, &live);
     let churn = m.scheduler().stats();
     assert!(max_active > 0, "nothing was ever traced with its BLAS");
 
@@ -415,7 +239,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         m.remove(h).unwrap();
     }
     let mut f = frames;
-    while !be.acks.is_empty() || m.stats().builds_in_flight > 0 {
+    while !be.queue.is_empty() || m.stats().builds_in_flight > 0 {
         f += 1;
         m.begin_frame(f).unwrap();
         be.deliver(&mut m, f + 10, &mut rng, true);
@@ -469,12 +293,13 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         "scheduler instances leaked"
     );
     assert_eq!(st.instances.scheduled + st.instances.with_blas, 0);
+    let dev = &be.device;
     assert!(
-        be.live.is_empty(),
+        dev.live.is_empty(),
         "structures never freed: {}",
-        be.live.len()
+        dev.live.len()
     );
-    (churn, be.builds, be.compactions, max_active)
+    (churn, dev.builds, dev.compactions, max_active)
 }
 
 #[test]

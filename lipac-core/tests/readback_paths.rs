@@ -36,6 +36,7 @@ use lipac_core::{
     InstanceFlags, InstanceHandle, InstanceState, Manager, ManagerConfig, MeshCatalog, MeshId,
     MeshLod, Readback, ReadbackRing,
 };
+use lipac_test_support::synthetic::ImmediateAcks;
 use proptest::prelude::*;
 
 const CUBE: u64 = 0xC0BE;
@@ -158,7 +159,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
     let mut live: Vec<(InstanceHandle, InstanceHandle)> = Vec::new();
     let mut removed_slots: Vec<u32> = Vec::new();
     let mut acks: Vec<(u64, Ack)> = Vec::new();
-    let mut next_address = 0x10_0000u64;
+    let mut immediate = ImmediateAcks::after(0x10_0000, 0x1000);
     let mut registrations = 0u64;
     let mut tlas = Vec::new();
     let mut totals = Totals::default();
@@ -277,13 +278,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
         );
         plan_b.uploads = plan.uploads.clone();
         prop_assert_eq!(&plan, &plan_b);
-        for build in plan.blas.builds() {
-            next_address += 0x1000;
-            let ack = Ack::Built {
-                build: build.id,
-                result_bytes: build.result_bytes,
-                address: next_address,
-            };
+        for ack in immediate.acks(&plan.blas) {
             acks.push((frame + 1, ack));
         }
 

@@ -10,6 +10,12 @@
 //! [`BlasStore::refit`] can update node bounds for moved vertices (same
 //! topology, cheap, quality degrades with large motion) instead of a full
 //! [`BlasStore::rebuild`]. Both are counted in [`BuildStats`].
+//!
+//! [`BuildThroughput`] measures what an obvhs build and refit cost per
+//! triangle on given geometry, so that counted BLAS work (triangles built
+//! and refit) can be charged in milliseconds.
+
+use std::time::Instant;
 
 use glam::{Vec3, Vec3A};
 use lipac_core::math::Aabb;
@@ -274,6 +280,94 @@ pub struct BuildStats {
     pub primitives_built: u64,
     /// Triangles processed by refits.
     pub primitives_refit: u64,
+}
+
+/// What an obvhs BLAS build and refit cost per triangle, measured on given
+/// geometry ([`BuildThroughput::measure`]), and the charge of counted work
+/// at those rates ([`BuildThroughput::build_ms`],
+/// [`BuildThroughput::refit_ms`]).
+///
+/// Builds are measured at [`BuildQuality::Good`] without the binary BVH
+/// kept (how shared BLASes, most builds, are built); refits on BLASes built
+/// [`BuildQuality::Fast`] and refittable (how animated unique BLASes are),
+/// refit to unchanged vertices (a refit's cost does not depend on how far
+/// they moved).
+///
+/// ```
+/// use lipac_sim::blas::BuildThroughput;
+/// use lipac_sim::mesh;
+/// let tree = mesh::tree();
+/// let t = BuildThroughput::measure(tree.lods.iter(), 1.0).unwrap();
+/// assert!(t.build_ns_per_triangle > 0.0 && t.refit_ns_per_triangle > 0.0);
+/// assert_eq!(t.build_ms(0), 0.0);
+/// assert!((t.refit_ms(2_000_000) - t.refit_ns_per_triangle * 2.0).abs() < 1e-9);
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BuildThroughput {
+    /// Wall time of a build per triangle, ns.
+    pub build_ns_per_triangle: f64,
+    /// Wall time of a refit per triangle, ns.
+    pub refit_ns_per_triangle: f64,
+    /// Triangles built while measuring.
+    pub triangles_built: u64,
+    /// Triangles refit while measuring.
+    pub triangles_refit: u64,
+}
+
+impl BuildThroughput {
+    /// Builds and refits every triangle set of `geoms` in turn, passes over
+    /// all of them until builds and refits have each taken at least
+    /// `min_ms` (at most 1000 passes), and divides the time by the
+    /// triangles. Empty sets are skipped; an error if no set has a
+    /// triangle, if `min_ms` is not finite, or for non-finite vertices.
+    pub fn measure<'a>(
+        geoms: impl Iterator<Item = &'a LodTriangles> + Clone,
+        min_ms: f64,
+    ) -> Result<Self, SimError> {
+        if !min_ms.is_finite() {
+            return Err(SimError::BadConfig("measuring time must be finite"));
+        }
+        if geoms.clone().all(|g| g.is_empty()) {
+            return Err(SimError::BadConfig(
+                "no triangles to measure BLAS throughput on",
+            ));
+        }
+        let (mut build_ns, mut refit_ns) = (0u128, 0u128);
+        let mut out = Self::default();
+        let goal = (min_ms.max(0.0) * 1e6) as u128;
+        for _ in 0..1000 {
+            for g in geoms.clone().filter(|g| !g.is_empty()) {
+                let t = Instant::now();
+                let b = BvhBlas::from_geometry(g, BuildQuality::Good, false)?;
+                build_ns += t.elapsed().as_nanos();
+                std::hint::black_box(&b);
+                let mut store = BlasStore::new();
+                let id = store.build(g, BuildQuality::Fast, true)?;
+                let t = Instant::now();
+                store.refit(id, g)?;
+                refit_ns += t.elapsed().as_nanos();
+                out.triangles_built += g.len() as u64;
+                out.triangles_refit += g.len() as u64;
+            }
+            if build_ns >= goal && refit_ns >= goal {
+                break;
+            }
+        }
+        // A clock too coarse to see a pass still gives a positive rate.
+        out.build_ns_per_triangle = build_ns.max(1) as f64 / out.triangles_built as f64;
+        out.refit_ns_per_triangle = refit_ns.max(1) as f64 / out.triangles_refit as f64;
+        Ok(out)
+    }
+
+    /// Milliseconds `triangles` built cost at this rate.
+    pub fn build_ms(&self, triangles: u64) -> f64 {
+        triangles as f64 * self.build_ns_per_triangle * 1e-6
+    }
+
+    /// Milliseconds `triangles` refit cost at this rate.
+    pub fn refit_ms(&self, triangles: u64) -> f64 {
+        triangles as f64 * self.refit_ns_per_triangle * 1e-6
+    }
 }
 
 /// Owns every BLAS; hands out generation-checked [`BvhBlasId`]s.

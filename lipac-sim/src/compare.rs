@@ -12,6 +12,15 @@
 //! truth (see [`crate::pathtrace`]); with
 //! [`CompareConfig::share_ground_truth`] its render is reused instead of
 //! traced again (its trace time is then the ground truth's).
+//!
+//! **Run time.** Every strategy traces the comparison's one shared set of
+//! BLASes, so its own BLAS work is counted (triangles built and refit, from
+//! its plan) and charged at the obvhs build and refit throughput measured
+//! once per run on the scene's meshes ([`crate::blas::BuildThroughput`],
+//! [`CompareReport::blas_throughput`]); its TLAS build is a real
+//! [`CpuTlas`] build over its own records, its trace time the traversal's.
+//! Beside these, the modelled GPU time of the same work
+//! ([`crate::metrics::GpuModel::PUBLISHED`]; see [`crate::metrics`]).
 
 use std::time::Instant;
 
@@ -19,11 +28,11 @@ use glam::Vec3;
 
 use serde::{Deserialize, Serialize};
 
-use crate::blas::BlasStore;
+use crate::blas::{BlasStore, BuildThroughput};
 use crate::camera::{Camera, CameraPath};
 use crate::error::SimError;
 use crate::memory::tlas_bytes;
-use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, Summary, Tracker};
+use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, GpuModel, Summary, Tracker};
 use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
@@ -145,6 +154,13 @@ pub struct CompareReport {
     pub traced_rays_per_frame: f64,
     /// Wall time of the whole comparison, s.
     pub wall_s: f64,
+    /// The obvhs build and refit throughput every strategy's BLAS work is
+    /// charged at (measured once per run on the scene's meshes).
+    #[serde(default)]
+    pub blas_throughput: BuildThroughput,
+    /// The throughput the modelled GPU times assume.
+    #[serde(default)]
+    pub gpu_model: GpuModel,
     /// Per strategy.
     pub strategies: Vec<StrategyRun>,
 }
@@ -332,6 +348,8 @@ pub struct Comparison {
     full_tlas_ms: f64,
     geometry_ms: f64,
     traced_rays: u64,
+    throughput: BuildThroughput,
+    gpu: GpuModel,
     frames: u32,
     capture: Vec<u32>,
     snapshots: Vec<Snapshot>,
@@ -346,6 +364,10 @@ impl std::fmt::Debug for Comparison {
             .finish_non_exhaustive()
     }
 }
+
+/// How long [`Comparison::new`] spends measuring obvhs BLAS builds, and
+/// refits, at least (ms each; [`BuildThroughput::measure`]).
+pub const THROUGHPUT_MEASURE_MS: f64 = 30.0;
 
 /// Most pixels an image may have (`width * height`): 2^24, a 4096 x 4096
 /// image (the tracer keeps several buffers per pixel; 100000 x 100000 would
@@ -408,6 +430,11 @@ impl Comparison {
         let unit_cube = store.unit_cube().reference();
         let mut all = SlotSet::new();
         (0..n as u32).for_each(|s| all.insert(s));
+        let library = scene.library();
+        let meshes = (0..library.len())
+            .filter_map(|i| library.mesh(i as crate::mesh::MeshIndex).ok())
+            .flat_map(|m| m.lods.iter());
+        let throughput = BuildThroughput::measure(meshes, THROUGHPUT_MEASURE_MS)?;
         Ok(Self {
             start,
             scene_name: scene_name.to_string(),
@@ -438,6 +465,8 @@ impl Comparison {
             full_tlas_ms: 0.0,
             geometry_ms: 0.0,
             traced_rays: 0,
+            throughput,
+            gpu: GpuModel::PUBLISHED,
             frames: 0,
             capture: Vec::new(),
             snapshots: Vec::new(),
@@ -601,6 +630,7 @@ impl Comparison {
                 }
                 m.tlas_build_ms = full_ms;
                 m.trace_ms = gt_trace_ms;
+                m.traced_rays = gt.rays.bounce + gt.rays.shadow;
                 (None, &self.full_tlas)
             } else {
                 let t = Instant::now();
@@ -621,11 +651,13 @@ impl Comparison {
                     s.hitboxes(),
                 )?;
                 m.trace_ms = out.traced_ns as f64 * 1e-6;
+                m.traced_rays = out.rays.bounce + out.rays.shadow;
                 (Some(out), &self.tlas)
             };
             m.tlas_instances = traced.len() as u64;
             m.counting_boxes = traced.box_count() as u64;
             m.tlas_bytes = tlas_bytes(m.tlas_instances);
+            m.charge_time(&self.throughput, &self.gpu);
             let geometry_slots = (0..n as u32).filter(|&s| geometry.contains(s));
             self.trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
             match out {
@@ -717,6 +749,8 @@ impl Comparison {
             geometry_ms: self.geometry_ms / nf,
             traced_rays_per_frame: self.traced_rays as f64 / nf,
             wall_s: self.start.elapsed().as_secs_f64(),
+            blas_throughput: self.throughput,
+            gpu_model: self.gpu,
             strategies,
         };
         Ok((report, self.snapshots))

@@ -43,6 +43,7 @@ use lipac_core::blas_ids::BuildId;
 use lipac_core::build_plan::{PriorityConfig, SchedulerConfig};
 use lipac_core::culling::{CullingConfig, ReadbackRing};
 use lipac_core::grid::HitboxGrid;
+use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::InstanceDesc;
 use lipac_core::latency::Frustum;
 use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance};
@@ -90,9 +91,11 @@ fn scheduler_config(priority: PriorityConfig) -> SchedulerConfig {
 }
 
 /// One [`Manager`], its read-back ring and the plan execution (module docs).
+/// `H` is the Manager's hitbox structure (the dense grid by default; a
+/// trace replay uses [`lipac_core::WorldHitboxes`]).
 #[derive(Debug)]
-pub struct CpuBackend {
-    manager: Manager<HitboxGrid>,
+pub struct CpuBackend<H: HitboxIndex = HitboxGrid> {
+    manager: Manager<H>,
     ring: ReadbackRing,
     budgets: FrameBudgets,
     latency_mitigation: bool,
@@ -101,17 +104,13 @@ pub struct CpuBackend {
     open_frame: Option<u64>,
 }
 
-impl CpuBackend {
+impl<H: HitboxIndex> CpuBackend<H> {
     /// A Manager over `grid` with the meshes of `catalog`, configured from
     /// `config` (thresholds, latency mitigation, command capacity and budget,
     /// read-back latency, build budgets and priorities). Fails for an
     /// invalid configuration, or if the Manager's counting boxes differ from
     /// the tracer's ([`CountingBoxes`]).
-    pub fn new(
-        grid: HitboxGrid,
-        config: &LipacConfig,
-        catalog: MeshCatalog,
-    ) -> Result<Self, SimError> {
+    pub fn new(grid: H, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
         config.thresholds.validate().map_err(core)?;
         if config.readback_latency == 0 || config.command_budget == 0 {
             return Err(SimError::BadConfig(
@@ -144,6 +143,8 @@ impl CpuBackend {
             culling,
             scheduler: scheduler_config(config.build_priority),
             data: DataConfig::default(),
+            target: config.target,
+            controller: config.controller,
         };
         Ok(Self {
             manager: Manager::new(grid, manager_config, catalog).map_err(core)?,
@@ -159,14 +160,14 @@ impl CpuBackend {
     }
 
     /// The Manager (read-only: statistics, catalog, instance views).
-    pub fn manager(&self) -> &Manager<HitboxGrid> {
+    pub fn manager(&self) -> &Manager<H> {
         &self.manager
     }
 
     /// The Manager, e.g. to attach a trace recorder
     /// ([`Manager::attach_recorder`]) and pass it the camera. Driving its
     /// frame (begin, plan, feedback) directly bypasses this backend.
-    pub fn manager_mut(&mut self) -> &mut Manager<HitboxGrid> {
+    pub fn manager_mut(&mut self) -> &mut Manager<H> {
         &mut self.manager
     }
 

@@ -8,6 +8,7 @@ use std::fmt::Write as _;
 
 use crate::compare::CompareReport;
 use crate::error::SimError;
+use crate::metrics::TIMING_NOTE;
 use crate::report::{headline, PLOTS};
 use crate::snapshot::{heat_scale_png, Pictures, Snapshot};
 use crate::tlas_map::MapState;
@@ -106,13 +107,13 @@ pub fn report_html(
     }
     let _ = writeln!(
         s,
-        "<table><tr><th>strategy</th><th>TLAS instances mean</th><th>peak</th><th>memory MiB mean</th><th>peak</th><th>BLAS builds</th><th>refits</th><th>cycles</th><th>latency mean</th><th>p95</th><th>error mean</th><th>max</th><th>trace ms</th></tr>"
+        "<table><tr><th>strategy</th><th>TLAS instances mean</th><th>peak</th><th>memory MiB mean</th><th>peak</th><th>BLAS builds</th><th>refits</th><th>cycles</th><th>latency mean</th><th>p95</th><th>error mean</th><th>max</th><th>trace ms</th><th>frame ms (CPU)</th><th>GPU frame ms (model)</th></tr>"
     );
     for st in &r.strategies {
         let m = &st.summary;
         let _ = writeln!(
             s,
-            "<tr><td>{}</td><td>{:.0}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.1}</td></tr>",
+            "<tr><td>{}</td><td>{:.0}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.1}</td><td>{:.1}</td><td>{:.3}</td></tr>",
             escape(&st.name),
             m.mean_instances,
             m.peak_instances,
@@ -125,10 +126,13 @@ pub fn report_html(
             m.p95_latency,
             m.mean_error,
             m.max_error,
-            m.mean_trace_ms
+            m.mean_trace_ms,
+            m.mean_frame_ms,
+            m.mean_gpu_frame_ms
         );
     }
-    s.push_str("</table>\n<h2 id=\"plots\">Plots</h2>\n<div class=\"plots\">\n");
+    let _ = writeln!(s, "</table>\n<p>{}</p>", escape(TIMING_NOTE));
+    s.push_str("<h2 id=\"plots\">Plots</h2>\n<div class=\"plots\">\n");
     for (svg, file) in plots.iter().zip(PLOTS) {
         let body = svg.trim_start_matches(|c| c != '<');
         let _ = writeln!(s, "<div title=\"{file}\">{body}</div>");

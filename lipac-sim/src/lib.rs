@@ -12,6 +12,7 @@ pub mod cpu_backend;
 pub mod error;
 pub mod html;
 pub mod import;
+pub mod json_float;
 pub mod memory;
 pub mod mesh;
 pub mod metrics;

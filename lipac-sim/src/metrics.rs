@@ -15,10 +15,33 @@
 //! * **Needed but missing**: instances the ground-truth paths hit this frame
 //!   that the strategy's TLAS lacks.
 //! * **Error**: relative RMSE of the indirect light against the ground truth.
+//! * **Run time** (measured on this CPU): BLAS builds and refits
+//!   (`blas_build_ms`, `blas_refit_ms`: the strategy's counted triangles
+//!   charged at the obvhs throughput measured once per run,
+//!   [`crate::blas::BuildThroughput`]), its TLAS build (`tlas_build_ms`, a
+//!   real [`crate::tlas::CpuTlas`] build over its records) and its
+//!   traversal (`trace_ms`); `frame_ms` is their sum.
+//! * **Modelled GPU time** (`gpu_*`): the same work at published GPU
+//!   throughput ([`GpuModel`]); a model, not a measurement.
 
 use serde::{Deserialize, Serialize};
 
+use crate::blas::BuildThroughput;
 use crate::strategy::{BlasWork, StrategyFrame};
+
+/// How the times of the reports are made (one paragraph of Markdown, for
+/// `report.md` and `sweep.md`).
+pub const TIMING_NOTE: &str = "Frame time (CPU, measured) = BLAS builds + BLAS refits + TLAS \
+build + trace. Every strategy traces one shared set of BLASes, so its BLAS work is its plan's \
+triangles built and refit charged at the obvhs build and refit throughput measured once per \
+run on the scene's meshes; its TLAS build is a real CPU build over its own records; trace \
+times are the CPU time (summed over threads) of the bounce and shadow rays traced against its \
+TLAS, on whatever else the machine ran (primary hits and the rasterized-shadow fallback stand \
+in for rasterization and are excluded; the full-scene strategy's is the ground truth's). \
+Modelled GPU time (a model, not a measurement) = triangles built / 0.31 G/s + triangles \
+refit / 3.03 G/s (NVIDIA's vk_animated_clusters sample, RTX 6000 Ada) + TLAS instances / \
+0.31 G/s (assumed: an instance costs a triangle of a full build) + bounce and shadow rays / \
+1 G/s (assumed); docs/EVALUATION.md, \"Run time against error\".";
 
 /// Frames within which leaving and re-entering the TLAS counts as a cycle.
 pub const CYCLE_WINDOW: u32 = 30;
@@ -57,6 +80,7 @@ pub struct FrameMetrics {
     /// Instances hit by this frame's ground-truth paths missing from the TLAS.
     pub needed_missing: u64,
     /// Relative RMSE of the indirect light against the ground truth.
+    #[serde(with = "crate::json_float")]
     pub error: f64,
     /// CPU time (summed over threads) of the bounce and shadow rays traced
     /// against the strategy's TLAS, ms. Primary hits and the rasterized-shadow
@@ -67,6 +91,35 @@ pub struct FrameMetrics {
     pub tlas_build_ms: f64,
     /// Wall time of the strategy's own frame logic, ms.
     pub strategy_ms: f64,
+    /// Bounce and shadow rays traced against the strategy's TLAS.
+    #[serde(default)]
+    pub traced_rays: u64,
+    /// Its BLAS builds on obvhs, ms: `primitives_built` at the run's
+    /// measured build throughput.
+    #[serde(default)]
+    pub blas_build_ms: f64,
+    /// Its BLAS refits on obvhs, ms: `primitives_refit` at the run's
+    /// measured refit throughput.
+    #[serde(default)]
+    pub blas_refit_ms: f64,
+    /// `blas_build_ms + blas_refit_ms + tlas_build_ms + trace_ms`.
+    #[serde(default)]
+    pub frame_ms: f64,
+    /// Modelled GPU BLAS build time, ms ([`GpuModel`]).
+    #[serde(default)]
+    pub gpu_blas_build_ms: f64,
+    /// Modelled GPU BLAS refit time, ms.
+    #[serde(default)]
+    pub gpu_blas_refit_ms: f64,
+    /// Modelled GPU TLAS build time, ms.
+    #[serde(default)]
+    pub gpu_tlas_build_ms: f64,
+    /// Modelled GPU trace time of `traced_rays`, ms.
+    #[serde(default)]
+    pub gpu_trace_ms: f64,
+    /// Sum of the four modelled GPU times, ms.
+    #[serde(default)]
+    pub gpu_frame_ms: f64,
 }
 
 impl FrameMetrics {
@@ -74,13 +127,39 @@ impl FrameMetrics {
     pub fn total_bytes(&self) -> u64 {
         self.blas_bytes + self.tlas_bytes + self.overhead_bytes
     }
+    /// Fills `blas_build_ms` and `blas_refit_ms` from the triangles counted
+    /// at `throughput`, `frame_ms` as the sum of the four CPU times (so
+    /// `trace_ms` and `tlas_build_ms` must be set first), and the `gpu_*`
+    /// times from `gpu`.
+    pub fn charge_time(&mut self, throughput: &BuildThroughput, gpu: &GpuModel) {
+        self.blas_build_ms = throughput.build_ms(self.primitives_built);
+        self.blas_refit_ms = throughput.refit_ms(self.primitives_refit);
+        self.frame_ms =
+            self.blas_build_ms + self.blas_refit_ms + self.tlas_build_ms + self.trace_ms;
+        let g = gpu.frame(
+            self.primitives_built,
+            self.primitives_refit,
+            self.tlas_instances,
+            self.traced_rays,
+        );
+        self.gpu_blas_build_ms = g.blas_build_ms;
+        self.gpu_blas_refit_ms = g.blas_refit_ms;
+        self.gpu_tlas_build_ms = g.tlas_build_ms;
+        self.gpu_trace_ms = g.trace_ms;
+        self.gpu_frame_ms = g.frame_ms;
+    }
+
     /// The same metrics with the wall-clock timings zeroed (for
-    /// determinism checks).
+    /// determinism checks; the modelled GPU times are kept: they follow
+    /// from counts).
     pub fn without_timings(&self) -> Self {
         Self {
             trace_ms: 0.0,
             tlas_build_ms: 0.0,
             strategy_ms: 0.0,
+            blas_build_ms: 0.0,
+            blas_refit_ms: 0.0,
+            frame_ms: 0.0,
             ..self.clone()
         }
     }
@@ -126,8 +205,10 @@ pub struct Summary {
     /// Mean needed-but-missing instances per frame.
     pub mean_needed_missing: f64,
     /// Mean error.
+    #[serde(with = "crate::json_float")]
     pub mean_error: f64,
     /// Largest error of a frame.
+    #[serde(with = "crate::json_float")]
     pub max_error: f64,
     /// Mean trace time, ms.
     pub mean_trace_ms: f64,
@@ -135,6 +216,120 @@ pub struct Summary {
     pub mean_tlas_build_ms: f64,
     /// Mean strategy logic time, ms.
     pub mean_strategy_ms: f64,
+    /// Mean bounce and shadow rays traced per frame.
+    #[serde(default)]
+    pub mean_traced_rays: f64,
+    /// Mean BLAS build time on obvhs, ms.
+    #[serde(default)]
+    pub mean_blas_build_ms: f64,
+    /// Mean BLAS refit time on obvhs, ms.
+    #[serde(default)]
+    pub mean_blas_refit_ms: f64,
+    /// Mean frame time (BLAS builds, refits, TLAS build, trace), ms.
+    #[serde(default)]
+    pub mean_frame_ms: f64,
+    /// Median frame time, ms.
+    #[serde(default)]
+    pub median_frame_ms: f64,
+    /// Mean modelled GPU BLAS build time, ms.
+    #[serde(default)]
+    pub mean_gpu_blas_build_ms: f64,
+    /// Mean modelled GPU BLAS refit time, ms.
+    #[serde(default)]
+    pub mean_gpu_blas_refit_ms: f64,
+    /// Mean modelled GPU TLAS build time, ms.
+    #[serde(default)]
+    pub mean_gpu_tlas_build_ms: f64,
+    /// Mean modelled GPU trace time, ms.
+    #[serde(default)]
+    pub mean_gpu_trace_ms: f64,
+    /// Mean modelled GPU frame time, ms.
+    #[serde(default)]
+    pub mean_gpu_frame_ms: f64,
+}
+
+/// Modelled GPU time of acceleration-structure work and tracing: each
+/// count divided by a throughput ([`GpuModel::PUBLISHED`] gives the
+/// figures and their sources). A second, clearly labelled figure beside the
+/// measured CPU times, not a measurement.
+///
+/// ```
+/// use lipac_sim::metrics::GpuModel;
+/// let m = GpuModel { build_triangles_per_s: 1e8, refit_triangles_per_s: 1e9,
+///     tlas_instances_per_s: 1e7, rays_per_s: 1e9 };
+/// let t = m.frame(100_000, 1_000_000, 10_000, 2_000_000);
+/// assert_eq!((t.blas_build_ms, t.blas_refit_ms, t.tlas_build_ms, t.trace_ms), (1.0, 1.0, 1.0, 2.0));
+/// assert_eq!(t.frame_ms, 5.0);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GpuModel {
+    /// Triangles a full BLAS build processes per second.
+    pub build_triangles_per_s: f64,
+    /// Triangles a BLAS refit processes per second.
+    pub refit_triangles_per_s: f64,
+    /// Instances a TLAS build processes per second.
+    pub tlas_instances_per_s: f64,
+    /// Bounce and shadow rays traced per second.
+    pub rays_per_s: f64,
+}
+
+/// One frame of [`GpuModel`] time, ms.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GpuFrame {
+    /// BLAS builds.
+    pub blas_build_ms: f64,
+    /// BLAS refits.
+    pub blas_refit_ms: f64,
+    /// TLAS build.
+    pub tlas_build_ms: f64,
+    /// Tracing.
+    pub trace_ms: f64,
+    /// The sum of the four.
+    pub frame_ms: f64,
+}
+
+impl GpuModel {
+    /// NVIDIA's vk_animated_clusters sample (README, "Preliminary
+    /// Performance Results": 8.43 M animated triangles, fast-build BLASes,
+    /// RTX 6000 Ada, 2560 x 1440): refit only, 2.78 ms for the AS update:
+    /// 8.43 M / 2.78 ms = 3.03 G triangles/s; 10 % rebuilds, 5.22 ms: the
+    /// rebuilt 0.843 M triangles took 5.22 − 0.9 · 2.78 = 2.718 ms, 0.310 G
+    /// triangles/s. TLAS: an assumption, an instance costs what a
+    /// triangle of a full build does (0.310 G/s). Rays: an assumption,
+    /// 1 G incoherent bounce and shadow rays/s (the sample publishes its
+    /// render time but not its ray count). docs/EVALUATION.md, "Run time
+    /// against error".
+    pub const PUBLISHED: GpuModel = GpuModel {
+        build_triangles_per_s: 0.843e6 / 2.718e-3,
+        refit_triangles_per_s: 8.43e6 / 2.78e-3,
+        tlas_instances_per_s: 0.843e6 / 2.718e-3,
+        rays_per_s: 1e9,
+    };
+
+    /// The modelled time of `built` and `refit` triangles, a TLAS of
+    /// `instances` records and `rays` rays: each count divided by its
+    /// throughput, in ms.
+    pub fn frame(&self, built: u64, refit: u64, instances: u64, rays: u64) -> GpuFrame {
+        let ms = |n: u64, per_s: f64| n as f64 / per_s * 1e3;
+        let blas_build_ms = ms(built, self.build_triangles_per_s);
+        let blas_refit_ms = ms(refit, self.refit_triangles_per_s);
+        let tlas_build_ms = ms(instances, self.tlas_instances_per_s);
+        let trace_ms = ms(rays, self.rays_per_s);
+        GpuFrame {
+            blas_build_ms,
+            blas_refit_ms,
+            tlas_build_ms,
+            trace_ms,
+            frame_ms: blas_build_ms + blas_refit_ms + tlas_build_ms + trace_ms,
+        }
+    }
+}
+
+impl Default for GpuModel {
+    /// [`GpuModel::PUBLISHED`].
+    fn default() -> Self {
+        Self::PUBLISHED
+    }
 }
 
 const MIB: f64 = 1024.0 * 1024.0;
@@ -301,6 +496,29 @@ pub fn percentile(v: &[u32], p: f64) -> u32 {
     s[rank.min(s.len()) - 1]
 }
 
+/// The median of `v` (the mean of the middle two for an even count; 0 for
+/// none; ordered by [`f64::total_cmp`]).
+///
+/// ```
+/// use lipac_sim::metrics::median;
+/// assert_eq!(median([3.0, 1.0, 2.0].into_iter()), 2.0);
+/// assert_eq!(median([4.0, 1.0, 2.0, 3.0].into_iter()), 2.5);
+/// assert_eq!(median(std::iter::empty()), 0.0);
+/// ```
+pub fn median(v: impl Iterator<Item = f64>) -> f64 {
+    let mut s: Vec<f64> = v.collect();
+    if s.is_empty() {
+        return 0.0;
+    }
+    s.sort_by(f64::total_cmp);
+    let h = s.len() / 2;
+    if s.len() % 2 == 1 {
+        s[h]
+    } else {
+        (s[h - 1] + s[h]) / 2.0
+    }
+}
+
 /// Summarises a strategy's frames.
 pub fn summarize(strategy: &str, frames: &[FrameMetrics], tracker: &Tracker) -> Summary {
     let n = frames.len().max(1) as f64;
@@ -337,50 +555,18 @@ pub fn summarize(strategy: &str, frames: &[FrameMetrics], tracker: &Tracker) -> 
         mean_trace_ms: mean(&|m| m.trace_ms),
         mean_tlas_build_ms: mean(&|m| m.tlas_build_ms),
         mean_strategy_ms: mean(&|m| m.strategy_ms),
+        mean_traced_rays: mean(&|m| m.traced_rays as f64),
+        mean_blas_build_ms: mean(&|m| m.blas_build_ms),
+        mean_blas_refit_ms: mean(&|m| m.blas_refit_ms),
+        mean_frame_ms: mean(&|m| m.frame_ms),
+        median_frame_ms: median(frames.iter().map(|m| m.frame_ms)),
+        mean_gpu_blas_build_ms: mean(&|m| m.gpu_blas_build_ms),
+        mean_gpu_blas_refit_ms: mean(&|m| m.gpu_blas_refit_ms),
+        mean_gpu_tlas_build_ms: mean(&|m| m.gpu_tlas_build_ms),
+        mean_gpu_trace_ms: mean(&|m| m.gpu_trace_ms),
+        mean_gpu_frame_ms: mean(&|m| m.gpu_frame_ms),
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn cycles_and_latency_follow_membership() {
-        let mut t = Tracker::new(3);
-        let mut frames = Vec::new();
-        // Slot 0: needed from frame 0, enters at frame 2 (latency 2), leaves
-        // at 3, re-enters at 5 (a cycle). Slot 1: needed and present at
-        // frame 1 (latency 0). Slot 2: needed at 4, never present.
-        let present: [&[u32]; 6] = [&[], &[1], &[0, 1], &[1], &[1], &[0, 1]];
-        let needed: [[u32; 3]; 6] = [
-            [1, 0, 0],
-            [0, 1, 0],
-            [0, 0, 0],
-            [0, 0, 0],
-            [0, 0, 5],
-            [0; 3],
-        ];
-        for f in 0..6u32 {
-            let mut m = FrameMetrics {
-                frame: f,
-                ..Default::default()
-            };
-            t.observe(
-                f,
-                present[f as usize].iter().copied(),
-                &needed[f as usize],
-                &mut m,
-            );
-            frames.push(m);
-        }
-        assert_eq!(t.latencies(), &[0, 2]);
-        assert_eq!(t.never_active(), 1);
-        assert_eq!(frames.iter().map(|m| m.cycles).sum::<u64>(), 1);
-        // Changes: f1 +1, f2 +0, f3 -0, f5 +0.
-        assert_eq!(frames.iter().map(|m| m.state_changes).sum::<u64>(), 4);
-        assert_eq!(frames[0].needed_missing, 1);
-        assert_eq!(frames[4].needed_missing, 1);
-        let s = summarize("x", &frames, &t);
-        assert_eq!((s.p95_latency, s.mean_latency), (2, 1.0));
-    }
-}
+mod tests;

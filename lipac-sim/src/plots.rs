@@ -1,5 +1,5 @@
 //! The report's plots, drawn as SVG text with `plotters`: per-frame line
-//! charts and the trace-time-against-error scatter of `lipac compare`
+//! charts and the time-against-error scatters of `lipac compare`
 //! ([`line_plot`], [`scatter_plot`]), the Pareto plots of `lipac sweep`
 //! ([`pareto_plot`]) and, through [`Plot`], the TLAS maps of
 //! [`crate::tlas_map`].
@@ -28,8 +28,8 @@ use plotters::style::Color as _;
 
 use crate::compare::CompareReport;
 use crate::error::SimError;
-use crate::metrics::FrameMetrics;
-use crate::sweep::{SweepPoint, SweepReport, COSTS};
+use crate::metrics::{FrameMetrics, Summary};
+use crate::sweep::{SweepReport, COSTS};
 
 /// The palette series colours index into (cycled).
 pub const PALETTE: [(u8, u8, u8); 8] = [
@@ -536,19 +536,20 @@ pub fn line_plot(
     line_chart(r, title, ylabel, value).svg()
 }
 
-/// Mean trace time against mean error, one point per strategy (both axes by
-/// [`Axis::auto`]: the cheap strategies and the full scene lie decades
-/// apart).
-pub fn scatter_plot(r: &CompareReport) -> Result<String, SimError> {
-    let xs: Vec<f64> = r
-        .strategies
-        .iter()
-        .map(|s| s.summary.mean_trace_ms)
-        .collect();
+/// `cost(summary)` against mean error, one point per strategy, titled
+/// `title` with x axis `xlabel` (both axes by [`Axis::auto`]: the cheap
+/// strategies and the full scene may lie decades apart).
+pub fn scatter_plot(
+    r: &CompareReport,
+    title: &str,
+    xlabel: &str,
+    cost: fn(&Summary) -> f64,
+) -> Result<String, SimError> {
+    let xs: Vec<f64> = r.strategies.iter().map(|s| cost(&s.summary)).collect();
     let ys: Vec<f64> = r.strategies.iter().map(|s| s.summary.mean_error).collect();
     let mut p = Plot::new(
-        "Trace time against error",
-        Axis::auto("mean trace time per frame, ms", &xs),
+        title,
+        Axis::auto(xlabel, &xs),
         Axis::auto("mean relative RMSE (indirect)", &ys),
     );
     for (i, st) in r.strategies.iter().enumerate() {
@@ -556,17 +557,13 @@ pub fn scatter_plot(r: &CompareReport) -> Result<String, SimError> {
             name: Some(st.name.clone()),
             color: Color::Palette(i),
             shape: Shape::Points {
-                at: vec![(st.summary.mean_trace_ms, st.summary.mean_error)],
+                at: vec![(cost(&st.summary), st.summary.mean_error)],
                 r: 6,
                 filled: true,
             },
         });
     }
     p.svg()
-}
-
-fn on_front(p: &SweepPoint, plot: usize) -> bool {
-    [p.front_time, p.front_memory, p.front_builds][plot]
 }
 
 /// The data of [`pareto_plot`]: per scene its points (filled circles, one
@@ -585,7 +582,7 @@ pub fn pareto_chart(r: &SweepReport, plot: usize) -> Plot {
     for (si, scene) in r.scenes.iter().enumerate() {
         let of_scene = || r.points.iter().filter(|q| q.scene == scene.name);
         let mut front: Vec<(f64, f64)> = of_scene()
-            .filter(|q| on_front(q, plot))
+            .filter(|q| q.on_front(plot))
             .map(|q| (cost(q), q.summary.mean_error))
             .collect();
         front.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -611,7 +608,7 @@ pub fn pareto_chart(r: &SweepReport, plot: usize) -> Plot {
             color: Color::Palette(si),
             shape: Shape::Labels(
                 of_scene()
-                    .filter(|q| on_front(q, plot))
+                    .filter(|q| q.on_front(plot))
                     .map(|q| (cost(q), q.summary.mean_error, q.name.clone()))
                     .collect(),
             ),

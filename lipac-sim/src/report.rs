@@ -9,20 +9,38 @@ use std::path::{Path, PathBuf};
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::html::report_html;
+use crate::metrics::TIMING_NOTE;
 use crate::plots::{line_plot, scatter_plot};
 use crate::snapshot::{write_snapshots, Snapshot};
 
 const MIB: f64 = 1024.0 * 1024.0;
 
 /// Names of the plot files [`write_report`] writes.
-pub const PLOTS: [&str; 4] = ["memory.svg", "builds.svg", "error.svg", "time_vs_error.svg"];
+pub const PLOTS: [&str; 6] = [
+    "memory.svg",
+    "builds.svg",
+    "error.svg",
+    "frame_time.svg",
+    "time_vs_error.svg",
+    "gpu_time_vs_error.svg",
+];
+
+/// Titles of the [`PLOTS`], in order.
+pub const PLOT_TITLES: [&str; 6] = [
+    "Acceleration-structure memory per frame",
+    "BLAS builds per frame",
+    "Error per frame",
+    "Frame time per frame (AS work + trace, measured on CPU)",
+    "Frame time (AS work + trace, measured on CPU) against error",
+    "Modelled GPU frame time against error (published throughput)",
+];
 
 /// The summary table for the terminal (fixed-width text).
 pub fn table(r: &CompareReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{:<14} {:>9} {:>8} {:>9} {:>9} {:>8} {:>8} {:>10} {:>7} {:>8} {:>6} {:>9} {:>9} {:>8}",
+        "{:<14} {:>9} {:>8} {:>9} {:>9} {:>8} {:>8} {:>10} {:>7} {:>8} {:>6} {:>9} {:>9} {:>8} {:>8} {:>8}",
         "strategy",
         "inst mean",
         "inst pk",
@@ -36,13 +54,15 @@ pub fn table(r: &CompareReport) -> String {
         "p95",
         "err mean",
         "err max",
-        "trace ms"
+        "trace ms",
+        "frame ms",
+        "GPU ms"
     );
     for st in &r.strategies {
         let m = &st.summary;
         let _ = writeln!(
             s,
-            "{:<14} {:>9.0} {:>8} {:>9.2} {:>9.2} {:>8} {:>8} {:>10} {:>7} {:>8.2} {:>6} {:>9.4} {:>9.4} {:>8.1}",
+            "{:<14} {:>9.0} {:>8} {:>9.2} {:>9.2} {:>8} {:>8} {:>10} {:>7} {:>8.2} {:>6} {:>9.4} {:>9.4} {:>8.1} {:>8.1} {:>8.3}",
             st.name,
             m.mean_instances,
             m.peak_instances,
@@ -56,7 +76,9 @@ pub fn table(r: &CompareReport) -> String {
             m.p95_latency,
             m.mean_error,
             m.max_error,
-            m.mean_trace_ms
+            m.mean_trace_ms,
+            m.mean_frame_ms,
+            m.mean_gpu_frame_ms
         );
     }
     s
@@ -157,13 +179,46 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
          shared geometry (unit refits).\n",
         r.ground_truth_ms, r.full_tlas_ms, r.geometry_ms
     );
+    let _ = writeln!(s, "## Run time against error\n");
+    let t = &r.blas_throughput;
+    let _ = writeln!(
+        s,
+        "obvhs throughput measured this run on the scene's meshes: build {:.1} ns per triangle, \
+         refit {:.1} ns per triangle ({} and {} triangles measured).\n",
+        t.build_ns_per_triangle, t.refit_ns_per_triangle, t.triangles_built, t.triangles_refit
+    );
+    let _ = writeln!(
+        s,
+        "| strategy | BLAS build ms | BLAS refit ms | TLAS build ms | trace ms | **frame ms** mean | median | \
+         GPU model: BLAS build ms | refit | TLAS | trace | **GPU frame ms** | error mean |"
+    );
+    let _ = writeln!(
+        s,
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for st in &r.strategies {
+        let m = &st.summary;
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | **{:.2}** | {:.2} | {:.4} | {:.4} | {:.4} | {:.4} | **{:.4}** | {:.4} |",
+            st.name,
+            m.mean_blas_build_ms,
+            m.mean_blas_refit_ms,
+            m.mean_tlas_build_ms,
+            m.mean_trace_ms,
+            m.mean_frame_ms,
+            m.median_frame_ms,
+            m.mean_gpu_blas_build_ms,
+            m.mean_gpu_blas_refit_ms,
+            m.mean_gpu_tlas_build_ms,
+            m.mean_gpu_trace_ms,
+            m.mean_gpu_frame_ms,
+            m.mean_error
+        );
+    }
+    let _ = writeln!(s, "\n{TIMING_NOTE}\n");
     let _ = writeln!(s, "## Plots\n");
-    for (file, title) in PLOTS.iter().zip([
-        "Memory per frame",
-        "BLAS builds per frame",
-        "Error per frame",
-        "Trace time against error",
-    ]) {
+    for (file, title) in PLOTS.iter().zip(PLOT_TITLES) {
         let _ = writeln!(s, "- [{title}]({file})\n\n  ![{title}]({file})\n");
     }
     let _ = writeln!(
@@ -180,7 +235,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
 }
 
 /// CSV header of [`csv`].
-pub const CSV_HEADER: &str = "strategy,frame,tlas_instances,counting_boxes,blas_bytes,tlas_bytes,overhead_bytes,total_bytes,builds,refits,primitives_built,primitives_refit,state_changes,cycles,latency_samples,latency_sum,needed_missing,error,trace_ms,tlas_build_ms,strategy_ms";
+pub const CSV_HEADER: &str = "strategy,frame,tlas_instances,counting_boxes,blas_bytes,tlas_bytes,overhead_bytes,total_bytes,builds,refits,primitives_built,primitives_refit,state_changes,cycles,latency_samples,latency_sum,needed_missing,error,trace_ms,tlas_build_ms,strategy_ms,traced_rays,blas_build_ms,blas_refit_ms,frame_ms,gpu_blas_build_ms,gpu_blas_refit_ms,gpu_tlas_build_ms,gpu_trace_ms,gpu_frame_ms";
 
 /// Per-frame CSV: one row per strategy and frame.
 pub fn csv(r: &CompareReport) -> String {
@@ -190,7 +245,7 @@ pub fn csv(r: &CompareReport) -> String {
         for m in &st.frames {
             let _ = writeln!(
                 s,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{},{:.3},{:.3},{:.3},{:.6},{:.6},{:.6},{:.6},{:.6}",
                 st.name,
                 m.frame,
                 m.tlas_instances,
@@ -211,7 +266,16 @@ pub fn csv(r: &CompareReport) -> String {
                 m.error,
                 m.trace_ms,
                 m.tlas_build_ms,
-                m.strategy_ms
+                m.strategy_ms,
+                m.traced_rays,
+                m.blas_build_ms,
+                m.blas_refit_ms,
+                m.frame_ms,
+                m.gpu_blas_build_ms,
+                m.gpu_blas_refit_ms,
+                m.gpu_tlas_build_ms,
+                m.gpu_trace_ms,
+                m.gpu_frame_ms
             );
         }
     }
@@ -221,14 +285,22 @@ pub fn csv(r: &CompareReport) -> String {
 /// The [`PLOTS`] as SVG documents, in order.
 pub fn plots(r: &CompareReport) -> Result<Vec<String>, SimError> {
     Ok(vec![
-        line_plot(r, "Acceleration-structure memory per frame", "MiB", |m| {
-            m.total_bytes() as f64 / MIB
-        })?,
-        line_plot(r, "BLAS builds per frame", "builds", |m| m.builds as f64)?,
-        line_plot(r, "Error per frame", "relative RMSE (indirect)", |m| {
-            m.error
-        })?,
-        scatter_plot(r)?,
+        line_plot(r, PLOT_TITLES[0], "MiB", |m| m.total_bytes() as f64 / MIB)?,
+        line_plot(r, PLOT_TITLES[1], "builds", |m| m.builds as f64)?,
+        line_plot(r, PLOT_TITLES[2], "relative RMSE (indirect)", |m| m.error)?,
+        line_plot(r, PLOT_TITLES[3], "frame time, CPU ms", |m| m.frame_ms)?,
+        scatter_plot(
+            r,
+            PLOT_TITLES[4],
+            "mean frame time (BLAS builds, refits, TLAS, trace), CPU ms",
+            |s| s.mean_frame_ms,
+        )?,
+        scatter_plot(
+            r,
+            PLOT_TITLES[5],
+            "modelled GPU frame time (AS work + trace), ms",
+            |s| s.mean_gpu_frame_ms,
+        )?,
     ])
 }
 

@@ -443,6 +443,12 @@ impl TraceScene {
         plan: &TracePlan,
         options: &TraceSceneOptions,
     ) -> Result<Self, SimError> {
+        if !header.world.is_bounded() {
+            // The parking place and the scene extent come from the bounds.
+            return Err(SimError::BadConfig(
+                "a trace without world bounds replays hits-only (--mode hits-only), not with geometry",
+            ));
+        }
         let index = mesh_index(header);
         let mut library = MeshLibrary::new();
         let mut box_proxies = Vec::new();

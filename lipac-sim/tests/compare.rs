@@ -263,13 +263,15 @@ fn report_files_are_well_formed() {
             assert!(round, "{plot}: tick {l}");
         }
     }
-    for plot in &PLOTS[..3] {
+    for plot in &PLOTS[..4] {
         let svg = std::fs::read_to_string(dir.join(plot)).unwrap();
         assert!(svg.matches("<polyline").count() >= 6, "{plot}");
     }
     // One point per strategy plus its legend marker.
-    let scatter = std::fs::read_to_string(dir.join(PLOTS[3])).unwrap();
-    assert_eq!(scatter.matches("<circle").count(), 2 * 6);
+    for plot in &PLOTS[4..] {
+        let scatter = std::fs::read_to_string(dir.join(plot)).unwrap();
+        assert_eq!(scatter.matches("<circle").count(), 2 * 6, "{plot}");
+    }
 
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert!(md.contains("LiPaC: ") && md.contains("MiB full"));

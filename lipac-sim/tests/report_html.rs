@@ -11,7 +11,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use lipac_sim::compare::{run_choice_with_snapshots, CompareConfig, SceneChoice};
-use lipac_sim::report::write_report_with_snapshots;
+use lipac_sim::report::{write_report_with_snapshots, PLOTS};
 use lipac_sim::strategy::StrategyKind;
 
 fn required() -> bool {
@@ -121,7 +121,7 @@ fn report_html_renders_in_headless_chromium() {
     // Ground truth + 3 × (image, heat map, TLAS map) per frame, the scale.
     let pictures = dom.matches("src=\"data:image/png;base64,").count();
     assert_eq!(pictures, 2 * (1 + 3 * 3) + 2, "embedded PNGs");
-    assert_eq!(dom.matches("<svg").count(), 4, "inline plots");
+    assert_eq!(dom.matches("<svg").count(), PLOTS.len(), "inline plots");
 
     // The screenshot: decoded, sized as asked, and far from blank.
     let shot = dir.join("screenshot.png");

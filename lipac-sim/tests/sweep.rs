@@ -41,12 +41,12 @@ fn tiny_sweep_writes_well_formed_outputs() {
         assert!(oracle.summary.mean_error <= 1e-3);
         assert!(oracle.summary.mean_mib < full.summary.mean_mib);
         // The oracle is a reference, never on a front.
-        assert!(!oracle.front_time && !oracle.front_memory && !oracle.front_builds);
+        assert_eq!(oracle.fronts(), [false; 4]);
         let pts: Vec<_> = pts.into_iter().filter(|p| p.name != "oracle").collect();
         // On every front: the cheapest point, and the most accurate one of
         // least cost among the most accurate.
         for (plot, (_, _, _, cost)) in sweep::COSTS.iter().enumerate() {
-            let on = |p: &sweep::SweepPoint| [p.front_time, p.front_memory, p.front_builds][plot];
+            let on = |p: &sweep::SweepPoint| p.on_front(plot);
             let key = |p: &&&sweep::SweepPoint| (cost(p), p.summary.mean_error);
             let cheapest = pts
                 .iter()
@@ -99,17 +99,18 @@ fn tiny_sweep_writes_well_formed_outputs() {
         .copied();
     assert!(lipac4.is_some(), "{csv}");
 
-    for (plot, file) in ["sweep_time.svg", "sweep_memory.svg", "sweep_builds.svg"]
-        .iter()
-        .enumerate()
+    for (plot, file) in [
+        "sweep_time.svg",
+        "sweep_gpu_time.svg",
+        "sweep_memory.svg",
+        "sweep_builds.svg",
+    ]
+    .iter()
+    .enumerate()
     {
         let svg = std::fs::read_to_string(dir.join(file)).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        let on_front: Vec<_> = r
-            .points
-            .iter()
-            .filter(|p| [p.front_time, p.front_memory, p.front_builds][plot])
-            .collect();
+        let on_front: Vec<_> = r.points.iter().filter(|p| p.on_front(plot)).collect();
         // One filled circle per point, one ring per front point, and the
         // legend's markers (two scenes, the ring).
         assert_eq!(

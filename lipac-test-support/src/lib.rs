@@ -15,9 +15,20 @@
 //! assert!((0.0..1.0).contains(&rng.unit_f64()));
 //! ```
 //!
+//! [`synthetic`] holds a synthetic backend for `Manager` and
+//! `BuildScheduler` tests (structures live from their acknowledgement until
+//! freed, every plan checked), [`scene`] seeded random scenes, their grid
+//! and cameras. Those speak lipac-core's types: lipac-core's integration
+//! tests and benches can use them (they link the same lipac-core this crate
+//! does), its unit tests cannot (they are a second copy of lipac-core) and
+//! use only the generators.
+//!
 //! This crate is `publish = false`; depend on it as a path dev-dependency
 //! without a `version`, which `cargo package` strips from published
 //! manifests.
+
+pub mod scene;
+pub mod synthetic;
 
 /// Draws derived from a source of 64 random bits.
 ///

@@ -8,6 +8,7 @@
 //                         like f32::min/max).
 // An active or omitted instance whose hitbox is inactive counts as inactive
 // (its remove command may still be waiting for room in the command buffer).
+// A pinned instance counts as active whatever its state bits and hitbox.
 // Pass 1 never writes the hitbox's packed word, so reading it here is safe.
 // Dead slots, hitbox indices out of range and non-finite omitted AABBs are
 // skipped, as on the CPU.
@@ -20,8 +21,10 @@ void main() {
         if ((m.packed & LIPAC_INSTANCE_ALIVE) == 0u) {
             continue;
         }
-        uint state = lipacInstanceState(m.packed);
-        if (state != LIPAC_STATE_INACTIVE && m.hitbox < pc.hitboxCount
+        // A pinned instance is active whatever its state bits and hitbox say.
+        bool pinned = (m.packed & LIPAC_INSTANCE_PINNED) != 0u;
+        uint state = pinned ? LIPAC_STATE_ACTIVE : lipacInstanceState(m.packed);
+        if (!pinned && state != LIPAC_STATE_INACTIVE && m.hitbox < pc.hitboxCount
                 && (hitboxes[m.hitbox].packed & LIPAC_HITBOX_ACTIVE) == 0u) {
             state = LIPAC_STATE_INACTIVE;
         }

@@ -2,6 +2,7 @@
 // feedback_accumulate.comp -- Algorithm 2 lines 1-6, one thread per slot:
 // the hits of every live active or omitted instance are added to its hitbox,
 // saturating the 24-bit count (LIPAC_HITBOX_ADD_HITS, an atomicCompSwap loop).
+// Pinned instances' hits stay out.
 #extension GL_GOOGLE_include_directive : require
 #include "lipac_feedback.glsl"
 
@@ -10,7 +11,8 @@ void main() {
         uint packed = instances[slot].packed;
         uint key = packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_STATE_MASK);
         if (key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_OMITTED) &&
-            key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_ACTIVE)) {
+            key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_ACTIVE) ||
+            (packed & LIPAC_INSTANCE_PINNED) != 0u) {
             continue;
         }
         uint h = instances[slot].hitbox;

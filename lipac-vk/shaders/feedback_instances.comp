@@ -10,7 +10,8 @@
 void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
         uint packed = instances[slot].packed;
-        if ((packed & LIPAC_INSTANCE_ALIVE) == 0u) {
+        // Dead, or pinned (never moved by Algorithm 2).
+        if ((packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_PINNED)) != LIPAC_INSTANCE_ALIVE) {
             continue;
         }
         uint hb = instances[slot].hitbox;

@@ -29,6 +29,36 @@ impl From<vk::AccelerationStructureBuildSizesInfoKHR<'_>> for AsSizes {
     }
 }
 
+/// The sizes a device build of `ty` with `geometries` and `counts`
+/// (primitives or instances per geometry) needs. Addresses in the
+/// geometries are ignored.
+pub(crate) fn build_sizes(
+    ctx: &DeviceContext,
+    ty: vk::AccelerationStructureTypeKHR,
+    geometries: &[vk::AccelerationStructureGeometryKHR<'_>],
+    counts: &[u32],
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+) -> AsSizes {
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(ty)
+        .flags(flags)
+        .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+        .geometries(geometries);
+    let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+    // SAFETY: the geometry info is complete; `counts` has one entry per
+    // geometry (ash asserts it); the function only computes sizes.
+    unsafe {
+        ctx.acceleration_structure()
+            .get_acceleration_structure_build_sizes(
+                vk::AccelerationStructureBuildTypeKHR::DEVICE,
+                &info,
+                counts,
+                &mut sizes,
+            )
+    };
+    sizes.into()
+}
+
 /// Where an acceleration structure's bytes live.
 #[derive(Debug)]
 enum Storage {

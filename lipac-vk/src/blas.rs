@@ -1,12 +1,17 @@
 //! Triangle BLASes built by device address, batched, with compaction.
 
-use crate::accel::{record_build_barrier, same_context, AccelerationStructure, AsSizes};
+use crate::accel::{
+    build_sizes, record_build_barrier, same_context, AccelerationStructure, AsSizes,
+};
 use crate::as_pool::AccelerationStructurePool;
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkContext, VkError};
 use crate::memory::{align_up, Buffer, ScratchBuffer};
 use ash::vk;
+
+const BOTTOM_LEVEL: vk::AccelerationStructureTypeKHR =
+    vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL;
 
 /// Index format of a triangle geometry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -221,32 +226,6 @@ fn check_geometries(ctx: &DeviceContext, geometries: &[TriangleGeometry]) -> Res
     Ok(total)
 }
 
-fn build_sizes(
-    ctx: &DeviceContext,
-    vk_geoms: &[vk::AccelerationStructureGeometryKHR<'_>],
-    counts: &[u32],
-    flags: vk::BuildAccelerationStructureFlagsKHR,
-) -> AsSizes {
-    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-        .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
-        .flags(flags)
-        .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-        .geometries(vk_geoms);
-    let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
-    // SAFETY: the geometry info is complete; `counts` has one entry per
-    // geometry (ash asserts it); the function only computes sizes.
-    unsafe {
-        ctx.acceleration_structure()
-            .get_acceleration_structure_build_sizes(
-                vk::AccelerationStructureBuildTypeKHR::DEVICE,
-                &info,
-                counts,
-                &mut sizes,
-            )
-    };
-    sizes.into()
-}
-
 /// What an update must keep from the original build, per geometry
 /// (Vulkan requires these to match for `BUILD_MODE_UPDATE`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -294,7 +273,7 @@ impl GpuBlas {
         check_geometries(ctx, geometries)?;
         let vk_geoms: Vec<_> = geometries.iter().map(|g| g.to_vk()).collect();
         let counts: Vec<u32> = geometries.iter().map(|g| g.triangle_count).collect();
-        Ok(build_sizes(ctx, &vk_geoms, &counts, flags))
+        Ok(build_sizes(ctx, BOTTOM_LEVEL, &vk_geoms, &counts, flags))
     }
 
     /// The acceleration structure.
@@ -698,7 +677,7 @@ impl<'a> BlasBatch<'a> {
             check_geometries(ctx, geoms)?;
             let g: Vec<_> = geoms.iter().map(|g| g.to_vk()).collect();
             let counts: Vec<u32> = geoms.iter().map(|g| g.triangle_count).collect();
-            let s = build_sizes(ctx, &g, &counts, flags);
+            let s = build_sizes(ctx, BOTTOM_LEVEL, &g, &counts, flags);
             let needed = match update {
                 Some((_, BlasUpdateMode::Refit)) => s.update_scratch,
                 Some((blas, BlasUpdateMode::Rebuild)) => {

@@ -1,12 +1,12 @@
 //! [`CameraTracer`]: GPU ray generation with lipac's counting.
 
-use crate::accel::same_context;
 use crate::commands::Recorder;
+use crate::compute::{compute_to_everything, StorageSet};
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
-use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
+use crate::ray_query::RayQueryPipeline;
 use crate::shaders::CAMERA_TRACE_SPV;
 use crate::tlas::GpuTlas;
 use ash::vk;
@@ -37,18 +37,8 @@ pub struct CameraTraceBuffers<'a> {
 /// [`crate::LipacVk::retire_after_frame`]).
 #[derive(Debug)]
 pub struct CameraTraceBindings {
-    ctx: DeviceContext,
-    pool: vk::DescriptorPool,
-    set: vk::DescriptorSet,
+    set: StorageSet,
     pixels: u64,
-}
-
-impl Drop for CameraTraceBindings {
-    fn drop(&mut self) {
-        // SAFETY: created on this device; frees the set with the pool; not in
-        // use by the GPU per the crate's drop contract.
-        unsafe { self.ctx.device().destroy_descriptor_pool(self.pool, None) };
-    }
 }
 
 /// One frame's camera for [`CameraTracer::record`].
@@ -104,7 +94,6 @@ struct Push {
 /// pixel.
 #[derive(Debug)]
 pub struct CameraTracer {
-    ctx: DeviceContext,
     pipeline: RayQueryPipeline,
 }
 
@@ -120,7 +109,6 @@ impl CameraTracer {
     /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Ok(Self {
-            ctx: ctx.clone(),
             pipeline: RayQueryPipeline::new(
                 ctx,
                 CAMERA_TRACE_SPV,
@@ -145,18 +133,12 @@ impl CameraTracer {
             buffers.data_offsets,
             buffers.image,
         ];
-        for b in storage {
-            same_context(&self.ctx, b.context())?;
-            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
-                return Err(VkError::MissingUsage(
-                    "STORAGE_BUFFER for a camera trace buffer",
-                ));
-            }
-        }
-        let (pool, set) = bind_ray_query_set(&self.ctx, &self.pipeline, buffers.tlas, &storage)?;
+        let set = self.pipeline.bind(
+            buffers.tlas,
+            &storage,
+            "STORAGE_BUFFER for a camera trace buffer",
+        )?;
         Ok(CameraTraceBindings {
-            ctx: self.ctx.clone(),
-            pool,
             set,
             pixels: buffers.image.size() / 4,
         })
@@ -177,8 +159,7 @@ impl CameraTracer {
         bindings: &CameraTraceBindings,
         view: &CameraView,
     ) -> Result<()> {
-        same_context(rec.context(), &self.ctx)?;
-        same_context(rec.context(), &bindings.ctx)?;
+        self.pipeline.check_recorder(rec, &bindings.set)?;
         let pixels = u64::from(view.width) * u64::from(view.height);
         let (gx, gy) = (view.width.div_ceil(TILE), view.height.div_ceil(TILE));
         if pixels == 0 || pixels > bindings.pixels || gx > 65_535 || gy > 65_535 {
@@ -206,40 +187,10 @@ impl CameraTracer {
                 | vk::AccessFlags2::SHADER_STORAGE_WRITE
                 | vk::AccessFlags2::ACCELERATION_STRUCTURE_READ_KHR,
         );
-        let device = self.ctx.device();
-        // SAFETY: recording on this device (Recorder contract); pipeline, layout
-        // and set are live and compatible; the push block matches the layout.
-        unsafe {
-            device.cmd_bind_pipeline(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.pipeline.pipeline,
-            );
-            device.cmd_bind_descriptor_sets(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.pipeline.layout,
-                0,
-                &[bindings.set],
-                &[],
-            );
-            device.cmd_push_constants(
-                rec.raw(),
-                self.pipeline.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                bytemuck::bytes_of(&push),
-            );
-            device.cmd_dispatch(rec.raw(), gx, gy, 1);
-        }
-        rec.memory_barrier(
-            vk::PipelineStageFlags2::COMPUTE_SHADER,
-            vk::AccessFlags2::SHADER_STORAGE_WRITE,
-            vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST,
-            vk::AccessFlags2::MEMORY_READ
-                | vk::AccessFlags2::MEMORY_WRITE
-                | vk::AccessFlags2::HOST_READ,
-        );
+        let push = bytemuck::bytes_of(&push);
+        self.pipeline
+            .dispatch(rec, &bindings.set, push, [gx, gy, 1]);
+        compute_to_everything(rec);
         Ok(())
     }
 }

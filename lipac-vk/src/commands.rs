@@ -286,24 +286,17 @@ impl FrameSubmitter {
         let value = f(&mut rec)?;
         // SAFETY: the command buffer is recording.
         unsafe { device.end_command_buffer(cmd) }.ctx("vkEndCommandBuffer")?;
-        let wait_infos: Vec<_> = waits
-            .iter()
-            .map(|(s, v)| {
-                vk::SemaphoreSubmitInfo::default()
-                    .semaphore(s.raw())
-                    .value(*v)
-                    .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
-            })
-            .collect();
-        let signal_infos: Vec<_> = signals
-            .iter()
-            .map(|(s, v)| {
-                vk::SemaphoreSubmitInfo::default()
-                    .semaphore(s.raw())
-                    .value(*v)
-                    .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
-            })
-            .collect();
+        let infos = |list: &[(&crate::TimelineSemaphore, u64)]| -> Vec<_> {
+            list.iter()
+                .map(|(s, v)| {
+                    vk::SemaphoreSubmitInfo::default()
+                        .semaphore(s.raw())
+                        .value(*v)
+                        .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                })
+                .collect()
+        };
+        let (wait_infos, signal_infos) = (infos(waits), infos(signals));
         let cmd_info = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
         let submit = [vk::SubmitInfo2::default()
             .wait_semaphore_infos(&wait_infos)

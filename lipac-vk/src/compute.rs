@@ -15,6 +15,69 @@ pub(crate) const LOCAL_SIZE: u32 = 64;
 /// Work groups per dispatch at most; the shaders stride over larger counts.
 const MAX_GROUPS: u32 = 65_535;
 
+/// A descriptor set layout of compute-stage bindings: `kinds[i]` (one
+/// descriptor each) at binding `i`.
+pub(crate) fn compute_set_layout(
+    ctx: &DeviceContext,
+    kinds: &[vk::DescriptorType],
+) -> Result<vk::DescriptorSetLayout> {
+    let bindings: Vec<_> = kinds
+        .iter()
+        .enumerate()
+        .map(|(b, &kind)| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(b as u32)
+                .descriptor_type(kind)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::COMPUTE)
+        })
+        .collect();
+    let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+    // SAFETY: valid device and create info.
+    unsafe { ctx.device().create_descriptor_set_layout(&info, None) }
+        .ctx("vkCreateDescriptorSetLayout")
+}
+
+/// The compute pipeline of `spv` (entry `main`) with `layout`, and the
+/// specialization constants `spec` if any; the shader module is destroyed
+/// again before this returns.
+pub(crate) fn create_compute_pipeline(
+    ctx: &DeviceContext,
+    spv: &[u8],
+    layout: vk::PipelineLayout,
+    spec: Option<&vk::SpecializationInfo<'_>>,
+) -> Result<vk::Pipeline> {
+    let device = ctx.device();
+    let words = spirv_words(spv)?;
+    let info = vk::ShaderModuleCreateInfo::default().code(&words);
+    // SAFETY: valid device; `words` is embedded SPIR-V checked by spirv-val.
+    let module = unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
+    let mut stage = vk::PipelineShaderStageCreateInfo::default()
+        .stage(vk::ShaderStageFlags::COMPUTE)
+        .module(module)
+        .name(c"main");
+    if let Some(spec) = spec {
+        stage = stage.specialization_info(spec);
+    }
+    let info = [vk::ComputePipelineCreateInfo::default()
+        .stage(stage)
+        .layout(layout)];
+    // SAFETY: valid device, module and a layout matching the shader's
+    // interface (the callers' bindings and push block).
+    let created =
+        unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
+    // SAFETY: the module is no longer needed once pipeline creation returned.
+    unsafe { device.destroy_shader_module(module, None) };
+    created
+        .map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?
+        .first()
+        .copied()
+        .ok_or(VkError::vk(
+            "vkCreateComputePipelines",
+            vk::Result::ERROR_UNKNOWN,
+        ))
+}
+
 /// The pipeline layout of a compute pipeline: one descriptor set
 /// (`set_layout`) and `push_size` bytes of compute push constants.
 pub(crate) fn compute_pipeline_layout(
@@ -45,8 +108,9 @@ pub(crate) struct ComputeKernels {
     bindings: u32,
 }
 
-/// A descriptor set of storage buffers (with its own pool) for
-/// [`ComputeKernels`]; keep it alive until dispatches using it have executed.
+/// A descriptor set (with its own pool) for [`ComputeKernels`] (storage
+/// buffers) or a ray-query pipeline (a TLAS and storage buffers, see
+/// `ray_query`); keep it alive until dispatches using it have executed.
 #[derive(Debug)]
 pub(crate) struct StorageSet {
     ctx: DeviceContext,
@@ -62,20 +126,8 @@ impl ComputeKernels {
         push_size: u32,
         shaders: &[&[u8]],
     ) -> Result<Self> {
-        let device = ctx.device();
-        let binding_info: Vec<_> = (0..bindings)
-            .map(|b| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding_info);
-        // SAFETY: valid device and create info.
-        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .ctx("vkCreateDescriptorSetLayout")?;
+        let kinds = vec![vk::DescriptorType::STORAGE_BUFFER; bindings as usize];
+        let set_layout = compute_set_layout(ctx, &kinds)?;
         // From here on, Drop frees whatever was created (null handles are ignored).
         let mut this = Self {
             ctx: ctx.clone(),
@@ -86,32 +138,7 @@ impl ComputeKernels {
         };
         this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
         for spv in shaders {
-            let words = spirv_words(spv)?;
-            let info = vk::ShaderModuleCreateInfo::default().code(&words);
-            // SAFETY: valid device; `words` is embedded SPIR-V checked by spirv-val.
-            let module =
-                unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(module)
-                .name(c"main");
-            let info = [vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(this.layout)];
-            // SAFETY: valid device, module and a layout matching the shader's
-            // interface (storage buffers at 0..bindings, push block of push_size).
-            let created =
-                unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
-            // SAFETY: the module is no longer needed once pipeline creation returned.
-            unsafe { device.destroy_shader_module(module, None) };
-            let pipeline = created
-                .map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?
-                .first()
-                .copied()
-                .ok_or(VkError::vk(
-                    "vkCreateComputePipelines",
-                    vk::Result::ERROR_UNKNOWN,
-                ))?;
+            let pipeline = create_compute_pipeline(ctx, spv, this.layout, None)?;
             this.pipelines.push(pipeline);
         }
         Ok(this)
@@ -164,11 +191,7 @@ impl ComputeKernels {
             .collect();
         // SAFETY: the set is fresh and unused; every write matches the layout.
         unsafe { device.update_descriptor_sets(&writes, &[]) };
-        Ok(StorageSet {
-            ctx: self.ctx.clone(),
-            pool,
-            set,
-        })
+        Ok(StorageSet::new(&self.ctx, pool, set))
     }
 
     /// Records a dispatch of pipeline `kernel` over `items` items (nothing
@@ -191,30 +214,61 @@ impl ComputeKernels {
             return Ok(());
         }
         let groups = items.div_ceil(LOCAL_SIZE).min(MAX_GROUPS);
-        let device = self.ctx.device();
-        // SAFETY: recording on this device (Recorder contract); pipeline, layout
-        // and set are live and compatible; `push` fits the layout's push range
-        // (callers pass their fixed-size push struct).
-        unsafe {
-            device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, pipeline);
-            device.cmd_bind_descriptor_sets(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.layout,
-                0,
-                &[set.set],
-                &[],
-            );
-            device.cmd_push_constants(
-                rec.raw(),
-                self.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                push,
-            );
-            device.cmd_dispatch(rec.raw(), groups, 1, 1);
-        }
+        // Checked above: recorder and set are of this device.
+        record_dispatch(rec, pipeline, self.layout, set, push, [groups, 1, 1]);
         Ok(())
+    }
+}
+
+impl StorageSet {
+    /// Takes ownership of `set` and the `pool` it was allocated from (the
+    /// pool is destroyed on drop).
+    pub(crate) fn new(
+        ctx: &DeviceContext,
+        pool: vk::DescriptorPool,
+        set: vk::DescriptorSet,
+    ) -> Self {
+        Self {
+            ctx: ctx.clone(),
+            pool,
+            set,
+        }
+    }
+
+    pub(crate) fn context(&self) -> &DeviceContext {
+        &self.ctx
+    }
+}
+
+/// Records binding compute `pipeline` (of `layout`) and `set`, the push
+/// constants `push` at offset 0 and a dispatch of `groups` work groups. The
+/// caller checked that `rec` records on the device of the pipeline and the
+/// set, and that `push` fits the layout's push range (each passes its
+/// fixed-size push struct).
+pub(crate) fn record_dispatch(
+    rec: &mut Recorder<'_>,
+    pipeline: vk::Pipeline,
+    layout: vk::PipelineLayout,
+    set: &StorageSet,
+    push: &[u8],
+    groups: [u32; 3],
+) {
+    let device = set.ctx.device();
+    // SAFETY: recording on this device (Recorder contract, checked by the
+    // caller); pipeline, layout and set are live and compatible; `push` fits
+    // the layout's push range.
+    unsafe {
+        device.cmd_bind_pipeline(rec.raw(), vk::PipelineBindPoint::COMPUTE, pipeline);
+        device.cmd_bind_descriptor_sets(
+            rec.raw(),
+            vk::PipelineBindPoint::COMPUTE,
+            layout,
+            0,
+            &[set.set],
+            &[],
+        );
+        device.cmd_push_constants(rec.raw(), layout, vk::ShaderStageFlags::COMPUTE, 0, push);
+        device.cmd_dispatch(rec.raw(), groups[0], groups[1], groups[2]);
     }
 }
 

@@ -2,11 +2,15 @@
 //! configuration as specialization constants: the shape of lipac's tracers
 //! ([`crate::RayQueryTestPipeline`], [`crate::CameraTracer`]).
 
-use crate::compute::allocate_one_set;
-use crate::compute::compute_pipeline_layout;
+use crate::accel::same_context;
+use crate::commands::Recorder;
+use crate::compute::{
+    allocate_one_set, compute_pipeline_layout, compute_set_layout, create_compute_pipeline,
+    record_dispatch, StorageSet,
+};
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
-use crate::error::{Result, VkContext, VkError};
+use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::tlas::GpuTlas;
 use ash::vk;
@@ -33,25 +37,12 @@ impl RayQueryPipeline {
         push_size: u32,
     ) -> Result<Self> {
         config.validate()?;
-        let device = ctx.device();
-        let mut bindings = vec![vk::DescriptorSetLayoutBinding::default()
-            .binding(0)
-            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-            .descriptor_count(1)
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)];
-        for b in 1..=storage_bindings {
-            bindings.push(
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE),
-            );
-        }
-        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        // SAFETY: valid device and create info.
-        let set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .ctx("vkCreateDescriptorSetLayout")?;
+        let mut kinds = vec![vk::DescriptorType::ACCELERATION_STRUCTURE_KHR];
+        kinds.resize(
+            1 + storage_bindings as usize,
+            vk::DescriptorType::STORAGE_BUFFER,
+        );
+        let set_layout = compute_set_layout(ctx, &kinds)?;
         // From here on, Drop frees whatever was created (null handles are ignored).
         let mut this = Self {
             ctx: ctx.clone(),
@@ -61,11 +52,6 @@ impl RayQueryPipeline {
             storage_bindings,
         };
         this.layout = compute_pipeline_layout(ctx, set_layout, push_size)?;
-        let words = crate::shaders::spirv_words(spv)?;
-        let info = vk::ShaderModuleCreateInfo::default().code(&words);
-        // SAFETY: valid device; `words` is embedded, validated SPIR-V.
-        let module =
-            unsafe { device.create_shader_module(&info, None) }.ctx("vkCreateShaderModule")?;
         let spec_data: [u32; 3] = [
             config.omitted_box_sbt_offset,
             config.hitbox_box_sbt_offset,
@@ -82,24 +68,7 @@ impl RayQueryPipeline {
         let spec = vk::SpecializationInfo::default()
             .map_entries(&entries)
             .data(bytemuck::cast_slice(&spec_data));
-        let stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
-            .name(c"main")
-            .specialization_info(&spec);
-        let info = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(this.layout)];
-        // SAFETY: valid device, module and layout matching the shader's interface.
-        let created =
-            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
-        // SAFETY: the module is no longer needed once pipeline creation returned.
-        unsafe { device.destroy_shader_module(module, None) };
-        let pipelines = created.map_err(|(_, e)| VkError::vk("vkCreateComputePipelines", e))?;
-        this.pipeline = pipelines.first().copied().ok_or(VkError::vk(
-            "vkCreateComputePipelines",
-            vk::Result::ERROR_UNKNOWN,
-        ))?;
+        this.pipeline = create_compute_pipeline(ctx, spv, this.layout, Some(&spec))?;
         Ok(this)
     }
 }
@@ -117,16 +86,58 @@ impl Drop for RayQueryPipeline {
     }
 }
 
+impl RayQueryPipeline {
+    /// A descriptor set for this pipeline: `tlas` at binding 0, `storage[i]`
+    /// at binding `i + 1` (whole buffers, each of this context with
+    /// `STORAGE_BUFFER` usage, else [`VkError::MissingUsage`]`(missing_usage)`).
+    pub(crate) fn bind(
+        &self,
+        tlas: &GpuTlas,
+        storage: &[&Buffer],
+        missing_usage: &'static str,
+    ) -> Result<StorageSet> {
+        for b in storage {
+            same_context(&self.ctx, b.context())?;
+            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
+                return Err(VkError::MissingUsage(missing_usage));
+            }
+        }
+        let (pool, set) = bind_ray_query_set(&self.ctx, self, tlas, storage)?;
+        Ok(StorageSet::new(&self.ctx, pool, set))
+    }
+
+    /// Checks that `rec` records on this pipeline's device and `set` was
+    /// made there (call before recording anything, so that a refused
+    /// trace records nothing).
+    pub(crate) fn check_recorder(&self, rec: &Recorder<'_>, set: &StorageSet) -> Result<()> {
+        same_context(rec.context(), &self.ctx)?;
+        same_context(rec.context(), set.context())
+    }
+
+    /// Records binding the pipeline and `set`, the push constants `push`
+    /// and a dispatch of `groups` work groups (checked by
+    /// [`check_recorder`](Self::check_recorder)).
+    pub(crate) fn dispatch(
+        &self,
+        rec: &mut Recorder<'_>,
+        set: &StorageSet,
+        push: &[u8],
+        groups: [u32; 3],
+    ) {
+        record_dispatch(rec, self.pipeline, self.layout, set, push, groups);
+    }
+}
+
 /// A descriptor set (with its own pool) for `pipeline`: `tlas` at binding 0,
 /// `storage[i]` at binding `i + 1` (whole buffers). The caller checked the
 /// buffers' context and usage.
-pub(crate) fn bind_ray_query_set(
+fn bind_ray_query_set(
     ctx: &DeviceContext,
     pipeline: &RayQueryPipeline,
     tlas: &GpuTlas,
     storage: &[&Buffer],
 ) -> Result<(vk::DescriptorPool, vk::DescriptorSet)> {
-    crate::accel::same_context(ctx, tlas.accel().context())?;
+    same_context(ctx, tlas.accel().context())?;
     if storage.len() != pipeline.storage_bindings as usize {
         return Err(VkError::InvalidArgument(format!(
             "{} storage buffers for {} bindings",

@@ -3,13 +3,13 @@
 //! closest real hit. Tests and examples use it; engines trace in their own
 //! shaders with `lipac_counting.glsl`.
 
-use crate::accel::same_context;
 use crate::commands::Recorder;
+use crate::compute::StorageSet;
 use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
-use crate::ray_query::{bind_ray_query_set, RayQueryPipeline};
+use crate::ray_query::RayQueryPipeline;
 use crate::shaders::{TRACE_COUNTING_SPV, TRACE_TEST_SPV};
 use crate::tlas::GpuTlas;
 use ash::vk;
@@ -80,7 +80,6 @@ pub enum HitboxCounting {
 /// [`HitboxCounting`]) compute pipeline for one [`CountingBoxConfig`].
 #[derive(Debug)]
 pub struct RayQueryTestPipeline {
-    ctx: DeviceContext,
     hitbox_counting: HitboxCounting,
     pipeline: RayQueryPipeline,
 }
@@ -106,9 +105,7 @@ pub struct RayQueryTestBuffers<'a> {
 /// alive until traces recorded with it have executed.
 #[derive(Debug)]
 pub struct RayQueryTestBindings {
-    ctx: DeviceContext,
-    pool: vk::DescriptorPool,
-    set: vk::DescriptorSet,
+    set: StorageSet,
     max_rays: u64,
 }
 
@@ -139,7 +136,6 @@ impl RayQueryTestPipeline {
             HitboxCounting::Records => TRACE_COUNTING_SPV,
         };
         Ok(Self {
-            ctx: ctx.clone(),
             hitbox_counting: counting,
             pipeline: RayQueryPipeline::new(ctx, spv, config, BINDINGS - 1, 12)?,
         })
@@ -163,21 +159,12 @@ impl RayQueryTestPipeline {
             buffers.instance_hits,
             buffers.hitbox_hits,
         ];
-        for b in storage {
-            same_context(&self.ctx, b.context())?;
-            if !b.usage().contains(vk::BufferUsageFlags::STORAGE_BUFFER) {
-                return Err(VkError::MissingUsage("STORAGE_BUFFER for a trace buffer"));
-            }
-        }
-        let (pool, set) = bind_ray_query_set(&self.ctx, &self.pipeline, buffers.tlas, &storage)?;
+        let set =
+            self.pipeline
+                .bind(buffers.tlas, &storage, "STORAGE_BUFFER for a trace buffer")?;
         let max_rays = (buffers.rays.size() / std::mem::size_of::<GpuRay>() as u64)
             .min(buffers.results.size() / std::mem::size_of::<GpuHit>() as u64);
-        Ok(RayQueryTestBindings {
-            ctx: self.ctx.clone(),
-            pool,
-            set,
-            max_rays,
-        })
+        Ok(RayQueryTestBindings { set, max_rays })
     }
 
     /// Records a trace of the first `ray_count` rays with cull mask
@@ -197,8 +184,7 @@ impl RayQueryTestPipeline {
         cull_mask: u8,
         ray_flags: u32,
     ) -> Result<()> {
-        same_context(rec.context(), &self.ctx)?;
-        same_context(rec.context(), &bindings.ctx)?;
+        self.pipeline.check_recorder(rec, &bindings.set)?;
         if u64::from(ray_count) > bindings.max_rays {
             return Err(VkError::InvalidArgument(format!(
                 "{ray_count} rays but the buffers hold {}",
@@ -211,33 +197,10 @@ impl RayQueryTestPipeline {
                 "{ray_count} rays in one dispatch"
             )));
         }
-        let device = self.ctx.device();
         let push: [u32; 3] = [ray_count, u32::from(cull_mask), ray_flags];
-        // SAFETY: recording on this device (Recorder contract); pipeline, layout
-        // and set are live and compatible; the push range is 12 bytes.
-        unsafe {
-            device.cmd_bind_pipeline(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.pipeline.pipeline,
-            );
-            device.cmd_bind_descriptor_sets(
-                rec.raw(),
-                vk::PipelineBindPoint::COMPUTE,
-                self.pipeline.layout,
-                0,
-                &[bindings.set],
-                &[],
-            );
-            device.cmd_push_constants(
-                rec.raw(),
-                self.pipeline.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                bytemuck::cast_slice(&push),
-            );
-            device.cmd_dispatch(rec.raw(), groups, 1, 1);
-        }
+        let push = bytemuck::cast_slice(&push);
+        self.pipeline
+            .dispatch(rec, &bindings.set, push, [groups, 1, 1]);
         rec.memory_barrier(
             vk::PipelineStageFlags2::COMPUTE_SHADER,
             vk::AccessFlags2::SHADER_STORAGE_WRITE,
@@ -245,13 +208,5 @@ impl RayQueryTestPipeline {
             vk::AccessFlags2::HOST_READ,
         );
         Ok(())
-    }
-}
-
-impl Drop for RayQueryTestBindings {
-    fn drop(&mut self) {
-        // SAFETY: created on this device; frees the set with the pool; not in
-        // use by the GPU per the crate's drop contract.
-        unsafe { self.ctx.device().destroy_descriptor_pool(self.pool, None) };
     }
 }

@@ -1,6 +1,8 @@
 //! The TLAS, built from a buffer of [`TlasInstance`] records.
 
-use crate::accel::{record_build_barrier, same_context, AccelerationStructure, AsSizes};
+use crate::accel::{
+    build_sizes, record_build_barrier, same_context, AccelerationStructure, AsSizes,
+};
 use crate::commands::Recorder;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkError};
@@ -73,24 +75,8 @@ impl GpuTlas {
             )));
         }
         let geometry = [instance_geometry(0)];
-        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-            .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
-            .flags(flags)
-            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-            .geometries(&geometry);
-        let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
-        // SAFETY: complete geometry info with one geometry and one count; only
-        // computes sizes (addresses are ignored).
-        unsafe {
-            ctx.acceleration_structure()
-                .get_acceleration_structure_build_sizes(
-                    vk::AccelerationStructureBuildTypeKHR::DEVICE,
-                    &info,
-                    &[instance_count],
-                    &mut sizes,
-                )
-        };
-        Ok(sizes.into())
+        let top = vk::AccelerationStructureTypeKHR::TOP_LEVEL;
+        Ok(build_sizes(ctx, top, &geometry, &[instance_count], flags))
     }
 
     /// Creates a TLAS with room for `capacity` instances (at least 1).

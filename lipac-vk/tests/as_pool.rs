@@ -7,6 +7,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     record_compactions_pooled, AccelerationStructurePool, BlasBatch, CountingBoxConfig, GpuRay,
     OneShot, RayQueryTestPipeline, ScratchBuffer, VkError, AS_OFFSET_ALIGNMENT,
@@ -122,12 +123,12 @@ fn pooled_blases_share_blocks_trace_correctly_and_free_their_ranges() {
         .iter()
         .map(|i| tlas_record(i, &compacted[0], 0x01))
         .collect();
-    let mut rng = Lcg(5);
+    let mut rng = SplitMix64::new(5);
     let rays: Vec<GpuRay> = (0..160)
         .map(|_| GpuRay {
             origin: [0.0, 0.0, 0.0],
             t_min: 0.0,
-            direction: [12.0 * rng.next() - 6.0, 3.0 * rng.next() - 1.5, 6.0],
+            direction: [12.0 * rng.unit_f32() - 6.0, 3.0 * rng.unit_f32() - 1.5, 6.0],
             t_max: 100.0,
         })
         .collect();

@@ -14,7 +14,7 @@ use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, MeshId};
-use lipac_core::layout::TlasInstance;
+use lipac_core::layout::tlas_multiset;
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
@@ -29,22 +29,6 @@ fn pattern(slot: u32) -> Vec<u8> {
     (0..DATA_BYTES as u32)
         .map(|i| (slot * 7 + i) as u8)
         .collect()
-}
-
-fn sorted(records: &[TlasInstance]) -> Vec<([u32; 12], u32, u32, u64)> {
-    let mut v: Vec<_> = records
-        .iter()
-        .map(|r| {
-            (
-                r.transform.map(f32::to_bits),
-                r.custom_index_and_mask,
-                r.sbt_offset_and_flags,
-                r.acceleration_structure_reference,
-            )
-        })
-        .collect();
-    v.sort_unstable();
-    v
 }
 
 fn desc(i: u32) -> InstanceDesc {
@@ -149,7 +133,10 @@ fn tables_and_data_grow_and_assembly_matches_the_manager() {
         let diag = r.diagnostics.as_ref().unwrap();
         assert_eq!(r.tlas_records as usize, cpu.len(), "frame {f}");
         assert!(!cpu.is_empty(), "hitbox boxes over the inactive instances");
-        assert!(sorted(&cpu) == sorted(&diag.tlas_instances), "frame {f}");
+        assert!(
+            tlas_multiset(&cpu) == tlas_multiset(&diag.tlas_instances),
+            "frame {f}"
+        );
         last = Some(polled);
     }
     assert_eq!(table_growths, [3], "2 slots, then 7");

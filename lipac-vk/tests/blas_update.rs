@@ -7,6 +7,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     AccelerationStructurePool, BlasBatch, BlasUpdateMode, CountingBoxConfig, GpuRay, OneShot,
     RayQueryTestPipeline, ScratchBuffer, VkError,
@@ -38,12 +39,12 @@ fn scene_of(mesh: &Mesh) -> Vec<SceneInstance> {
 }
 
 fn rays() -> Vec<GpuRay> {
-    let mut rng = Lcg(23);
+    let mut rng = SplitMix64::new(23);
     (0..256)
         .map(|_| GpuRay {
             origin: [0.0, 0.0, 0.0],
             t_min: 0.0,
-            direction: [9.0 * rng.next() - 4.5, 3.0 * rng.next() - 1.5, 7.0],
+            direction: [9.0 * rng.unit_f32() - 4.5, 3.0 * rng.unit_f32() - 1.5, 7.0],
             t_max: 100.0,
         })
         .collect()

@@ -6,6 +6,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     record_compactions, BlasBatch, CountingBoxConfig, GpuRay, OneShot, RayQueryTestPipeline,
     ScratchBuffer, UnitCube, VkError,
@@ -96,12 +97,12 @@ fn compacted_blases_are_no_larger_and_trace_the_same() {
         .iter()
         .map(|i| tlas_record(i, grid_blas, 0x01))
         .collect();
-    let mut rng = Lcg(11);
+    let mut rng = SplitMix64::new(11);
     let rays: Vec<GpuRay> = (0..192)
         .map(|_| GpuRay {
             origin: [0.0, 0.0, 0.0],
             t_min: 0.0,
-            direction: [12.0 * rng.next() - 6.0, 3.0 * rng.next() - 1.5, 6.0],
+            direction: [12.0 * rng.unit_f32() - 6.0, 3.0 * rng.unit_f32() - 1.5, 6.0],
             t_max: 100.0,
         })
         .collect();

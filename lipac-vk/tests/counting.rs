@@ -3,13 +3,12 @@
 
 mod common;
 
-use ash::vk;
 use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE};
 use lipac_vk::{
-    counting_box_instance, BlasBatch, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot,
-    RayQueryTestPipeline, ScratchBuffer, UnitCube,
+    counting_box_instance, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot,
+    RayQueryTestPipeline,
 };
 
 const REAL_MASK: u8 = 0x01;
@@ -35,17 +34,9 @@ fn counting_boxes_count_once_and_let_rays_through() {
         counting_mask: 0x80,
     };
 
-    let quad = GpuMesh::new(&h, Mesh::quad());
-    let cube = UnitCube::new(ctx).unwrap();
-    let mut batch = BlasBatch::new();
-    let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    batch.push(&[quad.geometry()], flags).unwrap();
-    batch.push(&[cube.geometry()], flags).unwrap();
-    let mut scratch = ScratchBuffer::new(ctx);
-    let built = OneShot::new(ctx)
-        .unwrap()
-        .run(|rec| batch.record(rec, &mut scratch))
-        .unwrap();
+    let QuadAndCube {
+        quad, cube, built, ..
+    } = quad_and_cube(&h, &mut OneShot::new(ctx).unwrap());
     let (quad_blas, cube_blas) = (&built.blases[0], &built.blases[1]);
     assert!(built.compaction.is_none());
 

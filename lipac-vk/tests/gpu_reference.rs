@@ -17,7 +17,9 @@ use lipac_core::assembly::{assemble_tlas, sort_canonical, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
 use lipac_core::feedback::process_feedback;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, TlasInstance};
+use lipac_core::layout::{
+    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
+};
 use lipac_core::thresholds::Thresholds;
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use lipac_vk::{
@@ -127,6 +129,9 @@ fn random_instance(rng: &mut Rng, hitboxes: u32) -> InstanceRecord {
         packed |= instance_bits::UNIQUE_BLAS;
     }
     packed |= rng.next_u32() & 0xFFFF_FF30; // vegetation/static bits, mask, vk flags, junk
+    if rng.chance(0.15) {
+        packed |= instance_bits::PINNED; // in any state and hitbox
+    }
     InstanceRecord {
         transform,
         aabb_min,
@@ -394,6 +399,21 @@ fn assembly_matches_cpu_reference() {
         assert!(
             stats.hitbox_boxes > 5 && stats.invalid_instances > 0 && stats.active_without_blas > 0
         );
+        // Pinned instances outside the active state or in inactive hitboxes
+        // are traced with their own BLAS.
+        let pinned_elsewhere = instances
+            .iter()
+            .filter(|m| {
+                m.is_alive()
+                    && m.is_pinned()
+                    && m.blas != 0
+                    && (m.state() != InstanceState::Active
+                        || hitboxes
+                            .get(m.hitbox as usize)
+                            .is_some_and(|h| !h.is_active()))
+            })
+            .count();
+        assert!(pinned_elsewhere > 100, "{pinned_elsewhere}");
 
         one_shot
             .run(|rec| pipeline.record(rec, &bindings, &cfg, instances.len() as u32))
@@ -573,6 +593,10 @@ fn frames_match_cpu_reference_without_overflow() {
                 .zip(&instances)
                 .filter(|(a, b)| a.packed != b.packed)
                 .count();
+            assert!(before
+                .iter()
+                .zip(&instances)
+                .all(|(a, b)| !a.is_pinned() || a.packed == b.packed));
             // Both read-backs give the core's queue the same pending commands.
             let a = queue_cpu.ingest_buffer(&buf);
             let b = queue_gpu.ingest(counter, &words);

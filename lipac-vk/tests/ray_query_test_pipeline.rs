@@ -6,6 +6,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{CountingBoxConfig, GpuRay, RayQueryTestPipeline};
 
 fn scene() -> Vec<SceneInstance> {
@@ -96,13 +97,17 @@ fn traced_rays_hit_the_right_instance_at_the_right_distance() {
         .collect();
 
     // Rays from near the origin aimed at random points around each instance.
-    let mut rng = Lcg(7);
+    let mut rng = SplitMix64::new(7);
     let mut rays = Vec::new();
     for k in 0..320 {
         let inst = &scene[k % scene.len()];
-        let local = Vec3::new(2.4 * rng.next() - 1.2, 2.4 * rng.next() - 1.2, 0.0);
+        let local = Vec3::new(2.4 * rng.unit_f32() - 1.2, 2.4 * rng.unit_f32() - 1.2, 0.0);
         let target = inst.transform.transform_point3(local);
-        let origin = Vec3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5) * 0.5;
+        let origin = Vec3::new(
+            rng.unit_f32() - 0.5,
+            rng.unit_f32() - 0.5,
+            rng.unit_f32() - 0.5,
+        ) * 0.5;
         rays.push(GpuRay {
             origin: origin.into(),
             t_min: 0.0,

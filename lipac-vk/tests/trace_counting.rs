@@ -9,10 +9,10 @@ use ash::vk;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::layout::{hitbox_bits, HitboxRecord, TlasInstance};
+use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    counting_box_instance, BlasBatch, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay,
-    GpuTlas, HitboxCounting, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline,
-    ScratchBuffer, UnitCube,
+    counting_box_instance, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay, GpuTlas,
+    HitboxCounting, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline,
 };
 
 const MAX: u32 = hitbox_bits::HITS_MAX;
@@ -61,15 +61,14 @@ fn trace_counts_into_hitbox_records_saturating() {
         hitbox_box_sbt_offset: 5,
         counting_mask: 0x80,
     };
-    let quad = GpuMesh::new(&h, Mesh::quad());
-    let cube = UnitCube::new(ctx).unwrap();
-    let mut batch = BlasBatch::new();
-    let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    batch.push(&[quad.geometry()], flags).unwrap();
-    batch.push(&[cube.geometry()], flags).unwrap();
-    let mut scratch = ScratchBuffer::new(ctx);
     let mut one_shot = OneShot::new(ctx).unwrap();
-    let built = one_shot.run(|rec| batch.record(rec, &mut scratch)).unwrap();
+    let QuadAndCube {
+        quad,
+        cube,
+        built,
+        mut scratch,
+    } = quad_and_cube(&h, &mut one_shot);
+    let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
     let (quad_blas, cube_blas) = (&built.blases[0], &built.blases[1]);
 
     use CountingBoxKind::{Hitbox, OmittedInstance};
@@ -122,14 +121,14 @@ fn trace_counts_into_hitbox_records_saturating() {
 
     // Rays per lane: 8, 5, 4, 6, 7, spread over the boxes' cross-section.
     let per_lane = [8u32, 5, 4, 6, 7];
-    let mut rng = Lcg(7);
+    let mut rng = SplitMix64::new(7);
     let mut rays = Vec::new();
     for (k, &n) in per_lane.iter().enumerate() {
         for _ in 0..n {
             rays.push(GpuRay {
                 origin: [
-                    lane_x(k as u32) + 0.6 * (rng.next() - 0.5),
-                    0.6 * (rng.next() - 0.5),
+                    lane_x(k as u32) + 0.6 * (rng.unit_f32() - 0.5),
+                    0.6 * (rng.unit_f32() - 0.5),
                     0.0,
                 ],
                 t_min: 0.0,

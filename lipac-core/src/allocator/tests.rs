@@ -2,23 +2,9 @@
 
 use proptest::prelude::*;
 
+use lipac_test_support::{Rng64, SplitMix64};
+
 use super::*;
-
-/// splitmix64: a tiny deterministic PRNG for workload generation.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
 
 #[test]
 fn first_allocations_are_packed_from_zero() {
@@ -147,7 +133,7 @@ fn stale_handle_stays_stale_when_the_serial_wraps() {
 #[test]
 fn allocations_live_across_serial_wraps_stay_valid() {
     let mut a = TlsfAllocator::new(1 << 16);
-    let mut rng = SplitMix(12);
+    let mut rng = SplitMix64::new(12);
     let mut live: Vec<Allocation> = Vec::new();
     let mut dead: Vec<AllocHandle> = Vec::new();
     for round in 0..4 {
@@ -381,7 +367,7 @@ fn reserving_counts_vacant_records_and_keeps_invariants() {
 /// (60 % allocate, 40 % free a random live range) with one size.
 fn ramp_utilisation(size: u64, capacity: u64, seed: u64) -> f64 {
     let mut a = TlsfAllocator::new(capacity);
-    let mut rng = SplitMix(seed);
+    let mut rng = SplitMix64::new(seed);
     let mut live = Vec::new();
     loop {
         if live.is_empty() || rng.below(10) < 6 {

@@ -371,6 +371,20 @@ impl<H: HitboxIndex> Culling<H> {
         &self.config
     }
 
+    /// Replaces the thresholds Algorithm 2 runs with (the Manager's
+    /// closed-loop controller, [`crate::controller`]); a GPU backend reads
+    /// them from [`Culling::config`] when it records the frame. Fails,
+    /// changing nothing, for thresholds [`Thresholds::validate`] rejects.
+    pub fn set_thresholds(&mut self, thresholds: Thresholds) -> Result<(), CoreError> {
+        thresholds
+            .validate()
+            .map_err(|e| CoreError::InvalidConfig {
+                what: format!("thresholds: {e}"),
+            })?;
+        self.config.thresholds = thresholds;
+        Ok(())
+    }
+
     /// The instance registry (read-only; change instances through
     /// [`Culling`] so that commands, hit counters and uploads follow).
     pub fn registry(&self) -> &InstanceRegistry<H> {
@@ -504,9 +518,12 @@ impl<H: HitboxIndex> Culling<H> {
     }
 
     /// Registers an instance ([`InstanceRegistry::register`]): inactive, no
-    /// BLAS. Its state write is an upload override.
+    /// BLAS. Its state write is an upload override. A pinned instance
+    /// ([`InstanceFlags::PINNED`]) starts active and waiting for its BLAS
+    /// ([`Culling::awaiting_blas`]): provide it with [`Culling::set_blas`].
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, CoreError> {
         let handle = self.registry.register(desc)?;
+        self.sync_hitbox_count();
         let slot = self.registry.slot(handle)?;
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
@@ -524,19 +541,60 @@ impl<H: HitboxIndex> Culling<H> {
         // `ingest_readback`); make sure.
         self.queue.cancel_slot(slot);
         self.state_overrides.insert(slot, InstanceState::Inactive);
+        if desc.flags.contains(InstanceFlags::PINNED) {
+            self.pin(slot);
+        }
         Ok(handle)
+    }
+
+    /// The loop's decision for a pinned instance in `slot` (live): active
+    /// now (record, upload override, commanded state), waiting for its BLAS
+    /// unless it holds one or one is promised.
+    fn pin(&mut self, slot: u32) {
+        let frame = self.registry.frame();
+        // The registry wrote the state (register / update of a pinned desc).
+        self.state_overrides.insert(slot, InstanceState::Active);
+        let blas = self.registry.records()[slot as usize].blas;
+        let view = &mut self.slots[slot as usize];
+        if !view.commanded_active {
+            view.commanded_active = true;
+            view.decided_at = frame;
+        }
+        view.awaiting |= blas == 0;
     }
 
     /// Replaces an instance's description ([`InstanceRegistry::update`]);
     /// state and BLAS stay. If the mesh, LOD or
     /// [`InstanceFlags::UNIQUE_BLAS`] changed, provide the new BLAS with
-    /// [`Culling::set_blas`] and release the old one it returns.
+    /// [`Culling::set_blas`] and release the old one it returns. Setting
+    /// [`InstanceFlags::PINNED`] makes the instance active as at a pinned
+    /// registration ([`Culling::awaiting_blas`] if it has no BLAS);
+    /// clearing it changes nothing here: Algorithm 2's normal rule decides
+    /// from the next feedback on.
     pub fn update(
         &mut self,
         handle: InstanceHandle,
         desc: InstanceDesc,
     ) -> Result<InstanceDesc, CoreError> {
-        self.registry.update(handle, desc)
+        let old = self.registry.update(handle, desc)?;
+        self.sync_hitbox_count();
+        if desc.flags.contains(InstanceFlags::PINNED) {
+            let slot = self.registry.slot(handle)?;
+            let view = self.slots[slot as usize];
+            if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
+                self.pin(slot);
+            }
+        }
+        Ok(old)
+    }
+
+    /// Grows the hitbox records to the index's [`HitboxIndex::len`] (a
+    /// structure that creates hitboxes on demand may have made one).
+    fn sync_hitbox_count(&mut self) {
+        let n = self.registry.hitbox_index().len() as usize;
+        if self.hitboxes.len() < n {
+            self.hitboxes.resize(n, HitboxRecord::default());
+        }
     }
 
     /// Moves an instance ([`InstanceRegistry::set_transform`]). An active
@@ -548,7 +606,9 @@ impl<H: HitboxIndex> Culling<H> {
         transform: Affine3A,
         aabb: Aabb,
     ) -> Result<(), CoreError> {
-        self.registry.set_transform(handle, transform, aabb)
+        self.registry.set_transform(handle, transform, aabb)?;
+        self.sync_hitbox_count();
+        Ok(())
     }
 
     /// Removes an instance: its slot is quarantined, its pending command
@@ -605,6 +665,14 @@ impl<H: HitboxIndex> Culling<H> {
         }
         self.registry.begin_frame(frame)?;
         crate::assembly::begin_frame(&mut self.hitboxes);
+        // Hitboxes the index dropped (empty cells) start over, inactive, on
+        // the GPU too (an override clears the active bit and streak).
+        for &index in self.registry.evicted_hitboxes() {
+            if let Some(h) = self.hitboxes.get_mut(index as usize) {
+                *h = HitboxRecord::default();
+                self.hitbox_overrides.insert(index, false);
+            }
+        }
         self.instance_hits.fill(0);
         self.fed_back = false;
         Ok(())

@@ -47,6 +47,7 @@
 
 mod ack;
 mod catalog;
+mod control;
 mod error;
 pub mod recorder;
 mod stats;
@@ -68,6 +69,7 @@ use crate::build_plan::{
     BlasGeometry, BuildBudgets, BuildScheduler, FramePlan, InstanceBlasRequest, SchedulerConfig,
 };
 use crate::command::IngestSummary;
+use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::culling::{
     BlasAction, CommandEvent, Culling, CullingConfig, LatencyOutcome, ProcessStats, Readback,
     Uploads,
@@ -80,6 +82,7 @@ use crate::latency::Frustum;
 use crate::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
 use crate::math::Aabb;
 use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
+use crate::thresholds::Thresholds;
 
 /// The geometry-data buffer's allocator settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,6 +114,14 @@ pub struct ManagerConfig {
     pub scheduler: SchedulerConfig,
     /// The geometry-data allocator.
     pub data: DataConfig,
+    /// A target the closed-loop controller holds by scaling
+    /// [`CullingConfig::thresholds`] every frame ([`crate::controller`]):
+    /// a memory budget or an escape fraction; `None` (the default) keeps
+    /// the thresholds fixed.
+    pub target: Option<ControlTarget>,
+    /// The controller's gains, scale range and TLAS record size (used only
+    /// with a `target`).
+    pub controller: ControllerConfig,
 }
 
 impl ManagerConfig {
@@ -121,6 +132,8 @@ impl ManagerConfig {
             culling: CullingConfig::new(unit_cube_blas),
             scheduler: SchedulerConfig::default(),
             data: DataConfig::default(),
+            target: None,
+            controller: ControllerConfig::default(),
         }
     }
 }
@@ -266,6 +279,16 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     next_own_variant: u32,
     /// The attached trace recorder ([`recorder`]).
     recorder: Option<Box<TraceRecorder>>,
+    /// The closed-loop controller ([`control`]) and the thresholds it
+    /// scales (the configured ones).
+    controller: Option<ThresholdController>,
+    base_thresholds: Thresholds,
+    /// The newest counted hits, and whether the controller has not seen
+    /// them yet.
+    escape: Option<EscapeSample>,
+    escape_fresh: bool,
+    /// TLAS records of the last [`Manager::assemble`].
+    tlas_records: Option<u64>,
 }
 
 /// The first variant of an instance's own static BLAS (`UNIQUE_BLAS |
@@ -326,6 +349,8 @@ impl<H: HitboxIndex> Manager<H> {
                 ),
             });
         }
+        let controller =
+            control::controller_of(config.target, config.controller, &config.culling.thresholds)?;
         let culling = Culling::new(index, config.culling)?;
         let scheduler = BuildScheduler::new(config.scheduler)?;
         let data = TlsfAllocator::new(config.data.initial_capacity);
@@ -343,6 +368,11 @@ impl<H: HitboxIndex> Manager<H> {
             events: Vec::new(),
             next_own_variant: OWN_STATIC_VARIANT,
             recorder: None,
+            controller,
+            base_thresholds: config.culling.thresholds,
+            escape: None,
+            escape_fresh: false,
+            tlas_records: None,
         })
     }
 
@@ -442,7 +472,9 @@ impl<H: HitboxIndex> Manager<H> {
     }
 
     /// Registers an instance: inactive, no BLAS, a geometry-data range for
-    /// its mesh's LOD `desc.lod`. Fails, changing nothing but possibly the
+    /// its mesh's LOD `desc.lod`. A [`InstanceFlags::PINNED`] instance is
+    /// active at once and its BLAS requested from the scheduler (under the
+    /// normal build budgets). Fails, changing nothing but possibly the
     /// buffer's capacity, for a mesh or LOD not in the catalog or an invalid
     /// description.
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, ManagerError> {
@@ -486,6 +518,10 @@ impl<H: HitboxIndex> Manager<H> {
                 .unwrap_or(OWN_STATIC_VARIANT);
         }
         self.mark_data(slot);
+        if desc.flags.contains(InstanceFlags::PINNED) {
+            // Active from registration: its BLAS is requested at once.
+            self.activate(slot, 0, false)?;
+        }
         self.record(|r| r.on_register(slot, &desc));
         Ok(handle)
     }
@@ -493,7 +529,11 @@ impl<H: HitboxIndex> Manager<H> {
     /// Replaces an instance's description and returns the previous one
     /// (with the requested LOD). The mesh and the `UNIQUE_BLAS` / `STATIC`
     /// flags cannot change ([`ManagerError::GeometryChange`]); a new
-    /// `desc.lod` is a [`Manager::set_lod`]. On error nothing changes.
+    /// `desc.lod` is a [`Manager::set_lod`]. Setting
+    /// [`InstanceFlags::PINNED`] activates the instance and requests its
+    /// BLAS; clearing it hands the instance back to its hitbox (Algorithm
+    /// 2's normal rule, from the next feedback on). On error nothing
+    /// changes.
     pub fn update(
         &mut self,
         handle: InstanceHandle,
@@ -522,6 +562,15 @@ impl<H: HitboxIndex> Manager<H> {
             },
         )?;
         old.lod = requested;
+        if desc.flags.contains(InstanceFlags::PINNED) {
+            // Pinned now: active (the command loop decided), its BLAS
+            // requested unless it is scheduled already.
+            let (slot, s) = self.slot_of(handle)?;
+            if !s.scheduled {
+                let hits = self.slots[slot as usize].last_hits;
+                self.activate(slot, hits, self.visible(slot))?;
+            }
+        }
         if desc.lod != requested {
             self.set_lod(handle, desc.lod)?;
         }
@@ -675,7 +724,10 @@ impl<H: HitboxIndex> Manager<H> {
     ///    build become their build priority;
     /// 3. the scheduler plans (due LOD switches, unique updates, budgeted
     ///    batches, compactions, frees);
-    /// 4. the uploads, the geometry-data changes and growth are collected.
+    /// 4. the uploads, the geometry-data changes and growth are collected;
+    /// 5. with a [`ManagerConfig::target`], the controller is fed (memory
+    ///    after this plan, the newest escape sample) and the scaled
+    ///    thresholds are set for this frame's Algorithm 2 ([`crate::controller`]).
     pub fn plan(&mut self, budgets: &FrameBudgets) -> Result<ManagerPlan, ManagerError> {
         let frame = self.frame.ok_or_else(|| ManagerError::CallOrder {
             what: "plan before the first begin_frame".into(),
@@ -694,13 +746,17 @@ impl<H: HitboxIndex> Manager<H> {
         self.events = events;
         result?;
 
-        // 2. Priorities of waiting instances.
-        for slot in 0..self.slots.len() as u32 {
-            let entry = self.slots[slot as usize];
+        // 2. Priorities of waiting instances (only those: a scheduler lookup
+        // per slot was ~13 % of a frame at 100k instances).
+        let waiting: Vec<InstanceKey> = self.scheduler.waiting_instances().collect();
+        for key in waiting {
+            let slot = key.0;
+            let Some(entry) = self.slots.get(slot as usize).copied() else {
+                continue;
+            };
             let Some(s) = entry.instance else {
                 continue;
             };
-            let key = InstanceKey(slot);
             if s.scheduled && self.scheduler.pending_lod(key).is_some() {
                 let visible = self.visible(slot);
                 self.scheduler.set_feedback(key, entry.last_hits, visible)?;
@@ -710,6 +766,8 @@ impl<H: HitboxIndex> Manager<H> {
         // 3. The scheduler.
         let blas = self.scheduler.plan(&budgets.builds)?;
         self.sync_addresses()?;
+        // 5. The closed-loop thresholds for this frame's Algorithm 2.
+        self.control()?;
 
         // 4. Uploads.
         let uploads = self.culling.take_uploads();
@@ -803,13 +861,20 @@ impl<H: HitboxIndex> Manager<H> {
     /// TLAS instances into `out` (cleared first). For CPU backends; a GPU
     /// backend runs it as a shader over the uploaded records.
     pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, ManagerError> {
-        Ok(self.culling.assemble(out)?)
+        let stats = self.culling.assemble(out)?;
+        self.tlas_records = Some(out.len() as u64);
+        Ok(stats)
     }
 
     /// Algorithm 2 over this frame's hits ([`Culling::process_feedback`]),
     /// for CPU backends. The hits are kept to prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
         self.record_frame_hits(None); // before Algorithm 2 changes states
+        self.observe_escape(control::escape_sample(
+            self.culling.registry().records(),
+            self.culling.instance_hits(),
+            self.culling.hitboxes(),
+        ));
         let stats = self.culling.process_feedback()?;
         for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
             e.last_hits = h;
@@ -884,6 +949,8 @@ impl<H: HitboxIndex> Manager<H> {
             blas_pending_frees: cache.pending_frees,
             data_ranges: data.allocation_count,
             data_free_blocks: data.free_block_count,
+            controller: self.controller.as_ref().map(|c| c.stats()),
+            escape: self.escape,
         }
     }
 

@@ -575,7 +575,11 @@ impl TraceRecorder {
                 }
                 let b = r.hitbox as usize;
                 let Some(hb) = boxes.get(b) else { continue };
-                if hb.hits() > 0 && (r.state() == InstanceState::Inactive || !hb.is_active()) {
+                // Reduced into the counting box (`crate::assembly`): not
+                // pinned, and inactive or in an inactive hitbox.
+                let reduced =
+                    !r.is_pinned() && (r.state() == InstanceState::Inactive || !hb.is_active());
+                if hb.hits() > 0 && reduced {
                     per[b].k += 1;
                     culled.push(slot as u32);
                 }
@@ -801,15 +805,22 @@ impl<H: HitboxIndex + 'static> Manager<H> {
     /// Attaches `recorder`: from now on every instance change, camera and
     /// (optionally) the hits are recorded (see [`recorder`](self)). Fails
     /// if one is attached, or if there is no world for the header (a hitbox
-    /// structure other than [`HitboxGrid`] without
+    /// structure other than [`HitboxGrid`] or a
+    /// [`HashedHitboxes`](crate::hashed_hitboxes::HashedHitboxes) anchored
+    /// at the origin, whose world is [`WorldInfo::unbounded`], without
     /// [`RecorderOptions::world`]). Instances registered before are not in
     /// the trace.
     pub fn attach_recorder(&mut self, mut recorder: TraceRecorder) -> Result<(), RecorderError> {
         if self.recorder.is_some() {
             return Err(RecorderError::AlreadyAttached);
         }
-        let grid =
-            (self.culling.registry().hitbox_index() as &dyn Any).downcast_ref::<HitboxGrid>();
+        let index = self.culling.registry().hitbox_index() as &dyn Any;
+        let grid = index.downcast_ref::<HitboxGrid>();
+        // A hashed index anchored at the origin records an unbounded world.
+        let hashed = index
+            .downcast_ref::<crate::hashed_hitboxes::HashedHitboxes>()
+            .filter(|h| h.config().origin == [0.0, 0.0])
+            .map(|h| WorldInfo::unbounded(h.config().cell_size));
         let world = recorder
             .options
             .world
@@ -820,6 +831,7 @@ impl<H: HitboxIndex + 'static> Manager<H> {
                     cell_size: g.cell_size(),
                 })
             })
+            .or(hashed)
             .ok_or_else(|| RecorderError::Header {
                 what: "no world: not a HitboxGrid manager and RecorderOptions::world unset".into(),
             })?;

@@ -1,5 +1,7 @@
 //! What [`Manager::stats`](super::Manager::stats) reports.
 
+use crate::controller::{ControllerStats, EscapeSample};
+
 /// Memory by category, in bytes.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MemoryStats {
@@ -74,4 +76,12 @@ pub struct ManagerStats {
     pub data_ranges: usize,
     /// Free blocks in the geometry-data buffer.
     pub data_free_blocks: usize,
+    /// The closed-loop controller (with a
+    /// [`ManagerConfig::target`](super::ManagerConfig::target)): scale,
+    /// measurement, "budget unreachable".
+    pub controller: Option<ControllerStats>,
+    /// The newest counted hits (escape fraction), from
+    /// [`Manager::process_feedback`](super::Manager::process_feedback) or
+    /// [`Manager::observe_escape`](super::Manager::observe_escape).
+    pub escape: Option<EscapeSample>,
 }

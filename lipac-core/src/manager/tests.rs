@@ -522,3 +522,120 @@ fn unique_static_instances_get_own_blases_that_are_never_refit() {
     r.m.update(handles[0], d).unwrap();
     assert_eq!(r.m.instance(handles[0]).unwrap().blas, blas[0]);
 }
+
+/// Acknowledges every build of `plan` at `0xA000 + id` and returns how many.
+fn ack_builds(m: &mut Manager, plan: &ManagerPlan) -> usize {
+    let builds: Vec<_> = plan.blas.builds().copied().collect();
+    for b in &builds {
+        m.handle_ack(Ack::Built {
+            build: b.id,
+            result_bytes: b.result_bytes,
+            address: 0xA000 + b.id.0,
+        })
+        .unwrap();
+    }
+    builds.len()
+}
+
+fn pinned(x: f32, z: f32, mesh: u32) -> InstanceDesc {
+    InstanceDesc {
+        flags: InstanceFlags::PINNED,
+        ..desc(x, z, mesh)
+    }
+}
+
+#[test]
+fn pinned_is_never_culled_through_hitbox_deactivation_or_zero_hits() {
+    let mut r = Rig::new(DataConfig::default());
+    let pin = r.m.register(pinned(8.0, 8.0, 1)).unwrap();
+    // Active from registration, its BLAS requested at once.
+    let v = r.m.instance(pin).unwrap();
+    assert_eq!(v.state, InstanceState::Active);
+    assert!(v.scheduled && v.awaiting_blas);
+    assert_eq!(r.m.registry().state(pin).unwrap(), InstanceState::Active);
+    // A normal instance in the same hitbox.
+    let other = r.m.register(desc(10.0, 10.0, 2)).unwrap();
+    let (ps, os) = (v.slot, r.m.instance(other).unwrap().slot);
+    let p = r.frame();
+    // A GPU backend writes the active state over its copy's state bits.
+    assert!(p
+        .uploads
+        .state_overrides
+        .contains(&(ps, InstanceState::Active)));
+    assert!(p
+        .uploads
+        .state_overrides
+        .contains(&(os, InstanceState::Inactive)));
+    assert_eq!(ack_builds(&mut r.m, &p), 1, "only the pinned instance's");
+    let address = r.m.instance(pin).unwrap().blas;
+    assert_ne!(address, 0);
+    // Hits activate the hitbox and the other instance ...
+    for _ in 0..4 {
+        let p = r.frame();
+        ack_builds(&mut r.m, &p);
+    }
+    assert!(r.traced(os).is_some() && r.traced(ps) == Some(address));
+    let hitbox = r.m.records()[ps as usize].hitbox as usize;
+    assert!(r.m.hitboxes()[hitbox].is_active());
+    // ... then the camera is far away: no hits for 1000 frames. The hitbox
+    // deactivates and the other instance goes; the pinned one stays.
+    r.heat = 0;
+    for f in 0..1000 {
+        r.frame();
+        assert_eq!(r.traced(ps), Some(address), "frame {f}");
+        assert_eq!(r.m.instance(pin).unwrap().state, InstanceState::Active);
+    }
+    assert!(!r.m.hitboxes()[hitbox].is_active());
+    assert_eq!(r.traced(os), None);
+    assert_eq!(r.m.instance(other).unwrap().state, InstanceState::Inactive);
+    assert_eq!(r.m.registry().state(pin).unwrap(), InstanceState::Active);
+    assert_eq!(r.m.stats().instances.active, 1);
+
+    // Unpinned, it returns to its (inactive) hitbox's state by the normal
+    // rule: out of the TLAS at once, its BLAS released once the `remove`
+    // is read back and processed.
+    r.m.update(pin, desc(8.0, 8.0, 1)).unwrap();
+    r.frame();
+    assert_eq!(r.traced(ps), None);
+    for _ in 0..3 {
+        r.frame();
+    }
+    let v = r.m.instance(pin).unwrap();
+    assert_eq!(
+        (v.state, v.blas, v.scheduled),
+        (InstanceState::Inactive, 0, false)
+    );
+}
+
+#[test]
+fn pinning_at_run_time_activates_and_requests_the_blas() {
+    let mut r = Rig::new(DataConfig::default());
+    r.heat = 0;
+    let h = r.m.register(desc(40.0, 40.0, 2)).unwrap();
+    let slot = r.m.instance(h).unwrap().slot;
+    for _ in 0..3 {
+        assert_eq!(r.frame().blas.builds().count(), 0);
+    }
+    assert_eq!(r.m.instance(h).unwrap().state, InstanceState::Inactive);
+    let p = r.frame_with(|m| {
+        m.update(h, pinned(40.0, 40.0, 2)).unwrap();
+        assert_eq!(m.registry().state(h).unwrap(), InstanceState::Active);
+        let v = m.instance(h).unwrap();
+        assert_eq!(v.state, InstanceState::Active);
+        assert!(v.scheduled && v.awaiting_blas);
+    });
+    assert!(p
+        .uploads
+        .state_overrides
+        .contains(&(slot, InstanceState::Active)));
+    assert_eq!(ack_builds(&mut r.m, &p), 1);
+    for _ in 0..20 {
+        r.frame();
+        assert!(r.traced(slot).is_some());
+    }
+    // Its flags read back, pinned; updating it again requests nothing new.
+    assert_eq!(r.m.registry().flags(h).unwrap(), InstanceFlags::PINNED);
+    r.m.update(h, pinned(40.0, 40.0, 2)).unwrap();
+    assert_eq!(r.frame().blas.builds().count(), 0);
+    assert_eq!(r.m.stats().instances.active, 1);
+}

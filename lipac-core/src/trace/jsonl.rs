@@ -44,8 +44,12 @@ struct HeaderProbe {
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct WorldDto {
-    min: [f64; 2],
-    max: [f64; 2],
+    /// Absent for an unbounded world (`WorldInfo::unbounded`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    min: Option<[f64; 2]>,
+    /// Absent for an unbounded world.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    max: Option<[f64; 2]>,
     cell_size: f64,
 }
 
@@ -124,12 +128,14 @@ enum FlagName {
     UniqueBlas,
     Vegetation,
     Static,
+    Pinned,
 }
 
-const FLAG_NAMES: [(FlagName, InstanceFlags); 3] = [
+const FLAG_NAMES: [(FlagName, InstanceFlags); 4] = [
     (FlagName::UniqueBlas, InstanceFlags::UNIQUE_BLAS),
     (FlagName::Vegetation, InstanceFlags::VEGETATION),
     (FlagName::Static, InstanceFlags::STATIC),
+    (FlagName::Pinned, InstanceFlags::PINNED),
 ];
 
 fn flags_to_names(f: InstanceFlags) -> Vec<FlagName> {
@@ -212,8 +218,8 @@ fn header_dto(h: &TraceHeader) -> HeaderDto {
         version: TRACE_VERSION.into(),
         scene: h.scene_name.clone(),
         world: WorldDto {
-            min: h.world.min,
-            max: h.world.max,
+            min: h.world.is_bounded().then_some(h.world.min),
+            max: h.world.is_bounded().then_some(h.world.max),
             cell_size: h.world.cell_size,
         },
         meshes: h
@@ -242,8 +248,8 @@ fn header_of(d: HeaderDto) -> TraceHeader {
     TraceHeader {
         scene_name: d.scene,
         world: WorldInfo {
-            min: d.world.min,
-            max: d.world.max,
+            min: d.world.min.unwrap_or([f64::NEG_INFINITY; 2]),
+            max: d.world.max.unwrap_or([f64::INFINITY; 2]),
             cell_size: d.world.cell_size,
         },
         meshes: d
@@ -1062,6 +1068,8 @@ fn peek_frame_number(line: &[u8]) -> Option<u64> {
 
 #[cfg(test)]
 mod tests {
+    use lipac_test_support::{Rng64, SplitMix64};
+
     use super::format_f32;
 
     fn round_trip(v: f32) -> f32 {
@@ -1089,13 +1097,10 @@ mod tests {
         for v in special {
             assert_eq!(round_trip(v).to_bits(), v.to_bits(), "{v:?}");
         }
-        // A spread of bit patterns over every exponent (xorshift).
-        let mut x = 0x1234_5678_9ABC_DEF0u64;
+        // A spread of bit patterns over every exponent.
+        let mut rng = SplitMix64::new(0x1234_5678_9ABC_DEF0);
         for _ in 0..200_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            let v = f32::from_bits(x as u32);
+            let v = f32::from_bits(rng.next_u32());
             if v.is_finite() {
                 assert_eq!(
                     round_trip(v).to_bits(),

@@ -78,7 +78,11 @@ pub struct TraceHeader {
     pub meshes: Vec<MeshInfo>,
 }
 
-/// The world's hitbox grid, as a [`GridConfig`] (x/z in metres).
+/// The world's hitbox grid, as a [`GridConfig`] (x/z in metres), or an
+/// unbounded world ([`WorldInfo::unbounded`]: no bounds declared, `min`
+/// all `-inf` and `max` all `+inf`; replay then uses the sparse
+/// [`HashedHitboxes`](crate::hashed_hitboxes::HashedHitboxes) with cells
+/// anchored at the origin, [`WorldInfo::hashed_config`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WorldInfo {
     /// Minimum world corner `[x, z]`.
@@ -90,7 +94,39 @@ pub struct WorldInfo {
 }
 
 impl WorldInfo {
-    /// The grid configuration this describes.
+    /// A world without declared bounds: cells of `cell_size` anchored at the
+    /// origin, as many as the instances occupy.
+    pub fn unbounded(cell_size: f64) -> Self {
+        Self {
+            min: [f64::NEG_INFINITY; 2],
+            max: [f64::INFINITY; 2],
+            cell_size,
+        }
+    }
+
+    /// Whether the world declares its bounds (else it is
+    /// [`WorldInfo::unbounded`]).
+    pub fn is_bounded(&self) -> bool {
+        !(self.min == [f64::NEG_INFINITY; 2] && self.max == [f64::INFINITY; 2])
+    }
+
+    /// The sparse hashed index's settings for this world's cells: anchored
+    /// at `min` (the origin for an unbounded world), so that a bounded
+    /// world's cells are the grid's.
+    pub fn hashed_config(&self) -> crate::hashed_hitboxes::HashedConfig {
+        crate::hashed_hitboxes::HashedConfig {
+            origin: if self.is_bounded() {
+                self.min
+            } else {
+                [0.0, 0.0]
+            },
+            cell_size: self.cell_size,
+            ..crate::hashed_hitboxes::HashedConfig::default()
+        }
+    }
+
+    /// The grid configuration this describes (not a valid grid for an
+    /// unbounded world).
     pub fn grid_config(&self) -> GridConfig {
         GridConfig {
             min: self.min,
@@ -394,6 +430,14 @@ pub(crate) fn check_camera(c: &Camera) -> Result<(), TraceErrorKind> {
 }
 
 pub(crate) fn check_world(w: &WorldInfo, limits: &TraceLimits) -> Result<(), TraceErrorKind> {
+    if !w.is_bounded() {
+        return crate::hashed_hitboxes::HashedHitboxes::new(w.hashed_config())
+            .map(|_| ())
+            .map_err(|e| TraceErrorKind::InvalidValue {
+                what: "unbounded world".into(),
+                reason: e.to_string(),
+            });
+    }
     HitboxGrid::with_max_cells(w.grid_config(), limits.max_grid_cells)
         .map(|_| ())
         .map_err(|e| TraceErrorKind::InvalidValue {

@@ -39,13 +39,13 @@ use std::time::Instant;
 
 use lipac_core::blas_ids::Lod;
 use lipac_core::build_plan::{BlasGeometry, BuildEstimate, InstanceBlasRequest};
-use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::manager::MeshCatalog;
 use lipac_core::math::rows_to_affine;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::trace::{InstanceEvent, TraceHeader};
+use lipac_core::WorldHitboxes;
 
 use super::{empty_frame, ReplayConfig, TraceInput};
 use crate::camera::Camera;
@@ -173,7 +173,7 @@ struct FullReplay {
 /// LiPaC on recorded hits, on one [`CpuBackend`].
 #[derive(Debug)]
 struct LipacReplay {
-    backend: CpuBackend,
+    backend: CpuBackend<WorldHitboxes>,
     /// Handle per dense slot.
     handles: Vec<Option<InstanceHandle>>,
     /// Dense slot per registry slot.
@@ -319,7 +319,9 @@ pub fn replay_hits_with<R: Read>(
         config.strategies.clone()
     };
     let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?;
-    let grid = HitboxGrid::new(header.world.grid_config()).map_err(core)?;
+    // A bounded world's grid, or the hashed grid of an unbounded one (the
+    // readers checked the grid's size).
+    let grid = WorldHitboxes::for_world(&header.world, u64::MAX).map_err(core)?;
     let mut world = World::new(&header);
     let mut runs = Vec::with_capacity(kinds.len());
     for k in &kinds {
@@ -482,6 +484,9 @@ pub fn replay_hits_with<R: Read>(
             // Hits-only replay traces no rays.
             traced_rays_per_frame: 0.0,
             wall_s: start.elapsed().as_secs_f64(),
+            // No BLAS is built or timed: BLAS and frame times stay 0.
+            blas_throughput: Default::default(),
+            gpu_model: Default::default(),
             strategies,
         },
         fp,
@@ -649,7 +654,11 @@ fn blas_kind(f: InstanceFlags) -> InstanceFlags {
 }
 
 impl LipacReplay {
-    fn new(grid: HitboxGrid, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
+    fn new(
+        grid: WorldHitboxes,
+        config: &LipacConfig,
+        catalog: MeshCatalog,
+    ) -> Result<Self, SimError> {
         Ok(Self {
             backend: CpuBackend::new(grid, config, catalog)?,
             handles: Vec::new(),
@@ -732,15 +741,16 @@ impl LipacReplay {
             };
             let reg = self.backend.instance(h)?.slot;
             let record = self.backend.record(h)?;
-            // Reduced into its hitbox's counting box (Algorithm 1):
-            // inactive, or in an inactive hitbox.
+            // Reduced into its hitbox's counting box (Algorithm 1): not
+            // pinned, and inactive or in an inactive hitbox.
             let b = record.hitbox as usize;
-            let culled = record.state() == InstanceState::Inactive
-                || self
-                    .backend
-                    .hitboxes()
-                    .get(b)
-                    .is_some_and(|hb| !hb.is_active());
+            let culled = !record.is_pinned()
+                && (record.state() == InstanceState::Inactive
+                    || self
+                        .backend
+                        .hitboxes()
+                        .get(b)
+                        .is_some_and(|hb| !hb.is_active()));
             if culled {
                 if let Some(b) = self.backend.hitboxes_mut().get_mut(b) {
                     b.add_hits(n);

@@ -21,6 +21,7 @@
 //! slots, so custom indices, counters and commands all speak scene slots.
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
+use lipac_core::controller::{ControlTarget, ControllerConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::latency::ActivationHeuristic;
@@ -58,6 +59,11 @@ pub struct LipacConfig {
     pub build_budgets: BuildBudgets,
     /// Build priorities of the BLAS scheduler.
     pub build_priority: PriorityConfig,
+    /// A closed-loop target for the Manager ([`lipac_core::controller`]):
+    /// a memory budget or an escape fraction; `None` keeps the thresholds.
+    pub target: Option<ControlTarget>,
+    /// The controller's settings (with a `target`).
+    pub controller: ControllerConfig,
 }
 
 impl LipacConfig {
@@ -92,6 +98,11 @@ impl LipacConfig {
                 ..BuildBudgets::default()
             },
             build_priority: Self::age_only_priority(),
+            target: None,
+            controller: ControllerConfig {
+                tlas_record_bytes: crate::memory::TLAS_BYTES_PER_INSTANCE,
+                ..ControllerConfig::default()
+            },
         })
     }
     /// Build priorities by waiting time alone: the comparison's measured

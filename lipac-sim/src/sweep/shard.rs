@@ -9,8 +9,10 @@
 //! depend only on its scene, its settings and the frames (the ground truth
 //! and the random numbers do not depend on which other variants share the
 //! run), so [`merge`] of all N shards is the report of one run, figure for
-//! figure, apart from timings (trace, TLAS build, strategy and ground-truth
-//! milliseconds, wall times, and the trace-time fronts computed from them).
+//! figure, apart from timings (trace, TLAS build, BLAS build and refit,
+//! frame, strategy and ground-truth milliseconds, wall times, and the
+//! frame-time fronts computed from them; the modelled GPU times follow from
+//! counts and merge bit-identically).
 //! [`crate::sweep::run`] is shard 1/1, merged.
 //!
 //! The shards of one sweep must be run with the same settings (checked:
@@ -39,7 +41,8 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::{make_contender, mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
+use super::variants::make_contender;
+use super::{mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
 use crate::camera::CameraPath;
 use crate::compare::{run_contenders, CompareConfig};
 use crate::error::SimError;
@@ -300,6 +303,7 @@ pub fn run_shard(
                 frame_errors: run.frames.iter().map(|m| m.error).collect(),
                 summary: run.summary.clone(),
                 front_time: false,
+                front_gpu_time: false,
                 front_memory: false,
                 front_builds: false,
             }

@@ -6,8 +6,9 @@ use glam::{Affine3A, Vec3};
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::affine_to_rows;
 use lipac_vk::{
-    BlasBatch, Buffer, GpuBlas, GpuHit, GpuRay, GpuTlas, HeadlessContext, MemoryLocation, OneShot,
-    RayQueryTestBuffers, RayQueryTestPipeline, ScratchBuffer, TriangleGeometry, Validation,
+    BlasBatch, BlasBatchOutput, Buffer, GpuBlas, GpuHit, GpuRay, GpuTlas, HeadlessContext,
+    MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline, ScratchBuffer,
+    TriangleGeometry, UnitCube, Validation,
 };
 
 /// Whether the environment demands a Vulkan ray-query device (CI sets it).
@@ -94,6 +95,35 @@ impl Mesh {
 
     pub fn triangle_count(&self) -> u32 {
         (self.indices.len() / 3) as u32
+    }
+}
+
+/// A quad's BLAS (`built.blases[0]`) and lipac's unit cube's (the counting
+/// boxes, `built.blases[1]`), built in one fast-trace batch, with what they
+/// were built from and the build's scratch.
+pub struct QuadAndCube {
+    pub quad: GpuMesh,
+    pub cube: UnitCube,
+    pub built: BlasBatchOutput,
+    pub scratch: ScratchBuffer,
+}
+
+/// Builds a [`QuadAndCube`] with `one_shot`.
+pub fn quad_and_cube(h: &HeadlessContext, one_shot: &mut OneShot) -> QuadAndCube {
+    let ctx = h.context();
+    let quad = GpuMesh::new(h, Mesh::quad());
+    let cube = UnitCube::new(ctx).unwrap();
+    let mut batch = BlasBatch::new();
+    let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
+    batch.push(&[quad.geometry()], flags).unwrap();
+    batch.push(&[cube.geometry()], flags).unwrap();
+    let mut scratch = ScratchBuffer::new(ctx);
+    let built = one_shot.run(|rec| batch.record(rec, &mut scratch)).unwrap();
+    QuadAndCube {
+        quad,
+        cube,
+        built,
+        scratch,
     }
 }
 
@@ -311,18 +341,6 @@ pub fn trace(
         hitbox_hits: hitbox_hits.read(0, counters).unwrap(),
     };
     (tlas, outcome)
-}
-
-/// Deterministic pseudo-random numbers in [0, 1).
-pub struct Lcg(pub u64);
-impl Lcg {
-    pub fn next(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
 }
 
 /// Compares GPU hits with the CPU reference; returns how many rays were

@@ -1,0 +1,138 @@
+//! The Manager's side of the closed-loop thresholds ([`crate::controller`]):
+//! what it measures each frame and how the controller's scale reaches
+//! Algorithm 2.
+//!
+//! * [`Manager::process_feedback`] (CPU backends) takes an
+//!   [`EscapeSample`] from the hit counters before Algorithm 2 adds the
+//!   instance hits to the hitboxes; a GPU backend that reads back its
+//!   counting-box hits hands one in with [`Manager::observe_escape`].
+//! * [`Manager::plan`] feeds the controller once per frame, after the
+//!   scheduler planned, with the memory and the newest escape sample, and
+//!   sets the scaled thresholds in the command loop's configuration, which
+//!   the CPU's Algorithm 2 uses and a GPU backend uploads when it records
+//!   the frame.
+
+use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
+use crate::hitbox_index::HitboxIndex;
+use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
+use crate::thresholds::Thresholds;
+
+use super::{Manager, ManagerError};
+
+/// The controller of a configuration, checked against the thresholds it
+/// scales: `None` without a target.
+pub(super) fn controller_of(
+    target: Option<ControlTarget>,
+    config: ControllerConfig,
+    base: &Thresholds,
+) -> Result<Option<ThresholdController>, ManagerError> {
+    let Some(target) = target else {
+        return Ok(None);
+    };
+    let c = ThresholdController::new(target, config).map_err(|e| ManagerError::InvalidConfig {
+        what: format!("target: {e}"),
+    })?;
+    for s in [config.min_scale, config.max_scale] {
+        base.scaled(s).map_err(|e| ManagerError::InvalidConfig {
+            what: format!("controller: the thresholds scaled by {s} are invalid: {e}"),
+        })?;
+    }
+    Ok(Some(c))
+}
+
+/// This frame's counted hits: counting boxes (the hitboxes' counts before
+/// Algorithm 2 adds instance hits, and omitted instances' counts) and
+/// traced instances.
+pub(super) fn escape_sample(
+    records: &[InstanceRecord],
+    instance_hits: &[u32],
+    hitboxes: &[HitboxRecord],
+) -> EscapeSample {
+    let mut boxes: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced = 0u64;
+    for (r, &h) in records.iter().zip(instance_hits) {
+        if !r.is_alive() {
+            continue;
+        }
+        match r.state() {
+            InstanceState::Omitted => boxes += u64::from(h),
+            _ => traced += u64::from(h),
+        }
+    }
+    EscapeSample {
+        box_hits: boxes,
+        total_hits: boxes + traced,
+    }
+}
+
+impl<H: HitboxIndex> Manager<H> {
+    /// The bytes a [`ControlTarget::MemoryBudget`] holds: BLASes (shared,
+    /// unique, compacted; not those waiting to be freed), TLAS records of
+    /// the last [`Manager::assemble`] (without one, a GPU backend's table:
+    /// every slot plus every hitbox) times
+    /// [`ControllerConfig::tlas_record_bytes`], hitbox records and hit
+    /// counters.
+    pub fn controlled_bytes(&self) -> u64 {
+        let per_record = self
+            .controller
+            .as_ref()
+            .map_or(ControllerConfig::default().tlas_record_bytes, |c| {
+                c.config().tlas_record_bytes
+            });
+        let reg = self.culling.registry();
+        let slots = u64::from(reg.slot_count());
+        let hitboxes = self.culling.hitboxes().len() as u64;
+        let records = self.tlas_records.unwrap_or(slots + hitboxes);
+        self.scheduler
+            .stats()
+            .cache
+            .live_bytes()
+            .saturating_add(records.saturating_mul(per_record))
+            .saturating_add(hitboxes * std::mem::size_of::<HitboxRecord>() as u64)
+            .saturating_add(slots * 4)
+    }
+
+    /// For GPU backends that read back their counting-box hits: this
+    /// frame's [`EscapeSample`] for a [`ControlTarget::EscapeFraction`]
+    /// (CPU backends get it from [`Manager::process_feedback`]). The newest
+    /// sample is used by the next [`Manager::plan`].
+    pub fn observe_escape(&mut self, sample: EscapeSample) {
+        self.escape = Some(sample);
+        self.escape_fresh = true;
+    }
+
+    /// The thresholds Algorithm 2 runs with now: the configured ones scaled
+    /// by the controller ([`crate::ManagerStats::controller`]), or the
+    /// configured ones without a target.
+    pub fn thresholds(&self) -> Thresholds {
+        self.culling.config().thresholds
+    }
+
+    /// Step 5 of [`Manager::plan`]: feeds the controller and applies its
+    /// scale.
+    pub(super) fn control(&mut self) -> Result<(), ManagerError> {
+        let memory = if matches!(
+            self.controller.as_ref().map(|c| c.target()),
+            Some(ControlTarget::MemoryBudget { .. })
+        ) {
+            self.controlled_bytes()
+        } else {
+            0
+        };
+        let escape = self
+            .escape
+            .filter(|_| std::mem::take(&mut self.escape_fresh));
+        let Some(c) = self.controller.as_mut() else {
+            return Ok(());
+        };
+        let scale = c.update(memory, escape);
+        let t = self
+            .base_thresholds
+            .scaled(scale)
+            .map_err(|e| ManagerError::Invariant {
+                what: format!("scale {scale} in the checked range gave invalid thresholds: {e}"),
+            })?;
+        self.culling.set_thresholds(t)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,152 @@
+use super::*;
+use crate::strategy::StrategyKind;
+
+#[test]
+fn pareto_front_of_a_hand_made_set() {
+    // (cost, error). By hand: (1,9) cheapest; (2,4) and (5,1) trade
+    // off; (3,4) is dominated by (2,4) (same error, costlier); (6,1)
+    // by (5,1); (4,6) by (2,4); (2,4) twice: equal points are both on
+    // the front; NaN never.
+    let pts = [
+        (1.0, 9.0),
+        (2.0, 4.0),
+        (3.0, 4.0),
+        (5.0, 1.0),
+        (6.0, 1.0),
+        (4.0, 6.0),
+        (2.0, 4.0),
+        (f64::NAN, 0.0),
+        (0.5, f64::NAN),
+    ];
+    assert_eq!(
+        pareto_front(&pts),
+        [true, true, false, true, false, false, true, false, false]
+    );
+    assert!(pareto_front(&[]).is_empty());
+    assert_eq!(pareto_front(&[(3.0, 3.0)]), [true]);
+}
+
+#[test]
+fn variants_follow_the_config_and_drop_duplicates() {
+    let c = SweepConfig {
+        // 9216 rays: ×0.25 and ×0.5 both round to θa = 2, θd = 1.
+        factors: vec![0.25, 0.5, 1.0, 4.0],
+        ..SweepConfig::default()
+    };
+    let (v, skipped) = c.variants().unwrap();
+    assert_eq!(skipped, ["lipac ×0.5"]);
+    let t = |name: &str| {
+        v.iter()
+            .find(|x| x.name == name)
+            .and_then(|x| x.lipac.as_ref())
+            .map(|l| l.thresholds)
+            .unwrap()
+    };
+    // 4 · 9216 / 2073600 · 1000 = 17.8 → 18; · 100 → 1.78 → 2.
+    let t4 = t("lipac ×4");
+    assert_eq!(
+        (t4.theta_a, t4.theta_d, t4.sigma_a, t4.sigma_o),
+        (18, 2, 18, 2)
+    );
+    let t1 = t("lipac ×1");
+    assert_eq!((t1.theta_a, t1.theta_d), (4, 1));
+    assert_eq!(
+        (t("lipac n_a 1 n_d 15").n_a, t("lipac n_a 4 n_d 30").n_d),
+        (1, 30)
+    );
+    let cells: Vec<f64> = v
+        .iter()
+        .filter(|x| x.family == Family::CellSize)
+        .map(|x| x.lipac.as_ref().unwrap().cell_size)
+        .collect();
+    assert_eq!(cells, [16.0, 64.0]);
+    let bad = SweepConfig {
+        factors: vec![0.0],
+        ..SweepConfig::default()
+    };
+    assert!(bad.variants().is_err());
+    let bad = SweepConfig {
+        baselines: vec![StrategyKind::Lipac],
+        ..SweepConfig::default()
+    };
+    assert!(bad.variants().is_err());
+}
+
+fn point(
+    scene: &str,
+    name: &str,
+    strategy: &str,
+    frame_ms: f64,
+    gpu_ms: f64,
+    error: f64,
+) -> SweepPoint {
+    SweepPoint {
+        scene: scene.into(),
+        name: name.into(),
+        family: Family::Baseline,
+        strategy: strategy.into(),
+        factor: None,
+        cell_size: None,
+        thresholds: None,
+        latency: None,
+        summary: crate::metrics::Summary {
+            mean_frame_ms: frame_ms,
+            mean_gpu_frame_ms: gpu_ms,
+            mean_error: error,
+            mean_mib: 1.0,
+            ..Default::default()
+        },
+        builds_per_frame: 1.0,
+        frame_errors: vec![error],
+        front_time: true,
+        front_gpu_time: true,
+        front_memory: true,
+        front_builds: true,
+    }
+}
+
+#[test]
+fn time_fronts_of_a_hand_made_sweep() {
+    // Scene a, (frame ms, GPU ms, error). By hand, frame time: full (40,
+    // error 0) and cheap (10, 0.2) trade off; mid (20, 0.1) too; worse
+    // (30, 0.1) is dominated by mid; the oracle (5, 0) would dominate all
+    // but is never on a front. GPU time ranks them differently: mid's 3.0
+    // is dominated by worse's 1.0 at the same error.
+    let mut r = SweepReport {
+        frames: 1,
+        width: 1,
+        height: 1,
+        rays_per_frame: 1,
+        scenes: ["a", "b"]
+            .map(|n| SweepScene {
+                name: n.into(),
+                instances: 1,
+                ground_truth_ms: 0.0,
+                traced_rays_per_frame: 0.0,
+                wall_s: 0.0,
+            })
+            .to_vec(),
+        points: vec![
+            point("a", "full", "full", 40.0, 9.0, 0.0),
+            point("a", "cheap", "lipac", 10.0, 0.5, 0.2),
+            point("a", "mid", "lipac", 20.0, 3.0, 0.1),
+            point("a", "worse", "lipac", 30.0, 1.0, 0.1),
+            point("a", "oracle", "oracle", 5.0, 0.1, 0.0),
+            // Scene b is its own front: its one point is on it although
+            // scene a's cheap point would dominate it.
+            point("b", "mid", "lipac", 50.0, 5.0, 0.3),
+        ],
+        skipped: vec![],
+        wall_s: 0.0,
+    };
+    mark_fronts(&mut r);
+    let on = |f: fn(&SweepPoint) -> bool| -> Vec<bool> { r.points.iter().map(f).collect() };
+    assert_eq!(on(|p| p.front_time), [true, true, true, false, false, true]);
+    assert_eq!(
+        on(|p| p.front_gpu_time),
+        [true, true, false, true, false, true]
+    );
+    // The fronts follow COSTS' order: 0 is frame time, 1 modelled GPU time.
+    assert_eq!(r.points[2].fronts(), [true, false, false, false]);
+    assert!(r.points[2].on_front(0) && !r.points[2].on_front(1) && !r.points[2].on_front(9));
+}

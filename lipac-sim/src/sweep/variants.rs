@@ -1,0 +1,280 @@
+//! The configurations a sweep runs ([`Variant`]s of a [`SweepConfig`]):
+//! the baselines, LiPaC with scaled thresholds ([`scaled_thresholds`]),
+//! with latency mitigation, with other cell sizes and streak lengths.
+
+use lipac_core::latency::ActivationHeuristic;
+use lipac_core::thresholds::Thresholds;
+use serde::{Deserialize, Serialize};
+
+use crate::compare::{make_strategy, Contender, SceneChoice};
+use crate::error::SimError;
+use crate::scene::Scene;
+use crate::strategy::lipac::{Lipac, LipacConfig};
+use crate::strategy::StrategyKind;
+
+/// What a variant varies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Family {
+    /// A baseline strategy (full, frustum, heuristic, oracle).
+    Baseline,
+    /// LiPaC with its thresholds scaled by a factor.
+    Thresholds,
+    /// LiPaC with latency mitigation.
+    Latency,
+    /// LiPaC with another hitbox cell size.
+    CellSize,
+    /// LiPaC with other streak lengths n_a / n_d.
+    Streaks,
+}
+
+impl Family {
+    /// Name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Baseline => "baseline",
+            Self::Thresholds => "thresholds",
+            Self::Latency => "latency",
+            Self::CellSize => "cell size",
+            Self::Streaks => "streaks",
+        }
+    }
+}
+
+/// One configuration of a sweep.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Variant {
+    /// Report name (unique).
+    pub name: String,
+    /// What it varies.
+    pub family: Family,
+    /// The strategy.
+    pub kind: StrategyKind,
+    /// LiPaC's settings (`None` for the baselines).
+    pub lipac: Option<LipacConfig>,
+    /// Threshold factor (LiPaC variants).
+    pub factor: Option<f64>,
+}
+
+/// Settings of a sweep.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SweepConfig {
+    /// Scenes, each with its fly-through.
+    pub scenes: Vec<SceneChoice>,
+    /// Scene seed (`None`: each scene's own).
+    pub seed: Option<u64>,
+    /// Frames per scene (`None`: the whole fly-through).
+    pub frames: Option<u32>,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Baseline strategies.
+    pub baselines: Vec<StrategyKind>,
+    /// Threshold factors of plain LiPaC (default cells, n_a = 4, n_d = 15).
+    pub factors: Vec<f64>,
+    /// Latency-mitigation heuristics, each run as LiPaC + latency
+    /// mitigation at factor 1.
+    pub latency: Vec<ActivationHeuristic>,
+    /// Further hitbox cell sizes (metres), at factor 1.
+    pub cell_sizes: Vec<f64>,
+    /// Further `(n_a, n_d)` streak lengths, at factor 1.
+    pub streaks: Vec<(u32, u32)>,
+    /// Render threads (0 = all cores).
+    pub threads: usize,
+}
+
+impl Default for SweepConfig {
+    /// City and mirror scenes, the whole fly-through at 128 x 72; full,
+    /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
+    /// mitigation with the default heuristic and a wider one (100 m, 0.05);
+    /// 16 m (the paper's) and 64 m cells besides the default 32 m;
+    /// `(n_a, n_d)` = (1, 15) and (4, 30).
+    fn default() -> Self {
+        Self {
+            scenes: vec![SceneChoice::City, SceneChoice::Mirror],
+            seed: None,
+            frames: None,
+            width: 128,
+            height: 72,
+            baselines: vec![
+                StrategyKind::Full,
+                StrategyKind::Frustum,
+                StrategyKind::Heuristic,
+                StrategyKind::Oracle,
+            ],
+            factors: vec![0.5, 1.0, 2.0, 4.0],
+            latency: vec![
+                ActivationHeuristic::default(),
+                ActivationHeuristic {
+                    max_distance: 100.0,
+                    min_projected_size: 0.05,
+                },
+            ],
+            cell_sizes: vec![16.0, 64.0],
+            streaks: vec![(1, 15), (4, 30)],
+            threads: 0,
+        }
+    }
+}
+
+/// LiPaC's thresholds for `rays_per_frame` camera rays scaled by `factor`
+/// (see the module docs).
+///
+/// ```
+/// use lipac_sim::sweep::scaled_thresholds;
+/// let t = scaled_thresholds(1920 * 1080, 0.5).unwrap();
+/// assert_eq!((t.theta_a, t.theta_d, t.sigma_a, t.sigma_o), (500, 50, 500, 50));
+/// assert!(scaled_thresholds(9216, f64::NAN).is_err());
+/// ```
+pub fn scaled_thresholds(rays_per_frame: u64, factor: f64) -> Result<Thresholds, SimError> {
+    if !factor.is_finite() || factor <= 0.0 {
+        return Err(SimError::BadConfig(
+            "threshold factors must be finite and positive",
+        ));
+    }
+    Thresholds::for_rays_per_frame(rays_per_frame as f64 * factor).map_err(SimError::core)
+}
+
+fn fmt_factor(f: f64) -> String {
+    format!("×{f}")
+}
+
+impl SweepConfig {
+    /// Camera rays per frame.
+    pub fn rays_per_frame(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height)
+    }
+
+    /// The variants, in report order, and the names of variants dropped as
+    /// duplicates of an earlier one (same strategy, same settings).
+    pub fn variants(&self) -> Result<(Vec<Variant>, Vec<String>), SimError> {
+        let rays = self.rays_per_frame();
+        if rays == 0 {
+            return Err(SimError::BadConfig("image size must be positive"));
+        }
+        let base = LipacConfig::for_rays_per_frame(rays)?;
+        let mut all = Vec::new();
+        for &k in &self.baselines {
+            if matches!(k, StrategyKind::Lipac | StrategyKind::LipacLatency) {
+                return Err(SimError::BadConfig(
+                    "LiPaC is swept by factors, not as a baseline",
+                ));
+            }
+            all.push(Variant {
+                name: k.name().to_string(),
+                family: Family::Baseline,
+                kind: k,
+                lipac: None,
+                factor: None,
+            });
+        }
+        let lipac = |name: String, family, kind, config: LipacConfig, factor| Variant {
+            name,
+            family,
+            kind,
+            lipac: Some(config),
+            factor: Some(factor),
+        };
+        for &f in &self.factors {
+            let c = LipacConfig {
+                thresholds: scaled_thresholds(rays, f)?,
+                ..base.clone()
+            };
+            all.push(lipac(
+                format!("lipac {}", fmt_factor(f)),
+                Family::Thresholds,
+                StrategyKind::Lipac,
+                c,
+                f,
+            ));
+        }
+        for (i, h) in self.latency.iter().enumerate() {
+            let c = LipacConfig {
+                latency: Some(*h),
+                ..base.clone()
+            };
+            let name = if i == 0 && *h == ActivationHeuristic::default() {
+                "lipac-latency".to_string()
+            } else {
+                format!(
+                    "lipac-latency {} m / {}",
+                    h.max_distance, h.min_projected_size
+                )
+            };
+            all.push(lipac(
+                name,
+                Family::Latency,
+                StrategyKind::LipacLatency,
+                c,
+                1.0,
+            ));
+        }
+        for &cell in &self.cell_sizes {
+            if !cell.is_finite() || cell <= 0.0 {
+                return Err(SimError::BadConfig(
+                    "cell sizes must be finite and positive",
+                ));
+            }
+            let c = LipacConfig {
+                cell_size: cell,
+                ..base.clone()
+            };
+            all.push(lipac(
+                format!("lipac {cell} m cells"),
+                Family::CellSize,
+                StrategyKind::Lipac,
+                c,
+                1.0,
+            ));
+        }
+        for &(n_a, n_d) in &self.streaks {
+            let thresholds = Thresholds {
+                n_a,
+                n_d,
+                ..base.thresholds
+            };
+            thresholds.validate().map_err(SimError::core)?;
+            let c = LipacConfig {
+                thresholds,
+                ..base.clone()
+            };
+            all.push(lipac(
+                format!("lipac n_a {n_a} n_d {n_d}"),
+                Family::Streaks,
+                StrategyKind::Lipac,
+                c,
+                1.0,
+            ));
+        }
+        let mut kept: Vec<Variant> = Vec::new();
+        let mut skipped = Vec::new();
+        for v in all {
+            if kept.iter().any(|k| k.kind == v.kind && k.lipac == v.lipac) {
+                skipped.push(v.name);
+            } else if kept.iter().any(|k| k.name == v.name) {
+                return Err(SimError::BadConfig("two sweep variants share a name"));
+            } else {
+                kept.push(v);
+            }
+        }
+        if kept.is_empty() {
+            return Err(SimError::BadConfig("nothing to sweep"));
+        }
+        Ok((kept, skipped))
+    }
+}
+
+pub(super) fn make_contender(
+    v: &Variant,
+    scene: &Scene,
+    base: &LipacConfig,
+) -> Result<Contender, SimError> {
+    let strategy = match &v.lipac {
+        Some(c) => Box::new(Lipac::new(scene, c.clone())?) as _,
+        None => make_strategy(v.kind, scene, base)?,
+    };
+    Ok(Contender {
+        name: v.name.clone(),
+        strategy,
+    })
+}
