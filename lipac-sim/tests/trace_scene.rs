@@ -255,8 +255,8 @@ fn a_foreign_trace_replays_with_the_error_reported() {
     let full = rep.strategy("full").unwrap();
     assert!(full.frames.iter().all(|m| m.error == 0.0));
     // The oracle traces exactly the instances the ground truth's bounce
-    // rays hit: the same images (ties between the coplanar faces of the
-    // ground and the houses go to the same instance in both TLASes).
+    // rays hit: the same images, exactly (a tie between two instances at
+    // the same distance goes to the lower slot in both TLASes).
     let oracle = rep.strategy("oracle").unwrap();
     assert!(
         oracle.frames.iter().all(|m| m.error == 0.0),
