@@ -206,6 +206,13 @@ impl<H: HitboxIndex> CpuBackend<H> {
         &self.manager
     }
 
+    /// The Manager, e.g. to attach a trace recorder
+    /// ([`Manager::attach_recorder`]) and pass it the camera. Driving its
+    /// frame (begin, plan, feedback) directly bypasses this backend.
+    pub fn manager_mut(&mut self) -> &mut Manager<H> {
+        &mut self.manager
+    }
+
     // ---- instances ------------------------------------------------------
 
     /// Reserves room for `additional` more instances.

@@ -5,9 +5,9 @@
 //!
 //! 1. The hits recorded with frame `f − 1` are LiPaC's feedback
 //!    (Algorithm 2): an instance that is in the TLAS as geometry or as an
-//!    omitted box (active or omitted) gets its own hits; an inactive one has
-//!    only its hitbox's counting box in the TLAS, so its hits count for its
-//!    hitbox. Commands go through the read-back ring as in
+//!    omitted box (active or omitted, in an active hitbox) gets its own
+//!    hits; an inactive one, or one in an inactive hitbox, has only its
+//!    hitbox's counting box in the TLAS, so its hits count for its hitbox. Commands go through the read-back ring as in
 //!    [`crate::strategy::lipac`].
 //! 2. The frame's events: `add` registers, `update` moves (or re-describes),
 //!    `remove` removes (the BLAS is released).
@@ -688,8 +688,18 @@ impl LipacReplay {
             };
             let reg = self.backend.instance(h)?.slot;
             let record = self.backend.record(h)?;
-            if record.state() == InstanceState::Inactive {
-                if let Some(b) = self.backend.hitboxes_mut().get_mut(record.hitbox as usize) {
+            // Reduced into its hitbox's counting box (Algorithm 1): not
+            // pinned, and inactive or in an inactive hitbox.
+            let b = record.hitbox as usize;
+            let culled = !record.is_pinned()
+                && (record.state() == InstanceState::Inactive
+                    || self
+                        .backend
+                        .hitboxes()
+                        .get(b)
+                        .is_some_and(|hb| !hb.is_active()));
+            if culled {
+                if let Some(b) = self.backend.hitboxes_mut().get_mut(b) {
                     b.add_hits(n);
                 }
             } else if let Some(c) = self.backend.instance_hits_mut().get_mut(reg as usize) {
@@ -712,7 +722,11 @@ impl LipacReplay {
         let mut slots = Vec::new();
         for r in &self.records {
             let reg = r.custom_index();
-            if geometry.contains(reg) {
+            // A counting box's custom index is a hitbox's (or its omitted
+            // instance's) index, not a traced slot, even where it equals one.
+            let is_box = r.sbt_offset() == counting.instance_box_sbt
+                || r.sbt_offset() == counting.hitbox_box_sbt;
+            if !is_box && geometry.contains(reg) {
                 if let Some(&s) = self.dense.get(reg as usize) {
                     if s != u32::MAX {
                         slots.push(s);
