@@ -82,24 +82,32 @@ impl LipacConfig {
     /// docs/EVALUATION.md, "The decayed rule".
     pub const DEFAULT_DECAYED: DecayedSettings = DecayedSettings {
         half_life_frames: 5.0,
-        activate: 300.0,
-        deactivate: 60.0,
-        instance_activate: 300.0,
-        instance_omit: 60.0,
+        activate: 150.0,
+        deactivate: 30.0,
+        instance_activate: 150.0,
+        instance_omit: 30.0,
         per_shared: 0.0,
         per_unique: 0.0,
     };
 
-    /// Paper settings for `rays_per_frame` camera rays: scaled thresholds,
+    /// Settings for `rays_per_frame` camera rays: the paper's thresholds
+    /// scaled to the rays, deciding with the decayed rule
+    /// [`Self::DEFAULT_DECAYED`] ([`Self::with_paper_rule`] for the paper's),
     /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, 4096 commands per frame,
     /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
     /// no compaction copies (lavapipe's compaction gains nothing,
     /// [`crate::memory`]), and builds ordered by waiting time alone
     /// ([`Self::age_only_priority`]).
     pub fn for_rays_per_frame(rays_per_frame: u64) -> Result<Self, SimError> {
+        let rays = rays_per_frame as f64;
+        let rule = Self::DEFAULT_DECAYED
+            .rule_for_rays_per_frame(rays)
+            .map_err(SimError::core)?;
+        let thresholds = Thresholds::for_rays_per_frame(rays)
+            .map_err(SimError::core)?
+            .with_rule(DecisionRule::Decayed(rule));
         Ok(Self {
-            thresholds: Thresholds::for_rays_per_frame(rays_per_frame as f64)
-                .map_err(SimError::core)?,
+            thresholds,
             cell_size: Self::DEFAULT_CELL_SIZE,
             latency: None,
             command_budget: 4096,

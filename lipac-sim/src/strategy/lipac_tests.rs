@@ -6,15 +6,13 @@ use lipac_core::thresholds::RATE_ONE;
 #[test]
 fn decayed_rule_is_scaled_to_the_rays_and_bad_settings_are_errors() {
     let rays = 128 * 72;
-    let c = LipacConfig::for_rays_per_frame(rays)
-        .unwrap()
-        .with_decayed_rule(&LipacConfig::DEFAULT_DECAYED, rays)
-        .unwrap();
+    // The default decides with the decayed rule.
+    let c = LipacConfig::for_rays_per_frame(rays).unwrap();
     let DecisionRule::Decayed(r) = c.thresholds.rule else {
         panic!("decayed rule expected");
     };
-    // 300 hits per frame at 1080p is 300 · 9216 / 2073600 = 1.33 here.
-    let expect = (300.0 * 9216.0 / 2_073_600.0 * f64::from(RATE_ONE)).round() as u32;
+    // 150 hits per frame at 1080p is 150 · 9216 / 2073600 = 0.67 here.
+    let expect = (150.0 * 9216.0 / 2_073_600.0 * f64::from(RATE_ONE)).round() as u32;
     assert_eq!(r.activate, expect);
     assert!(c.thresholds.validate().is_ok());
     assert_eq!(
