@@ -1029,5 +1029,4 @@ fn saturate(x: u128) -> u64 {
 }
 
 #[cfg(test)]
-#[path = "blas_cache_tests.rs"]
 mod tests;

@@ -1119,5 +1119,4 @@ impl BuildScheduler {
 }
 
 #[cfg(test)]
-#[path = "build_plan_tests.rs"]
 mod tests;

@@ -595,7 +595,11 @@ impl LipacReplay {
         })
     }
 
-    fn new(grid: WorldHitboxes, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
+    fn new(
+        grid: WorldHitboxes,
+        config: &LipacConfig,
+        catalog: MeshCatalog,
+    ) -> Result<Self, SimError> {
         Ok(Self {
             backend: CpuBackend::new(grid, config, catalog)?,
             baseline: false,

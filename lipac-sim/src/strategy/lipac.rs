@@ -361,5 +361,4 @@ impl Strategy for Lipac {
 }
 
 #[cfg(test)]
-#[path = "lipac_tests.rs"]
 mod tests;

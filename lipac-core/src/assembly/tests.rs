@@ -1,0 +1,416 @@
+use super::*;
+use crate::layout::{hitbox_bits, instance_bits};
+use glam::Vec2;
+
+/// A row of `n` cells of `size` along x, spanning z in [0, size).
+pub(crate) struct Row {
+    pub n: u32,
+    pub size: f32,
+    pub origin: f32,
+}
+
+impl HitboxIndex for Row {
+    fn len(&self) -> u32 {
+        self.n
+    }
+    fn hitbox_at(&self, p: Vec3) -> Option<u32> {
+        let i = ((p.x - self.origin) / self.size).floor();
+        (i >= 0.0 && i < self.n as f32).then_some(i as u32)
+    }
+    fn xz_bounds(&self, i: u32) -> Option<(Vec2, Vec2)> {
+        (i < self.n).then(|| {
+            let x0 = self.origin + i as f32 * self.size;
+            (Vec2::new(x0, 0.0), Vec2::new(x0 + self.size, self.size))
+        })
+    }
+}
+
+const CUBE: u64 = 0xC0BE;
+
+fn cfg() -> AssemblyConfig {
+    AssemblyConfig {
+        unit_cube_blas: CUBE,
+        counting_mask: 0x40,
+        omitted_box_sbt_offset: 5,
+        hitbox_sbt_offset: 6,
+        min_box_extent: 0.01,
+    }
+}
+
+fn inst(state: InstanceState, hitbox: u32, min: [f32; 3], max: [f32; 3]) -> InstanceRecord {
+    let mut r = InstanceRecord {
+        transform: [
+            1.0, 0.0, 0.0, min[0], 0.0, 1.0, 0.0, min[1], 0.0, 0.0, 1.0, min[2],
+        ],
+        aabb_min: min,
+        aabb_max: max,
+        hitbox,
+        packed: instance_bits::ALIVE
+            | (0x0F << instance_bits::MASK_SHIFT)
+            | (u32::from(crate::layout::VK_INSTANCE_FLIP_FACING) << instance_bits::VK_FLAGS_SHIFT),
+        blas: 0,
+        sbt_offset: 3,
+        lod: 0,
+    };
+    r.set_state(state);
+    r
+}
+
+fn active_hitbox() -> HitboxRecord {
+    HitboxRecord {
+        packed: hitbox_bits::ACTIVE,
+        ..Default::default()
+    }
+}
+
+/// Transforms the unit cube's corners as the hardware would (f32, row-major).
+fn cube_bounds(m: &[f32; 12]) -> (Vec3, Vec3) {
+    let lo = Vec3::new(m[3], m[7], m[11]);
+    let hi = Vec3::new(m[0] + m[3], m[5] + m[7], m[10] + m[11]);
+    (lo, hi)
+}
+
+fn run(
+    instances: &[InstanceRecord],
+    hitboxes: &mut [HitboxRecord],
+) -> (AssemblyStats, Vec<TlasInstance>) {
+    let index = Row {
+        n: hitboxes.len() as u32,
+        size: 16.0,
+        origin: 0.0,
+    };
+    let mut out = vec![TlasInstance::default(); 3]; // stale content must be cleared
+    let stats = assemble_tlas(instances, hitboxes, &index, &cfg(), &mut out).unwrap();
+    (stats, out)
+}
+
+#[test]
+fn active_with_blas_is_emitted_with_its_own_fields() {
+    let mut m = inst(InstanceState::Active, 0, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    m.blas = 0xABCD;
+    let mut hb = [active_hitbox()];
+    let (stats, out) = run(&[InstanceRecord::default(), m], &mut hb);
+    assert_eq!(stats.active, 1);
+    assert_eq!(
+        out,
+        vec![TlasInstance::new(
+            m.transform,
+            1,
+            0x0F,
+            3,
+            crate::layout::VK_INSTANCE_FLIP_FACING,
+            0xABCD
+        )]
+    );
+}
+
+#[test]
+fn active_without_blas_is_left_out_and_counted() {
+    let m = inst(InstanceState::Active, 0, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    let mut hb = [active_hitbox()];
+    let (stats, out) = run(&[m], &mut hb);
+    assert_eq!((stats.active, stats.active_without_blas), (0, 1));
+    assert!(out.is_empty());
+    // It does not feed the hitbox's height range either.
+    assert!(hb[0].min_y > hb[0].max_y);
+}
+
+#[test]
+fn omitted_becomes_counting_box_over_its_aabb() {
+    let m = inst(InstanceState::Omitted, 0, [1.0, -2.0, 3.0], [4.0, 5.0, 3.5]);
+    let mut hb = [active_hitbox()];
+    let (stats, out) = run(&[m, m], &mut hb);
+    assert_eq!(stats.omitted_boxes, 2);
+    assert_eq!(out.len(), 2);
+    let r = out[1];
+    assert_eq!(r.custom_index(), 1);
+    assert_eq!(r.mask(), 0x40);
+    assert_eq!(r.sbt_offset(), 5);
+    assert_eq!(
+        r.flags(),
+        VK_INSTANCE_FORCE_OPAQUE | VK_INSTANCE_CULL_DISABLE
+    );
+    assert_eq!(r.acceleration_structure_reference, CUBE);
+    let (lo, hi) = cube_bounds(&r.transform);
+    assert_eq!(lo, Vec3::new(1.0, -2.0, 3.0));
+    assert_eq!(hi, Vec3::new(4.0, 5.0, 3.5)); // exactly representable: no growth
+}
+
+#[test]
+fn inactive_instances_reduce_their_hitbox_height() {
+    let a = inst(
+        InstanceState::Inactive,
+        1,
+        [17.0, 2.0, 1.0],
+        [18.0, 3.0, 2.0],
+    );
+    let b = inst(
+        InstanceState::Inactive,
+        1,
+        [20.0, -1.0, 1.0],
+        [21.0, 2.5, 2.0],
+    );
+    let c = inst(InstanceState::Inactive, 0, [1.0, 7.0, 1.0], [2.0, 9.0, 2.0]);
+    // Stale heights from last frame must not survive.
+    let mut hb = [HitboxRecord {
+        min_y: -100.0,
+        max_y: 100.0,
+        packed: 0,
+        rate: 0,
+        cost: 0x0303_0303,
+    }; 3];
+    hb[2].packed = hitbox_bits::ACTIVE;
+    let (stats, out) = run(&[a, b, c], &mut hb);
+    assert_eq!(stats.inactive, 3);
+    // The cost words are rebuilt: one shared-BLAS inactive instance in
+    // hitbox 0, two in 1, none in 2.
+    assert_eq!(hb.map(|h| h.cost), [1, 2, 0]);
+    assert_eq!((hb[1].inactive_shared(), hb[1].inactive_unique()), (2, 0));
+    assert_eq!((hb[0].min_y, hb[0].max_y), (7.0, 9.0));
+    assert_eq!((hb[1].min_y, hb[1].max_y), (-1.0, 3.0));
+    assert!(hb[2].min_y > hb[2].max_y);
+    assert!(out
+        .iter()
+        .all(|r| r.acceleration_structure_reference == CUBE));
+}
+
+#[test]
+fn inactive_hitbox_gets_box_over_cell_and_height() {
+    let a = inst(
+        InstanceState::Inactive,
+        1,
+        [17.0, 2.0, 1.0],
+        [18.0, 3.0, 2.0],
+    );
+    let b = inst(
+        InstanceState::Inactive,
+        1,
+        [20.0, -1.0, 1.0],
+        [21.0, 2.5, 2.0],
+    );
+    let mut hb = [HitboxRecord::default(); 2];
+    let (stats, out) = run(&[a, b], &mut hb);
+    assert_eq!((stats.hitbox_boxes, stats.flat_hitbox_boxes), (1, 0));
+    assert_eq!(out.len(), 1, "hitbox 0 has no inactive instance: no box");
+    let r = out[0];
+    assert_eq!((r.custom_index(), r.mask(), r.sbt_offset()), (1, 0x40, 6));
+    assert_eq!(r.flags(), COUNTING_BOX_FLAGS);
+    let (lo, hi) = cube_bounds(&r.transform);
+    assert_eq!(lo, Vec3::new(16.0, -1.0, 0.0));
+    assert_eq!(hi, Vec3::new(32.0, 3.0, 16.0));
+}
+
+#[test]
+fn active_hitbox_gets_no_box() {
+    let a = inst(InstanceState::Inactive, 0, [1.0, 2.0, 1.0], [2.0, 3.0, 2.0]);
+    let mut hb = [active_hitbox()];
+    let (stats, out) = run(&[a], &mut hb);
+    assert_eq!(stats.inactive, 1);
+    assert_eq!(stats.hitbox_boxes, 0);
+    assert!(out.is_empty());
+    // The reduction still ran (the GPU does not look at the hitbox state there).
+    assert_eq!((hb[0].min_y, hb[0].max_y), (2.0, 3.0));
+}
+
+#[test]
+fn active_and_omitted_in_inactive_hitbox_fold_into_its_box() {
+    let mut a = inst(InstanceState::Active, 0, [1.0, 1.0, 1.0], [2.0, 6.0, 2.0]);
+    a.blas = 0xABCD;
+    let o = inst(InstanceState::Omitted, 0, [3.0, -2.0, 1.0], [4.0, 0.0, 2.0]);
+    let mut b = inst(InstanceState::Active, 1, [17.0, 0.0, 1.0], [18.0, 1.0, 2.0]);
+    b.blas = 0xBEEF;
+    let mut hb = [HitboxRecord::default(), active_hitbox()];
+    let (stats, out) = run(&[a, o, b], &mut hb);
+    assert_eq!((stats.in_inactive_hitbox, stats.inactive), (2, 2));
+    assert_eq!(
+        (stats.active, stats.omitted_boxes, stats.hitbox_boxes),
+        (1, 0, 1)
+    );
+    // Only b's own record and hitbox 0's box, which spans both folded instances.
+    assert_eq!(out.len(), 2);
+    assert_eq!(out[0].acceleration_structure_reference, 0xBEEF);
+    assert_eq!((out[1].custom_index(), out[1].sbt_offset()), (0, 6));
+    assert_eq!((hb[0].min_y, hb[0].max_y), (-2.0, 6.0));
+}
+
+#[test]
+fn pinned_is_traced_whatever_its_state_and_hitbox() {
+    let pinned = |state| {
+        let mut m = inst(state, 0, [1.0, 0.0, 1.0], [2.0, 9.0, 2.0]);
+        m.packed |= instance_bits::PINNED;
+        m.blas = 0xABCD;
+        m
+    };
+    let mut no_blas = pinned(InstanceState::Inactive);
+    no_blas.blas = 0;
+    let other = inst(InstanceState::Inactive, 0, [3.0, 1.0, 1.0], [4.0, 2.0, 2.0]);
+    let mut hb = [HitboxRecord::default()]; // inactive
+    let instances = [
+        pinned(InstanceState::Active),
+        pinned(InstanceState::Omitted),
+        pinned(InstanceState::Inactive),
+        no_blas,
+        other,
+    ];
+    let (stats, out) = run(&instances, &mut hb);
+    assert_eq!((stats.active, stats.active_without_blas), (3, 1));
+    assert_eq!((stats.omitted_boxes, stats.in_inactive_hitbox), (0, 0));
+    assert_eq!((stats.inactive, stats.hitbox_boxes), (1, 1));
+    // Own records for slots 0..3, then the hitbox's box over `other` only.
+    let own: Vec<u32> = out[..3].iter().map(TlasInstance::custom_index).collect();
+    assert_eq!(own, vec![0, 1, 2]);
+    assert!(out[..3]
+        .iter()
+        .all(|r| r.acceleration_structure_reference == 0xABCD));
+    assert_eq!(out[3].acceleration_structure_reference, CUBE);
+    assert_eq!((hb[0].min_y, hb[0].max_y), (1.0, 2.0));
+}
+
+#[test]
+fn flat_hitbox_still_gets_a_padded_box() {
+    let a = inst(InstanceState::Inactive, 0, [1.0, 4.0, 1.0], [2.0, 4.0, 2.0]);
+    let mut hb = [HitboxRecord::default()];
+    let (stats, out) = run(&[a], &mut hb);
+    assert_eq!((stats.hitbox_boxes, stats.flat_hitbox_boxes), (1, 1));
+    let (lo, hi) = cube_bounds(&out[0].transform);
+    assert!(lo.y < 4.0 && hi.y > 4.0);
+    assert!((hi.y - lo.y - cfg().min_box_extent).abs() < 1e-5);
+}
+
+#[test]
+fn dead_slots_are_skipped() {
+    let mut dead = inst(InstanceState::Active, 0, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    dead.blas = 99;
+    dead.packed &= !instance_bits::ALIVE;
+    let mut dead_inactive = inst(InstanceState::Inactive, 0, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    dead_inactive.packed &= !instance_bits::ALIVE;
+    let mut hb = [HitboxRecord::default()];
+    let (stats, out) = run(&[dead, dead_inactive], &mut hb);
+    assert_eq!(stats, AssemblyStats::default());
+    assert!(out.is_empty());
+    assert!(hb[0].min_y > hb[0].max_y);
+}
+
+#[test]
+fn frame_reset_clears_hits_keeps_state() {
+    let mut hb = [HitboxRecord {
+        min_y: 1.0,
+        max_y: 2.0,
+        packed: hitbox_bits::ACTIVE | (5 << 1),
+        rate: 0xDEAD,
+        cost: 77,
+    }];
+    hb[0].add_hits(1234);
+    begin_frame(&mut hb);
+    assert_eq!(hb[0].hits(), 0);
+    assert_eq!(
+        (hb[0].rate, hb[0].cost),
+        (0xDEAD, 0),
+        "rate kept, cost reset"
+    );
+    assert!(hb[0].is_active());
+    assert_eq!(hb[0].streak(), 5);
+    assert_eq!(
+        (hb[0].min_y, hb[0].max_y),
+        (f32::INFINITY, f32::NEG_INFINITY)
+    );
+}
+
+#[test]
+fn bad_inputs_are_errors_or_counted() {
+    let mut hb = [HitboxRecord::default()];
+    let index = Row {
+        n: 2,
+        size: 16.0,
+        origin: 0.0,
+    };
+    let mut out = Vec::new();
+    assert!(matches!(
+        assemble_tlas(&[], &mut hb, &index, &cfg(), &mut out),
+        Err(AssemblyError::HitboxCountMismatch {
+            index: 2,
+            records: 1
+        })
+    ));
+    let bad_hitbox = inst(InstanceState::Inactive, 7, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    let nan_box = inst(
+        InstanceState::Omitted,
+        0,
+        [f32::NAN, 0.0, 1.0],
+        [2.0, 1.0, 2.0],
+    );
+    hb[0] = active_hitbox(); // the omitted NaN box is judged, not folded into an inactive hitbox
+    let (stats, out) = run(&[bad_hitbox, nan_box], &mut hb);
+    assert_eq!(stats.invalid_instances, 2);
+    assert!(out.is_empty());
+}
+
+/// Exhaustive-ish containment check of the conservative transform, near
+/// and far (±100 km) from the origin, with awkward non-representable sizes.
+#[test]
+fn unit_cube_transform_contains_target_far_from_origin() {
+    let mut rng = 0x1234_5678_9ABC_DEF0u64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for &centre in &[0.0f64, 1.0, -3.3, 1.0e5, -1.0e5, 99_999.99, -65_536.0] {
+        for _ in 0..2000 {
+            let c = Vec3::new(
+                (centre + next() * 10.0) as f32,
+                (centre * 0.5 + next()) as f32,
+                (-centre + next() * 10.0) as f32,
+            );
+            let size = Vec3::new(
+                (next() * 20.0) as f32,
+                (next() * 0.1) as f32,
+                (next() * 1e-3) as f32,
+            );
+            let min = c;
+            let max = c + size; // rounded in f32: still min <= max
+            let m = unit_cube_transform(min, max, 1e-3).unwrap();
+            let (lo, hi) = cube_bounds(&m);
+            assert!(
+                lo.cmple(min).all() && hi.cmpge(max).all(),
+                "{min} {max} -> {lo} {hi}"
+            );
+            // Never degenerate, and not grossly larger than needed.
+            assert!(hi.cmpgt(lo).all());
+            let slack = (max - min).max(Vec3::splat(1e-3)) * 1.001 + Vec3::splat(0.02);
+            assert!((hi - lo).cmple(slack).all(), "{min} {max} -> {lo} {hi}");
+            // Also with FMA-style evaluation (exact 1·s + t, one rounding).
+            assert_eq!(1.0f32.mul_add(m[0], m[3]), hi.x);
+        }
+    }
+}
+
+#[test]
+fn tiny_extent_far_away_is_at_least_one_step_thick() {
+    let y = 100_000.0f32; // f32 step here is 1/128
+    let m = unit_cube_transform(Vec3::splat(y), Vec3::splat(y), 1e-4).unwrap();
+    let (lo, hi) = cube_bounds(&m);
+    assert!(lo.cmple(Vec3::splat(y)).all() && hi.cmpge(Vec3::splat(y)).all());
+    assert!(hi.cmpgt(lo).all());
+}
+
+#[test]
+fn canonical_sort_makes_order_irrelevant() {
+    let a = inst(InstanceState::Omitted, 0, [1.0, 0.0, 1.0], [2.0, 1.0, 2.0]);
+    let b = inst(
+        InstanceState::Inactive,
+        1,
+        [17.0, 0.0, 1.0],
+        [18.0, 1.0, 2.0],
+    );
+    let mut hb = [active_hitbox(), HitboxRecord::default()];
+    let (_, mut out) = run(&[a, b, a], &mut hb);
+    let mut shuffled = out.clone();
+    shuffled.reverse();
+    shuffled.swap(0, 1);
+    assert_ne!(shuffled, out);
+    sort_canonical(&mut out);
+    sort_canonical(&mut shuffled);
+    assert_eq!(shuffled, out);
+}

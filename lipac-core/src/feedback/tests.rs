@@ -1,0 +1,661 @@
+use super::*;
+use crate::command::CommandQueue;
+
+const TH: Thresholds = Thresholds::paper();
+
+fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+    let mut r = InstanceRecord {
+        hitbox,
+        packed: instance_bits::ALIVE
+            | if unique {
+                instance_bits::UNIQUE_BLAS
+            } else {
+                0
+            },
+        blas: 0xB1A5,
+        ..Default::default()
+    };
+    r.set_state(state);
+    r
+}
+
+fn hitbox(active: bool) -> HitboxRecord {
+    HitboxRecord {
+        packed: u32::from(active),
+        ..Default::default()
+    }
+}
+
+/// One frame: reset hitbox hits, add this frame's counting-box hits,
+/// run Algorithm 2 with a fresh command buffer of `capacity`.
+struct Frame {
+    instances: Vec<InstanceRecord>,
+    hits: Vec<u32>,
+    hitboxes: Vec<HitboxRecord>,
+}
+
+impl Frame {
+    fn new(instances: Vec<InstanceRecord>, hitboxes: Vec<HitboxRecord>) -> Self {
+        Self {
+            hits: vec![0; instances.len()],
+            instances,
+            hitboxes,
+        }
+    }
+
+    fn run(&mut self, box_hits: &[u32], capacity: u32) -> (FeedbackStats, Vec<Command>) {
+        crate::assembly::begin_frame(&mut self.hitboxes);
+        for (h, &n) in self.hitboxes.iter_mut().zip(box_hits) {
+            h.add_hits(n);
+        }
+        let mut buf = CommandBuffer::new(capacity);
+        let stats = process_feedback(
+            &mut self.instances,
+            &self.hits,
+            &mut self.hitboxes,
+            &TH,
+            &mut buf,
+        )
+        .unwrap();
+        let cmds = buf
+            .words()
+            .iter()
+            .map(|&w| Command::decode(w, MAX_SLOTS).unwrap())
+            .collect();
+        (stats, cmds)
+    }
+
+    fn state(&self, slot: usize) -> InstanceState {
+        self.instances[slot].state()
+    }
+}
+
+fn remove(slot: u32, hits: u32) -> Command {
+    Command {
+        slot,
+        kind: CommandKind::Remove,
+        priority: priority_from_hits(hits),
+    }
+}
+
+fn add(slot: u32, hits: u32) -> Command {
+    Command {
+        slot,
+        kind: CommandKind::Add,
+        priority: priority_from_hits(hits),
+    }
+}
+
+#[test]
+fn line_4_active_and_omitted_hits_accumulate_into_hitbox() {
+    let mut f = Frame::new(
+        vec![
+            inst(InstanceState::Active, 0, false),
+            inst(InstanceState::Omitted, 0, true),
+            inst(InstanceState::Inactive, 0, false),
+            inst(InstanceState::Active, 1, false),
+        ],
+        vec![hitbox(true), hitbox(true)],
+    );
+    f.hits = vec![300, 40, 5000, hitbox_bits::HITS_MAX];
+    f.run(&[7, 10], 8);
+    // Box hits + active + omitted; the inactive instance's counter is not added.
+    assert_eq!(f.hitboxes[0].hits(), 7 + 300 + 40);
+    // Saturates instead of wrapping.
+    assert_eq!(f.hitboxes[1].hits(), hitbox_bits::HITS_MAX);
+}
+
+#[test]
+fn line_9_activates_after_n_a_frames_not_before() {
+    let mut f = Frame::new(vec![], vec![hitbox(false)]);
+    for frame in 1..TH.n_a {
+        let (s, _) = f.run(&[TH.theta_a + 1], 0);
+        assert_eq!(s.hitboxes_activated, 0);
+        assert!(!f.hitboxes[0].is_active(), "activated after {frame} frames");
+        assert_eq!(f.hitboxes[0].streak(), frame);
+    }
+    let (s, _) = f.run(&[TH.theta_a + 1], 0);
+    assert_eq!(s.hitboxes_activated, 1);
+    assert!(f.hitboxes[0].is_active());
+    assert_eq!(f.hitboxes[0].streak(), 0);
+}
+
+#[test]
+fn line_9_streak_needs_consecutive_frames() {
+    let mut f = Frame::new(vec![], vec![hitbox(false)]);
+    for _ in 1..TH.n_a {
+        f.run(&[TH.theta_a + 1], 0);
+    }
+    f.run(&[TH.theta_a], 0); // not above θa: run broken
+    assert_eq!(f.hitboxes[0].streak(), 0);
+    f.run(&[TH.theta_a + 1], 0);
+    assert!(!f.hitboxes[0].is_active());
+}
+
+#[test]
+fn line_9_activates_in_one_frame_above_twice_theta_a() {
+    let mut f = Frame::new(vec![], vec![hitbox(false), hitbox(false)]);
+    let (s, _) = f.run(&[2 * TH.theta_a + 1, 2 * TH.theta_a], 0);
+    assert_eq!(s.hitboxes_activated, 1);
+    assert!(f.hitboxes[0].is_active());
+    // Exactly 2·θa is not above it: only a streak of one.
+    assert!(!f.hitboxes[1].is_active());
+    assert_eq!(f.hitboxes[1].streak(), 1);
+}
+
+#[test]
+fn line_11_deactivates_after_n_d_frames_and_a_good_frame_resets() {
+    let mut f = Frame::new(vec![], vec![hitbox(true)]);
+    for _ in 1..TH.n_d {
+        f.run(&[TH.theta_d - 1], 0);
+    }
+    assert!(f.hitboxes[0].is_active());
+    assert_eq!(f.hitboxes[0].streak(), TH.n_d - 1);
+    f.run(&[TH.theta_d], 0); // not below θd
+    assert_eq!(f.hitboxes[0].streak(), 0);
+    for _ in 1..TH.n_d {
+        f.run(&[0], 0);
+    }
+    assert!(f.hitboxes[0].is_active());
+    let (s, _) = f.run(&[0], 0);
+    assert_eq!(s.hitboxes_deactivated, 1);
+    assert!(!f.hitboxes[0].is_active());
+    assert_eq!(f.hitboxes[0].streak(), 0);
+}
+
+#[test]
+fn lines_17_18_active_in_inactive_hitbox_is_removed() {
+    let mut f = Frame::new(
+        vec![inst(InstanceState::Active, 0, false)],
+        vec![hitbox(false)],
+    );
+    f.hits[0] = 3;
+    let (s, cmds) = f.run(&[20], 4);
+    assert_eq!(s.active_to_inactive, 1);
+    assert_eq!(f.state(0), InstanceState::Inactive);
+    // Priority from the hitbox's count (20 box hits + 3 instance hits).
+    assert_eq!(cmds, vec![remove(0, 23)]);
+}
+
+#[test]
+fn lines_19_20_omitted_in_inactive_hitbox_becomes_inactive_silently() {
+    let mut f = Frame::new(
+        vec![inst(InstanceState::Omitted, 0, true)],
+        vec![hitbox(false)],
+    );
+    let (s, cmds) = f.run(&[0], 4);
+    assert_eq!(s.omitted_to_inactive, 1);
+    assert_eq!(f.state(0), InstanceState::Inactive);
+    assert!(cmds.is_empty());
+}
+
+#[test]
+fn line_23_inactive_unique_in_active_hitbox_becomes_omitted() {
+    let mut f = Frame::new(
+        vec![inst(InstanceState::Inactive, 0, true)],
+        vec![hitbox(true)],
+    );
+    let (s, cmds) = f.run(&[500], 4);
+    assert_eq!(s.inactive_to_omitted, 1);
+    assert_eq!(f.state(0), InstanceState::Omitted);
+    assert!(cmds.is_empty());
+}
+
+#[test]
+fn lines_25_26_inactive_shared_in_active_hitbox_is_added() {
+    let mut f = Frame::new(
+        vec![
+            inst(InstanceState::Inactive, 0, false),
+            inst(InstanceState::Inactive, 1, false),
+        ],
+        vec![hitbox(true), hitbox(false)],
+    );
+    let (s, cmds) = f.run(&[500, 0], 4);
+    assert_eq!(s.inactive_to_active, 1);
+    assert_eq!(f.state(0), InstanceState::Active);
+    assert_eq!(f.state(1), InstanceState::Inactive);
+    assert_eq!(cmds, vec![add(0, 500)]);
+}
+
+#[test]
+fn lines_31_32_omitted_above_sigma_a_is_added() {
+    let mut f = Frame::new(
+        vec![
+            inst(InstanceState::Omitted, 0, true),
+            inst(InstanceState::Omitted, 0, true),
+        ],
+        vec![hitbox(true)],
+    );
+    f.hits = vec![TH.sigma_a + 1, TH.sigma_a];
+    let (s, cmds) = f.run(&[0], 4);
+    assert_eq!(s.omitted_to_active, 1);
+    assert_eq!(f.state(0), InstanceState::Active);
+    assert_eq!(
+        f.state(1),
+        InstanceState::Omitted,
+        "σa itself is not above σa"
+    );
+    assert_eq!(cmds, vec![add(0, TH.sigma_a + 1)]);
+}
+
+#[test]
+fn lines_34_35_active_unique_below_sigma_o_is_omitted() {
+    let mut no_blas = inst(InstanceState::Active, 0, true);
+    no_blas.blas = 0;
+    let mut f = Frame::new(
+        vec![
+            inst(InstanceState::Active, 0, true),
+            inst(InstanceState::Active, 0, true),
+            no_blas,
+        ],
+        vec![hitbox(true)],
+    );
+    f.hits = vec![TH.sigma_o - 1, TH.sigma_o, 0];
+    let (s, cmds) = f.run(&[5000], 4);
+    assert_eq!(s.active_to_omitted, 1);
+    assert_eq!(f.state(0), InstanceState::Omitted);
+    assert_eq!(f.state(1), InstanceState::Active);
+    // Not yet built, so not in the TLAS: its zero hits do not demote it.
+    assert_eq!(f.state(2), InstanceState::Active);
+    assert_eq!(cmds, vec![remove(0, TH.sigma_o - 1)]);
+}
+
+fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+    let mut r = inst(state, hitbox, unique);
+    r.packed |= instance_bits::PINNED;
+    r
+}
+
+#[test]
+fn pinned_instances_are_never_moved_and_their_hits_stay_out() {
+    let mut f = Frame::new(
+        vec![
+            pinned(InstanceState::Active, 0, false),
+            pinned(InstanceState::Active, 0, true),
+            pinned(InstanceState::Active, 1, true),
+            inst(InstanceState::Active, 0, false),
+        ],
+        vec![hitbox(true), hitbox(true)],
+    );
+    // Pinned hits far above θd do not keep hitbox 0 alive; zero hits on
+    // a pinned unique instance do not omit it (σo).
+    f.hits = vec![100_000, 0, 100_000, 0];
+    let mut deactivated = false;
+    for _ in 0..1000 {
+        let (s, cmds) = f.run(&[0, 0], 8);
+        deactivated |= s.hitboxes_deactivated > 0;
+        for slot in 0..3 {
+            assert_eq!(f.state(slot), InstanceState::Active);
+            assert!(cmds.iter().all(|c| c.slot != slot as u32), "{cmds:?}");
+        }
+        assert_eq!(f.hitboxes[0].hits(), 0);
+    }
+    assert!(deactivated);
+    assert!(!f.hitboxes[0].is_active() && !f.hitboxes[1].is_active());
+    // The unpinned instance of hitbox 0 followed the normal rule.
+    assert_eq!(f.state(3), InstanceState::Inactive);
+
+    // Unpinned, slot 0 returns to its (inactive) hitbox's state.
+    f.instances[0].packed &= !instance_bits::PINNED;
+    f.hits[0] = 0; // (its hits would now count: 100k would activate hitbox 0)
+    let (s, cmds) = f.run(&[0, 0], 8);
+    assert_eq!(s.active_to_inactive, 1);
+    assert_eq!(cmds, vec![remove(0, 0)]);
+    assert_eq!(f.state(0), InstanceState::Inactive);
+}
+
+#[test]
+fn overflow_keeps_state_and_retries_next_frame() {
+    let mut f = Frame::new(
+        vec![
+            inst(InstanceState::Inactive, 0, false),
+            inst(InstanceState::Inactive, 0, false),
+            inst(InstanceState::Active, 1, false),
+        ],
+        vec![hitbox(true), hitbox(false)],
+    );
+    let (s, cmds) = f.run(&[5000, 0], 1);
+    assert_eq!(cmds, vec![add(0, 5000)]);
+    assert_eq!(
+        (s.inactive_to_active, s.active_to_inactive, s.overflowed),
+        (1, 0, 2)
+    );
+    assert_eq!(f.state(0), InstanceState::Active);
+    assert_eq!(
+        f.state(1),
+        InstanceState::Inactive,
+        "did not fit: unchanged"
+    );
+    assert_eq!(f.state(2), InstanceState::Active, "did not fit: unchanged");
+
+    let (s, cmds) = f.run(&[5000, 0], 8);
+    assert_eq!(s.overflowed, 0);
+    assert_eq!(cmds, vec![add(1, 5000), remove(2, 0)]);
+    assert_eq!(f.state(1), InstanceState::Active);
+    assert_eq!(f.state(2), InstanceState::Inactive);
+
+    // And nothing is emitted twice afterwards.
+    let (_, cmds) = f.run(&[5000, 0], 8);
+    assert!(cmds.is_empty());
+}
+
+#[test]
+fn overflow_after_line_23_keeps_the_omitted_state() {
+    // Inactive unique instance, hitbox active, own hits above σa (e.g.
+    // activated by latency mitigation): line 23 then line 31 in one frame.
+    let mut f = Frame::new(
+        vec![inst(InstanceState::Inactive, 0, true)],
+        vec![hitbox(true)],
+    );
+    f.hits[0] = TH.sigma_a + 1;
+    let (s, cmds) = f.run(&[5000], 0);
+    assert!(cmds.is_empty());
+    assert_eq!(
+        (s.inactive_to_omitted, s.omitted_to_active, s.overflowed),
+        (1, 0, 1)
+    );
+    assert_eq!(f.state(0), InstanceState::Omitted);
+    let (s, cmds) = f.run(&[5000], 1);
+    assert_eq!((s.omitted_to_active, s.overflowed), (1, 0));
+    assert_eq!(cmds, vec![add(0, TH.sigma_a + 1)]);
+    assert_eq!(f.state(0), InstanceState::Active);
+}
+
+#[test]
+fn overflowed_transitions_reach_the_queue_exactly_once() {
+    // Ten instances activate while the buffer holds three per frame.
+    let instances = (0..10)
+        .map(|_| inst(InstanceState::Inactive, 0, false))
+        .collect();
+    let mut f = Frame::new(instances, vec![hitbox(true)]);
+    let mut q = CommandQueue::new(10);
+    let mut total = 0;
+    for _ in 0..5 {
+        let mut buf = CommandBuffer::new(3);
+        crate::assembly::begin_frame(&mut f.hitboxes);
+        f.hitboxes[0].add_hits(5000);
+        let s =
+            process_feedback(&mut f.instances, &f.hits, &mut f.hitboxes, &TH, &mut buf).unwrap();
+        total += s.inactive_to_active;
+        let i = q.ingest_buffer(&buf);
+        assert_eq!(i.superseded + i.replaced, 0);
+    }
+    assert_eq!(total, 10);
+    let mut slots: Vec<u32> = q.drain(100).iter().map(|c| c.slot).collect();
+    slots.sort_unstable();
+    assert_eq!(slots, (0..10).collect::<Vec<_>>());
+}
+
+#[test]
+fn dead_and_invalid_slots_are_skipped() {
+    let mut dead = inst(InstanceState::Active, 0, false);
+    dead.packed &= !instance_bits::ALIVE;
+    let mut f = Frame::new(
+        vec![dead, inst(InstanceState::Active, 9, false)],
+        vec![hitbox(false)],
+    );
+    f.hits = vec![4000, 4000];
+    let (s, cmds) = f.run(&[0], 4);
+    assert!(cmds.is_empty());
+    assert_eq!(s.invalid_instances, 1);
+    assert_eq!(
+        f.hitboxes[0].hits(),
+        0,
+        "dead slot's hits are not accumulated"
+    );
+    assert_eq!(f.state(0), InstanceState::Active);
+}
+
+#[test]
+fn mismatched_inputs_are_errors() {
+    let mut i = vec![inst(InstanceState::Active, 0, false)];
+    let mut h = vec![hitbox(false)];
+    let mut b = CommandBuffer::new(1);
+    assert!(matches!(
+        process_feedback(&mut i, &[], &mut h, &TH, &mut b),
+        Err(FeedbackError::HitCountMismatch {
+            hits: 0,
+            instances: 1
+        })
+    ));
+    let bad = Thresholds {
+        theta_d: TH.theta_a,
+        ..TH
+    };
+    let e = process_feedback(&mut i, &[0], &mut h, &bad, &mut b).unwrap_err();
+    assert!(matches!(e, FeedbackError::Thresholds(_)));
+    assert!(std::error::Error::source(&e).is_some());
+    assert_eq!(i[0].state(), InstanceState::Active, "nothing ran");
+}
+
+/// Algorithm 2 under the decayed rule ([`DecisionRule::Decayed`]): rates,
+/// hysteresis, cost-aware activation, the per-slot rates.
+mod decayed {
+    use super::*;
+    use crate::layout::InstanceState;
+    use crate::thresholds::{DecayedRule, RATE_ONE};
+
+    const RULE: DecayedRule = DecayedRule {
+        shift: 2,
+        activate: 4 * RATE_ONE,
+        deactivate: RATE_ONE,
+        instance_activate: 3 * RATE_ONE,
+        instance_omit: RATE_ONE / 2,
+        per_shared: RATE_ONE / 2,
+        per_unique: 2 * RATE_ONE,
+    };
+
+    fn th() -> Thresholds {
+        Thresholds::paper().with_rule(DecisionRule::Decayed(RULE))
+    }
+
+    fn inst(state: InstanceState, unique: bool, blas: u64) -> InstanceRecord {
+        let mut r = InstanceRecord {
+            packed: instance_bits::ALIVE
+                | if unique {
+                    instance_bits::UNIQUE_BLAS
+                } else {
+                    0
+                },
+            blas,
+            ..Default::default()
+        };
+        r.set_state(state);
+        r
+    }
+
+    /// One frame: the hitbox gets `box_hits` (counting box) with `cost`
+    /// inactive instances, then Algorithm 2.
+    fn frame(
+        instances: &mut [InstanceRecord],
+        hits: &[u32],
+        rates: &mut [u32],
+        hitbox: &mut HitboxRecord,
+        box_hits: u32,
+        cost: u32,
+    ) -> FeedbackStats {
+        crate::assembly::begin_frame(std::slice::from_mut(hitbox));
+        hitbox.cost = cost;
+        hitbox.add_hits(box_hits);
+        let mut buf = CommandBuffer::new(16);
+        process_feedback_with_rates(
+            instances,
+            hits,
+            rates,
+            std::slice::from_mut(hitbox),
+            &th(),
+            &mut buf,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn hitbox_activates_on_sustained_rate_and_keeps_it_within_the_band() {
+        let mut i = [inst(InstanceState::Inactive, false, 0)];
+        let mut rates = [0];
+        let mut h = HitboxRecord::default();
+        // 5 hits a frame: the rate climbs 1.25, 2.19, 2.89, 3.42, 3.81, 4.11 > 4.
+        let mut activated_at = None;
+        for f in 0..10 {
+            let s = frame(&mut i, &[0], &mut rates, &mut h, 5, 0);
+            if s.hitboxes_activated == 1 {
+                activated_at = Some(f);
+                break;
+            }
+        }
+        assert_eq!(activated_at, Some(5));
+        assert!(h.is_active() && h.streak() == 0);
+        assert_eq!(i[0].state(), InstanceState::Active, "its instance with it");
+        // Hysteresis: 2 hits a frame (rate -> 2, between θd and θa) keeps it on.
+        for _ in 0..40 {
+            let s = frame(&mut i, &[2], &mut rates, &mut h, 0, 0);
+            assert_eq!(s.hitboxes_deactivated, 0);
+        }
+        assert!(h.rate >= 2 * RATE_ONE && h.rate < 2 * RATE_ONE + 4);
+        // No hits: the rate halves about every 2.4 frames and falls below θd.
+        let mut off_after = 0;
+        while h.is_active() {
+            frame(&mut i, &[0], &mut rates, &mut h, 0, 0);
+            off_after += 1;
+            assert!(off_after < 20);
+        }
+        assert_eq!(off_after, 3, "2 -> 1.5 -> 1.13 -> 0.84 (< 1) at the 3rd");
+        assert_eq!(i[0].state(), InstanceState::Inactive);
+    }
+
+    #[test]
+    fn a_burst_activates_in_one_frame() {
+        let mut i = [inst(InstanceState::Inactive, false, 0)];
+        let mut h = HitboxRecord::default();
+        // rate = hits / 4 > 4 needs more than 16 hits.
+        frame(&mut i, &[0], &mut [0], &mut h, 16, 0);
+        assert!(!h.is_active());
+        let mut h = HitboxRecord::default();
+        frame(&mut i, &[0], &mut [0], &mut h, 17, 0);
+        assert!(h.is_active());
+    }
+
+    #[test]
+    fn activation_needs_more_evidence_the_more_it_brings_in() {
+        // Threshold 4 + 0.5 per shared + 2 per unique instance.
+        let cases = [
+            (0u32, 17u32, true),
+            (2, 17, false), // needs 5: hits/4 > 5 -> 21
+            (2, 21, true),
+            (hitbox_bits::COST_UNIQUE, 24, false), // needs 6 -> 25
+            (hitbox_bits::COST_UNIQUE, 25, true),
+            // Counts saturate at 255: 4 + 127.5 + 510 = 641.5 -> 2567 hits.
+            (0xFFFF_FFFF, 2566, false),
+            (0xFFFF_FFFF, 2567, true),
+        ];
+        for (cost, hits, on) in cases {
+            let mut h = HitboxRecord::default();
+            let mut i = [inst(InstanceState::Inactive, false, 0)];
+            frame(&mut i, &[0], &mut [0], &mut h, hits, cost);
+            assert_eq!(h.is_active(), on, "cost {cost:#x} hits {hits}");
+        }
+    }
+
+    #[test]
+    fn instance_rate_drives_omitted_and_active_and_is_held_without_blas() {
+        let mut h = HitboxRecord {
+            packed: hitbox_bits::ACTIVE,
+            rate: 100 * RATE_ONE,
+            ..Default::default()
+        };
+        let mut i = [inst(InstanceState::Omitted, true, 0)];
+        let mut rates = [0];
+        // 4 own hits a frame: 1, 1.75, 2.31, 2.73, 3.05 > 3 at the 5th frame.
+        let mut frames = 0;
+        while i[0].state() == InstanceState::Omitted {
+            frame(&mut i, &[4], &mut rates, &mut h, 1000, 0);
+            frames += 1;
+            assert!(frames < 10);
+        }
+        assert_eq!(frames, 5);
+        assert_eq!(i[0].state(), InstanceState::Active);
+        let held = rates[0];
+        // (The hitbox's own rate is kept up by 1000 hits a frame throughout.)
+        // Active without a BLAS: not traced, no hits, the rate is held.
+        for _ in 0..10 {
+            frame(&mut i, &[0], &mut rates, &mut h, 1000, 0);
+        }
+        assert_eq!(rates[0], held);
+        assert_eq!(i[0].state(), InstanceState::Active);
+        // The BLAS arrives and the instance is no longer hit: back to omitted
+        // once the rate is below 0.5.
+        i[0].blas = 0xB1A5;
+        let mut frames = 0;
+        while i[0].state() == InstanceState::Active {
+            frame(&mut i, &[0], &mut rates, &mut h, 1000, 0);
+            frames += 1;
+            assert!(frames < 20);
+        }
+        assert_eq!(frames, 7, "3.05 * 0.75^7 = 0.41 < 0.5 < 0.54");
+        // Its hitbox deactivates: inactive, rate 0.
+        h.rate = 0;
+        frame(&mut i, &[0], &mut rates, &mut h, 0, 0);
+        assert_eq!(i[0].state(), InstanceState::Inactive);
+        assert_eq!(rates[0], 0);
+    }
+
+    #[test]
+    fn rates_of_shared_dead_and_inactive_slots_are_zeroed() {
+        let mut h = HitboxRecord {
+            packed: hitbox_bits::ACTIVE,
+            rate: 100 * RATE_ONE,
+            ..Default::default()
+        };
+        let mut i = [
+            inst(InstanceState::Active, false, 1),
+            InstanceRecord::default(), // dead
+            inst(InstanceState::Omitted, true, 0),
+        ];
+        let mut rates = [7, 8, 9];
+        frame(&mut i, &[5, 5, 0], &mut rates, &mut h, 0, 0);
+        assert_eq!(rates[..2], [0, 0]);
+        assert_eq!(rates[2], decay_rate(9, 0, RULE.shift));
+        let mut h = HitboxRecord::default();
+        let mut i = [inst(InstanceState::Inactive, true, 0)];
+        let mut rates = [1234];
+        frame(&mut i, &[0], &mut rates, &mut h, 0, 0);
+        assert_eq!(rates, [0]);
+    }
+
+    #[test]
+    fn paper_rule_leaves_rates_alone_and_the_paper_entry_point_refuses_the_decayed_rule() {
+        let mut i = vec![inst(InstanceState::Omitted, true, 0)];
+        let mut h = vec![HitboxRecord {
+            packed: hitbox_bits::ACTIVE,
+            rate: 77,
+            ..Default::default()
+        }];
+        let mut rates = vec![55];
+        let mut b = CommandBuffer::new(4);
+        process_feedback_with_rates(
+            &mut i,
+            &[5000],
+            &mut rates,
+            &mut h,
+            &Thresholds::paper(),
+            &mut b,
+        )
+        .unwrap();
+        assert_eq!((rates[0], h[0].rate), (55, 77));
+        assert_eq!(i[0].state(), InstanceState::Active, "paper: 5000 > σa");
+        assert!(matches!(
+            process_feedback(&mut i, &[0], &mut h, &th(), &mut b),
+            Err(FeedbackError::RatesRequired)
+        ));
+        let e =
+            process_feedback_with_rates(&mut i, &[0], &mut [], &mut h, &th(), &mut b).unwrap_err();
+        assert!(matches!(
+            e,
+            FeedbackError::RateCountMismatch {
+                rates: 0,
+                instances: 1
+            }
+        ));
+        assert!(e.to_string().contains("rate buffer"));
+    }
+}
