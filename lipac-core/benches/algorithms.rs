@@ -20,6 +20,7 @@ use lipac_core::feedback::process_feedback;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState};
 use lipac_core::thresholds::Thresholds;
+use lipac_test_support::{Rng64, XorShift64};
 
 const CELL: f32 = 16.0;
 
@@ -45,14 +46,11 @@ impl HitboxIndex for Grid {
     }
 }
 
-struct Rng(u64);
+struct Rng(XorShift64);
 
 impl Rng {
     fn next(&mut self) -> u32 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 32) as u32
+        self.0.next_u32()
     }
     /// True with probability `p`.
     fn chance(&mut self, p: f32) -> bool {
@@ -73,7 +71,7 @@ struct Scene {
 fn scene(n: usize) -> Scene {
     let w = ((n as f64 / 16.0).sqrt().ceil() as u32).max(1);
     let grid = Grid { w };
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ n as u64);
+    let mut rng = Rng(XorShift64::new(0x9E37_79B9_7F4A_7C15 ^ n as u64));
     let hitboxes: Vec<HitboxRecord> = (0..grid.len())
         .map(|_| {
             let mut h = HitboxRecord::default();

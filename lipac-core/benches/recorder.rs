@@ -16,11 +16,17 @@
 //! changing load.
 //!
 //! `cargo bench -p lipac-core --bench recorder -- --warm-up-time 1 --measurement-time 3`
+//!
+//! Instruction counts (stable on a loaded machine): with
+//! `LIPAC_RECORDER_ONLY=without|events|hits` the bench sets up that one loop,
+//! runs `LIPAC_RECORDER_FRAMES` (default 20) frames in [`measured`] and
+//! exits, for `valgrind --tool=callgrind --collect-atstart=no
+//! --toggle-collect='*measured*'` (see docs/BENCHMARKS.md).
 
 use std::hint::black_box;
 use std::time::Duration;
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use glam::{Affine3A, Vec3};
 use lipac_core::manager::{RecorderOptions, TraceRecorder};
 use lipac_core::trace::Camera;
@@ -72,7 +78,10 @@ impl Loop {
         d
     }
 
-    fn new(n: u32) -> Self {
+    /// `record`: `None` no recorder, `Some(record_hits)`; the recorder is
+    /// attached before the instances are registered, so the trace holds
+    /// all `n` (and a frame up to `n` hit counts).
+    fn new(n: u32, record: Option<bool>) -> Self {
         let lod = |tris: u64| MeshLod {
             estimate: BuildEstimate {
                 primitives: tris,
@@ -111,6 +120,14 @@ impl Loop {
             immediate: ImmediateAcks::new(0x1_0000),
             rng: XorShift64Star::new(0x9E37_79B9_7F4A_7C15),
         };
+        if let Some(record_hits) = record {
+            let options = RecorderOptions {
+                record_hits,
+                ..RecorderOptions::default()
+            };
+            l.m.attach_recorder(TraceRecorder::new(std::io::sink(), options))
+                .expect("attach");
+        }
         l.m.reserve(n as usize);
         for _ in 0..n {
             let d = l.desc();
@@ -189,15 +206,7 @@ impl Loop {
 
 /// `record`: `None` no recorder, `Some(record_hits)`.
 fn setup(n: u32, record: Option<bool>) -> Loop {
-    let mut l = Loop::new(n);
-    if let Some(record_hits) = record {
-        let options = RecorderOptions {
-            record_hits,
-            ..RecorderOptions::default()
-        };
-        l.m.attach_recorder(TraceRecorder::new(std::io::sink(), options))
-            .expect("attach");
-    }
+    let mut l = Loop::new(n, record);
     for _ in 0..64 {
         l.frame();
     }
@@ -266,5 +275,35 @@ fn interleaved(n: u32) {
     );
 }
 
+/// The frames a callgrind run counts (`--toggle-collect='*measured*'`).
+#[inline(never)]
+fn measured(l: &mut Loop, frames: u32) {
+    for _ in 0..frames {
+        l.frame();
+    }
+    black_box(l.tlas.len());
+}
+
 criterion_group!(benches, bench);
-criterion_main!(benches);
+
+fn main() {
+    if let Ok(only) = std::env::var("LIPAC_RECORDER_ONLY") {
+        let record = match only.as_str() {
+            "without" => None,
+            "events" => Some(false),
+            "hits" => Some(true),
+            other => panic!("LIPAC_RECORDER_ONLY={other}: want without, events or hits"),
+        };
+        let frames = std::env::var("LIPAC_RECORDER_FRAMES")
+            .ok()
+            .map_or(20, |f| f.parse().expect("LIPAC_RECORDER_FRAMES: a number"));
+        let mut l = setup(100_000, record);
+        measured(&mut l, frames);
+        if record.is_some() {
+            l.m.detach_recorder().expect("recorder ok");
+        }
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

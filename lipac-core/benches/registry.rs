@@ -10,6 +10,7 @@ use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::{ActivationHeuristic, Frustum, LatencyMitigation};
 use lipac_core::math::Aabb;
 use lipac_core::registry::{InstanceRegistry, RegistryConfig};
+use lipac_test_support::{Rng64, XorShift64};
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -17,13 +18,8 @@ const N: u32 = 100_000;
 
 /// Deterministic pseudo-random positions in the default 8 x 8 km world.
 fn positions(n: u32) -> Vec<Vec3> {
-    let mut s = 0x9E37_79B9_7F4A_7C15u64;
-    let mut next = || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut s = XorShift64::new(0x9E37_79B9_7F4A_7C15);
+    let mut next = || s.unit_f32();
     (0..n)
         .map(|_| Vec3::new(next() * 8000.0 - 4000.0, 0.0, next() * 8000.0 - 4000.0))
         .collect()

@@ -19,6 +19,12 @@
 //!
 //! `cargo bench -p lipac-core --bench scale` (`LIPAC_SCALE_MAX=1000000`
 //! leaves out 10M).
+//!
+//! The full `Manager` frame (plan, Algorithms 1 and 2 timed apart), the
+//! sparse hashed hitbox index and worlds of any size (the 100 km × 100 km
+//! world with 1M instances) are in `examples/scale_frame.rs`, a `--release`
+//! example run under `/usr/bin/time` and callgrind (docs/BENCHMARKS.md,
+//! "The Manager frame at scale").
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};

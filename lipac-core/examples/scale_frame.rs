@@ -175,9 +175,12 @@ impl<H: HitboxIndex> Loop<H> {
             let col = ((f64::from(x) / CELL).max(0.0) as u64).min(columns - 1);
             (col + columns - hot_start) % columns < columns.div_ceil(4)
         };
+        let hitbox_sbt = self.m.culling().config().assembly.hitbox_sbt_offset;
         for t in &self.tlas {
             let i = t.custom_index();
-            if t.acceleration_structure_reference == CUBE {
+            // A hitbox's counting box (an omitted instance's box names its
+            // slot, like a traced instance).
+            if t.acceleration_structure_reference == CUBE && t.sbt_offset() == hitbox_sbt {
                 let x = self
                     .m
                     .registry()

@@ -32,8 +32,8 @@ use glam::Vec3;
 
 use crate::hitbox_index::HitboxIndex;
 use crate::layout::{
-    HitboxRecord, InstanceRecord, InstanceState, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE,
-    VK_INSTANCE_FORCE_OPAQUE,
+    hitbox_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance, MAX_SLOTS,
+    VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
 };
 
 /// Instance flags of every counting box.
@@ -134,14 +134,16 @@ impl fmt::Display for AssemblyError {
 
 impl std::error::Error for AssemblyError {}
 
-/// Pass 0: resets every hitbox's height range to `(+∞, −∞)` and its hit count
-/// to 0, keeping the active bit and streak. [`assemble_tlas`] calls it first.
+/// Pass 0: resets every hitbox's height range to `(+∞, −∞)`, its hit count
+/// and its cost word to 0, keeping the active bit, streak and rate.
+/// [`assemble_tlas`] calls it first.
 pub fn begin_frame(hitboxes: &mut [HitboxRecord]) {
     const KEEP: u32 = (1 << crate::layout::hitbox_bits::HITS_SHIFT) - 1;
     for h in hitboxes {
         h.min_y = f32::INFINITY;
         h.max_y = f32::NEG_INFINITY;
         h.packed &= KEEP;
+        h.cost = 0;
     }
 }
 
@@ -339,6 +341,12 @@ pub fn assemble_tlas(
                 // atomicMin / atomicMax on the GPU (f32 as ordered ints).
                 h.min_y = h.min_y.min(m.aabb_min[1]);
                 h.max_y = h.max_y.max(m.aabb_max[1]);
+                // atomicAdd on the GPU: what activating the hitbox brings in.
+                h.cost = h.cost.wrapping_add(if m.needs_unique_blas() {
+                    hitbox_bits::COST_UNIQUE
+                } else {
+                    hitbox_bits::COST_SHARED
+                });
                 stats.inactive += 1;
             }
         }
@@ -554,10 +562,16 @@ mod tests {
             min_y: -100.0,
             max_y: 100.0,
             packed: 0,
+            rate: 0,
+            cost: 0x0303_0303,
         }; 3];
         hb[2].packed = hitbox_bits::ACTIVE;
         let (stats, out) = run(&[a, b, c], &mut hb);
         assert_eq!(stats.inactive, 3);
+        // The cost words are rebuilt: one shared-BLAS inactive instance in
+        // hitbox 0, two in 1, none in 2.
+        assert_eq!(hb.map(|h| h.cost), [1, 2, 0]);
+        assert_eq!((hb[1].inactive_shared(), hb[1].inactive_unique()), (2, 0));
         assert_eq!((hb[0].min_y, hb[0].max_y), (7.0, 9.0));
         assert_eq!((hb[1].min_y, hb[1].max_y), (-1.0, 3.0));
         assert!(hb[2].min_y > hb[2].max_y);
@@ -689,10 +703,17 @@ mod tests {
             min_y: 1.0,
             max_y: 2.0,
             packed: hitbox_bits::ACTIVE | (5 << 1),
+            rate: 0xDEAD,
+            cost: 77,
         }];
         hb[0].add_hits(1234);
         begin_frame(&mut hb);
         assert_eq!(hb[0].hits(), 0);
+        assert_eq!(
+            (hb[0].rate, hb[0].cost),
+            (0xDEAD, 0),
+            "rate kept, cost reset"
+        );
         assert!(hb[0].is_active());
         assert_eq!(hb[0].streak(), 5);
         assert_eq!(

@@ -207,7 +207,9 @@ pub struct ControllerStats {
     /// The scale sits at a bound and the error pushes beyond it.
     pub saturated: bool,
     /// Saturated for [`ControllerConfig::unreachable_frames`] frames: the
-    /// target cannot be met with the scale range ("budget unreachable").
+    /// target cannot be met with the scale range ("budget unreachable";
+    /// for a memory budget only at the largest scale and over budget:
+    /// under budget at the smallest scale is spare budget).
     pub unreachable: bool,
     /// Times the scale's direction of change reversed.
     pub reversals: u64,
@@ -402,8 +404,15 @@ impl ThresholdController {
             self.last_direction = direction;
         }
 
-        let saturated = (self.log_scale >= hi && e > 0.0) || (self.log_scale <= lo && e < 0.0);
-        self.saturated_for = if saturated {
+        let high = self.log_scale >= hi && e > 0.0;
+        let saturated = high || (self.log_scale <= lo && e < 0.0);
+        // Under a budget at the lowest scale is spare budget, not a budget
+        // that cannot be met.
+        let unmet = match self.target {
+            ControlTarget::MemoryBudget { .. } => high,
+            ControlTarget::EscapeFraction { .. } => saturated,
+        };
+        self.saturated_for = if unmet {
             self.saturated_for.saturating_add(1)
         } else {
             0

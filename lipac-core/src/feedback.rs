@@ -34,7 +34,7 @@ use crate::command::{priority_from_hits, Command, CommandBuffer, CommandKind};
 use crate::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, MAX_SLOTS,
 };
-use crate::thresholds::{ThresholdError, Thresholds};
+use crate::thresholds::{decay_rate, DecayedRule, DecisionRule, ThresholdError, Thresholds};
 
 /// What one run of [`process_feedback`] did, by line of Algorithm 2.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -76,6 +76,16 @@ pub enum FeedbackError {
     TooManySlots(usize),
     /// The thresholds failed [`Thresholds::validate`].
     Thresholds(ThresholdError),
+    /// The rate buffer must have one rate per instance slot.
+    RateCountMismatch {
+        /// `instance_rates.len()`.
+        rates: usize,
+        /// `instances.len()`.
+        instances: usize,
+    },
+    /// [`process_feedback`] has no rate buffer: the decayed rule needs
+    /// [`process_feedback_with_rates`].
+    RatesRequired,
 }
 
 impl fmt::Display for FeedbackError {
@@ -89,6 +99,14 @@ impl fmt::Display for FeedbackError {
                 write!(f, "{n} instance slots exceed the 24-bit limit {MAX_SLOTS}")
             }
             Self::Thresholds(e) => write!(f, "invalid thresholds: {e}"),
+            Self::RateCountMismatch { rates, instances } => write!(
+                f,
+                "rate buffer has {rates} rates but there are {instances} instance slots"
+            ),
+            Self::RatesRequired => write!(
+                f,
+                "the decayed rule keeps a rate per slot: call process_feedback_with_rates"
+            ),
         }
     }
 }
@@ -137,11 +155,32 @@ fn hitbox_step(packed: u32, th: &Thresholds) -> (u32, i8) {
     (packed, change)
 }
 
-/// Algorithm 2: accumulates instance hits into hitboxes, updates hitbox and
-/// instance states and appends commands to `commands` (which is not cleared:
-/// the caller clears it per frame, as the GPU resets its counter). See the
-/// [module docs](self) for the overflow rule, `docs/ALGORITHMS.md` for the
-/// lines and the deviations.
+/// Lines 7–13 under the decayed rule for one hitbox: updates its rate and
+/// state (streak bits cleared, hits kept); `+1` activation, `-1`
+/// deactivation.
+fn hitbox_step_decayed(h: &mut HitboxRecord, r: &DecayedRule) -> i8 {
+    let rate = decay_rate(h.rate, h.hits(), r.shift);
+    h.rate = rate;
+    let active = h.is_active();
+    let (active, change) = if !active {
+        if rate > r.activation_threshold(h.inactive_shared(), h.inactive_unique()) {
+            (true, 1)
+        } else {
+            (false, 0)
+        }
+    } else if rate < r.deactivate {
+        (false, -1)
+    } else {
+        (true, 0)
+    };
+    h.packed = (h.packed & !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT) | 1))
+        | u32::from(active);
+    change
+}
+
+/// Algorithm 2 under the paper's rule ([`DecisionRule::Paper`]); the same
+/// as [`process_feedback_with_rates`] without a rate buffer, which the
+/// decayed rule needs ([`FeedbackError::RatesRequired`]).
 ///
 /// ```
 /// use lipac_core::command::{Command, CommandBuffer, CommandKind};
@@ -165,6 +204,53 @@ fn hitbox_step(packed: u32, th: &Thresholds) -> (u32, i8) {
 pub fn process_feedback(
     instances: &mut [InstanceRecord],
     instance_hits: &[u32],
+    hitboxes: &mut [HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+) -> Result<FeedbackStats, FeedbackError> {
+    if th.rule != DecisionRule::Paper {
+        return Err(FeedbackError::RatesRequired);
+    }
+    process(instances, instance_hits, None, hitboxes, th, commands)
+}
+
+/// Algorithm 2: accumulates instance hits into hitboxes, updates hitbox and
+/// instance states and appends commands to `commands` (which is not cleared:
+/// the caller clears it per frame, as the GPU resets its counter). See the
+/// [module docs](self) for the overflow rule, `docs/ALGORITHMS.md` for the
+/// lines and the deviations.
+///
+/// `instance_rates` (one `u32` per slot, kept across frames, zero at first)
+/// holds the decayed hit rates of unique-BLAS instances under
+/// [`DecisionRule::Decayed`]; under the paper's rule it is left alone.
+pub fn process_feedback_with_rates(
+    instances: &mut [InstanceRecord],
+    instance_hits: &[u32],
+    instance_rates: &mut [u32],
+    hitboxes: &mut [HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+) -> Result<FeedbackStats, FeedbackError> {
+    if instance_rates.len() != instances.len() {
+        return Err(FeedbackError::RateCountMismatch {
+            rates: instance_rates.len(),
+            instances: instances.len(),
+        });
+    }
+    process(
+        instances,
+        instance_hits,
+        Some(instance_rates),
+        hitboxes,
+        th,
+        commands,
+    )
+}
+
+fn process(
+    instances: &mut [InstanceRecord],
+    instance_hits: &[u32],
+    rates: Option<&mut [u32]>,
     hitboxes: &mut [HitboxRecord],
     th: &Thresholds,
     commands: &mut CommandBuffer,
@@ -195,17 +281,31 @@ pub fn process_feedback(
     }
 
     // Lines 7–13: one thread per hitbox.
+    let mut decayed = match (&th.rule, rates) {
+        (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
+        _ => None,
+    };
     for h in hitboxes.iter_mut() {
-        let (packed, change) = hitbox_step(h.packed, th);
-        h.packed = packed;
+        let change = match &decayed {
+            Some((r, _)) => hitbox_step_decayed(h, r),
+            None => {
+                let (packed, change) = hitbox_step(h.packed, th);
+                h.packed = packed;
+                change
+            }
+        };
         stats.hitboxes_activated += u32::from(change > 0);
         stats.hitboxes_deactivated += u32::from(change < 0);
     }
 
     // Lines 14–38: one thread per slot.
     for (slot, (m, &hits)) in instances.iter_mut().zip(instance_hits).enumerate() {
-        // Dead, or pinned: Algorithm 2 never moves a pinned instance.
+        // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
+        // rate of either is 0 (a dead slot is reused only after quarantine).
         if m.packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
+            if let Some((_, rates)) = decayed.as_mut() {
+                rates[slot] = 0;
+            }
             continue;
         }
         let Some(h) = hitboxes.get(m.hitbox as usize) else {
@@ -215,10 +315,21 @@ pub fn process_feedback(
         let old = m.state();
         let h_active = h.is_active();
         let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
-        // Fast path: nothing in lines 16–37 can fire.
+        // Fast path: nothing in lines 16–37 can fire (and the rate of an
+        // inactive or shared-BLAS instance is 0).
         match (old, h_active) {
-            (InstanceState::Inactive, false) => continue,
-            (InstanceState::Active, true) | (InstanceState::Omitted, true) if !unique => continue,
+            (InstanceState::Inactive, false) => {
+                if let Some((_, rates)) = decayed.as_mut() {
+                    rates[slot] = 0;
+                }
+                continue;
+            }
+            (InstanceState::Active, true) | (InstanceState::Omitted, true) if !unique => {
+                if let Some((_, rates)) = decayed.as_mut() {
+                    rates[slot] = 0;
+                }
+                continue;
+            }
             _ => {}
         }
         let slot = slot as u32;
@@ -261,8 +372,42 @@ pub fn process_feedback(
             _ => {}
         }
 
-        // Lines 29–37 (M needs a unique BLAS).
-        if unique && !overflow {
+        // Lines 29–37 under the decayed rule: this frame's rate decides.
+        if let Some((r, rates)) = decayed.as_mut() {
+            let slot = slot as usize;
+            if !unique {
+                rates[slot] = 0;
+            } else {
+                let rate = match state {
+                    InstanceState::Inactive => 0,
+                    // Not in the TLAS until its BLAS exists: no evidence, held.
+                    InstanceState::Active if m.blas == 0 => rates[slot],
+                    _ => decay_rate(rates[slot], hits, r.shift),
+                };
+                rates[slot] = rate;
+                if !overflow {
+                    if state == InstanceState::Omitted && rate > r.instance_activate {
+                        if commands.push(command(CommandKind::Add, hits)) {
+                            state = InstanceState::Active;
+                            stats.omitted_to_active += 1;
+                        } else {
+                            overflow = true;
+                        }
+                    } else if state == InstanceState::Active
+                        && m.blas != 0
+                        && rate < r.instance_omit
+                    {
+                        if commands.push(command(CommandKind::Remove, hits)) {
+                            state = InstanceState::Omitted;
+                            stats.active_to_omitted += 1;
+                        } else {
+                            overflow = true;
+                        }
+                    }
+                }
+            }
+        } else if unique && !overflow {
+            // Lines 29–37 (M needs a unique BLAS).
             if state == InstanceState::Omitted && hits > th.sigma_a {
                 // Lines 31/32.
                 if commands.push(command(CommandKind::Add, hits)) {
@@ -722,3 +867,7 @@ mod tests {
         assert_eq!(i[0].state(), InstanceState::Active, "nothing ran");
     }
 }
+
+#[cfg(test)]
+#[path = "feedback_decayed_tests.rs"]
+mod decayed_tests;

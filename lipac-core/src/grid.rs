@@ -22,12 +22,13 @@
 //!
 //! # Memory
 //!
-//! Each hitbox costs [`HITBOX_BYTES`] = 12 bytes on the GPU
-//! ([`crate::layout::HitboxRecord`]) and each instance
+//! Each hitbox costs [`HITBOX_BYTES`] = 20 bytes on the GPU
+//! ([`crate::layout::HitboxRecord`]: the paper's 12 plus the decayed rule's
+//! rate and cost words) and each instance
 //! [`HIT_FEEDBACK_BYTES_PER_INSTANCE`] = 4 bytes of hit feedback. The paper's
-//! 8 × 8 km world with 16 m cells is 512 × 512 hitboxes = 3 MiB
-//! ([`HitboxGrid::memory_bytes`]); a million instances need 4 MB of hit
-//! counters ([`hit_feedback_bytes`]).
+//! 8 × 8 km world with 16 m cells is 512 × 512 hitboxes = 5 MiB (the paper's
+//! 12-byte records: 3 MiB) ([`HitboxGrid::memory_bytes`]); a million
+//! instances need 4 MB of hit counters ([`hit_feedback_bytes`]).
 
 use crate::error::CoreError;
 use crate::hitbox_index::HitboxIndex;
@@ -95,7 +96,7 @@ impl Default for GridConfig {
 /// // ... and one on the far border of the world to the last cell.
 /// assert_eq!(grid.hitbox_at(Vec3::new(64.0, 0.0, 32.0)), Some(7));
 /// assert_eq!(grid.hitbox_at(Vec3::new(-0.01, 0.0, 0.0)), None);
-/// assert_eq!(grid.memory_bytes(), 8 * 12);
+/// assert_eq!(grid.memory_bytes(), 8 * 20);
 /// # Ok::<(), lipac_core::error::CoreError>(())
 /// ```
 #[derive(Clone, Debug, PartialEq)]
@@ -208,7 +209,7 @@ impl HitboxGrid {
         [self.border(0, self.dims[0]), self.border(1, self.dims[1])]
     }
 
-    /// GPU memory of the hitbox records: 12 bytes per hitbox.
+    /// GPU memory of the hitbox records: [`HITBOX_BYTES`] per hitbox.
     pub fn memory_bytes(&self) -> u64 {
         u64::from(self.len()) * HITBOX_BYTES
     }
@@ -399,7 +400,9 @@ mod tests {
         // (4 bytes each, i.e. 4 MB).
         let g = HitboxGrid::new(GridConfig::default()).unwrap();
         assert_eq!(g.dims(), (512, 512));
-        assert_eq!(g.memory_bytes(), 3 * 1024 * 1024);
+        // The paper's 12-byte record gives its 3 MiB; ours holds 8 more bytes.
+        assert_eq!(g.memory_bytes() / HITBOX_BYTES * 12, 3 * 1024 * 1024);
+        assert_eq!(g.memory_bytes(), 5 * 1024 * 1024);
         assert_eq!(hit_feedback_bytes(1_000_000), 4_000_000);
     }
 
@@ -523,7 +526,7 @@ mod tests {
         match HitboxGrid::with_max_cells(config(4097.0), DEFAULT_MAX_GRID_CELLS) {
             Err(CoreError::InvalidConfig { what }) => {
                 assert!(what.contains("4097 x 4097 = 16785409 cells"), "{what}");
-                assert!(what.contains("201424908 bytes"), "{what}");
+                assert!(what.contains("335708180 bytes"), "{what}");
                 assert!(what.contains("limit of 16777216 cells"), "{what}");
             }
             other => panic!("{other:?}"),

@@ -37,7 +37,7 @@
 //!
 //! CPU: [`HashedHitboxes::heap_bytes`], 16 bytes per table bucket (at most
 //! 4 buckets per live cell, at least 2 once grown) plus 24 bytes per index
-//! ever handed out. GPU: [`crate::grid::HITBOX_BYTES`] = 12 bytes per index
+//! ever handed out. GPU: [`crate::grid::HITBOX_BYTES`] = 20 bytes per index
 //! ([`HashedHitboxes::memory_bytes`]), plus 16 bytes of bounds in lipac-vk.
 //!
 //! ```
@@ -225,7 +225,7 @@ impl HashedHitboxes {
         self.table.len()
     }
 
-    /// GPU memory of the hitbox records: 12 bytes per index `0..len()`.
+    /// GPU memory of the hitbox records: [`crate::grid::HITBOX_BYTES`] per index `0..len()`.
     pub fn memory_bytes(&self) -> u64 {
         u64::from(self.len()) * HITBOX_BYTES
     }

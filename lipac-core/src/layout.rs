@@ -10,8 +10,9 @@
 //! | --- | --- | --- |
 //! | [`TlasInstance`] | 64 | `VkAccelerationStructureInstanceKHR` |
 //! | [`InstanceRecord`] | 96 | per-instance state, indexed by GPU slot |
-//! | [`HitboxRecord`] | 12 | per-hitbox state (the paper's 12 bytes) |
+//! | [`HitboxRecord`] | 20 | per-hitbox state (the paper's 12 bytes, a decayed hit rate and a cost word) |
 //! | hit counter | 4 | one `u32` per instance slot (the paper's 4 bytes) |
+//! | instance rate | 4 | one `u32` per slot: decayed hit rate (16.16) of a unique-BLAS instance |
 
 use bytemuck::{Pod, Zeroable};
 
@@ -222,12 +223,21 @@ pub mod hitbox_bits {
     pub const HITS_SHIFT: u32 = 8;
     /// Largest hit count a hitbox holds.
     pub const HITS_MAX: u32 = (1 << 24) - 1;
+    /// [`super::HitboxRecord::cost`]: one inactive shared-BLAS instance
+    /// (the low 16 bits count them, wrapping).
+    pub const COST_SHARED: u32 = 1;
+    /// [`super::HitboxRecord::cost`]: one inactive unique-BLAS instance
+    /// (the high 16 bits count them, wrapping).
+    pub const COST_UNIQUE: u32 = 1 << 16;
 }
 
-/// Per-hitbox state: 12 bytes, the paper's figure.
+/// Per-hitbox state: 20 bytes, the paper's 12 plus the decayed rule's rate
+/// and the cost word.
 ///
-/// `min_y`/`max_y` are rebuilt every frame by TLAS assembly (Algorithm 1) from
-/// the inactive instances of the hitbox; the hit count is this frame's.
+/// `min_y`/`max_y` and `cost` are rebuilt every frame by TLAS assembly
+/// (Algorithm 1) from the inactive instances of the hitbox; the hit count is
+/// this frame's; `rate` carries over frames (the decayed rule,
+/// [`crate::thresholds::DecisionRule::Decayed`]; 0 under the paper's rule).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct HitboxRecord {
@@ -237,6 +247,14 @@ pub struct HitboxRecord {
     pub max_y: f32,
     /// Active bit, streak counter and saturating hit count; see [`hitbox_bits`].
     pub packed: u32,
+    /// Exponentially decayed hit rate in 16.16 fixed point (hits per frame
+    /// · 2^16), updated by Algorithm 2 under the decayed rule
+    /// ([`crate::thresholds::decay_rate`]); kept by [`crate::assembly::begin_frame`].
+    pub rate: u32,
+    /// This frame's inactive instances, by cost: low 16 bits shared-BLAS,
+    /// high 16 bits unique-BLAS ones (each a wrapping count, read saturated
+    /// at 255 by the cost-aware rule). Zeroed and rebuilt by Algorithm 1.
+    pub cost: u32,
 }
 
 impl Default for HitboxRecord {
@@ -245,6 +263,8 @@ impl Default for HitboxRecord {
             min_y: f32::INFINITY,
             max_y: f32::NEG_INFINITY,
             packed: 0,
+            rate: 0,
+            cost: 0,
         }
     }
 }
@@ -262,6 +282,16 @@ impl HitboxRecord {
     pub fn streak(&self) -> u32 {
         (self.packed >> hitbox_bits::STREAK_SHIFT) & hitbox_bits::STREAK_MAX
     }
+    /// This frame's inactive shared-BLAS instances (from [`Self::cost`]),
+    /// saturated at 255.
+    pub fn inactive_shared(&self) -> u32 {
+        (self.cost & 0xFFFF).min(255)
+    }
+    /// This frame's inactive unique-BLAS instances (from [`Self::cost`]),
+    /// saturated at 255.
+    pub fn inactive_unique(&self) -> u32 {
+        (self.cost >> 16).min(255)
+    }
     /// Adds hits, saturating at [`hitbox_bits::HITS_MAX`].
     pub fn add_hits(&mut self, hits: u32) {
         let total = self.hits().saturating_add(hits).min(hitbox_bits::HITS_MAX);
@@ -272,7 +302,7 @@ impl HitboxRecord {
 
 const _: () = assert!(std::mem::size_of::<TlasInstance>() == 64);
 const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 96);
-const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 12);
+const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 20);
 
 #[cfg(test)]
 mod tests {

@@ -77,7 +77,7 @@ pub use build_plan::{BuildBudgets, BuildEstimate, SchedulerConfig};
 pub use controller::{
     ControlTarget, ControllerConfig, ControllerError, ControllerStats, EscapeSample,
 };
-pub use culling::CullingConfig;
+pub use culling::{CullingConfig, Selection};
 pub use grid::{GridConfig, HitboxGrid};
 pub use hashed_hitboxes::{HashedConfig, HashedHitboxes, WorldHitboxes};
 pub use hitbox_index::HitboxIndex;

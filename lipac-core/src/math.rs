@@ -57,6 +57,8 @@ pub fn rows_to_affine(r: &[f32; 12]) -> Affine3A {
 
 #[cfg(test)]
 mod tests {
+    use lipac_test_support::{Rng64, SplitMix64};
+
     use super::*;
 
     #[test]
@@ -87,7 +89,7 @@ mod tests {
             let c = a.to_cols_array();
             c.iter().map(|v| v.to_bits()).collect()
         };
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut rng = SplitMix64::new(0x2545_F491_4F6C_DD1D);
         let special = [
             0.0,
             -0.0,
@@ -99,9 +101,7 @@ mod tests {
         for case in 0..10_000u32 {
             let mut r = [0f32; 12];
             for (i, v) in r.iter_mut().enumerate() {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
+                let state = rng.next_u64();
                 *v = if case % 4 == 0 {
                     special[(state % special.len() as u64) as usize]
                 } else {

@@ -20,6 +20,24 @@
 //!   its hit count is below σo.
 //!
 //! All comparisons are strict, as in the paper.
+//!
+//! That is the paper's rule, [`DecisionRule::Paper`]. The other rule,
+//! [`DecisionRule::Decayed`] ([`DecayedRule`]), decides from an
+//! exponentially decayed hit rate per hitbox and per unique-BLAS instance
+//! instead of raw per-frame counts and streaks, with hysteresis (activate
+//! above one rate, deactivate below a lower one) and cost-aware activation
+//! (a hitbox needs more evidence the more inactive instances activating it
+//! would bring in). The rate is a `u32` in 16.16 fixed point (hits per frame
+//! · 2^16) updated by [`decay_rate`], the exact integer rule the shaders
+//! use:
+//!
+//! ```text
+//! h     = min(hits, 65535)
+//! rate' = rate − (rate >> k) + ((h << 16) >> k)        (k = DecayedRule::shift)
+//! ```
+//!
+//! i.e. `rate' ≈ (1 − 2^−k)·rate + 2^−k·hits`, a half-life of about
+//! `0.69·2^k` frames, never overflowing (see [`decay_rate`]).
 
 use std::fmt;
 
@@ -50,6 +68,263 @@ pub struct Thresholds {
     pub n_a: u32,
     /// n_d: consecutive frames below θd that deactivate a hitbox (1..=127).
     pub n_d: u32,
+    /// Which rule decides: the paper's ([`DecisionRule::Paper`], the fields
+    /// above) or the decayed hit rate ([`DecisionRule::Decayed`], whose own
+    /// rates replace θa…n_d).
+    pub rule: DecisionRule,
+}
+
+/// The rule Algorithm 2 decides with; see the [module docs](self).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DecisionRule {
+    /// The paper's: this frame's hit counts against θa, θd, σa, σo and the
+    /// streaks n_a, n_d.
+    #[default]
+    Paper,
+    /// Exponentially decayed hit rates with hysteresis and cost-aware
+    /// activation.
+    Decayed(DecayedRule),
+}
+
+/// One in the 16.16 fixed point of hit rates: a rate of one hit per frame.
+pub const RATE_ONE: u32 = 1 << 16;
+/// Hits per frame beyond this count as this many in [`decay_rate`].
+pub const RATE_HITS_MAX: u32 = 0xFFFF;
+/// Largest [`DecayedRule::shift`].
+pub const MAX_DECAY_SHIFT: u32 = 8;
+/// Largest activation threshold (with its cost terms) a rate can exceed:
+/// 65 520 hits per frame.
+pub const MAX_RATE_THRESHOLD: u32 = 0xFFF0_0000;
+/// Inactive instances of one kind a hitbox's cost counts at most.
+pub const MAX_COST_COUNT: u32 = 255;
+
+/// One frame of the decayed hit rate: `rate − (rate >> k) + ((min(hits,
+/// 65535) << 16) >> k)` with `k = shift` clamped to `1..=16`.
+///
+/// Never overflows: `rate − ⌊rate/2^k⌋` grows with `rate`, and at
+/// `rate = 2^32 − 1` the sum is `2^32 − 2^(16−k) < 2^32`. It is monotone in
+/// `rate` and in `hits`, and a constant `hits = h` drives any rate to within
+/// `2^k` units of `h·2^16` (the truncation of the two shifts). The shaders
+/// compute the same expression in `uint` arithmetic (`lipacDecayRate`).
+///
+/// ```
+/// use lipac_core::thresholds::{decay_rate, RATE_ONE};
+/// let mut r = 0;
+/// for _ in 0..200 { r = decay_rate(r, 3, 4); }
+/// assert!((3 * RATE_ONE - r) <= 16);
+/// assert_eq!(decay_rate(u32::MAX, u32::MAX, 1), u32::MAX - (1 << 15) + 1); // 2^32 − 2^15
+/// ```
+pub fn decay_rate(rate: u32, hits: u32, shift: u32) -> u32 {
+    let k = shift.clamp(1, 16);
+    let h = hits.min(RATE_HITS_MAX);
+    rate - (rate >> k) + ((h << 16) >> k)
+}
+
+/// The decayed rule's settings in 16.16 fixed point (hits per frame ·
+/// [`RATE_ONE`]); build one from hits per frame with
+/// [`DecayedSettings::rule_for_rays_per_frame`].
+///
+/// * A hitbox's rate is updated every frame from its hits (counting box and
+///   instances). An **inactive** hitbox activates when its rate is above
+///   `activate + per_shared·S + per_unique·U`, with `S` and `U` its inactive
+///   shared- and unique-BLAS instances this frame (each at most 255,
+///   [`crate::layout::HitboxRecord::cost`]): the evidence needed grows with
+///   what activation brings in. An **active** one deactivates when its rate
+///   is below `deactivate`.
+/// * A unique-BLAS instance's rate (the per-slot rate buffer) is updated
+///   from its own hits while it is omitted or active with a BLAS (held while
+///   active without one, 0 while inactive). An **omitted** one activates
+///   above `instance_activate`; an **active** one with a BLAS is omitted
+///   again below `instance_omit`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DecayedRule {
+    /// k: the rate keeps `1 − 2^−k` of itself each frame (1..=8; half-life
+    /// about `0.69·2^k` frames).
+    pub shift: u32,
+    /// Hitbox activation rate (plus the cost terms).
+    pub activate: u32,
+    /// Hitbox deactivation rate (below `activate`, at least `2^shift`).
+    pub deactivate: u32,
+    /// Omitted → active rate of a unique-BLAS instance.
+    pub instance_activate: u32,
+    /// Active → omitted rate (below `instance_activate`, at least `2^shift`).
+    pub instance_omit: u32,
+    /// Extra activation rate per inactive shared-BLAS instance of the hitbox.
+    pub per_shared: u32,
+    /// Extra activation rate per inactive unique-BLAS instance of the hitbox.
+    pub per_unique: u32,
+}
+
+impl DecayedRule {
+    /// The rate an inactive hitbox must exceed with `shared` and `unique`
+    /// inactive instances (each saturated at [`MAX_COST_COUNT`]); fits a
+    /// `u32` for a validated rule.
+    pub fn activation_threshold(&self, shared: u32, unique: u32) -> u32 {
+        let t = u64::from(self.activate)
+            + u64::from(self.per_shared) * u64::from(shared.min(MAX_COST_COUNT))
+            + u64::from(self.per_unique) * u64::from(unique.min(MAX_COST_COUNT));
+        t.min(u64::from(u32::MAX)) as u32
+    }
+
+    /// The same rule with every rate multiplied by `factor` (rounded, at
+    /// least 1, the order of each pair kept), then validated.
+    pub fn scaled(&self, factor: f64) -> Result<Self, ThresholdError> {
+        if !factor.is_finite() || factor <= 0.0 {
+            return Err(ThresholdError::InvalidScale(factor));
+        }
+        let s = |v: u32| -> u32 { ((f64::from(v) * factor).round() as u32).max(1) };
+        let floor = 1u32 << self.shift.min(31);
+        let deactivate = s(self.deactivate).max(floor);
+        let instance_omit = s(self.instance_omit).max(floor);
+        let r = Self {
+            shift: self.shift,
+            activate: s(self.activate).max(deactivate.saturating_add(1)),
+            deactivate,
+            instance_activate: s(self.instance_activate).max(instance_omit.saturating_add(1)),
+            instance_omit,
+            per_shared: if self.per_shared == 0 {
+                0
+            } else {
+                s(self.per_shared)
+            },
+            per_unique: if self.per_unique == 0 {
+                0
+            } else {
+                s(self.per_unique)
+            },
+        };
+        r.validate()?;
+        Ok(r)
+    }
+
+    /// Checks `1 ≤ shift ≤ 8`, `2^shift ≤ deactivate < activate`,
+    /// `2^shift ≤ instance_omit < instance_activate`, and that the largest
+    /// activation threshold (255 instances of each kind) and
+    /// `instance_activate` stay at most [`MAX_RATE_THRESHOLD`].
+    pub fn validate(&self) -> Result<(), ThresholdError> {
+        if self.shift == 0 || self.shift > MAX_DECAY_SHIFT {
+            return Err(ThresholdError::DecayShiftOutOfRange(self.shift));
+        }
+        let floor = 1u32 << self.shift;
+        for (name, value) in [
+            ("deactivate", self.deactivate),
+            ("instance_omit", self.instance_omit),
+        ] {
+            if value < floor {
+                return Err(ThresholdError::RateBelowDecayFloor { name, value, floor });
+            }
+        }
+        if self.deactivate >= self.activate {
+            return Err(ThresholdError::DeactivationNotBelowActivation {
+                theta_d: self.deactivate,
+                theta_a: self.activate,
+            });
+        }
+        if self.instance_omit >= self.instance_activate {
+            return Err(ThresholdError::OmitNotBelowActivation {
+                sigma_o: self.instance_omit,
+                sigma_a: self.instance_activate,
+            });
+        }
+        let most = u64::from(self.activate)
+            + u64::from(MAX_COST_COUNT) * (u64::from(self.per_shared) + u64::from(self.per_unique));
+        for (name, value) in [
+            ("activate + 255·(per_shared + per_unique)", most),
+            ("instance_activate", u64::from(self.instance_activate)),
+        ] {
+            if value > u64::from(MAX_RATE_THRESHOLD) {
+                return Err(ThresholdError::RateTooLarge { name, value });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// [`DecayedRule`] in hits per frame at [`REFERENCE_RAYS_PER_FRAME`] (the
+/// paper's scale, like θa = 1000) and a half-life in frames; what a
+/// configuration holds. [`Self::rule_for_rays_per_frame`] scales and
+/// converts it, rejecting what cannot be met.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DecayedSettings {
+    /// Frames for a rate to halve without hits (0.5..=400; rounded to the
+    /// nearest `0.69·2^k`, k in 1..=8).
+    pub half_life_frames: f64,
+    /// [`DecayedRule::activate`], hits per frame at the reference.
+    pub activate: f64,
+    /// [`DecayedRule::deactivate`].
+    pub deactivate: f64,
+    /// [`DecayedRule::instance_activate`].
+    pub instance_activate: f64,
+    /// [`DecayedRule::instance_omit`].
+    pub instance_omit: f64,
+    /// [`DecayedRule::per_shared`].
+    pub per_shared: f64,
+    /// [`DecayedRule::per_unique`].
+    pub per_unique: f64,
+}
+
+impl DecayedSettings {
+    /// The decay shift whose half-life `ln 2 / −ln(1 − 2^−k)` is nearest
+    /// (in ratio) to `half_life_frames`.
+    pub fn shift_for_half_life(half_life_frames: f64) -> Result<u32, ThresholdError> {
+        if !half_life_frames.is_finite() || !(0.5..=400.0).contains(&half_life_frames) {
+            return Err(ThresholdError::InvalidHalfLife(half_life_frames));
+        }
+        let half_life = |k: u32| std::f64::consts::LN_2 / -(1.0 - 0.5f64.powi(k as i32)).ln();
+        let mut best = 1;
+        for k in 2..=MAX_DECAY_SHIFT {
+            if (half_life(k) / half_life_frames).ln().abs()
+                < (half_life(best) / half_life_frames).ln().abs()
+            {
+                best = k;
+            }
+        }
+        Ok(best)
+    }
+
+    /// The rule for `rays_per_frame` camera rays: every rate scaled by
+    /// `rays / (1920·1080)` into 16.16 fixed point (rounded; the lower rate
+    /// of each pair raised to the decay floor `2^k` and the upper one kept
+    /// above it), validated. NaN, infinite, negative or zero rates (zero is
+    /// allowed for the cost terms) and half-lives are errors.
+    pub fn rule_for_rays_per_frame(
+        &self,
+        rays_per_frame: f64,
+    ) -> Result<DecayedRule, ThresholdError> {
+        if !rays_per_frame.is_finite() || rays_per_frame <= 0.0 {
+            return Err(ThresholdError::InvalidRayCount(rays_per_frame));
+        }
+        let shift = Self::shift_for_half_life(self.half_life_frames)?;
+        let factor = rays_per_frame / REFERENCE_RAYS_PER_FRAME * f64::from(RATE_ONE);
+        let fixed = |name: &'static str, v: f64, zero_ok: bool| -> Result<u32, ThresholdError> {
+            if !v.is_finite() || v < 0.0 || (v == 0.0 && !zero_ok) {
+                return Err(ThresholdError::InvalidRate { name, value: v });
+            }
+            let x = (v * factor).round();
+            if x > f64::from(MAX_RATE_THRESHOLD) {
+                return Err(ThresholdError::RateTooLarge {
+                    name,
+                    value: x as u64,
+                });
+            }
+            Ok(x as u32)
+        };
+        let floor = 1u32 << shift;
+        let deactivate = fixed("deactivate", self.deactivate, false)?.max(floor);
+        let instance_omit = fixed("instance_omit", self.instance_omit, false)?.max(floor);
+        let rule = DecayedRule {
+            shift,
+            activate: fixed("activate", self.activate, false)?.max(deactivate + 1),
+            deactivate,
+            instance_activate: fixed("instance_activate", self.instance_activate, false)?
+                .max(instance_omit + 1),
+            instance_omit,
+            per_shared: fixed("per_shared", self.per_shared, true)?,
+            per_unique: fixed("per_unique", self.per_unique, true)?,
+        };
+        rule.validate()?;
+        Ok(rule)
+    }
 }
 
 /// Why a set of thresholds was rejected.
@@ -84,6 +359,36 @@ pub enum ThresholdError {
         /// θa.
         theta_a: u32,
     },
+    /// A scale factor was NaN, infinite, zero or negative.
+    InvalidScale(f64),
+    /// [`DecayedRule::shift`] outside `1..=8`.
+    DecayShiftOutOfRange(u32),
+    /// A half-life was NaN, infinite or outside `0.5..=400` frames.
+    InvalidHalfLife(f64),
+    /// A rate setting was NaN, infinite, negative or zero.
+    InvalidRate {
+        /// The setting.
+        name: &'static str,
+        /// The rejected value.
+        value: f64,
+    },
+    /// A lower rate below `2^shift`: the decayed rate stops falling at
+    /// about `2^shift` (truncation), so it would never get below it.
+    RateBelowDecayFloor {
+        /// The setting.
+        name: &'static str,
+        /// The rejected value (16.16).
+        value: u32,
+        /// `2^shift`.
+        floor: u32,
+    },
+    /// A rate threshold above [`MAX_RATE_THRESHOLD`]: no rate could exceed it.
+    RateTooLarge {
+        /// The setting.
+        name: &'static str,
+        /// The rejected value (16.16).
+        value: u64,
+    },
 }
 
 impl fmt::Display for ThresholdError {
@@ -111,6 +416,31 @@ impl fmt::Display for ThresholdError {
                 u64::from(*theta_a) * 2,
                 hitbox_bits::HITS_MAX
             ),
+            Self::InvalidScale(v) => {
+                write!(f, "threshold scale factor must be finite and positive, got {v}")
+            }
+            Self::DecayShiftOutOfRange(k) => write!(
+                f,
+                "decay shift {k} must be in 1..={MAX_DECAY_SHIFT} (half-life 1 to 177 frames)"
+            ),
+            Self::InvalidHalfLife(v) => write!(
+                f,
+                "half-life must be finite and in 0.5..=400 frames, got {v}"
+            ),
+            Self::InvalidRate { name, value } => write!(
+                f,
+                "rate {name} must be finite and positive, got {value}"
+            ),
+            Self::RateBelowDecayFloor { name, value, floor } => write!(
+                f,
+                "rate {name} = {value}/65536 hits per frame is below the decay floor {floor}/65536: \
+                 a decayed rate never falls below it"
+            ),
+            Self::RateTooLarge { name, value } => write!(
+                f,
+                "rate threshold {name} = {value}/65536 hits per frame exceeds the largest \
+                 reachable rate {MAX_RATE_THRESHOLD}/65536"
+            ),
         }
     }
 }
@@ -134,7 +464,50 @@ impl Thresholds {
             sigma_o: 100,
             n_a: 4,
             n_d: 15,
+            rule: DecisionRule::Paper,
         }
+    }
+
+    /// These thresholds deciding with `rule` instead.
+    pub const fn with_rule(self, rule: DecisionRule) -> Self {
+        Self { rule, ..self }
+    }
+
+    /// Every hit threshold (θa, θd, σa, σo and the decayed rule's rates)
+    /// multiplied by `factor`, as [`Self::for_rays_per_frame`] rounds them
+    /// (at least 1, each lower one below its upper one); streaks and the
+    /// decay shift stay: the closed-loop controller's output
+    /// ([`crate::controller`]). `scaled(1.0)` of valid thresholds is
+    /// themselves; a `factor` that is NaN, infinite, zero or negative is
+    /// [`ThresholdError::InvalidScale`], one that pushes a threshold past its
+    /// counter an error too.
+    ///
+    /// ```
+    /// use lipac_core::thresholds::Thresholds;
+    /// let t = Thresholds::paper().scaled(0.5).unwrap();
+    /// assert_eq!((t.theta_a, t.theta_d), (500, 50));
+    /// assert!(Thresholds::paper().scaled(f64::NAN).is_err());
+    /// ```
+    pub fn scaled(&self, factor: f64) -> Result<Self, ThresholdError> {
+        if !factor.is_finite() || factor <= 0.0 {
+            return Err(ThresholdError::InvalidScale(factor));
+        }
+        let scale = |v: u32| -> u32 { ((f64::from(v) * factor).round() as u32).max(1) };
+        let theta_d = scale(self.theta_d);
+        let sigma_o = scale(self.sigma_o);
+        let t = Self {
+            theta_a: scale(self.theta_a).max(theta_d.saturating_add(1)),
+            theta_d,
+            sigma_a: scale(self.sigma_a).max(sigma_o.saturating_add(1)),
+            sigma_o,
+            rule: match self.rule {
+                DecisionRule::Paper => DecisionRule::Paper,
+                DecisionRule::Decayed(r) => DecisionRule::Decayed(r.scaled(factor)?),
+            },
+            ..*self
+        };
+        t.validate()?;
+        Ok(t)
     }
 
     /// The paper's thresholds scaled linearly to `rays_per_frame` (camera
@@ -174,53 +547,14 @@ impl Thresholds {
             sigma_o,
             n_a: p.n_a,
             n_d: p.n_d,
+            rule: DecisionRule::Paper,
         };
         t.validate()?;
         Ok(t)
     }
 
-    /// These thresholds with the four hit thresholds multiplied by `factor`
-    /// (the closed-loop controller's output, [`crate::controller`]): each of
-    /// θa, θd, σa, σo becomes `round(value · factor)`, at least 1, with an
-    /// upper one raised to lower + 1 where rounding made them meet; the
-    /// streak lengths are frame counts and stay. `scaled(1.0)` of valid
-    /// thresholds is themselves. The result is validated: a `factor` that is
-    /// NaN, infinite, zero or negative is [`ThresholdError::InvalidRayCount`],
-    /// one that pushes 2·θa past the 24-bit hit counter is
-    /// [`ThresholdError::ActivationTooLarge`].
-    ///
-    /// ```
-    /// use lipac_core::thresholds::Thresholds;
-    /// let t = Thresholds::paper().scaled(0.5).unwrap();
-    /// assert_eq!((t.theta_a, t.theta_d, t.sigma_a, t.sigma_o), (500, 50, 500, 50));
-    /// assert_eq!((t.n_a, t.n_d), (4, 15));
-    /// assert_eq!(Thresholds::paper().scaled(1.0).unwrap(), Thresholds::paper());
-    /// assert!(Thresholds::paper().scaled(f64::NAN).is_err());
-    /// ```
-    pub fn scaled(&self, factor: f64) -> Result<Self, ThresholdError> {
-        if !factor.is_finite() || factor <= 0.0 {
-            return Err(ThresholdError::InvalidRayCount(factor));
-        }
-        let scale = |v: u32| -> u32 {
-            // Saturating float -> int cast; validation below rejects overflow.
-            ((f64::from(v) * factor).round() as u32).max(1)
-        };
-        let theta_d = scale(self.theta_d);
-        let theta_a = scale(self.theta_a).max(theta_d.saturating_add(1));
-        let sigma_o = scale(self.sigma_o);
-        let sigma_a = scale(self.sigma_a).max(sigma_o.saturating_add(1));
-        let t = Self {
-            theta_a,
-            theta_d,
-            sigma_a,
-            sigma_o,
-            ..*self
-        };
-        t.validate()?;
-        Ok(t)
-    }
-
-    /// Checks θd < θa, σo < σa, 1 ≤ n_a, n_d ≤ 127 and 2·θa < 2^24 − 1.
+    /// Checks θd < θa, σo < σa, 1 ≤ n_a, n_d ≤ 127 and 2·θa < 2^24 − 1, and
+    /// a decayed rule with [`DecayedRule::validate`].
     ///
     /// ```
     /// use lipac_core::thresholds::{Thresholds, ThresholdError};
@@ -249,6 +583,9 @@ impl Thresholds {
             return Err(ThresholdError::ActivationTooLarge {
                 theta_a: self.theta_a,
             });
+        }
+        if let DecisionRule::Decayed(r) = &self.rule {
+            r.validate()?;
         }
         Ok(())
     }
@@ -315,10 +652,7 @@ mod tests {
         let t = p.scaled(1e-9).unwrap();
         assert_eq!((t.theta_d, t.theta_a, t.sigma_o, t.sigma_a), (1, 2, 1, 2));
         for f in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
-            assert!(matches!(
-                p.scaled(f),
-                Err(ThresholdError::InvalidRayCount(_))
-            ));
+            assert!(matches!(p.scaled(f), Err(ThresholdError::InvalidScale(_))));
         }
         assert!(matches!(
             p.scaled(1e5),
@@ -357,3 +691,7 @@ mod tests {
         .is_err());
     }
 }
+
+#[cfg(test)]
+#[path = "thresholds_decay_tests.rs"]
+mod decay_tests;

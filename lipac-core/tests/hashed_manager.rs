@@ -12,6 +12,7 @@ use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, HitboxIndex, InstanceDesc,
     InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
 };
+use lipac_test_support::synthetic::ImmediateAcks;
 use lipac_test_support::{Rng64, SplitMix64};
 
 const CUBE: u64 = 0xC0BE;
@@ -84,7 +85,7 @@ struct Rig<H: HitboxIndex> {
     m: Manager<H>,
     ring: ReadbackRing,
     acks: Vec<Ack>,
-    next: u64,
+    immediate: ImmediateAcks,
     tlas: Vec<TlasInstance>,
     cell_of: fn(&H, u32) -> Option<(i32, i32)>,
     /// Hitboxes the index evicted so far.
@@ -97,7 +98,7 @@ impl<H: HitboxIndex> Rig<H> {
             m: Manager::new(index, config(), catalog()).unwrap(),
             ring: ReadbackRing::new(1).unwrap(),
             acks: Vec::new(),
-            next: 0,
+            immediate: ImmediateAcks::new(0x1000),
             tlas: Vec::new(),
             cell_of,
             evicted: 0,
@@ -118,14 +119,7 @@ impl<H: HitboxIndex> Rig<H> {
         change(&mut self.m);
         let plan = self.m.plan(&FrameBudgets::default()).unwrap();
         let builds = plan.blas.builds().count();
-        for b in plan.blas.builds() {
-            self.next += 0x1000;
-            self.acks.push(Ack::Built {
-                build: b.id,
-                result_bytes: b.result_bytes,
-                address: self.next,
-            });
-        }
+        self.acks.extend(self.immediate.acks(&plan.blas));
         self.m.assemble(&mut self.tlas).unwrap();
         let mut recs = Vec::new();
         for t in self.tlas.clone() {

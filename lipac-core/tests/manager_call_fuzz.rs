@@ -328,6 +328,7 @@ impl Case {
             sigma_o: 40,
             n_a: 2,
             n_d: 4,
+            ..Thresholds::paper()
         };
         config.culling.command_capacity = 4 + rng.below(30) as u32;
         config.culling.readback_latency = latency;

@@ -26,6 +26,7 @@ fn base_thresholds() -> Thresholds {
         sigma_o: 20,
         n_a: 4,
         n_d: 15,
+        ..Thresholds::paper()
     }
 }
 

@@ -354,6 +354,74 @@ fn counting_box_hits_are_split_over_inactive_instances() {
     assert_eq!(hits, [(0, 834), (1, 834), (2, 833), (3, 2501)]);
 }
 
+#[test]
+fn a_pinned_instance_takes_no_counting_box_share() {
+    let mut m = manager();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    // Two inactive instances and a pinned one (always traced) in one cell.
+    for x in [3.0, 5.0] {
+        m.register(desc(1, x, 3.0)).unwrap();
+    }
+    let mut d = desc(1, 7.0, 3.0);
+    d.flags = InstanceFlags::PINNED;
+    m.register(d).unwrap();
+    let mut lp = Loop::new();
+    lp.before_plan(&mut m, 0);
+    lp.plan_and_trace(&mut m);
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    let f = r.next_frame().unwrap().unwrap();
+    let hits: Vec<(u64, u32)> = f.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
+    // The box's 2501 over the two inactive ones only (the pinned one is
+    // never reduced into the box; without its BLAS yet, it has no hits).
+    assert_eq!(hits, [(0, 1251), (1, 1250)]);
+}
+
+#[test]
+fn hits_leave_out_instances_registered_after_the_plan() {
+    // The recorder does not look the hits' ids up (they are consistent by
+    // construction): an instance registered between plan and feedback
+    // belongs to the next frame, so its hits must not be in this one, or
+    // the trace would not read back.
+    let mut m = manager();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    let a = m.register(desc(7, 3.0, 3.0)).unwrap();
+    let mut lp = Loop::new();
+    lp.before_plan(&mut m, 0);
+    m.plan(&FrameBudgets::default()).unwrap();
+    m.remove(a).unwrap();
+    let b = m.register(desc(7, 40.0, 40.0)).unwrap();
+    assert_eq!(m.trace_id(b), Some(1));
+    // Hits on every slot, the new instance's among them.
+    m.instance_hits_mut().iter_mut().for_each(|h| *h += 77);
+    m.process_feedback().unwrap();
+    lp.ring.push(m.take_commands().unwrap()).unwrap();
+    lp.before_plan(&mut m, 1);
+    m.plan(&FrameBudgets::default()).unwrap();
+    m.instance_hits_mut().iter_mut().for_each(|h| *h += 5);
+    m.process_feedback().unwrap();
+    lp.ring.push(m.take_commands().unwrap()).unwrap();
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    let f0 = r.next_frame().unwrap().unwrap();
+    // Instance 0's removal and instance 1's add are frame 1's events:
+    // neither has hits in frame 0 (1 is not live yet, 0's slot was freed).
+    assert_eq!(f0.hits.as_deref(), Some(&[][..]));
+    let f1 = r.next_frame().unwrap().unwrap();
+    assert_eq!(f1.events.len(), 2);
+    let hits: Vec<(u64, u32)> = f1.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
+    assert_eq!(hits, [(1, 5)]);
+    assert_eq!(r.next_frame().unwrap(), None);
+}
+
 /// Fails every write after `ok` bytes.
 #[derive(Clone)]
 struct Failing {

@@ -111,6 +111,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
         sigma_o: 40,
         n_a: 2,
         n_d: 4,
+        ..Thresholds::paper()
     };
     config.culling.command_capacity = 12; // overflows now and then
     config.culling.readback_latency = 2;

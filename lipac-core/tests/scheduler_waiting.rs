@@ -6,6 +6,7 @@
 use lipac_core::blas_ids::{InstanceKey, Lod};
 use lipac_core::build_plan::{BlasGeometry, BuildScheduler, InstanceBlasRequest, SchedulerConfig};
 use lipac_core::{Ack, BuildBudgets, BuildEstimate, MeshId};
+use lipac_test_support::synthetic::AckSink;
 use lipac_test_support::{Rng64, SplitMix64};
 use std::collections::BTreeSet;
 
@@ -45,14 +46,7 @@ fn waiting_instances_are_the_ones_with_a_pending_lod() {
     for frame in 0..40u64 {
         s.begin_frame(frame).unwrap();
         for ack in acks.drain(..) {
-            match ack {
-                Ack::Built {
-                    build,
-                    result_bytes,
-                    address,
-                } => s.ack_built(build, result_bytes, address).unwrap(),
-                _ => unreachable!(),
-            }
+            s.ack(ack).unwrap();
         }
         for _ in 0..12 {
             let k = InstanceKey((rng.next_u64() % u64::from(keys)) as u32);

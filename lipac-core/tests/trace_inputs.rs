@@ -109,7 +109,7 @@ fn a_huge_world_grid_is_refused_naming_its_size() {
     assert_eq!(e.location, TraceLocation::Byte(at as u64), "{e}");
     let text = e.to_string();
     assert!(text.contains("65535 x 65535 = 4294836225 cells"), "{text}");
-    assert!(text.contains("51538034700 bytes"), "{text}");
+    assert!(text.contains("85896724500 bytes"), "{text}");
     assert!(text.contains("limit of 16777216 cells"), "{text}");
     // The limit is configurable.
     let limits = TraceLimits {

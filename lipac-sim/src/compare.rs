@@ -163,6 +163,9 @@ pub struct CompareReport {
     pub gpu_model: GpuModel,
     /// Per strategy.
     pub strategies: Vec<StrategyRun>,
+    /// Frames at which the camera path jumps ([`CameraPath::cuts`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub camera_cuts: Vec<u32>,
 }
 
 impl CompareReport {
@@ -196,16 +199,17 @@ pub fn make_strategy(
     scene: &Scene,
     lipac: &LipacConfig,
 ) -> Result<Box<dyn Strategy>, SimError> {
-    let n = scene.instances().len();
     Ok(match kind {
-        StrategyKind::Full => Box::new(Full::new(n)?),
-        StrategyKind::Frustum => Box::new(FrustumRadius::new(n, FrustumRadius::DEFAULT_RADIUS)?),
-        StrategyKind::Heuristic => Box::new(Heuristic::new(n, Default::default())?),
+        StrategyKind::Full => Box::new(Full::new(scene)?),
+        StrategyKind::Frustum => {
+            Box::new(FrustumRadius::new(scene, FrustumRadius::DEFAULT_RADIUS)?)
+        }
+        StrategyKind::Heuristic => Box::new(Heuristic::new(scene, Default::default())?),
         StrategyKind::Lipac => Box::new(Lipac::new(scene, lipac.clone())?),
         StrategyKind::LipacLatency => {
             Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
         }
-        StrategyKind::Oracle => Box::new(Oracle::new(n)?),
+        StrategyKind::Oracle => Box::new(Oracle::new(scene)?),
     })
 }
 
@@ -291,7 +295,7 @@ pub fn run_contenders(
     run_path(scene_name, scene, path, config, contenders, &[], progress).map(|(r, _)| r)
 }
 
-fn run_path(
+pub(crate) fn run_path(
     scene_name: &str,
     scene: &mut Scene,
     path: &CameraPath,
@@ -311,7 +315,14 @@ fn run_path(
         c.frame(scene, frame, &path.camera_at(frame))?;
         progress(frame + 1, frames);
     }
-    c.finish_with_snapshots()
+    let (mut report, snaps) = c.finish_with_snapshots()?;
+    report.camera_cuts = path
+        .cuts()
+        .iter()
+        .copied()
+        .filter(|&f| f < frames)
+        .collect();
+    Ok((report, snaps))
 }
 
 /// The comparison one frame at a time, for callers whose frames come from
@@ -752,6 +763,7 @@ impl Comparison {
             blas_throughput: self.throughput,
             gpu_model: self.gpu,
             strategies,
+            camera_cuts: Vec::new(),
         };
         Ok((report, self.snapshots))
     }

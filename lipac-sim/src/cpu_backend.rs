@@ -1,7 +1,10 @@
 //! The CPU backend: one [`lipac_core::manager::Manager`] driven the way an
 //! engine drives its GPU backend, with the BLAS work accounted instead of
-//! run. The LiPaC strategy ([`crate::strategy::lipac`]) and the hits-only
-//! replay ([`crate::replay::hits`]) both run on it.
+//! run. Every strategy of the comparison runs on it: LiPaC
+//! ([`crate::strategy::lipac`], and the hits-only replay
+//! [`crate::replay::hits`]) with hit feedback ([`CpuBackend::new`]), the
+//! baselines with the set they choose each frame
+//! ([`CpuBackend::engine_selected`], [`CpuBackend::set_pinned`]).
 //!
 //! Per frame `f` a caller does, in order:
 //!
@@ -41,7 +44,8 @@
 
 use lipac_core::blas_ids::BuildId;
 use lipac_core::build_plan::{PriorityConfig, SchedulerConfig};
-use lipac_core::culling::{CullingConfig, ReadbackRing};
+use lipac_core::controller::ControllerConfig;
+use lipac_core::culling::{CullingConfig, ReadbackRing, Selection};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::InstanceDesc;
@@ -159,9 +163,54 @@ impl<H: HitboxIndex> CpuBackend<H> {
         })
     }
 
+    /// A Manager over `grid` with the meshes of `catalog` whose set the
+    /// caller chooses ([`Selection::EngineSelected`]: exactly the pinned
+    /// instances are active, no counting boxes, no hit feedback): the
+    /// baselines of [`crate::strategy`]. Commands and builds are not
+    /// budgeted (the set is complete every frame), build priorities are the
+    /// scheduler's defaults, the read-back latency is 2 frames.
+    pub fn engine_selected(grid: H, catalog: MeshCatalog) -> Result<Self, SimError> {
+        let readback_latency = 2;
+        let culling = CullingConfig {
+            registry: RegistryConfig {
+                quarantine_frames: readback_latency + 2,
+                ..RegistryConfig::default()
+            },
+            latency_mitigation: None,
+            readback_latency,
+            selection: Selection::EngineSelected,
+            ..CullingConfig::new(crate::blas::BlasStore::new().unit_cube().reference())
+        };
+        let manager_config = ManagerConfig {
+            culling,
+            scheduler: scheduler_config(PriorityConfig::default()),
+            data: DataConfig::default(),
+            target: None,
+            controller: ControllerConfig::default(),
+        };
+        Ok(Self {
+            manager: Manager::new(grid, manager_config, catalog).map_err(core)?,
+            ring: ReadbackRing::new(readback_latency).map_err(core)?,
+            budgets: FrameBudgets {
+                commands: usize::MAX,
+                builds: crate::strategy::unlimited_budgets(),
+            },
+            latency_mitigation: false,
+            next_address: 0x1000,
+            open_frame: None,
+        })
+    }
+
     /// The Manager (read-only: statistics, catalog, instance views).
     pub fn manager(&self) -> &Manager<H> {
         &self.manager
+    }
+
+    /// The Manager, e.g. to attach a trace recorder
+    /// ([`Manager::attach_recorder`]) and pass it the camera. Driving its
+    /// frame (begin, plan, feedback) directly bypasses this backend.
+    pub fn manager_mut(&mut self) -> &mut Manager<H> {
+        &mut self.manager
     }
 
     // ---- instances ------------------------------------------------------
@@ -192,6 +241,14 @@ impl<H: HitboxIndex> CpuBackend<H> {
     /// Requests a LOD ([`Manager::set_lod`]).
     pub fn set_lod(&mut self, handle: InstanceHandle, lod: u32) -> Result<(), SimError> {
         self.manager.set_lod(handle, lod).map(|_| ()).map_err(core)
+    }
+    /// Pins or unpins an instance ([`Manager::set_pinned`]): with
+    /// [`CpuBackend::engine_selected`], selects it for the TLAS or drops it.
+    pub fn set_pinned(&mut self, handle: InstanceHandle, pinned: bool) -> Result<(), SimError> {
+        self.manager
+            .set_pinned(handle, pinned)
+            .map(|_| ())
+            .map_err(core)
     }
     /// Removes an instance ([`Manager::remove`]).
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<(), SimError> {

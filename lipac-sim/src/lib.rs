@@ -7,6 +7,7 @@
 
 pub mod blas;
 pub mod camera;
+pub mod closed_loop;
 pub mod compare;
 pub mod cpu_backend;
 pub mod error;

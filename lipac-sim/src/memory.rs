@@ -7,8 +7,10 @@
 //!   no compacted sizes);
 //! * a TLAS of `n` instances: `176·n − 16` bytes, and 216 bytes for one
 //!   instance (lavapipe: exact from n = 16 on);
-//! * LiPaC's own buffers: 12 bytes per hitbox and 4 bytes of hit feedback
-//!   per instance slot (the paper's accounting; [`lipac_core::grid`]).
+//! * LiPaC's own buffers: 20 bytes per hitbox (the paper's 12 plus the
+//!   decayed rule's rate and cost words) and 4 bytes of hit feedback per
+//!   instance slot ([`lipac_core::grid`]; the decayed rule's 4-byte rate per
+//!   slot is not counted).
 //!
 //! The CPU tracer's own structures (obvhs CWBVHs) are a different size; the
 //! comparison reports the model, which is what a Vulkan backend on lavapipe
@@ -58,7 +60,7 @@ pub fn tlas_bytes(instances: u64) -> u64 {
 ///
 /// ```
 /// use lipac_sim::memory::lipac_overhead_bytes;
-/// assert_eq!(lipac_overhead_bytes(512 * 512, 1_000_000), 3 * 1024 * 1024 + 4_000_000);
+/// assert_eq!(lipac_overhead_bytes(512 * 512, 1_000_000), 5 * 1024 * 1024 + 4_000_000);
 /// ```
 pub fn lipac_overhead_bytes(hitboxes: u64, instance_slots: u64) -> u64 {
     hitboxes * HITBOX_BYTES + instance_slots * HIT_FEEDBACK_BYTES_PER_INSTANCE

@@ -111,7 +111,7 @@ pub enum MeshKind {
 pub struct LodTriangles {
     /// Triangles in object space.
     pub triangles: Vec<Triangle>,
-    /// Material byte per triangle (see [`material`]).
+    /// Material byte per triangle (see [`mod@material`]).
     pub materials: Vec<u8>,
     /// Whether the triangle is alpha tested with [`leaf_opaque`].
     pub alpha_tested: Vec<bool>,
@@ -782,9 +782,10 @@ pub fn building(p: BuildingParams) -> Mesh {
     Mesh::from_lods(kind, [lod0, lod1, lod2])
 }
 
-/// Centre and radii of the tree crown used by [`leaf_opaque`].
-const CROWN_CENTER: Vec3 = Vec3::new(0.0, 5.5, 0.0);
-const CROWN_RADII: Vec3 = Vec3::new(2.6, 3.0, 2.6);
+/// Centre of the tree crown used by [`leaf_opaque`] (object space).
+pub const CROWN_CENTER: Vec3 = Vec3::new(0.0, 5.5, 0.0);
+/// Radii of the tree crown used by [`leaf_opaque`].
+pub const CROWN_RADII: Vec3 = Vec3::new(2.6, 3.0, 2.6);
 
 /// The procedural alpha function of vegetation, evaluated at an
 /// object-space point on a leaf quad: `true` where the leaf is opaque.

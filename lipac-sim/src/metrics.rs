@@ -91,6 +91,22 @@ pub struct FrameMetrics {
     pub tlas_build_ms: f64,
     /// Wall time of the strategy's own frame logic, ms.
     pub strategy_ms: f64,
+    /// LiPaC: escape fraction of the hits the Manager counted this frame
+    /// (those of the previous frame's trace; [`lipac_core::controller`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub escape_fraction: Option<f64>,
+    /// LiPaC: the scale on the thresholds (1 without a closed-loop target).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold_scale: Option<f64>,
+    /// LiPaC: the bytes a memory budget holds, as the Manager accounts them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controlled_bytes: Option<u64>,
+    /// LiPaC with a closed-loop target: the target (bytes or fraction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub control_target: Option<f64>,
+    /// LiPaC with a target: the controller reports it unreachable.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub control_unreachable: bool,
     /// Bounce and shadow rays traced against the strategy's TLAS.
     #[serde(default)]
     pub traced_rays: u64,
@@ -476,6 +492,13 @@ pub fn apply_strategy_frame(m: &mut FrameMetrics, f: &StrategyFrame) {
     m.primitives_refit = primitives_refit;
     m.blas_bytes = f.blas_bytes;
     m.overhead_bytes = f.overhead_bytes;
+    if let Some(c) = f.control {
+        m.escape_fraction = c.escape_fraction;
+        m.threshold_scale = Some(c.threshold_scale);
+        m.controlled_bytes = Some(c.controlled_bytes);
+        m.control_target = c.target;
+        m.control_unreachable = c.unreachable;
+    }
 }
 
 /// Nearest-rank percentile `p` (0..=100) of `v` (0 for none).

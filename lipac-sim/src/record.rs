@@ -201,17 +201,7 @@ pub fn hitbox_grid(bounds: &Aabb, cell: f64) -> GridConfig {
 
 /// The trace flags of a scene instance.
 pub fn instance_flags(inst: &SceneInstance) -> InstanceFlags {
-    let mut f = InstanceFlags::empty();
-    if inst.is_unique() {
-        f |= InstanceFlags::UNIQUE_BLAS;
-    }
-    if inst.is_vegetation() {
-        f |= InstanceFlags::VEGETATION;
-    }
-    if inst.flags & flags::STATIC != 0 {
-        f |= InstanceFlags::STATIC;
-    }
-    f
+    inst.instance_flags()
 }
 
 fn pose(inst: &SceneInstance) -> Pose {

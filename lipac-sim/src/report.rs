@@ -231,6 +231,9 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
             " (run with `--snapshots 0,90,180` for images, error heat maps and TLAS maps)"
         }
     );
+    if let Some(section) = crate::closed_loop::markdown(r, &r.camera_cuts) {
+        s.push_str(&section);
+    }
     s
 }
 
@@ -332,6 +335,7 @@ pub fn write_report_with_snapshots(
         ("frames.csv", csv(r)),
     ];
     files.extend(PLOTS.iter().copied().zip(svgs));
+    files.extend(crate::closed_loop::plots(r)?);
     files.push(("report.html", html));
     let mut paths = Vec::new();
     for (name, body) in files {

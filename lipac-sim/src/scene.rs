@@ -10,6 +10,7 @@
 //! instances stays small.
 
 use glam::{Affine3A, Quat, Vec2, Vec3};
+use lipac_core::instance::InstanceFlags;
 use lipac_core::math::Aabb;
 
 use crate::error::SimError;
@@ -38,6 +39,9 @@ pub mod flags {
     pub const STATIC: u8 = 32;
     /// The mirror block.
     pub const MIRROR: u8 = 64;
+    /// Always traced: never culled (terrain tiles, as the paper does);
+    /// lipac-core's [`lipac_core::instance::InstanceFlags::PINNED`].
+    pub const PINNED: u8 = 128;
 }
 
 /// One instance of the scene.
@@ -65,6 +69,28 @@ impl SceneInstance {
     /// Whether it is animated.
     pub fn is_animated(&self) -> bool {
         self.flags & flags::ANIMATED != 0
+    }
+    /// Whether it is pinned (always traced).
+    pub fn is_pinned(&self) -> bool {
+        self.flags & flags::PINNED != 0
+    }
+    /// Its lipac-core flags: the one conversion from the scene's [`flags`]
+    /// for LiPaC's Manager and for recorded traces.
+    pub fn instance_flags(&self) -> InstanceFlags {
+        let mut f = InstanceFlags::empty();
+        if self.is_unique() {
+            f |= InstanceFlags::UNIQUE_BLAS;
+        }
+        if self.is_vegetation() {
+            f |= InstanceFlags::VEGETATION;
+        }
+        if self.flags & flags::STATIC != 0 {
+            f |= InstanceFlags::STATIC;
+        }
+        if self.is_pinned() {
+            f |= InstanceFlags::PINNED;
+        }
+        f
     }
 }
 
@@ -387,7 +413,7 @@ impl Scene {
                         Vec3::new(x0 + c.terrain_tile, hi, z0 + c.terrain_tile),
                     ),
                     mesh: TERRAIN_MESH,
-                    flags: flags::UNIQUE | flags::TERRAIN | flags::STATIC,
+                    flags: flags::UNIQUE | flags::TERRAIN | flags::STATIC | flags::PINNED,
                 });
             }
         }

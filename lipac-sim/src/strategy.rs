@@ -14,19 +14,25 @@
 //! | [`lipac::Lipac`] | what LiPaC's hit feedback keeps, plus counting boxes; optionally with latency mitigation |
 //! | [`Oracle`] | exactly the instances the ground-truth paths hit this frame |
 //!
-//! # BLAS accounting
+//! # One loop: every strategy on the Manager
 //!
-//! Every baseline keeps its BLASes in its own
-//! [`lipac_core::build_plan::BuildScheduler`] ([`BlasAccounting`]); LiPaC's
-//! are its Manager's scheduler ([`crate::cpu_backend`]), with the same
-//! settings. Both share BLASes per (mesh, LOD), give animated units unique
-//! BLASes (refit every frame, rebuilt every 16th, only while the instance is
-//! in the set), and terrain tiles and terrain-adapted buildings per-instance
-//! static BLASes (shared keys with a per-instance variant: built once, never
+//! Every strategy runs on a [`lipac_core::manager::Manager`] through the one
+//! CPU backend ([`crate::cpu_backend`]), with the same scheduler settings.
+//! LiPaC's set comes from its hit feedback ([`CpuBackend::new`]); a
+//! baseline chooses its set each frame and tells its Manager, which runs
+//! without hit feedback ([`CpuBackend::engine_selected`],
+//! [`lipac_core::culling::Selection::EngineSelected`]): the chosen
+//! instances are pinned, the others unpinned (inactive at once, BLAS
+//! released), so its TLAS is exactly the set. All share BLASes per (mesh,
+//! LOD), give animated units unique BLASes (refit every frame, rebuilt every
+//! 16th, only while the instance is in the set), and terrain tiles and
+//! terrain-adapted buildings per-instance static BLASes (built once, never
 //! refit). Builds are acknowledged immediately: the CPU backend builds
-//! synchronously. Sizes come from [`crate::memory`]. The baselines get unlimited per-frame build
-//! budgets (their set is always complete); LiPaC gets the budgets an engine
-//! would set.
+//! synchronously. Sizes come from [`crate::memory`]. The baselines get
+//! unlimited per-frame command and build budgets (their set is complete
+//! every frame); LiPaC gets the budgets an engine would set. LiPaC pins the
+//! terrain tiles (as the paper never culls terrain); the baselines' rules
+//! decide for terrain as for everything else.
 //!
 //! # Geometry traced
 //!
@@ -41,22 +47,23 @@ pub mod lipac;
 use std::collections::HashMap;
 
 use glam::Vec3;
-use lipac_core::blas_ids::{InstanceKey, Lod};
-use lipac_core::build_plan::{
-    BlasGeometry, BuildBudgets, BuildEstimate, BuildScheduler, FramePlan, InstanceBlasRequest,
-    SchedulerConfig, UpdateMode,
-};
+use lipac_core::build_plan::{BuildBudgets, BuildEstimate, FramePlan, UpdateMode};
+use lipac_core::grid::HitboxGrid;
+use lipac_core::instance::{InstanceDesc, InstanceFlags};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
 use lipac_core::manager::MeshCatalog;
 use lipac_core::math::Aabb;
+use lipac_core::registry::InstanceHandle;
 use lipac_core::MeshId;
 
 use crate::camera::Camera;
+use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{build_estimate, mesh_lod};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
 use crate::scene::{flags, Scene, SceneInstance};
+use crate::scene_blas::instance_mask;
 use crate::traversal::Counters;
 
 /// How an instance's BLAS is owned.
@@ -132,31 +139,6 @@ impl InstanceCatalog {
     /// BLAS ownership of instance `slot`.
     pub fn kind(&self, slot: u32) -> Option<BlasOwnership> {
         self.kinds.get(slot as usize).copied()
-    }
-    /// The scheduler request for instance `slot` at `lod`.
-    pub fn request(&self, slot: u32, lod: usize) -> Result<InstanceBlasRequest, SimError> {
-        let kind = self.kind(slot).ok_or(SimError::UnknownInstance(slot))?;
-        let mesh = self.meshes[slot as usize];
-        let geometry = match kind {
-            BlasOwnership::Shared => BlasGeometry::Shared {
-                mesh,
-                variant: 0,
-                compactable: false,
-            },
-            BlasOwnership::OwnStatic => BlasGeometry::Shared {
-                mesh,
-                variant: slot + 1,
-                compactable: false,
-            },
-            BlasOwnership::Animated => BlasGeometry::Unique { mesh },
-        };
-        Ok(InstanceBlasRequest {
-            geometry,
-            lod: Lod(lod as u8),
-            estimate: self.estimate(slot, lod),
-            hits: 0,
-            in_frustum: false,
-        })
     }
     /// Build sizes of instance `slot` at `lod` ([`crate::memory`]).
     pub fn estimate(&self, slot: u32, lod: usize) -> BuildEstimate {
@@ -242,25 +224,6 @@ impl BlasWork {
     }
 }
 
-/// Plans this frame's BLAS work on `scheduler` under `budgets` and
-/// acknowledges every build at once with a fresh fake address (a CPU backend
-/// builds synchronously), counting the builds, refits and primitives.
-fn plan_and_ack(
-    scheduler: &mut BuildScheduler,
-    budgets: &BuildBudgets,
-    next_address: &mut u64,
-) -> Result<BlasWork, SimError> {
-    let plan = scheduler.plan(budgets).map_err(SimError::core)?;
-    let work = BlasWork::of_plan(&plan);
-    for b in plan.builds() {
-        *next_address += 0x100;
-        scheduler
-            .ack_built(b.id, b.result_bytes, *next_address)
-            .map_err(SimError::core)?;
-    }
-    Ok(work)
-}
-
 /// Budgets that never limit a frame (the baselines' sets are always built).
 pub fn unlimited_budgets() -> BuildBudgets {
     BuildBudgets {
@@ -273,175 +236,15 @@ pub fn unlimited_budgets() -> BuildBudgets {
     }
 }
 
-/// A baseline's BLASes (the set strategies here, the hits-only replay's
-/// `full`): a [`BuildScheduler`] whose builds are acknowledged immediately,
-/// with addresses that are tokens (the tracer substitutes the frame's
-/// geometry, see the module docs). LiPaC's BLASes are its Manager's
-/// ([`crate::cpu_backend`]).
-#[derive(Debug)]
-pub struct BlasAccounting {
-    scheduler: BuildScheduler,
-    budgets: BuildBudgets,
-    active: Vec<bool>,
-    active_list: Vec<u32>,
-    next_address: u64,
-    frame: u64,
-}
+/// Hitbox cell size of the baselines' Manager, metres: it only needs to
+/// cover the scene (every hitbox is active, no counting box is emitted).
+const BASELINE_CELL_SIZE: f64 = 256.0;
 
-impl BlasAccounting {
-    /// Accounting for `instances` slots with `budgets` per frame.
-    pub fn new(instances: usize, budgets: BuildBudgets) -> Result<Self, SimError> {
-        let mut config = SchedulerConfig::default();
-        // Memory is measured, not limited; unreferenced shared BLASes stay
-        // cached for 8 frames (then freed after the frames in flight).
-        config.cache.memory_budget = u64::MAX / 4;
-        config.cache.max_unused_frames = 8;
-        config.lod_hysteresis_frames = 8;
-        Ok(Self {
-            scheduler: BuildScheduler::new(config).map_err(SimError::core)?,
-            budgets,
-            active: vec![false; instances],
-            active_list: Vec::new(),
-            next_address: 0x1000,
-            frame: 0,
-        })
-    }
-    /// Starts a frame (frames strictly increase).
-    pub fn begin_frame(&mut self, frame: u32) -> Result<(), SimError> {
-        self.frame = u64::from(frame) + 1;
-        self.scheduler
-            .begin_frame(self.frame)
-            .map_err(SimError::core)
-    }
-    /// Whether `slot` holds (or waits for) a BLAS.
-    pub fn is_active(&self, slot: u32) -> bool {
-        self.active.get(slot as usize).copied().unwrap_or(false)
-    }
-    /// Requests a BLAS for `slot` at `lod` (no-op if it already has one).
-    pub fn activate(
-        &mut self,
-        catalog: &InstanceCatalog,
-        slot: u32,
-        lod: usize,
-    ) -> Result<(), SimError> {
-        if slot as usize >= self.active.len() {
-            return Err(SimError::UnknownInstance(slot));
-        }
-        if self.is_active(slot) {
-            return Ok(());
-        }
-        self.activate_with(slot, catalog.request(slot, lod)?)
-    }
-    /// Requests a BLAS for `slot` as `request` says (no-op if it already has
-    /// one); slots beyond the current count are added (replays whose
-    /// instances come and go).
-    pub fn activate_with(
-        &mut self,
-        slot: u32,
-        request: InstanceBlasRequest,
-    ) -> Result<(), SimError> {
-        if self.is_active(slot) {
-            return Ok(());
-        }
-        if self.active.len() <= slot as usize {
-            self.active.resize(slot as usize + 1, false);
-        }
-        self.active[slot as usize] = true;
-        self.scheduler
-            .activate(InstanceKey(slot), request)
-            .map_err(SimError::core)
-    }
-    /// Requests LOD `lod` for an active `slot` (no-op otherwise).
-    pub fn request_lod(
-        &mut self,
-        slot: u32,
-        lod: Lod,
-        estimate: BuildEstimate,
-    ) -> Result<(), SimError> {
-        if !self.is_active(slot) {
-            return Ok(());
-        }
-        self.scheduler
-            .request_lod(InstanceKey(slot), lod, estimate)
-            .map_err(SimError::core)
-    }
-    /// Plans the frame and acknowledges every build at once (after this
-    /// frame's [`Self::request_lod`]s). Returns the work done.
-    pub fn plan(&mut self) -> Result<BlasWork, SimError> {
-        plan_and_ack(&mut self.scheduler, &self.budgets, &mut self.next_address)
-    }
-    /// Capacity of the per-slot tables (bounded-memory checks).
-    pub fn capacity(&self) -> usize {
-        self.active.capacity() + self.active_list.capacity()
-    }
-    /// Releases the BLAS of `slot` (no-op if it has none).
-    pub fn deactivate(&mut self, slot: u32) -> Result<(), SimError> {
-        match self.active.get_mut(slot as usize) {
-            Some(a) if *a => {
-                *a = false;
-                self.scheduler
-                    .deactivate(InstanceKey(slot))
-                    .map_err(SimError::core)
-            }
-            _ => Ok(()),
-        }
-    }
-    /// Makes the active set equal `wanted` (a flag per slot).
-    pub fn set_active(
-        &mut self,
-        catalog: &InstanceCatalog,
-        wanted: &[bool],
-        lods: &[u8],
-    ) -> Result<(), SimError> {
-        for (slot, &w) in wanted.iter().enumerate() {
-            let slot = slot as u32;
-            if w != self.is_active(slot) {
-                if w {
-                    let lod = usize::from(lods.get(slot as usize).copied().unwrap_or(0));
-                    self.activate(catalog, slot, lod)?;
-                } else {
-                    self.deactivate(slot)?;
-                }
-            }
-        }
-        Ok(())
-    }
-    /// Requests this frame's LOD for every active instance, plans the frame
-    /// and acknowledges every build at once. Returns the work done.
-    pub fn build(&mut self, catalog: &InstanceCatalog, lods: &[u8]) -> Result<BlasWork, SimError> {
-        self.active_list.clear();
-        self.active_list.extend(
-            self.active
-                .iter()
-                .enumerate()
-                .filter(|(_, &a)| a)
-                .map(|(s, _)| s as u32),
-        );
-        for i in 0..self.active_list.len() {
-            let slot = self.active_list[i];
-            let lod = usize::from(lods.get(slot as usize).copied().unwrap_or(0));
-            self.request_lod(slot, Lod(lod as u8), catalog.estimate(slot, lod))?;
-        }
-        self.plan()
-    }
-    /// Instances whose BLAS address changed since the last call.
-    pub fn take_address_changes(&mut self) -> Vec<u32> {
-        self.scheduler
-            .take_address_changes()
-            .into_iter()
-            .map(|k| k.0)
-            .collect()
-    }
-    /// The (token) address of the BLAS `slot` uses, once built.
-    pub fn address(&self, slot: u32) -> Option<u64> {
-        self.scheduler.blas_address(InstanceKey(slot))
-    }
-    /// Modelled bytes of every BLAS held (built, building, cached).
-    pub fn memory_bytes(&self) -> u64 {
-        self.scheduler.stats().cache.live_bytes()
-    }
+/// The hitbox grid over `scene` with cells of `cell` metres (LiPaC's and
+/// the baselines', [`crate::record::hitbox_grid`]).
+pub fn scene_grid(scene: &Scene, cell: f64) -> Result<HitboxGrid, SimError> {
+    HitboxGrid::new(crate::record::hitbox_grid(&scene.bounds(), cell)).map_err(SimError::core)
 }
-
 /// What one frame gives a strategy.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameContext<'a> {
@@ -468,7 +271,7 @@ pub struct FrameContext<'a> {
 }
 
 /// What a strategy reports for one frame (besides its records).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StrategyFrame {
     /// BLAS work done this frame.
     pub work: BlasWork,
@@ -476,6 +279,24 @@ pub struct StrategyFrame {
     pub blas_bytes: u64,
     /// Modelled bytes of its own buffers (LiPaC: hitboxes, hit counters).
     pub overhead_bytes: u64,
+    /// LiPaC: the closed-loop view of the frame ([`ControlFrame`]).
+    pub control: Option<ControlFrame>,
+}
+
+/// LiPaC's closed-loop thresholds in one frame ([`lipac_core::controller`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ControlFrame {
+    /// Escape fraction of the hits the Manager counted last (the previous
+    /// frame's trace), `None` without hits.
+    pub escape_fraction: Option<f64>,
+    /// The scale on the thresholds (1 without a target).
+    pub threshold_scale: f64,
+    /// The bytes a memory budget holds, as the Manager accounts them.
+    pub controlled_bytes: u64,
+    /// The target (bytes or fraction), `None` without one.
+    pub target: Option<f64>,
+    /// The controller reports its target unreachable.
+    pub unreachable: bool,
 }
 
 /// A culling strategy (see the module docs).
@@ -502,19 +323,58 @@ pub trait Strategy {
     }
 }
 
-/// Shared part of the set-based baselines: choose a set, account its
-/// BLASes, copy its records.
+/// Shared part of the set-based baselines: the scene's instances in one
+/// [`CpuBackend`] whose set the baseline chooses each frame
+/// ([`CpuBackend::engine_selected`]: pinned = selected; see the module
+/// docs); its records carry this frame's geometry.
 #[derive(Debug)]
 struct SetStrategy {
-    blas: BlasAccounting,
+    backend: CpuBackend,
+    handles: Vec<InstanceHandle>,
+    /// The LOD requested for each slot.
+    lods: Vec<u8>,
+    /// The set the Manager was told (pinned).
+    selected: Vec<bool>,
+    /// This frame's choice.
     wanted: Vec<bool>,
+    records: Vec<TlasInstance>,
 }
 
 impl SetStrategy {
-    fn new(instances: usize) -> Result<Self, SimError> {
+    /// Registers every instance of `scene` (frame 0 state, none selected;
+    /// registry slots = scene slots).
+    fn new(scene: &Scene) -> Result<Self, SimError> {
+        let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
+        let mut backend =
+            CpuBackend::engine_selected(scene_grid(scene, BASELINE_CELL_SIZE)?, catalog)?;
+        let n = scene.instances().len();
+        backend.reserve(n);
+        let mut handles = Vec::with_capacity(n);
+        for (slot, inst) in scene.instances().iter().enumerate() {
+            let mut flags = inst.instance_flags();
+            // The baseline's rule alone decides, for terrain too.
+            flags.remove(InstanceFlags::PINNED);
+            let desc = InstanceDesc {
+                flags,
+                mask: instance_mask(inst),
+                ..InstanceDesc::new(MeshId(inst.mesh), inst.transform, inst.aabb)
+            };
+            let h = backend.register(desc)?;
+            let got = backend.instance(h)?.slot;
+            if got != slot as u32 {
+                return Err(SimError::Core(format!(
+                    "registry slot {got} for scene slot {slot}"
+                )));
+            }
+            handles.push(h);
+        }
         Ok(Self {
-            blas: BlasAccounting::new(instances, unlimited_budgets())?,
-            wanted: vec![false; instances],
+            backend,
+            lods: vec![0; n],
+            selected: vec![false; n],
+            wanted: vec![false; n],
+            records: Vec::new(),
+            handles,
         })
     }
     /// Marks scene instance `slot` wanted where `keep(slot, instance)` holds,
@@ -536,25 +396,51 @@ impl SetStrategy {
         self.run(ctx, out)
     }
 
+    /// One frame on the Manager: the frame's LODs, the set's changes as
+    /// pins and unpins, the plan (builds acknowledged at once), Algorithm 1;
+    /// the traced records are this frame's full-scene records of the set.
     fn run(
         &mut self,
         ctx: &FrameContext<'_>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        self.blas.begin_frame(ctx.frame)?;
-        self.blas.set_active(ctx.catalog, &self.wanted, ctx.lods)?;
-        let work = self.blas.build(ctx.catalog, ctx.lods)?;
-        self.blas.take_address_changes();
-        out.clear();
-        for (slot, r) in ctx.full_records.iter().enumerate() {
-            if self.wanted[slot] && self.blas.address(slot as u32).is_some() {
-                out.push(*r);
+        let n = self.handles.len();
+        if ctx.full_records.len() != n || ctx.lods.len() != n || self.wanted.len() != n {
+            return Err(SimError::SizeMismatch {
+                a: ctx.full_records.len().min(ctx.lods.len()),
+                b: n,
+            });
+        }
+        // No hit feedback: ends the previous frame (the call order).
+        self.backend.end_frame()?;
+        self.backend.begin_frame(ctx.frame)?;
+        for (slot, (&lod, last)) in ctx.lods.iter().zip(&mut self.lods).enumerate() {
+            if lod != *last {
+                *last = lod;
+                self.backend.set_lod(self.handles[slot], u32::from(lod))?;
             }
         }
+        for (slot, (&w, sel)) in self.wanted.iter().zip(&mut self.selected).enumerate() {
+            if w != *sel {
+                *sel = w;
+                self.backend.set_pinned(self.handles[slot], w)?;
+            }
+        }
+        let f = self.backend.run(ctx.camera, &mut self.records)?;
+        out.clear();
+        for r in &self.records {
+            let slot = r.custom_index();
+            let full = ctx
+                .full_records
+                .get(slot as usize)
+                .ok_or(SimError::UnknownInstance(slot))?;
+            out.push(*full);
+        }
         Ok(StrategyFrame {
-            work,
-            blas_bytes: self.blas.memory_bytes(),
+            work: f.work,
+            blas_bytes: self.backend.blas_bytes(),
             overhead_bytes: 0,
+            control: None,
         })
     }
 }
@@ -564,9 +450,9 @@ impl SetStrategy {
 pub struct Full(SetStrategy);
 
 impl Full {
-    /// For a scene of `instances` instances.
-    pub fn new(instances: usize) -> Result<Self, SimError> {
-        let mut s = SetStrategy::new(instances)?;
+    /// For the instances of `scene`.
+    pub fn new(scene: &Scene) -> Result<Self, SimError> {
+        let mut s = SetStrategy::new(scene)?;
         s.wanted.fill(true);
         Ok(Self(s))
     }
@@ -582,7 +468,6 @@ impl Strategy for Full {
         _previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        self.0.wanted.resize(ctx.full_records.len(), true);
         let f = self.0.run(ctx, out)?;
         if out.len() != ctx.full_records.len() {
             return Err(SimError::BadConfig("full scene strategy lost instances"));
@@ -610,13 +495,13 @@ pub struct FrustumRadius {
 impl FrustumRadius {
     /// The usual radius: 800 m.
     pub const DEFAULT_RADIUS: f32 = 800.0;
-    /// For `instances` instances and a keep-radius of `radius` metres.
-    pub fn new(instances: usize, radius: f32) -> Result<Self, SimError> {
+    /// For the instances of `scene` and a keep-radius of `radius` metres.
+    pub fn new(scene: &Scene, radius: f32) -> Result<Self, SimError> {
         if !radius.is_finite() || radius < 0.0 {
             return Err(SimError::BadConfig("radius must be finite and >= 0"));
         }
         Ok(Self {
-            set: SetStrategy::new(instances)?,
+            set: SetStrategy::new(scene)?,
             radius,
         })
     }
@@ -650,9 +535,9 @@ pub struct Heuristic {
 }
 
 impl Heuristic {
-    /// For `instances` instances with `rule` (default: within 50 m, or
+    /// For the instances of `scene` with `rule` (default: within 50 m, or
     /// `radius / distance >= 0.1`).
-    pub fn new(instances: usize, rule: ActivationHeuristic) -> Result<Self, SimError> {
+    pub fn new(scene: &Scene, rule: ActivationHeuristic) -> Result<Self, SimError> {
         if rule.max_distance.is_nan()
             || rule.max_distance < 0.0
             || rule.min_projected_size.is_nan()
@@ -661,7 +546,7 @@ impl Heuristic {
             return Err(SimError::BadConfig("heuristic values must be >= 0"));
         }
         Ok(Self {
-            set: SetStrategy::new(instances)?,
+            set: SetStrategy::new(scene)?,
             rule,
         })
     }
@@ -690,15 +575,15 @@ impl Strategy for Heuristic {
 /// [`crate::pathtrace`] covers every culled caster, so sun visibility is
 /// exact for any set. Primary hits come from the full scene (rasterization).
 /// Every bounce ray therefore finds the same closest hit as in the ground
-/// truth, and the image is identical up to ties between coplanar
-/// instances.
+/// truth (ties between coplanar instances go to the lower slot in every
+/// TLAS, [`crate::traversal`]), and the image is identical: error 0.
 #[derive(Debug)]
 pub struct Oracle(SetStrategy);
 
 impl Oracle {
-    /// For `instances` instances.
-    pub fn new(instances: usize) -> Result<Self, SimError> {
-        Ok(Self(SetStrategy::new(instances)?))
+    /// For the instances of `scene`.
+    pub fn new(scene: &Scene) -> Result<Self, SimError> {
+        Ok(Self(SetStrategy::new(scene)?))
     }
 }
 

@@ -12,10 +12,15 @@
 //!   listed in [`TraceReplay::box_proxies`] and in the report's scene name.
 //! * **Materials** from flags: a mesh any of whose instances is flagged
 //!   `vegetation` is leaves (traced with the vegetation mask, so shadow
-//!   rays skip it as they skip the built-in trees); with
-//!   [`TraceSceneOptions::vegetation_alpha`] also alpha-tested with the
-//!   built-in trees' leaf pattern (which is defined over their crown, so
-//!   only meaningful for tree-sized meshes). Everything else is wall.
+//!   rays skip it as they skip the built-in trees), alpha-tested by default
+//!   with the built-in trees' leaf pattern: the mesh's bounds are mapped
+//!   into the trees' crown (the scene mesh holds the triangles in crown
+//!   space and every instance's transform the inverse map, so the world
+//!   geometry is the trace's), so the pattern covers the whole mesh (about
+//!   55 % of its surface opaque, in cells that scale with the mesh).
+//!   [`TraceSceneOptions::vegetation_alpha`] `false` (the scene file's
+//!   `"vegetation_alpha": false`, `lipac replay --no-vegetation-alpha`)
+//!   traces vegetation opaque. Everything else is wall.
 //! * **Sun and sky**: [`crate::pathtrace::PathTraceConfig`]'s defaults,
 //!   overridden by [`Lighting`] (a small JSON scene file,
 //!   [`TraceSceneOptions::with_json`]).
@@ -36,9 +41,13 @@
 //! the header's geometry; apart from the per-frame metrics kept for the
 //! report, not the trace's length.
 
+use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
-use std::io::Read;
-use std::path::Path;
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{Affine3A, Vec3};
 use lipac_core::instance::{InstanceFlags, MeshId};
@@ -49,7 +58,9 @@ use serde::Deserialize;
 
 use crate::compare::{CompareReport, Comparison};
 use crate::error::SimError;
-use crate::mesh::{material, LodTriangles, Mesh, MeshKind, MeshLibrary, LOD_COUNT};
+use crate::mesh::{
+    material, LodTriangles, Mesh, MeshKind, MeshLibrary, CROWN_CENTER, CROWN_RADII, LOD_COUNT,
+};
 use crate::pathtrace::PathTraceConfig;
 use crate::record::{from_trace_camera, SceneRef};
 use crate::replay::{empty_frame, replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
@@ -83,15 +94,26 @@ impl Default for Lighting {
 }
 
 /// Options of a trace-backed geometry replay.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraceSceneOptions {
     /// Trace a box over the mesh bounds for a LOD without geometry (instead
-    /// of failing).
+    /// of failing). Default `false`.
     pub box_proxy: bool,
-    /// Sun and sky.
+    /// Sun and sky. Default [`Lighting::default`].
     pub lighting: Lighting,
     /// Alpha-test vegetation with the built-in trees' leaf pattern.
+    /// Default `true` (the "vegetation alpha-tested").
     pub vegetation_alpha: bool,
+}
+
+impl Default for TraceSceneOptions {
+    fn default() -> Self {
+        Self {
+            box_proxy: false,
+            lighting: Lighting::default(),
+            vegetation_alpha: true,
+        }
+    }
 }
 
 /// The JSON scene file: every field optional.
@@ -303,6 +325,31 @@ fn source_lods(k: usize) -> [usize; LOD_COUNT] {
     [0, 1.min(k - 1), k - 1]
 }
 
+/// The map from a vegetation mesh's object space (bounds `b`) onto the
+/// built-in trees' crown, where [`crate::mesh::leaf_opaque`] is defined:
+/// per axis, the bounds' half extent times √3 onto the crown's radius, so
+/// that the crown's ellipsoid holds the whole box (an axis of zero extent,
+/// a flat quad, takes the smallest scale of the others).
+fn crown_map(b: &Aabb) -> Affine3A {
+    let half = 0.5 * b.size() * 3f32.sqrt();
+    let scale = |h: f32, r: f32| (h > 1e-6).then(|| r / h);
+    let s = [
+        scale(half.x, CROWN_RADII.x),
+        scale(half.y, CROWN_RADII.y),
+        scale(half.z, CROWN_RADII.z),
+    ];
+    let fallback = s.iter().flatten().copied().fold(f32::INFINITY, f32::min);
+    let fallback = if fallback.is_finite() { fallback } else { 1.0 };
+    let s = Vec3::new(
+        s[0].unwrap_or(fallback),
+        s[1].unwrap_or(fallback),
+        s[2].unwrap_or(fallback),
+    );
+    Affine3A::from_translation(CROWN_CENTER)
+        * Affine3A::from_scale(s)
+        * Affine3A::from_translation(-b.center())
+}
+
 fn lod_geometry(
     mesh: &MeshInfo,
     lod: usize,
@@ -310,6 +357,7 @@ fn lod_geometry(
     leaves: bool,
     alpha: bool,
     box_proxy: bool,
+    map: &Affine3A,
 ) -> Result<(LodTriangles, bool), SimError> {
     let mat = if leaves {
         material::LEAF
@@ -323,7 +371,7 @@ fn lod_geometry(
                 let v = |i: u32| -> Result<Vec3, SimError> {
                     g.positions
                         .get(i as usize)
-                        .map(|&p| Vec3::from(p))
+                        .map(|&p| map.transform_point3(Vec3::from(p)))
                         .ok_or_else(|| {
                             SimError::Replay(format!(
                                 "mesh {} LOD {lod}: index {i} out of range",
@@ -340,7 +388,11 @@ fn lod_geometry(
             false
         }
         None if box_proxy => {
-            let b = crate::mesh::cuboid(mesh.bounds.min, mesh.bounds.max, mat);
+            let b = crate::mesh::cuboid(
+                map.transform_point3(mesh.bounds.min),
+                map.transform_point3(mesh.bounds.max),
+                mat,
+            );
             out = b.lods[0].clone();
             true
         }
@@ -375,6 +427,10 @@ pub struct TraceScene {
     dynamic: Vec<bool>,
     lods: Vec<u8>,
     lod_counts: Vec<u32>,
+    /// Per scene mesh: the inverse of its object-space map (identity, or
+    /// the crown map of an alpha-tested vegetation mesh), applied after
+    /// every recorded transform.
+    unmap: Vec<Affine3A>,
     park_at: Vec3,
     box_proxies: Vec<u32>,
 }
@@ -396,8 +452,15 @@ impl TraceScene {
         let index = mesh_index(header);
         let mut library = MeshLibrary::new();
         let mut box_proxies = Vec::new();
+        let mut unmap = Vec::with_capacity(header.meshes.len());
         for (i, m) in header.meshes.iter().enumerate() {
             let leaves = plan.vegetation.contains(&(i as u32));
+            let map = if leaves && options.vegetation_alpha {
+                crown_map(&geometry_bounds(m))
+            } else {
+                Affine3A::IDENTITY
+            };
+            unmap.push(map.inverse());
             let mut lods: [LodTriangles; LOD_COUNT] = Default::default();
             let mut proxied = false;
             for (sim, &src) in source_lods(m.lods.len()).iter().enumerate() {
@@ -408,6 +471,7 @@ impl TraceScene {
                     leaves,
                     options.vegetation_alpha,
                     options.box_proxy,
+                    &map,
                 )?;
                 lods[sim] = g;
                 proxied |= p;
@@ -415,7 +479,10 @@ impl TraceScene {
             if proxied {
                 box_proxies.push(m.id.0);
             }
-            let mut bounds = m.bounds;
+            let mut bounds = Aabb::new(
+                map.transform_point3(m.bounds.min),
+                map.transform_point3(m.bounds.max),
+            );
             for l in &lods {
                 let b = l.bounds();
                 bounds = Aabb::new(bounds.min.min(b.min), bounds.max.max(b.max));
@@ -454,6 +521,7 @@ impl TraceScene {
             dynamic: plan.slot_dynamic.clone(),
             lods: vec![(LOD_COUNT - 1) as u8; plan.slots()],
             lod_counts: header.meshes.iter().map(|m| m.lods.len() as u32).collect(),
+            unmap,
             park_at: centre,
             box_proxies,
         })
@@ -487,6 +555,9 @@ impl TraceScene {
         if f.contains(InstanceFlags::VEGETATION) {
             out |= flags::VEGETATION;
         }
+        if f.contains(InstanceFlags::PINNED) {
+            out |= flags::PINNED;
+        }
         if self.dynamic.get(slot as usize).copied().unwrap_or(true) {
             out |= flags::ANIMATED;
         } else if f.contains(InstanceFlags::STATIC) {
@@ -509,7 +580,7 @@ impl TraceScene {
                     ));
                 }
                 let inst = SceneInstance {
-                    transform: traceable(&a.pose.transform)?,
+                    transform: traceable(&a.pose.transform)? * self.unmap[mesh as usize],
                     aabb: a.pose.aabb,
                     mesh,
                     flags: self.sim_flags(slot, a.flags),
@@ -524,7 +595,7 @@ impl TraceScene {
                     .ok_or_else(|| SimError::Replay("not live".into()))?;
                 let mut inst = *self.scene.instance(slot)?;
                 if let Some(p) = &u.pose {
-                    inst.transform = traceable(&p.transform)?;
+                    inst.transform = traceable(&p.transform)? * self.unmap[inst.mesh as usize];
                     inst.aabb = p.aabb;
                 }
                 if let Some(f) = u.flags {
@@ -573,6 +644,23 @@ impl TraceScene {
     /// Header mesh ids traced as box proxies.
     pub fn box_proxies(&self) -> &[u32] {
         &self.box_proxies
+    }
+}
+
+/// The bounds of a mesh's geometry over all its LODs (its declared bounds
+/// where no LOD has geometry).
+fn geometry_bounds(m: &MeshInfo) -> Aabb {
+    let mut it = m
+        .lods
+        .iter()
+        .filter_map(|l| l.geometry.as_ref())
+        .flat_map(|g| g.positions.iter().map(|&p| Vec3::from(p)));
+    match it.next() {
+        None => m.bounds,
+        Some(first) => {
+            let (min, max) = it.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p)));
+            Aabb::new(min, max)
+        }
     }
 }
 
@@ -635,17 +723,29 @@ pub fn replay_trace<R: Read>(
     let mut input = open()?;
     let header = input.header().clone();
     let plan = TracePlan::scan(&header, &mut input)?;
+    drop(input);
+    replay_planned(&header, &plan, open()?, config, options, progress)
+}
+
+/// The second pass of [`replay_trace`]: `input` from its start, planned by
+/// `plan` (its first pass over the same trace).
+fn replay_planned<R: Read>(
+    header: &TraceHeader,
+    plan: &TracePlan,
+    mut input: TraceInput<R>,
+    config: &ReplayConfig,
+    options: &TraceSceneOptions,
+    progress: &mut dyn FnMut(u64),
+) -> Result<TraceReplay, SimError> {
     if plan.slots() == 0 {
         return Err(SimError::Replay("the trace adds no instance".into()));
     }
-    drop(input);
-    let mut input = open()?;
-    if *input.header() != header {
+    if input.header() != header {
         return Err(SimError::Replay(
             "the trace changed between its two reads".into(),
         ));
     }
-    let mut ts = TraceScene::new(&header, &plan, options)?;
+    let mut ts = TraceScene::new(header, plan, options)?;
     let cc = config.compare_config();
     let name = if ts.box_proxies().is_empty() {
         header.scene_name.clone()
@@ -719,18 +819,130 @@ pub fn replay_path(
     progress: &mut dyn FnMut(u64),
 ) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
     let input = TraceInput::open(path)?;
-    let h = input.header();
-    let builtin = SceneRef::parse(&h.scene_name).is_some();
-    let trace_backed = !builtin
-        && match config.mode {
-            Some(ReplayMode::Geometry) => true,
-            Some(ReplayMode::HitsOnly) => false,
-            None => options.box_proxy || has_geometry(h),
-        };
-    if !trace_backed {
+    if !trace_backed(input.header(), config, options) {
         return replay_with_snapshots(input, config, progress);
     }
     drop(input);
     let r = replay_trace(|| TraceInput::open(path), config, options, progress)?;
     Ok((r.report, r.snapshots))
+}
+
+/// Whether a trace with `header` replays through a [`TraceScene`]: not a
+/// built-in scene, and geometry mode asked for, or by default when the
+/// header carries every mesh's geometry or `options.box_proxy` is set.
+fn trace_backed(header: &TraceHeader, config: &ReplayConfig, options: &TraceSceneOptions) -> bool {
+    SceneRef::parse(&header.scene_name).is_none()
+        && match config.mode {
+            Some(ReplayMode::Geometry) => true,
+            Some(ReplayMode::HitsOnly) => false,
+            None => options.box_proxy || has_geometry(header),
+        }
+}
+
+/// Replays a trace read once from `r` (standard input, a pipe, a FIFO),
+/// choosing the mode as [`replay_path`]. Built-in scenes and hits-only
+/// mode stream frame by frame. A trace of another scene in geometry mode
+/// needs two passes (slot planning, then rendering): its first pass reads
+/// the stream, checks it and plans the slots while writing the bytes to a
+/// temporary spool file (in [`std::env::temp_dir`], removed at the end,
+/// also on error), and the second pass renders from that file. Memory
+/// follows the live instances (the plan's slots), never the trace's
+/// length; the spool file holds the trace's bytes.
+pub fn replay_stream<R: Read>(
+    r: R,
+    config: &ReplayConfig,
+    options: &TraceSceneOptions,
+    progress: &mut dyn FnMut(u64),
+) -> Result<(CompareReport, Vec<Snapshot>), SimError> {
+    let spool = Spool::create()?;
+    let writer = Rc::new(RefCell::new(Some(BufWriter::new(spool.file()?))));
+    let tee = Tee {
+        inner: r,
+        spool: Rc::clone(&writer),
+        path: spool.path.clone(),
+    };
+    let mut input = TraceInput::detect(tee)?;
+    let header = input.header().clone();
+    if !trace_backed(&header, config, options) {
+        // One pass: stop spooling, stream.
+        writer.borrow_mut().take();
+        drop(spool);
+        return replay_with_snapshots(input, config, progress);
+    }
+    let plan = TracePlan::scan(&header, &mut input)?;
+    drop(input);
+    let mut w = writer
+        .borrow_mut()
+        .take()
+        .ok_or_else(|| SimError::Replay("the spool file was lost".into()))?;
+    w.flush().map_err(|e| spool.io(&e))?;
+    drop(w);
+    let r = replay_planned(
+        &header,
+        &plan,
+        TraceInput::open(&spool.path)?,
+        config,
+        options,
+        progress,
+    )?;
+    Ok((r.report, r.snapshots))
+}
+
+/// A temporary file, removed on drop.
+struct Spool {
+    path: PathBuf,
+}
+
+impl Spool {
+    fn create() -> Result<Self, SimError> {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let path =
+            std::env::temp_dir().join(format!("lipac-replay-{}-{n}.spool", std::process::id()));
+        let spool = Self { path };
+        // create_new: never an existing file (or a link planted there).
+        OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&spool.path)
+            .map_err(|e| spool.io(&e))?;
+        Ok(spool)
+    }
+    fn file(&self) -> Result<File, SimError> {
+        OpenOptions::new()
+            .write(true)
+            .open(&self.path)
+            .map_err(|e| self.io(&e))
+    }
+    fn io(&self, e: &std::io::Error) -> SimError {
+        SimError::Io(format!("spool file {}: {e}", self.path.display()))
+    }
+}
+
+impl Drop for Spool {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// A reader that copies what it reads to the spool while one is set.
+struct Tee<R> {
+    inner: R,
+    spool: Rc<RefCell<Option<BufWriter<File>>>>,
+    path: PathBuf,
+}
+
+impl<R: Read> Read for Tee<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if let Some(w) = self.spool.borrow_mut().as_mut() {
+            w.write_all(&buf[..n]).map_err(|e| {
+                std::io::Error::new(
+                    e.kind(),
+                    format!("spooling the trace to {}: {e}", self.path.display()),
+                )
+            })?;
+        }
+        Ok(n)
+    }
 }

@@ -16,6 +16,12 @@
 //!   the ray meets), or no box when the nearest box lies beyond the real hit
 //!   (occluded boxes do not count).
 //!
+//! Closest hits at exactly the same distance in two instances (coplanar
+//! faces) go to the lower custom index, so the hit of a ray depends only on
+//! the set of records in the TLAS, never on their order or on the BVH built
+//! over them: a strategy tracing a subset that holds the ground truth's hit
+//! instance finds the same hit (the oracle's error is exactly 0).
+//!
 //! [`trace`] computes exactly that in **one** traversal: real hits shrink
 //! the ray's `tmax` as usual; boxes never shrink it and only update the
 //! nearest box entry; at the end the box counts if `t_box <= t_hit`. Boxes
@@ -302,6 +308,17 @@ fn blas_any(blas: &BvhBlas, r: &BvhRay, force_opaque: bool, state: &mut Traversa
     found
 }
 
+/// The next `f32` above `t >= 0` (`t` itself if infinite): searching up to
+/// it finds hits at exactly `t` (`f32::next_up` needs Rust 1.86).
+#[inline]
+fn next_up(t: f32) -> f32 {
+    if t.is_finite() {
+        f32::from_bits(t.to_bits() + 1)
+    } else {
+        t
+    }
+}
+
 /// Entry distance of a ray into a box, clipped to `[tmin, tmax]`; infinity
 /// on a miss.
 #[inline]
@@ -338,17 +355,32 @@ pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
             let e = &tlas.entries[ei];
             if e.mask & ray.mask != 0 && skip.is_none_or(|s| !s.contains(e.custom_index)) {
                 if let Some(blas) = store.slot(e.blas) {
+                    let geometry = e.kind == EntryKind::Geometry;
+                    // Geometry is searched up to and including the best hit
+                    // so far, so that a tie can go to the lower custom index.
                     let lray = BvhRay::new(
                         e.world_to_object.transform_point3a(o),
                         e.world_to_object.transform_vector3a(d),
                         tray.tmin,
-                        tray.tmax,
+                        if geometry {
+                            next_up(tray.tmax)
+                        } else {
+                            tray.tmax
+                        },
                     );
-                    if e.kind == EntryKind::Geometry {
+                    if geometry {
                         if let Some((t, p)) =
                             blas_closest(blas, &lray, e.opacity == 1, &mut blas_state)
                         {
-                            if t < tray.tmax {
+                            // Ties between instances go to the lower custom
+                            // index: the hit depends on the set of records,
+                            // not on their order or the TLAS built over them.
+                            let wins = t < tray.tmax
+                                || (t == tray.tmax
+                                    && best.is_some_and(|(b, _)| {
+                                        e.custom_index < tlas.entries[b].custom_index
+                                    }));
+                            if wins {
                                 tray.tmax = t;
                                 best = Some((ei, p));
                             }

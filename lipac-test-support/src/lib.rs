@@ -1,7 +1,7 @@
 //! Dev-only helpers shared by lipac's tests and benches.
 //!
-//! Seeded, dependency-free random numbers: [`SplitMix64`] and
-//! [`XorShift64Star`] produce the exact streams the tests were written
+//! Seeded, dependency-free random numbers: [`SplitMix64`],
+//! [`XorShift64Star`] and [`XorShift64`] produce the exact streams the tests were written
 //! against (the same seed gives the same sequence as the per-file copies
 //! they replace), and [`Rng64`] derives every draw the tests use from
 //! `next_u64`.
@@ -149,6 +149,29 @@ impl Rng64 for XorShift64Star {
         self.0 ^= self.0 << 25;
         self.0 ^= self.0 >> 27;
         self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+}
+
+/// xorshift64 (Marsaglia 2003, shifts 13, 7, 17): the generator of the
+/// benches' workloads (the same state gives the same stream as the copies
+/// they carried). The state must not be 0 (0 stays 0).
+#[derive(Clone, Debug)]
+pub struct XorShift64(u64);
+
+impl XorShift64 {
+    /// A generator whose state is exactly `state` (non-zero).
+    pub const fn new(state: u64) -> Self {
+        Self(state)
+    }
+}
+
+impl Rng64 for XorShift64 {
+    #[inline]
+    fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
     }
 }
 

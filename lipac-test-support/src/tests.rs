@@ -51,6 +51,34 @@ fn xorshift_matches_the_old_copies() {
     assert_ne!(XorShift64Star::from_seed(0).next_u64(), 0);
 }
 
+/// The benches' copy (algorithms, registry, synthetic_loop).
+fn xorshift64_copy(state: &mut u64) -> u64 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    *state
+}
+
+#[test]
+fn xorshift64_matches_the_benches_copies() {
+    // Marsaglia's xorshift64 (13, 7, 17) from state 1: 1 ^ 1 << 13 = 0x2001,
+    // ^ >> 7 (0x40) = 0x2041, ^ << 17 = 0x4082_2041.
+    assert_eq!(XorShift64::new(1).next_u64(), 0x4082_2041);
+    for seed in [1, 0x1234_5678_9ABC_DEF0, 0x9E37_79B9_7F4A_7C15 ^ 100_000] {
+        let (mut r, mut s) = (XorShift64::new(seed), seed);
+        for _ in 0..1000 {
+            assert_eq!(r.next_u64(), xorshift64_copy(&mut s));
+        }
+    }
+    // The benches' draws: top 24 bits as [0, 1), top 32 bits.
+    let (mut r, mut s) = (XorShift64::new(77), 77u64);
+    assert_eq!(
+        r.unit_f32(),
+        (xorshift64_copy(&mut s) >> 40) as f32 / (1u64 << 24) as f32
+    );
+    assert_eq!(r.next_u32(), (xorshift64_copy(&mut s) >> 32) as u32);
+}
+
 #[test]
 fn derived_draws_match_their_formulas() {
     let (mut r, mut s) = (SplitMix64::new(7), 7u64);

@@ -5,7 +5,8 @@
 //   omitted            -> a unit-cube counting box over its AABB;
 //   inactive           -> min/max-reduces its AABB's y range into its hitbox
 //                         (atomicMin/atomicMax on ordered keys; NaN ignored
-//                         like f32::min/max).
+//                         like f32::min/max) and counts into its cost word
+//                         (atomicAdd: shared- or unique-BLAS).
 // An active or omitted instance whose hitbox is inactive counts as inactive
 // (its remove command may still be waiting for room in the command buffer).
 // A pinned instance counts as active whatever its state bits and hitbox.
@@ -57,6 +58,9 @@ void main() {
             if (!lipacIsNanBits(hi)) {
                 atomicMax(hitboxes[m.hitbox].maxY, lipacOrderedKey(hi));
             }
+            atomicAdd(hitboxes[m.hitbox].cost, (m.packed & LIPAC_INSTANCE_UNIQUE_BLAS) != 0u
+                                                   ? LIPAC_HITBOX_COST_UNIQUE
+                                                   : LIPAC_HITBOX_COST_SHARED);
         }
     }
 }

@@ -4,14 +4,21 @@
 // rule: a transition that emits a command takes effect only if the command
 // got a slot below the capacity; otherwise the instance keeps the state it
 // had before that transition and the thread stops (retried next frame).
+// Under the decayed rule lines 29-37 decide on the instance's decayed rate
+// (instanceRates[slot]): updated from its hits while omitted or active with
+// a BLAS, held while active without one, 0 while inactive, dead or shared.
 #extension GL_GOOGLE_include_directive : require
 #include "lipac_feedback.glsl"
 
 void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
         uint packed = instances[slot].packed;
-        // Dead, or pinned (never moved by Algorithm 2).
+        bool decayed = pc.rule == LIPAC_RULE_DECAYED;
+        // Dead, or pinned (never moved by Algorithm 2); the rate of either is 0.
         if ((packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_PINNED)) != LIPAC_INSTANCE_ALIVE) {
+            if (decayed && instanceRates[slot] != 0u) {
+                instanceRates[slot] = 0u;
+            }
             continue;
         }
         uint hb = instances[slot].hitbox;
@@ -48,8 +55,33 @@ void main() {
             }
         }
 
-        // Lines 29-37 (M needs a unique BLAS).
-        if (unique && !overflow) {
+        if (decayed) {
+            uint rate = 0u;
+            if (unique) {
+                uint hits = instanceHits[slot];
+                bool built = instances[slot].blas != uvec2(0u);
+                if (state == LIPAC_STATE_OMITTED || (state == LIPAC_STATE_ACTIVE && built)) {
+                    rate = lipacDecayRate(instanceRates[slot], hits, pc.decayShift);
+                } else if (state == LIPAC_STATE_ACTIVE) {
+                    rate = instanceRates[slot];  // no BLAS yet: no evidence, held
+                }
+                if (!overflow) {
+                    if (state == LIPAC_STATE_OMITTED && rate > pc.rateInstanceActivate) {
+                        if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_ADD, hits))) {
+                            state = LIPAC_STATE_ACTIVE;
+                        }
+                    } else if (state == LIPAC_STATE_ACTIVE && built && rate < pc.rateInstanceOmit) {
+                        if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_REMOVE, hits))) {
+                            state = LIPAC_STATE_OMITTED;
+                        }
+                    }
+                }
+            }
+            if (instanceRates[slot] != rate) {
+                instanceRates[slot] = rate;
+            }
+        } else if (unique && !overflow) {
+            // Lines 29-37 (M needs a unique BLAS).
             uint hits = instanceHits[slot];
             if (state == LIPAC_STATE_OMITTED && hits > pc.sigmaA) {
                 // Lines 31/32.

@@ -1,7 +1,7 @@
 #version 460
 // hitbox_reset.comp -- Algorithm 1 pass 0 (lipac_core::assembly::begin_frame):
-// every hitbox's height range becomes empty and its hit count 0; the active
-// bit and streak stay. The range is stored as ordered keys (lipacOrderedKey)
+// every hitbox's height range becomes empty, its hit count and cost word 0;
+// the active bit, streak and rate stay. The range is stored as ordered keys (lipacOrderedKey)
 // of +inf / -inf for the atomicMin / atomicMax of assemble_instances.comp;
 // assemble_hitboxes.comp turns keys back into f32 bits.
 #extension GL_GOOGLE_include_directive : require
@@ -12,5 +12,6 @@ void main() {
         hitboxes[i].minY = lipacOrderedKey(0x7F800000u);  // +inf
         hitboxes[i].maxY = lipacOrderedKey(0xFF800000u);  // -inf
         hitboxes[i].packed &= 0xFFu;
+        hitboxes[i].cost = 0u;
     }
 }

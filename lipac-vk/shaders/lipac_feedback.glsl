@@ -14,6 +14,9 @@ layout(std430, set = 0, binding = 1) readonly buffer InstanceHits { uint instanc
 layout(std430, set = 0, binding = 2) buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Commands { uint commands[]; };
 layout(std430, set = 0, binding = 4) buffer CommandCounter { uint commandCounter; };
+// Decayed hit rates (16.16) of unique-BLAS instances, one per slot (the
+// decayed rule only; lipac_core::feedback::process_feedback_with_rates).
+layout(std430, set = 0, binding = 5) buffer InstanceRates { uint instanceRates[]; };
 
 // lipac_core::thresholds::Thresholds (validated on the host: 2*thetaA fits).
 layout(push_constant) uniform FeedbackPush {
@@ -26,7 +29,27 @@ layout(push_constant) uniform FeedbackPush {
     uint instanceCount;
     uint hitboxCount;
     uint commandCapacity;
+    // lipac_core::thresholds::DecisionRule: 0 = paper, 1 = decayed with:
+    uint rule;
+    uint decayShift;
+    uint rateActivate;
+    uint rateDeactivate;
+    uint rateInstanceActivate;
+    uint rateInstanceOmit;
+    uint ratePerShared;
+    uint ratePerUnique;
 } pc;
+
+#define LIPAC_RULE_PAPER 0u
+#define LIPAC_RULE_DECAYED 1u
+
+// lipac_core::thresholds::DecayedRule::activation_threshold for a hitbox's
+// cost word (validated on the host: it fits a uint without saturating).
+uint lipacActivationThreshold(uint cost) {
+    uint nShared = min(cost & 0xFFFFu, 255u);
+    uint nUnique = min(cost >> 16, 255u);
+    return pc.rateActivate + pc.ratePerShared * nShared + pc.ratePerUnique * nUnique;
+}
 
 #define LIPAC_FOR_EACH(i, count) \
     for (uint i = gl_GlobalInvocationID.x; i < (count); i += gl_NumWorkGroups.x * gl_WorkGroupSize.x)

@@ -27,12 +27,14 @@ struct LipacInstanceRecord {
     uint lod;                   // 92
 };
 
-// lipac_core::layout::HitboxRecord (12 B). minY/maxY hold f32 bits (see
+// lipac_core::layout::HitboxRecord (20 B). minY/maxY hold f32 bits (see
 // lipacOrderedKey for the form they take inside TLAS assembly).
 struct LipacHitboxRecord {
     uint minY;                  // 0
     uint maxY;                  // 4
     uint packed;                // 8: see LIPAC_HITBOX_*
+    uint rate;                  // 12: decayed hit rate, 16.16 (lipacDecayRate)
+    uint cost;                  // 16: inactive instances, shared (low 16) / unique (high 16)
 };
 
 // instance_bits
@@ -52,6 +54,17 @@ struct LipacHitboxRecord {
 #define LIPAC_HITBOX_STREAK_MAX 0x7Fu
 #define LIPAC_HITBOX_HITS_SHIFT 8u
 #define LIPAC_HITBOX_HITS_MAX 0xFFFFFFu
+#define LIPAC_HITBOX_COST_SHARED 1u
+#define LIPAC_HITBOX_COST_UNIQUE 0x10000u
+
+// lipac_core::thresholds::decay_rate: one frame of the decayed hit rate
+// (16.16), rate - (rate >> k) + ((min(hits, 65535) << 16) >> k), k in 1..16.
+// Never overflows (see the Rust docs).
+uint lipacDecayRate(uint rate, uint hits, uint shift) {
+    uint k = clamp(shift, 1u, 16u);
+    uint h = min(hits, 0xFFFFu);
+    return rate - (rate >> k) + ((h << 16) >> k);
+}
 
 // Command words (lipac_core::command).
 #define LIPAC_COMMAND_ADD 0u

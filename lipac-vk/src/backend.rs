@@ -240,6 +240,8 @@ struct SlotTables {
     capacity: u32,
     instances: Buffer,
     instance_hits: Buffer,
+    /// The decayed rule's per-slot hit rates (kept across frames and growth).
+    instance_rates: Buffer,
     data_offsets: Buffer,
     tlas_instances: Buffer,
     assembly: AssemblyBindings,
@@ -555,6 +557,7 @@ impl LipacVk {
         if let Some(t) = &self.tables {
             table_bytes += t.instances.size()
                 + t.instance_hits.size()
+                + t.instance_rates.size()
                 + t.data_offsets.size()
                 + t.tlas_instances.size();
         }
@@ -703,6 +706,7 @@ impl LipacVk {
             let tables = self.make_tables(capacity)?;
             fill_zero(rec, &tables.instances);
             fill_zero(rec, &tables.data_offsets);
+            fill_zero(rec, &tables.instance_rates);
             if first {
                 fill_zero(rec, &self.hitboxes);
             }
@@ -724,6 +728,12 @@ impl LipacVk {
                     rec,
                     &old.data_offsets,
                     &tables.data_offsets,
+                    &[vk::BufferCopy::default().size(bytes * 4)],
+                );
+                copy(
+                    rec,
+                    &old.instance_rates,
+                    &tables.instance_rates,
                     &[vk::BufferCopy::default().size(bytes * 4)],
                 );
                 self.retirement.retire(value, old);
@@ -920,6 +930,7 @@ impl LipacVk {
         let n = u64::from(capacity);
         let instances = buffer(ctx, n * RECORD_BYTES, STORAGE | TRANSFER)?;
         let instance_hits = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
+        let instance_rates = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let data_offsets = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let tlas_instances = buffer(
             ctx,
@@ -941,11 +952,13 @@ impl LipacVk {
             hitboxes: &self.hitboxes,
             commands: &self.commands,
             command_counter: &self.command_counter,
+            instance_rates: &instance_rates,
         })?;
         Ok(SlotTables {
             capacity,
             instances,
             instance_hits,
+            instance_rates,
             data_offsets,
             tlas_instances,
             assembly,

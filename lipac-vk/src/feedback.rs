@@ -9,7 +9,9 @@
 //!    live active/omitted instance's hits are added to its hitbox,
 //!    saturating at 2^24 − 1 (an `atomicCompSwap` loop);
 //! 2. `feedback_hitboxes.comp` (lines 7–13): hitbox activation/deactivation
-//!    with the streak rules;
+//!    with the streak rules, or the decayed rate under
+//!    [`DecisionRule::Decayed`] (also lines 29–37 then decide on the
+//!    per-slot rates of [`FeedbackBuffers::instance_rates`]);
 //! 3. `feedback_instances.comp` (lines 14–38): instance transitions; a
 //!    transition that emits a command reserves a slot with `atomicAdd` on
 //!    the counter and takes effect only if the slot is below the capacity
@@ -32,12 +34,12 @@ use crate::shaders::{FEEDBACK_ACCUMULATE_SPV, FEEDBACK_HITBOXES_SPV, FEEDBACK_IN
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 use lipac_core::layout::{HitboxRecord, InstanceRecord, MAX_SLOTS};
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds};
 
 const ACCUMULATE: usize = 0;
 const HITBOXES: usize = 1;
 const INSTANCES: usize = 2;
-const BINDINGS: u32 = 5;
+const BINDINGS: u32 = 6;
 
 /// Push constants of the feedback passes (`lipac_feedback.glsl`).
 #[repr(C)]
@@ -52,6 +54,14 @@ struct FeedbackPush {
     instance_count: u32,
     hitbox_count: u32,
     command_capacity: u32,
+    rule: u32,
+    decay_shift: u32,
+    rate_activate: u32,
+    rate_deactivate: u32,
+    rate_instance_activate: u32,
+    rate_instance_omit: u32,
+    rate_per_shared: u32,
+    rate_per_unique: u32,
 }
 
 /// Buffers Algorithm 2 reads and writes (all need `STORAGE_BUFFER` usage).
@@ -71,6 +81,11 @@ pub struct FeedbackBuffers<'a> {
     /// One `u32`: commands requested this frame. Needs `TRANSFER_DST` (zeroed
     /// first) and `TRANSFER_SRC` for the readback copy.
     pub command_counter: &'a Buffer,
+    /// `u32` decayed hit rates (16.16), one per slot, kept across frames
+    /// (zero them once at creation): the decayed rule's per-instance state
+    /// ([`lipac_core::feedback::process_feedback_with_rates`]); untouched
+    /// under the paper's rule.
+    pub instance_rates: &'a Buffer,
 }
 
 /// A descriptor set bound to one [`FeedbackBuffers`]; keep it and the
@@ -180,6 +195,12 @@ impl FeedbackPipeline {
                 "{hits} hit counters for {slots} instance slots"
             )));
         }
+        let rates = buffers.instance_rates.size() / 4;
+        if rates < slots {
+            return Err(VkError::InvalidArgument(format!(
+                "{rates} instance rates for {slots} instance slots"
+            )));
+        }
         if buffers.command_counter.size() < 4 {
             return Err(VkError::InvalidArgument(
                 "command counter smaller than 4 bytes".into(),
@@ -193,6 +214,7 @@ impl FeedbackPipeline {
                 buffers.hitboxes,
                 buffers.commands,
                 buffers.command_counter,
+                buffers.instance_rates,
             ],
             "STORAGE_BUFFER on a feedback buffer",
         )?;
@@ -239,6 +261,19 @@ impl FeedbackPipeline {
             )));
         }
         crate::accel::same_context(rec.context(), self.kernels.context())?;
+        let decayed = match thresholds.rule {
+            DecisionRule::Paper => None,
+            DecisionRule::Decayed(r) => Some(r),
+        };
+        let d = decayed.unwrap_or(DecayedRule {
+            shift: 0,
+            activate: 0,
+            deactivate: 0,
+            instance_activate: 0,
+            instance_omit: 0,
+            per_shared: 0,
+            per_unique: 0,
+        });
         let push = FeedbackPush {
             theta_a: thresholds.theta_a,
             theta_d: thresholds.theta_d,
@@ -249,6 +284,14 @@ impl FeedbackPipeline {
             instance_count: slot_count,
             hitbox_count: bindings.hitboxes,
             command_capacity: bindings.capacity,
+            rule: u32::from(decayed.is_some()),
+            decay_shift: d.shift,
+            rate_activate: d.activate,
+            rate_deactivate: d.deactivate,
+            rate_instance_activate: d.instance_activate,
+            rate_instance_omit: d.instance_omit,
+            rate_per_shared: d.per_shared,
+            rate_per_unique: d.per_unique,
         };
         let push = bytemuck::bytes_of(&push);
         rec.memory_barrier(

@@ -15,12 +15,12 @@ use common::*;
 use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, sort_canonical, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
-use lipac_core::feedback::process_feedback;
+use lipac_core::feedback::{process_feedback, process_feedback_with_rates};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
 };
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use lipac_vk::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, Buffer,
@@ -159,6 +159,8 @@ fn random_hitbox(rng: &mut Rng, th: &Thresholds) -> HitboxRecord {
         min_y: uniform(rng, -10.0, 10.0),
         max_y: uniform(rng, -10.0, 10.0),
         packed: u32::from(rng.chance(0.5)),
+        rate: random_rate(rng),
+        cost: rng.next_u32(),
     };
     let streak = match rng.below_scaled(4) {
         0 => th.n_a.saturating_sub(1),
@@ -179,6 +181,16 @@ fn random_hitbox(rng: &mut Rng, th: &Thresholds) -> HitboxRecord {
     h
 }
 
+/// A decayed hit rate (16.16): 0, around the test rule's thresholds, or
+/// near the top of the range.
+fn random_rate(rng: &mut Rng) -> u32 {
+    match rng.below_scaled(4) {
+        0 => 0,
+        1 => u32::MAX - rng.below_scaled(1 << 20),
+        _ => rng.below_scaled(120 * RATE_ONE),
+    }
+}
+
 fn random_hits(rng: &mut Rng, th: &Thresholds) -> u32 {
     match rng.below_scaled(8) {
         0..=2 => 0,
@@ -187,6 +199,18 @@ fn random_hits(rng: &mut Rng, th: &Thresholds) -> u32 {
         5 => hitbox_bits::HITS_MAX - rng.below_scaled(1000),
         6 => u32::MAX - rng.below_scaled(3),
         _ => rng.below_scaled(4 * th.sigma_a),
+    }
+}
+
+/// The feedback buffers of `scene`.
+fn scene_buffers(scene: &Scene) -> FeedbackBuffers<'_> {
+    FeedbackBuffers {
+        instances: &scene.instances,
+        instance_hits: &scene.instance_hits,
+        hitboxes: &scene.hitboxes,
+        commands: &scene.commands,
+        command_counter: &scene.command_counter,
+        instance_rates: &scene.instance_rates,
     }
 }
 
@@ -200,6 +224,7 @@ struct Scene {
     tlas_counter: Buffer,
     commands: Buffer,
     command_counter: Buffer,
+    instance_rates: Buffer,
 }
 
 impl Scene {
@@ -235,6 +260,8 @@ impl Scene {
             commands: Buffer::new(ctx, u64::from(command_capacity) * 4, STORAGE | xfer, host)
                 .unwrap(),
             command_counter: Buffer::with_data(ctx, STORAGE | xfer, host, &[99u32]).unwrap(),
+            instance_rates: Buffer::with_data(ctx, STORAGE | xfer, host, &vec![0u32; hits.len()])
+                .unwrap(),
         }
     }
 
@@ -256,6 +283,7 @@ impl Scene {
             hitboxes: &self.hitboxes,
             commands: &self.commands,
             command_counter: &self.command_counter,
+            instance_rates: &self.instance_rates,
         })
         .unwrap()
     }
@@ -510,7 +538,24 @@ fn feedback_thresholds() -> Thresholds {
         sigma_o: 5,
         n_a: 3,
         n_d: 5,
+        rule: DecisionRule::Paper,
     };
+    th.validate().unwrap();
+    th
+}
+
+/// [`feedback_thresholds`] deciding with a fast decayed rule whose rates sit
+/// in the range of the random hits, with both cost terms.
+fn decayed_thresholds() -> Thresholds {
+    let th = feedback_thresholds().with_rule(DecisionRule::Decayed(DecayedRule {
+        shift: 1,
+        activate: 30 * RATE_ONE,
+        deactivate: 8 * RATE_ONE,
+        instance_activate: 25 * RATE_ONE,
+        instance_omit: 5 * RATE_ONE,
+        per_shared: RATE_ONE / 4,
+        per_unique: RATE_ONE + 3,
+    }));
     th.validate().unwrap();
     th
 }
@@ -526,7 +571,11 @@ fn frames_match_cpu_reference_without_overflow() {
     let assembly = AssemblyPipeline::new(ctx).unwrap();
     let feedback = FeedbackPipeline::new(ctx).unwrap();
     let mut one_shot = OneShot::new(ctx).unwrap();
-    for (seed, th) in [(11u64, feedback_thresholds()), (12, Thresholds::paper())] {
+    for (seed, th) in [
+        (11u64, feedback_thresholds()),
+        (12, Thresholds::paper()),
+        (13, decayed_thresholds()),
+    ] {
         let mut rng = Rng::new(0xD1B5_4A32_D192_ED03 ^ seed);
         let index = Grid {
             nx: 8,
@@ -546,6 +595,9 @@ fn frames_match_cpu_reference_without_overflow() {
         let ab = scene.assembly_bindings(&assembly);
         let fb = scene.feedback_bindings(&feedback);
         let cfg = AssemblyConfig::new(0xC0BE);
+        // Random starting rates (the rule zeroes those it does not keep).
+        let mut rates: Vec<u32> = (0..n).map(|_| random_rate(&mut rng)).collect();
+        scene.instance_rates.write(0, &rates).unwrap();
         let mut queue_cpu = CommandQueue::new(n as u32);
         let mut queue_gpu = CommandQueue::new(n as u32);
         let mut transitions = 0;
@@ -573,8 +625,15 @@ fn frames_match_cpu_reference_without_overflow() {
             // Algorithm 2.
             let before = instances.clone();
             let mut buf = CommandBuffer::new(capacity);
-            let stats =
-                process_feedback(&mut instances, &hits, &mut hitboxes, &th, &mut buf).unwrap();
+            let stats = process_feedback_with_rates(
+                &mut instances,
+                &hits,
+                &mut rates,
+                &mut hitboxes,
+                &th,
+                &mut buf,
+            )
+            .unwrap();
             assert_eq!(stats.overflowed, 0);
             one_shot
                 .run(|rec| feedback.record(rec, &fb, &th, n as u32))
@@ -588,6 +647,8 @@ fn frames_match_cpu_reference_without_overflow() {
             );
             assert_instances_equal(&scene.read_instances(n), &instances, &what);
             assert_hitboxes_equal(&scene.read_hitboxes(hitboxes.len()), &hitboxes, &what);
+            let gpu_rates: Vec<u32> = scene.instance_rates.read(0, n).unwrap();
+            assert!(gpu_rates == rates, "{what}: instance rates differ");
             transitions += before
                 .iter()
                 .zip(&instances)
@@ -609,6 +670,11 @@ fn frames_match_cpu_reference_without_overflow() {
             transitions > 200,
             "seed {seed}: only {transitions} transitions"
         );
+        if th.rule != DecisionRule::Paper {
+            // The decayed rule kept some rates and zeroed others.
+            assert!(rates.iter().filter(|&&r| r != 0).count() > 50);
+            assert!(rates.iter().filter(|&&r| r == 0).count() > 50);
+        }
         assert_eq!(queue_cpu.drain(usize::MAX), queue_gpu.drain(usize::MAX));
     }
     assert_no_validation_errors(&h);
@@ -768,9 +834,18 @@ fn feedback_rejects_bad_arguments() {
             hitboxes: &scene.hitboxes,
             commands: &scene.commands,
             command_counter: &scene.command_counter,
+            instance_rates: &scene.instance_rates,
         }),
         Err(VkError::InvalidArgument(_))
     ));
+    // Too few rates for the slots.
+    match feedback.bind(&FeedbackBuffers {
+        instance_rates: &short,
+        ..scene_buffers(&scene)
+    }) {
+        Err(VkError::InvalidArgument(what)) => assert!(what.contains("rates"), "{what}"),
+        other => panic!("{other:?}"),
+    }
     // Clearing the hit counters works and is visible.
     scene.instance_hits.write(0, &[1u32, 2, 3, 4]).unwrap();
     one_shot
@@ -908,13 +983,17 @@ fn feedback_once_exact(
     let fb = scene.feedback_bindings(&feedback);
     let (mut cpu_inst, mut cpu_hb) = (instances.to_vec(), hitboxes.to_vec());
     let mut buf = CommandBuffer::new(capacity);
-    process_feedback(&mut cpu_inst, hits, &mut cpu_hb, th, &mut buf).unwrap();
+    let mut rates = vec![0u32; instances.len()];
+    process_feedback_with_rates(&mut cpu_inst, hits, &mut rates, &mut cpu_hb, th, &mut buf)
+        .unwrap();
     OneShot::new(ctx)
         .unwrap()
         .run(|rec| feedback.record(rec, &fb, th, instances.len() as u32))
         .unwrap();
     let (counter, words) = scene.read_commands(capacity);
     assert_eq!(counter, buf.requested(), "{what}");
+    let gpu_rates: Vec<u32> = scene.instance_rates.read(0, instances.len()).unwrap();
+    assert_eq!(gpu_rates, rates, "{what}: rates");
     assert_eq!(sorted(words), sorted(buf.words().to_vec()), "{what}");
     assert_instances_equal(&scene.read_instances(instances.len()), &cpu_inst, what);
     assert_hitboxes_equal(&scene.read_hitboxes(hitboxes.len()), &cpu_hb, what);
@@ -970,6 +1049,44 @@ fn hitbox_transitions_match_exhaustively() {
     assert_no_validation_errors(&h);
 }
 
+/// The decayed rule's hitbox pass on every combination of state, rate and
+/// hits around each threshold, cost words included (saturated counts, the
+/// largest threshold a validated rule allows).
+#[test]
+fn decayed_hitbox_transitions_match_exhaustively() {
+    let Some(h) = headless("decayed_hitbox_transitions_match_exhaustively") else {
+        return;
+    };
+    let th = decayed_thresholds();
+    let DecisionRule::Decayed(rule) = th.rule else {
+        unreachable!()
+    };
+    let mut hitboxes = Vec::new();
+    for active in [0, 1] {
+        for cost in [0, 3, 0x0002_0005, 0xFFFF_FFFF, 0x0100_0100] {
+            let need = rule.activation_threshold((cost & 0xFFFF).min(255), (cost >> 16).min(255));
+            for rate_base in [0, rule.deactivate, need, u32::MAX - 2] {
+                for rate in rate_base.saturating_sub(2)..=rate_base.saturating_add(2) {
+                    for hits in [0, 1, 29, 30, 31, 0xFFFF, 0x10000, hitbox_bits::HITS_MAX] {
+                        let mut r = HitboxRecord {
+                            packed: active | (5 << hitbox_bits::STREAK_SHIFT),
+                            rate,
+                            cost,
+                            ..Default::default()
+                        };
+                        r.add_hits(hits);
+                        hitboxes.push(r);
+                    }
+                }
+            }
+        }
+    }
+    let dead = InstanceRecord::default();
+    let words = feedback_once_exact(&h, &[dead], &[0], &hitboxes, &th, "decayed");
+    assert!(words.is_empty());
+    assert_no_validation_errors(&h);
+}
+
 /// Command words for hit counts at every priority step (and ±1 around it),
 /// so the shader's integer log2 must agree with `priority_from_hits` exactly.
 #[test]
@@ -1005,6 +1122,7 @@ fn command_priorities_match_at_every_boundary() {
         sigma_o: 1 << 31,
         n_a: 1,
         n_d: 1,
+        rule: DecisionRule::Paper,
     };
     let mut instances = Vec::new();
     let mut hits = Vec::new();

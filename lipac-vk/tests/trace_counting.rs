@@ -143,6 +143,8 @@ fn trace_counts_into_hitbox_records_saturating() {
         min_y: -1.0,
         max_y: 2.0,
         packed: (hits << hitbox_bits::HITS_SHIFT) | low,
+        rate: 0x1234_5678,
+        cost: 0x0009_0007,
     };
     let mut initial = vec![record(0, 0); HITBOXES];
     initial[0] = record(MAX - 3, 0xAB);

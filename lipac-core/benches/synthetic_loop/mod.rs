@@ -10,6 +10,7 @@ use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::Aabb;
+use lipac_test_support::{Rng64, XorShift64};
 
 /// Hitbox edge in metres.
 pub const CELL: f64 = 16.0;
@@ -63,13 +64,8 @@ pub fn build(n: u32, scene: &Scene) -> Loop {
     let mut cfg = CullingConfig::new(CUBE);
     cfg.latency_mitigation = None;
     let mut culling = Culling::new(grid, cfg).unwrap();
-    let mut rng = 0x9E37_79B9_7F4A_7C15u64 ^ u64::from(n);
-    let mut unit = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        (rng >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut rng = XorShift64::new(0x9E37_79B9_7F4A_7C15 ^ u64::from(n));
+    let mut unit = || rng.unit_f32();
     if scene.reserve {
         culling.reserve(n as usize);
     }

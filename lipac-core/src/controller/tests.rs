@@ -92,6 +92,13 @@ fn spare_budget_lowers_the_thresholds() {
     let m = run(&mut c, &mut plant, 600);
     assert!(within(&m[300..], 15_000_000, 0.05));
     assert!(c.scale() < 1.0);
+    // A budget the scene never needs drives the scale to its floor: spare
+    // budget, saturated but not "unreachable".
+    let mut c = budget(500_000_000);
+    run(&mut c, &mut plant, 400);
+    let s = c.stats();
+    assert_eq!(s.scale, ControllerConfig::default().min_scale);
+    assert!(s.saturated && !s.unreachable, "{s:?}");
 }
 
 #[test]

@@ -54,7 +54,7 @@ use glam::{Affine3A, Vec3};
 use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
 use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
-use crate::feedback::{process_feedback, FeedbackStats};
+use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
@@ -87,6 +87,28 @@ pub struct CullingConfig {
     /// (the read-back ring's depth, at least 1). Must be below
     /// [`RegistryConfig::quarantine_frames`].
     pub readback_latency: u32,
+    /// Who decides which instances are active: LiPaC's hit feedback (the
+    /// default) or the engine alone, through the pinned flag.
+    pub selection: Selection,
+}
+
+/// Who decides which instances are active ([`CullingConfig::selection`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Selection {
+    /// LiPaC: Algorithm 2's hit feedback, and the pinned instances
+    /// ([`InstanceFlags::PINNED`]), which are always active.
+    #[default]
+    HitFeedback,
+    /// The engine alone, without hit feedback: exactly the pinned instances
+    /// are active. Every hitbox is active from the start (so Algorithm 1
+    /// emits no counting box: the TLAS holds the pinned instances with a
+    /// BLAS), [`Culling::process_feedback`] changes nothing and writes no
+    /// command (a GPU backend skips Algorithm 2 and the read-back), and
+    /// clearing [`InstanceFlags::PINNED`] makes the instance inactive at
+    /// once, its BLAS released by the next command processing. For an
+    /// engine (or a baseline) that chooses its own set each frame and lets
+    /// lipac own the BLASes. Latency mitigation must be off.
+    EngineSelected,
 }
 
 impl CullingConfig {
@@ -102,6 +124,7 @@ impl CullingConfig {
             command_capacity: 1 << 16,
             latency_mitigation: Some(ActivationHeuristic::default()),
             readback_latency: 2,
+            selection: Selection::HitFeedback,
         }
     }
 
@@ -150,6 +173,13 @@ impl CullingConfig {
             }
         }
         if let Some(h) = self.latency_mitigation {
+            if self.selection == Selection::EngineSelected {
+                return invalid(
+                    "latency_mitigation must be None with Selection::EngineSelected: nothing \
+                     would deactivate what it activates"
+                        .into(),
+                );
+            }
             LatencyMitigation::new(h)?;
         }
         Ok(())
@@ -328,6 +358,9 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     registry: InstanceRegistry<H>,
     hitboxes: Vec<HitboxRecord>,
     instance_hits: Vec<u32>,
+    /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
+    /// decayed rule's, kept across frames).
+    instance_rates: Vec<u32>,
     /// The one per-slot table of the loop (length = the registry's slot
     /// count): the commanded state and the pending BLAS promise.
     slots: Vec<SlotView>,
@@ -345,7 +378,8 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
 
 impl<H: HitboxIndex> Culling<H> {
     /// A loop over the hitbox structure `index` with all hitboxes inactive
-    /// and no instances, at frame 0. Fails for an invalid `config`.
+    /// (active with [`Selection::EngineSelected`]) and no instances, at
+    /// frame 0. Fails for an invalid `config`.
     pub fn new(index: H, config: CullingConfig) -> Result<Self, CoreError> {
         config.validate()?;
         let hitbox_count = index.len() as usize;
@@ -353,10 +387,26 @@ impl<H: HitboxIndex> Culling<H> {
             .latency_mitigation
             .map(LatencyMitigation::new)
             .transpose()?;
+        let engine_selected = config.selection == Selection::EngineSelected;
+        let hitbox = HitboxRecord {
+            packed: if engine_selected {
+                hitbox_bits::ACTIVE
+            } else {
+                0
+            },
+            ..HitboxRecord::default()
+        };
+        // A GPU backend learns the active hitboxes from the first upload.
+        let hitbox_overrides = if engine_selected {
+            (0..hitbox_count as u32).map(|i| (i, true)).collect()
+        } else {
+            HashMap::new()
+        };
         Ok(Self {
             registry: InstanceRegistry::new(index, config.registry)?,
-            hitboxes: vec![HitboxRecord::default(); hitbox_count],
+            hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
+            instance_rates: Vec::new(),
             slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
@@ -364,7 +414,7 @@ impl<H: HitboxIndex> Culling<H> {
             queue: CommandQueue::new(MAX_SLOTS),
             latency,
             state_overrides: StateOverrides::default(),
-            hitbox_overrides: HashMap::new(),
+            hitbox_overrides,
             scratch: Vec::new(),
             config,
         })
@@ -422,6 +472,13 @@ impl<H: HitboxIndex> Culling<H> {
         &mut self.instance_hits
     }
 
+    /// The per-slot decayed hit rates (16.16) Algorithm 2 keeps under
+    /// [`crate::thresholds::DecisionRule::Decayed`] (all 0 under the
+    /// paper's rule); a GPU backend keeps its own copy on the GPU.
+    pub fn instance_rates(&self) -> &[u32] {
+        &self.instance_rates
+    }
+
     /// Commands waiting for processing.
     pub fn pending_commands(&self) -> usize {
         self.queue.len()
@@ -453,7 +510,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// use lipac_core::grid::{GridConfig, HitboxGrid};
     /// let culling = Culling::new(HitboxGrid::new(GridConfig::default())?, CullingConfig::new(1))?;
     /// let m = culling.memory_usage();
-    /// assert_eq!(m.hitboxes, 512 * 512 * 12); // 3 MiB of hitbox records
+    /// assert_eq!(m.hitboxes, 512 * 512 * 20); // 5 MiB of hitbox records
     /// assert_eq!(m.records, 0); // no instances yet
     /// # Ok::<(), lipac_core::error::CoreError>(())
     /// ```
@@ -466,7 +523,9 @@ impl<H: HitboxIndex> Culling<H> {
             slot_occupants,
             free_lists,
             dirty,
-            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity()),
+            // The hit counters and the decayed rates, 4 bytes a slot each.
+            instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
+                + vec_bytes::<u32>(self.instance_rates.capacity()),
             awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
             latency_bits: self
                 .latency
@@ -514,6 +573,8 @@ impl<H: HitboxIndex> Culling<H> {
         let slots = self.registry.reserve_slots(additional);
         self.instance_hits
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
+        self.instance_rates
+            .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
         self.slots
             .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
@@ -532,9 +593,11 @@ impl<H: HitboxIndex> Culling<H> {
         let n = self.registry.slot_count() as usize;
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
+            self.instance_rates.resize(n, 0);
             self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
+        self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
         self.slots[slot as usize] = SlotView {
             commanded_active: false,
@@ -549,6 +612,25 @@ impl<H: HitboxIndex> Culling<H> {
             self.pin(slot);
         }
         Ok(handle)
+    }
+
+    /// [`Selection::EngineSelected`]: the instance in `slot` (live) was
+    /// unpinned, so it is inactive now; a queued `remove` makes the next
+    /// [`Culling::process_commands`] release its BLAS or cancel its build.
+    fn unpin(&mut self, slot: u32) -> Result<(), CoreError> {
+        let frame = self.registry.frame();
+        self.registry.set_state(slot, InstanceState::Inactive)?;
+        self.state_overrides.insert(slot, InstanceState::Inactive);
+        let view = &mut self.slots[slot as usize];
+        view.commanded_active = false;
+        view.decided_at = frame;
+        let remove = Command {
+            slot,
+            kind: CommandKind::Remove,
+            priority: 0,
+        };
+        self.queue.push(remove, &mut IngestSummary::default());
+        Ok(())
     }
 
     /// The loop's decision for a pinned instance in `slot` (live): active
@@ -582,12 +664,16 @@ impl<H: HitboxIndex> Culling<H> {
     ) -> Result<InstanceDesc, CoreError> {
         let old = self.registry.update(handle, desc)?;
         self.sync_hitbox_count();
+        let slot = self.registry.slot(handle)?;
         if desc.flags.contains(InstanceFlags::PINNED) {
-            let slot = self.registry.slot(handle)?;
             let view = self.slots[slot as usize];
             if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
                 self.pin(slot);
             }
+        } else if old.flags.contains(InstanceFlags::PINNED)
+            && self.config.selection == Selection::EngineSelected
+        {
+            self.unpin(slot)?;
         }
         Ok(old)
     }
@@ -901,9 +987,11 @@ impl<H: HitboxIndex> Culling<H> {
         .map_err(CoreError::Assembly)
     }
 
-    /// Algorithm 2 ([`process_feedback`]) over this frame's hits: hitbox and
+    /// Algorithm 2 ([`process_feedback_with_rates`]) over this frame's hits: hitbox and
     /// instance transitions, commands into the bounded buffer. Once per
-    /// frame, after the previous frame's commands were taken.
+    /// frame, after the previous frame's commands were taken. With
+    /// [`Selection::EngineSelected`] it changes nothing and writes no
+    /// command (the call order still holds).
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, CoreError> {
         if self.fed_back {
             return Err(CoreError::CallOrder {
@@ -919,9 +1007,16 @@ impl<H: HitboxIndex> Culling<H> {
             });
         }
         self.commands.clear();
-        let stats = process_feedback(
+        if self.config.selection == Selection::EngineSelected {
+            // No hit feedback: nothing moves, no command is written.
+            self.fed_back = true;
+            self.untaken = true;
+            return Ok(FeedbackStats::default());
+        }
+        let stats = process_feedback_with_rates(
             self.registry.records_mut(),
             &self.instance_hits,
+            &mut self.instance_rates,
             &mut self.hitboxes,
             &self.config.thresholds,
             &mut self.commands,

@@ -290,7 +290,10 @@ fn growth_keeps_indices_and_memory_follows_the_cells() {
     for (&(cx, cz), &i) in &idx {
         assert_eq!(h.index(cx, cz), Some(i));
     }
-    assert_eq!(h.memory_bytes(), idx.len() as u64 * 12);
+    assert_eq!(
+        h.memory_bytes(),
+        idx.len() as u64 * crate::grid::HITBOX_BYTES
+    );
     assert!(h.heap_bytes() <= (4 * 16 + 2 * 24) * idx.len() as u64 + 4096);
 }
 

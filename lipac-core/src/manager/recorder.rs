@@ -53,8 +53,13 @@
 //!
 //! Hits: an instance's own hits; the hits of the counting box of a hitbox
 //! (its inactive instances, and those in an inactive hitbox, which are not
-//! traced: `crate::assembly`) are split evenly over those instances, so that a hits-only replay feeds Algorithm 2
-//! the same hitbox totals. Instances without hits are not listed.
+//! traced: `crate::assembly`) are split evenly over those of them without
+//! hits of their own, so that a hits-only replay feeds Algorithm 2 the same
+//! hitbox totals. Instances without hits are not listed. Instances
+//! registered after the frame's plan belong to the next frame and get no
+//! hits in this one. The hits are consistent by construction, so the
+//! writer checks only their count, not each id (the cost of recording 100k
+//! hit counts a frame: `docs/BENCHMARKS.md`).
 //!
 //! # Header
 //!
@@ -233,8 +238,10 @@ impl<W: Write + Send + Sync + 'static> Sink for WriterSink<W> {
     }
     fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError> {
         match &mut self.state {
-            SinkState::Binary(w) => w.write_frame(frame),
-            SinkState::Jsonl(w) => w.write_frame(frame),
+            // The recorder's hits are consistent by construction (`on_hits`);
+            // events, cameras and limits are checked as always.
+            SinkState::Binary(w) => w.write_frame_trusted_hits(frame),
+            SinkState::Jsonl(w) => w.write_frame_trusted_hits(frame),
             _ => Err(gone()),
         }
     }
@@ -261,9 +268,12 @@ pub struct TraceRecorder {
     notes: BTreeMap<MeshId, MeshNotes>,
     world: Option<WorldInfo>,
     header_meshes: Option<usize>,
-    /// Trace id per GPU slot.
-    ids: Vec<Option<u64>>,
+    /// Trace id per GPU slot ([`NO_ID`]: none).
+    ids: Vec<u64>,
     next_id: u64,
+    /// `next_id` at the open frame's plan: ids from it on were added after
+    /// the plan (in the next frame's events), so not live in this frame.
+    split_id: u64,
     /// The frame begun last, not yet written.
     open: Option<u64>,
     /// Events not yet written; `events[..split]` belong to the open frame.
@@ -273,11 +283,11 @@ pub struct TraceRecorder {
     hits: Option<Vec<InstanceHits>>,
     /// The hits list's allocation between frames.
     hits_buf: Vec<InstanceHits>,
-    /// Per hitbox: inactive instances, and how many were given hits so far
+    /// Per hitbox: its culled instances' shares (scratch).
+    per_hitbox: Vec<BoxShare>,
+    /// Slots whose hits are their counting box's share, in slot order
     /// (scratch).
-    per_hitbox: Vec<(u32, u32)>,
-    /// Per slot: the hitbox it is culled into (scratch).
-    slot_box: Vec<u32>,
+    culled: Vec<u32>,
     frame: Frame,
     frames: u64,
     written_events: u64,
@@ -332,6 +342,7 @@ impl TraceRecorder {
             header_meshes: None,
             ids: Vec::new(),
             next_id: 0,
+            split_id: u64::MAX,
             open: None,
             events: Vec::new(),
             split: None,
@@ -339,7 +350,7 @@ impl TraceRecorder {
             hits: None,
             hits_buf: Vec::new(),
             per_hitbox: Vec::new(),
-            slot_box: Vec::new(),
+            culled: Vec::new(),
             frame: Frame {
                 number: 0,
                 camera: DEFAULT_CAMERA,
@@ -395,7 +406,10 @@ impl TraceRecorder {
 
     /// The trace id of the live instance in GPU slot `slot`.
     pub fn slot_id(&self, slot: u32) -> Option<u64> {
-        self.ids.get(slot as usize).copied().flatten()
+        self.ids
+            .get(slot as usize)
+            .copied()
+            .filter(|&id| id != NO_ID)
     }
 
     /// Frames written so far.
@@ -436,9 +450,9 @@ impl TraceRecorder {
         self.next_id += 1;
         let i = slot as usize;
         if self.ids.len() <= i {
-            self.ids.resize(i + 1, None);
+            self.ids.resize(i + 1, NO_ID);
         }
-        self.ids[i] = Some(id);
+        self.ids[i] = id;
         self.push(InstanceEvent::Add(AddInstance {
             id,
             mesh: desc.mesh,
@@ -489,14 +503,18 @@ impl TraceRecorder {
     }
 
     pub(super) fn on_remove(&mut self, slot: u32) {
-        if let Some(id) = self.ids.get_mut(slot as usize).and_then(Option::take) {
-            self.push(InstanceEvent::Remove { id });
+        if let Some(id) = self.ids.get_mut(slot as usize) {
+            let id = std::mem::replace(id, NO_ID);
+            if id != NO_ID {
+                self.push(InstanceEvent::Remove { id });
+            }
         }
     }
 
     pub(super) fn on_plan(&mut self) {
         if self.open.is_some() && self.split.is_none() {
             self.split = Some(self.events.len());
+            self.split_id = self.next_id;
         }
     }
 
@@ -509,9 +527,18 @@ impl TraceRecorder {
     }
 
     /// Hits of the open frame: per slot its own hits, or, for an instance
-    /// reduced into its hitbox's counting box, its share of the box's hits
-    /// (the first `total % k` of the `k` such instances of a box, by slot,
-    /// take one more). Listed by slot, without zeros.
+    /// without hits of its own that is reduced into its hitbox's counting
+    /// box, its share of the box's hits (the first `total % k` of the `k`
+    /// such instances of a box, by slot, take one more). Listed by slot,
+    /// without zeros.
+    ///
+    /// Consistent by construction (so the writer does not look each id up):
+    /// every listed id is a live slot's, each slot at most once, and ids
+    /// added after the open frame's plan (not live in it) are left out.
+    ///
+    /// Cost: one pass over the hit counters and ids; an instance's record is
+    /// read only when it has no hits of its own (a traced instance is not
+    /// culled), and a second pass gives out the box shares.
     pub(super) fn on_hits(
         &mut self,
         hits: &[u32],
@@ -525,39 +552,72 @@ impl TraceRecorder {
             None => std::mem::take(&mut self.hits_buf),
         };
         out.clear();
-        let per = &mut self.per_hitbox;
-        per.clear();
-        let slot_box = &mut self.slot_box;
-        slot_box.clear();
+        // Ids from `limit` on are not live in the open frame.
+        let limit = if self.split.is_some() {
+            self.split_id
+        } else {
+            self.next_id
+        };
+        let n = hits.len().min(self.ids.len());
+        let (hits, ids) = (&hits[..n], &self.ids[..n]);
         let (records, boxes) = records.unwrap_or((&[], &[]));
-        // Per hitbox: its culled instances (k), and how many got a share;
-        // per slot: the box it is culled into (`NONE`: traced itself).
-        const NONE: u32 = u32::MAX;
-        per.resize(boxes.len(), (0, 0));
-        slot_box.extend(records.iter().zip(&self.ids).map(|(r, id)| {
-            let b = r.hitbox as usize;
-            if id.is_some() && b < boxes.len() && culled(r, boxes) {
-                per[b].0 += 1;
-                r.hitbox
-            } else {
-                NONE
-            }
-        }));
-        for (slot, (&own, id)) in hits.iter().zip(&self.ids).enumerate() {
-            let Some(id) = *id else { continue };
-            let h = match slot_box.get(slot) {
-                Some(&b) if b != NONE => {
-                    let (k, seen) = &mut per[b as usize];
-                    let total = boxes[b as usize].hits();
-                    let share = total / *k + u32::from(*seen < total % *k);
-                    *seen += 1;
-                    share
+        // Pass 1 (only slots without own hits): per hitbox with hits, its
+        // culled instances (k); those slots, in order.
+        let per = &mut self.per_hitbox;
+        let culled = &mut self.culled;
+        culled.clear();
+        if !boxes.is_empty() {
+            per.clear();
+            per.resize(boxes.len(), BoxShare::default());
+            for (slot, ((&own, &id), r)) in hits.iter().zip(ids).zip(records).enumerate() {
+                if own != 0 || id >= limit {
+                    continue;
                 }
-                _ => own,
-            };
-            if h > 0 {
-                out.push(InstanceHits { id, hits: h });
+                let b = r.hitbox as usize;
+                let Some(hb) = boxes.get(b) else { continue };
+                // Reduced into the counting box (`crate::assembly`): not
+                // pinned, and inactive or in an inactive hitbox.
+                let reduced =
+                    !r.is_pinned() && (r.state() == InstanceState::Inactive || !hb.is_active());
+                if hb.hits() > 0 && reduced {
+                    per[b].k += 1;
+                    culled.push(slot as u32);
+                }
             }
+            for (p, hb) in per.iter_mut().zip(boxes) {
+                if let (Some(share), Some(plus_one)) =
+                    (hb.hits().checked_div(p.k), hb.hits().checked_rem(p.k))
+                {
+                    p.share = share;
+                    p.plus_one = plus_one;
+                }
+            }
+        }
+        out.reserve(n.min(1 << 20));
+        // Pass 2: own hits between the culled slots, then each culled
+        // slot's share.
+        let mut from = 0;
+        for &slot in culled.iter().chain(std::iter::once(&(n as u32))) {
+            let to = slot as usize;
+            out.extend(
+                hits[from..to]
+                    .iter()
+                    .zip(&ids[from..to])
+                    .filter(|&(&own, &id)| own != 0 && id < limit)
+                    .map(|(&own, &id)| InstanceHits { id, hits: own }),
+            );
+            if to < n {
+                let p = &mut per[records[to].hitbox as usize];
+                let h = p.share + u32::from(p.seen < p.plus_one);
+                p.seen += 1;
+                if h > 0 {
+                    out.push(InstanceHits {
+                        id: ids[to],
+                        hits: h,
+                    });
+                }
+            }
+            from = to + 1;
         }
         self.hits = Some(out);
     }
@@ -721,12 +781,17 @@ impl TraceRecorder {
     }
 }
 
-/// Whether Algorithm 1 reduces the instance into its hitbox's counting box:
-/// inactive, or in an inactive hitbox, and not pinned (`crate::assembly`).
-fn culled(r: &InstanceRecord, boxes: &[HitboxRecord]) -> bool {
-    !r.is_pinned()
-        && (r.state() == InstanceState::Inactive
-            || boxes.get(r.hitbox as usize).is_some_and(|b| !b.is_active()))
+/// No trace id (a slot without a recorded instance).
+const NO_ID: u64 = u64::MAX;
+
+/// A counting box's hits split over its `k` culled instances: each gets
+/// `share`, the first `plus_one` (by slot) one more.
+#[derive(Clone, Copy, Debug, Default)]
+struct BoxShare {
+    k: u32,
+    share: u32,
+    plus_one: u32,
+    seen: u32,
 }
 
 fn pose(desc: &InstanceDesc) -> Pose {
@@ -775,6 +840,7 @@ impl<H: HitboxIndex + 'static> Manager<H> {
             recorder.open = Some(frame);
             if self.planned == Some(frame) {
                 recorder.split = Some(0);
+                recorder.split_id = recorder.next_id;
             }
         }
         self.recorder = Some(Box::new(recorder));

@@ -639,3 +639,72 @@ fn pinning_at_run_time_activates_and_requests_the_blas() {
     assert_eq!(r.frame().blas.builds().count(), 0);
     assert_eq!(r.m.stats().instances.active, 1);
 }
+
+#[test]
+fn engine_selected_traces_exactly_the_pinned_set() {
+    let grid = || {
+        HitboxGrid::new(GridConfig {
+            min: [0.0, 0.0],
+            max: [64.0, 64.0],
+            cell_size: 16.0,
+        })
+        .unwrap()
+    };
+    let mut config = ManagerConfig::new(CUBE);
+    config.culling.selection = crate::culling::Selection::EngineSelected;
+    // Latency mitigation would activate what nothing deactivates.
+    assert!(matches!(
+        Manager::new(grid(), config, catalog()),
+        Err(ManagerError::Core(_) | ManagerError::InvalidConfig { .. })
+    ));
+    config.culling.latency_mitigation = None;
+    let mut m = Manager::new(grid(), config, catalog()).unwrap();
+    let a = m.register(desc(8.0, 8.0, 1)).unwrap();
+    let b = m.register(desc(40.0, 8.0, 2)).unwrap();
+    let (sa, sb) = (m.instance(a).unwrap().slot, m.instance(b).unwrap().slot);
+    let mut tlas = Vec::new();
+    let mut frame = |m: &mut Manager, f: u64, select: &[(InstanceHandle, bool)]| {
+        m.begin_frame(f).unwrap();
+        for &(h, on) in select {
+            m.set_pinned(h, on).unwrap();
+        }
+        let plan = m.plan(&FrameBudgets::default()).unwrap();
+        ack_builds(m, &plan);
+        m.assemble(&mut tlas).unwrap();
+        // Whatever the hits, nothing moves.
+        m.instance_hits_mut().fill(100_000);
+        m.hitboxes_mut()[0].add_hits(100_000);
+        assert_eq!(m.process_feedback().unwrap(), FeedbackStats::default());
+        let r = m.take_commands().unwrap();
+        assert_eq!((r.counter, r.words.len()), (0, 0));
+        let mut traced: Vec<u32> = tlas.iter().map(|t| t.custom_index()).collect();
+        traced.sort_unstable();
+        assert!(tlas
+            .iter()
+            .all(|t| t.acceleration_structure_reference != CUBE));
+        (plan, traced)
+    };
+    let (_, traced) = frame(&mut m, 1, &[]);
+    assert!(traced.is_empty(), "no counting boxes, nothing selected");
+    let (plan, traced) = frame(&mut m, 2, &[(a, true), (b, true)]);
+    assert_eq!(plan.blas.builds().count(), 2);
+    assert_eq!(traced, vec![sa, sb]);
+    assert!(m.hitboxes().iter().all(HitboxRecord::is_active));
+    for f in 3..10 {
+        assert_eq!(frame(&mut m, f, &[]).1, vec![sa, sb]);
+    }
+    // Unpinned: inactive at once, out of the TLAS, its BLAS released.
+    let (_, traced) = frame(&mut m, 10, &[(b, false)]);
+    assert_eq!(traced, vec![sa]);
+    let v = m.instance(b).unwrap();
+    assert_eq!(
+        (v.state, v.blas, v.scheduled),
+        (InstanceState::Inactive, 0, false)
+    );
+    assert_eq!(m.stats().instances.active, 1);
+    // Pinned again: the cached shared BLAS comes back without a build.
+    let (plan, traced) = frame(&mut m, 11, &[(b, true)]);
+    assert_eq!(plan.blas.builds().count(), 0);
+    assert_eq!(traced, vec![sa, sb]);
+    assert!(m.set_pinned(b, true).unwrap());
+}

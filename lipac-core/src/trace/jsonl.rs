@@ -680,6 +680,16 @@ impl<W: Write> JsonlWriter<W> {
 
     /// Checks `frame` (see [`TraceValidator`]) and appends its line.
     pub fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError> {
+        self.write_checked(frame, false)
+    }
+
+    /// As [`JsonlWriter::write_frame`] for hit counts that are consistent by
+    /// construction (see [`TraceValidator::check_frame_trusted_hits`]).
+    pub(crate) fn write_frame_trusted_hits(&mut self, frame: &Frame) -> Result<(), TraceError> {
+        self.write_checked(frame, true)
+    }
+
+    fn write_checked(&mut self, frame: &Frame, trusted_hits: bool) -> Result<(), TraceError> {
         let line = self.line + 1;
         let index = self.validator.frames();
         let err = |event: Option<u32>, kind| TraceError {
@@ -689,7 +699,12 @@ impl<W: Write> JsonlWriter<W> {
             event,
             kind,
         };
-        if let Err(FrameFault { event, kind }) = self.validator.check_frame(frame) {
+        let checked = if trusted_hits {
+            self.validator.check_frame_trusted_hits(frame)
+        } else {
+            self.validator.check_frame(frame)
+        };
+        if let Err(FrameFault { event, kind }) = checked {
             return Err(err(event, kind));
         }
         self.buf.clear();

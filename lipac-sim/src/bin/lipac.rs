@@ -23,6 +23,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
+use lipac_sim::closed_loop::{self, CameraChoice, ClosedLoopOptions};
 use lipac_sim::compare::{check_image_size, run_choice_with_snapshots, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::StrategyKind;
@@ -109,6 +110,44 @@ struct Common {
     snapshots: Vec<u32>,
 }
 
+/// Closed-loop thresholds (docs/EVALUATION.md, "Closed-loop thresholds").
+#[derive(clap::Args, Default)]
+struct ClosedLoopArgs {
+    /// Adds `lipac-budget`: LiPaC whose Manager holds this
+    /// acceleration-structure memory budget, MiB (as the report counts it).
+    #[arg(long, value_name = "MiB")]
+    memory_budget: Option<f64>,
+    /// Adds `lipac-escape`: LiPaC whose Manager holds this escape fraction
+    /// (share of counted hits ending in counting boxes, in (0, 1)).
+    #[arg(long, value_name = "F")]
+    escape_target: Option<f64>,
+    /// Camera path: the fly-through, or two views with a jump at frame 135.
+    #[arg(long, value_enum, default_value = "flythrough")]
+    camera: CameraArg,
+}
+
+#[derive(Clone, Copy, Default, ValueEnum)]
+enum CameraArg {
+    #[default]
+    Flythrough,
+    Jump,
+}
+
+impl ClosedLoopArgs {
+    fn options(&self) -> Option<ClosedLoopOptions> {
+        let camera = match self.camera {
+            CameraArg::Flythrough => CameraChoice::Flythrough,
+            CameraArg::Jump => CameraChoice::Jump,
+        };
+        let o = ClosedLoopOptions {
+            memory_budget_mib: self.memory_budget,
+            escape_target: self.escape_target,
+            camera,
+        };
+        (o != ClosedLoopOptions::default()).then_some(o)
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Every strategy side by side against the ground truth (the main job).
@@ -118,6 +157,8 @@ enum Command {
         /// Strategies to compare (default: all).
         #[arg(long, value_enum, value_delimiter = ',')]
         strategies: Vec<StrategyArg>,
+        #[command(flatten)]
+        closed_loop: ClosedLoopArgs,
     },
     /// One strategy against the ground truth.
     Run {
@@ -362,9 +403,13 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let (common, strategies) = match cli.command {
-        Command::Compare { common, strategies } => (common, strategies),
-        Command::Run { common, strategy } => (common, vec![strategy]),
+    let (common, strategies, closed_loop) = match cli.command {
+        Command::Compare {
+            common,
+            strategies,
+            closed_loop,
+        } => (common, strategies, closed_loop.options()),
+        Command::Run { common, strategy } => (common, vec![strategy], None),
         Command::Record(a) => return trace_cmds::run_record(a),
         Command::Replay(a) => return trace_cmds::run_replay(a),
         Command::Convert(a) => return trace_cmds::run_convert(a),
@@ -398,16 +443,27 @@ fn main() -> ExitCode {
         ProgressStyle::with_template("{bar:40} {pos}/{len} frames  {elapsed} (eta {eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let result = run_choice_with_snapshots(
-        common.scene.into(),
-        common.seed,
-        &config,
-        &common.snapshots,
-        &mut |done, total| {
-            bar.set_length(u64::from(total));
-            bar.set_position(u64::from(done));
-        },
-    );
+    let mut progress = |done: u32, total: u32| {
+        bar.set_length(u64::from(total));
+        bar.set_position(u64::from(done));
+    };
+    let result = match &closed_loop {
+        None => run_choice_with_snapshots(
+            common.scene.into(),
+            common.seed,
+            &config,
+            &common.snapshots,
+            &mut progress,
+        ),
+        Some(opts) => closed_loop::run(
+            common.scene.into(),
+            common.seed,
+            &config,
+            opts,
+            &common.snapshots,
+            &mut progress,
+        ),
+    };
     bar.finish_and_clear();
     let (report, snapshots) = match result {
         Ok(r) => r,
@@ -419,6 +475,36 @@ fn main() -> ExitCode {
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
         print!("{h}");
+    }
+    if closed_loop.is_some() {
+        for b in closed_loop::budget_figures(&report, &report.camera_cuts) {
+            println!(
+                "{}: budget {:.2} MiB, frames {}+: mean {:.2} MiB, max deviation {:.1} %, \
+                 max overrun {:+.1} %, {} of {} frames > 5 % off, after the jump {}, final scale {:.3}{}",
+                b.name,
+                b.budget_bytes as f64 / (1024.0 * 1024.0),
+                closed_loop::SETTLE_FRAMES,
+                b.mean_bytes / (1024.0 * 1024.0),
+                100.0 * b.max_deviation,
+                100.0 * b.max_overrun,
+                b.frames_outside,
+                b.frames,
+                b.jump_max_deviation
+                    .map_or("-".into(), |d| format!("{:.1} %", 100.0 * d)),
+                b.final_scale,
+                if b.unreachable_frames > 0 {
+                    format!(", budget unreachable in {} frames", b.unreachable_frames)
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    if let Some(c) = closed_loop::escape_error_correlation(&report) {
+        println!(
+            "escape fraction vs error over {} (frame, LiPaC run) points: Pearson {:.3}, Spearman {:.3}",
+            c.points, c.pearson, c.spearman
+        );
     }
     match output::publish_dir(&common.out, &[], |dir| {
         write_report_with_snapshots(&report, &snapshots, dir).map_err(|e| e.to_string())

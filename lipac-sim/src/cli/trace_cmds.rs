@@ -2,16 +2,16 @@
 //! traces on the command line (logic in `lipac_sim::record` and
 //! `lipac_sim::replay`).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
 use lipac_sim::compare::check_image_size;
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
-use lipac_sim::replay::{replay_with_snapshots, ReplayConfig, ReplayMode, TraceInput};
+use lipac_sim::replay::{ReplayConfig, ReplayMode};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
-use lipac_sim::trace_scene::{replay_path, TraceSceneOptions};
+use lipac_sim::trace_scene::{replay_path, replay_stream, TraceSceneOptions};
 use lipac_sim::SimError;
 
 use crate::output::{check_not_input, io_err, open_input, publish_dir, OutputFile};
@@ -103,8 +103,13 @@ pub struct ReplayArgs {
     /// bounds of a mesh without geometry instead of failing.
     #[arg(long)]
     box_proxy: bool,
+    /// Geometry mode of a trace of another scene: trace vegetation opaque
+    /// (default: alpha-tested with the built-in trees' leaf pattern).
+    #[arg(long)]
+    no_vegetation_alpha: bool,
     /// Geometry mode of a trace of another scene: a JSON scene file
-    /// overriding sun and sky (see docs/trace-format.md).
+    /// overriding sun and sky, vegetation alpha and box proxies (see
+    /// docs/trace-format.md); the flags above win over it.
     #[arg(long)]
     scene_file: Option<PathBuf>,
 }
@@ -194,16 +199,15 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());
+    let options = trace_scene_options(a).map_err(|e| e.to_string())?;
     let (report, snapshots) = if regular_file {
         // A file can be read twice: traces of other scenes replay with
         // geometry (lipac_sim::trace_scene).
-        let options =
-            trace_scene_options(a.box_proxy, a.scene_file.as_deref()).map_err(|e| e.to_string())?;
         replay_path(&a.file, &config, &options, &mut |_| {}).map_err(at_file)?
     } else {
-        // Standard input or a pipe: one pass (built-in scenes, hits only).
-        let input = TraceInput::detect(open_input(&a.file)?).map_err(at_file)?;
-        replay_with_snapshots(input, &config, &mut |_| {}).map_err(at_file)?
+        // Standard input or a pipe: read once (a trace of another scene in
+        // geometry mode is spooled to a temporary file for its second pass).
+        replay_stream(open_input(&a.file)?, &config, &options, &mut |_| {}).map_err(at_file)?
     };
     print!("{}", table(&report));
     if let Some(h) = headline(&report) {
@@ -222,20 +226,17 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     Ok(())
 }
 
-fn trace_scene_options(
-    box_proxy: bool,
-    scene_file: Option<&Path>,
-) -> Result<TraceSceneOptions, SimError> {
-    let o = TraceSceneOptions {
-        box_proxy,
-        ..TraceSceneOptions::default()
-    };
-    match scene_file {
-        None => Ok(o),
-        Some(p) => {
-            o.with_json(&std::fs::read_to_string(p).map_err(|e| SimError::Io(io_err(p, e)))?)
-        }
+/// The scene file's options (if any), then the flags.
+fn trace_scene_options(a: &ReplayArgs) -> Result<TraceSceneOptions, SimError> {
+    let mut o = TraceSceneOptions::default();
+    if let Some(p) = a.scene_file.as_deref() {
+        o = o.with_json(&std::fs::read_to_string(p).map_err(|e| SimError::Io(io_err(p, e)))?)?;
     }
+    o.box_proxy |= a.box_proxy;
+    if a.no_vegetation_alpha {
+        o.vegetation_alpha = false;
+    }
+    Ok(o)
 }
 
 pub fn run_convert(a: ConvertArgs) -> ExitCode {

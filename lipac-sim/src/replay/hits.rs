@@ -5,9 +5,9 @@
 //!
 //! 1. The hits recorded with frame `f − 1` are LiPaC's feedback
 //!    (Algorithm 2): an instance that is in the TLAS as geometry or as an
-//!    omitted box (active or omitted) gets its own hits; an inactive one has
-//!    only its hitbox's counting box in the TLAS, so its hits count for its
-//!    hitbox. Commands go through the read-back ring as in
+//!    omitted box (active or omitted, in an active hitbox) gets its own
+//!    hits; an inactive one, or one in an inactive hitbox, has only its
+//!    hitbox's counting box in the TLAS, so its hits count for its hitbox. Commands go through the read-back ring as in
 //!    [`crate::strategy::lipac`].
 //! 2. The frame's events: `add` registers, `update` moves (or re-describes),
 //!    `remove` removes (the BLAS is released).
@@ -24,7 +24,9 @@
 //! A frame without recorded hit counts counts as a frame without hits; a
 //! trace none of whose frames carries them is refused.
 //!
-//! The `full` baseline keeps every live instance, with unlimited budgets.
+//! The `full` baseline keeps every live instance, with unlimited budgets,
+//! on a [`CpuBackend`] too: every instance pinned on a Manager without hit
+//! feedback ([`CpuBackend::engine_selected`]).
 //!
 //! BLAS ownership follows the flags (the Manager's rule): `unique_blas` and
 //! `static` — one static BLAS per instance; `unique_blas` alone — an
@@ -37,8 +39,6 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::time::Instant;
 
-use lipac_core::blas_ids::Lod;
-use lipac_core::build_plan::{BlasGeometry, BuildEstimate, InstanceBlasRequest};
 use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::manager::MeshCatalog;
@@ -52,11 +52,11 @@ use crate::camera::Camera;
 use crate::compare::{CompareReport, StrategyRun};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, build_estimate, lipac_overhead_bytes, mesh_lod, tlas_bytes};
+use crate::memory::{blas_bytes, lipac_overhead_bytes, mesh_lod, tlas_bytes};
 use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
-use crate::strategy::{unlimited_budgets, BlasAccounting, BlasWork, StrategyKind};
+use crate::strategy::{BlasWork, StrategyKind};
 use crate::tlas::CountingBoxes;
 use crate::traversal::SlotSet;
 
@@ -77,7 +77,6 @@ struct Live {
     slot: u32,
     desc: InstanceDesc,
     lod: u32,
-    serial: u32,
 }
 
 /// The trace's instances as dense slots, shared by every strategy.
@@ -87,7 +86,6 @@ struct World {
     live: HashMap<u64, Live>,
     slot_ids: Vec<Option<u64>>,
     free: Vec<u32>,
-    serial: u32,
     hits: Vec<u32>,
 }
 
@@ -104,43 +102,6 @@ impl World {
     }
     fn slots(&self) -> usize {
         self.slot_ids.len()
-    }
-    fn request(&self, l: &Live) -> InstanceBlasRequest {
-        let mesh = MeshId(l.desc.mesh.0);
-        let f = l.desc.flags;
-        let geometry = if f.contains(InstanceFlags::UNIQUE_BLAS) {
-            if f.contains(InstanceFlags::STATIC) {
-                BlasGeometry::Shared {
-                    mesh,
-                    variant: l.serial,
-                    compactable: false,
-                }
-            } else {
-                BlasGeometry::Unique { mesh }
-            }
-        } else {
-            BlasGeometry::Shared {
-                mesh,
-                variant: 0,
-                compactable: false,
-            }
-        };
-        InstanceBlasRequest {
-            geometry,
-            lod: Lod(l.lod as u8),
-            estimate: self.estimate(l),
-            hits: 0,
-            in_frustum: false,
-        }
-    }
-    fn estimate(&self, l: &Live) -> BuildEstimate {
-        let tris = self
-            .triangles
-            .get(&l.desc.mesh.0)
-            .and_then(|t| t.get(l.lod as usize))
-            .copied()
-            .map_or(0, u64::from);
-        build_estimate(tris)
     }
     /// The Manager's catalog: the header's meshes, one
     /// [`crate::memory::mesh_lod`] per LOD.
@@ -164,16 +125,13 @@ impl World {
     }
 }
 
-/// The `full` baseline: every live instance.
-#[derive(Debug)]
-struct FullReplay {
-    blas: BlasAccounting,
-}
-
-/// LiPaC on recorded hits, on one [`CpuBackend`].
+/// LiPaC on recorded hits, or the `full` baseline (`baseline`: every live
+/// instance pinned, no feedback), on one [`CpuBackend`].
 #[derive(Debug)]
 struct LipacReplay {
     backend: CpuBackend<WorldHitboxes>,
+    /// The `full` baseline ([`CpuBackend::engine_selected`]).
+    baseline: bool,
     /// Handle per dense slot.
     handles: Vec<Option<InstanceHandle>>,
     /// Dense slot per registry slot.
@@ -183,7 +141,7 @@ struct LipacReplay {
 
 #[derive(Debug)]
 enum Runner {
-    Full(Box<FullReplay>),
+    Full(Box<LipacReplay>),
     Lipac(Box<LipacReplay>),
 }
 
@@ -326,9 +284,10 @@ pub fn replay_hits_with<R: Read>(
     let mut runs = Vec::with_capacity(kinds.len());
     for k in &kinds {
         let runner = match k {
-            StrategyKind::Full => Runner::Full(Box::new(FullReplay {
-                blas: BlasAccounting::new(0, unlimited_budgets())?,
-            })),
+            StrategyKind::Full => Runner::Full(Box::new(LipacReplay::full(
+                grid.clone(),
+                world.mesh_catalog()?,
+            )?)),
             StrategyKind::Lipac | StrategyKind::LipacLatency => {
                 let c = if *k == StrategyKind::Lipac {
                     lipac_config.clone()
@@ -375,8 +334,8 @@ pub fn replay_hits_with<R: Read>(
         let camera = from_trace_camera(&frame.camera)?;
         // Feedback of the previous frame, before this frame's events.
         for run in &mut runs {
-            if let Runner::Lipac(l) = &mut run.runner {
-                l.feedback(&prev_hits)?;
+            match &mut run.runner {
+                Runner::Full(l) | Runner::Lipac(l) => l.feedback(&prev_hits)?,
             }
         }
         // Events.
@@ -401,8 +360,9 @@ pub fn replay_hits_with<R: Read>(
                 ..FrameMetrics::default()
             };
             let geometry = match &mut run.runner {
-                Runner::Full(f) => f.frame(&world, number, &mut m)?,
-                Runner::Lipac(l) => l.frame(number, &camera, &counting, &mut m)?,
+                Runner::Full(l) | Runner::Lipac(l) => {
+                    l.frame(number, &camera, &counting, &mut m)?
+                }
             };
             m.strategy_ms = t.elapsed().as_secs_f64() * 1e3;
             m.tlas_bytes = tlas_bytes(m.tlas_instances);
@@ -426,8 +386,7 @@ pub fn replay_hits_with<R: Read>(
                 .map(|r| {
                     r.tracker.capacity()
                         + match &r.runner {
-                            Runner::Full(f) => f.blas.capacity(),
-                            Runner::Lipac(l) => {
+                            Runner::Full(l) | Runner::Lipac(l) => {
                                 l.handles.capacity() + l.dense.capacity() + l.records.capacity()
                             }
                         }
@@ -488,6 +447,7 @@ pub fn replay_hits_with<R: Read>(
             blas_throughput: Default::default(),
             gpu_model: Default::default(),
             strategies,
+            camera_cuts: Vec::new(),
         },
         fp,
     ))
@@ -533,12 +493,10 @@ fn apply_event(
                     (world.slot_ids.len() - 1) as u32
                 }
             };
-            world.serial = world.serial.wrapping_add(1);
             let l = Live {
                 slot,
                 desc: a.desc(),
                 lod: a.lod,
-                serial: world.serial,
             };
             world.slot_ids[slot as usize] = Some(a.id);
             world.live.insert(a.id, l);
@@ -546,8 +504,7 @@ fn apply_event(
                 run.tracker.resize(world.slot_ids.len());
                 run.tracker.reset(slot);
                 match &mut run.runner {
-                    Runner::Full(f) => f.blas.activate_with(slot, world.request(&l))?,
-                    Runner::Lipac(lp) => lp.register(slot, LipacReplay::desc(&l))?,
+                    Runner::Full(lp) | Runner::Lipac(lp) => lp.register(slot, &l)?,
                 }
             }
         }
@@ -581,8 +538,8 @@ fn apply_event(
                 blas_kind: blas_kind(old_flags) != blas_kind(l.desc.flags),
             };
             for run in runs.iter_mut() {
-                if let Runner::Lipac(lp) = &mut run.runner {
-                    lp.update(&l, change)?;
+                match &mut run.runner {
+                    Runner::Full(lp) | Runner::Lipac(lp) => lp.update(&l, change)?,
                 }
             }
         }
@@ -595,41 +552,13 @@ fn apply_event(
             world.free.push(l.slot);
             for run in runs.iter_mut() {
                 match &mut run.runner {
-                    Runner::Full(f) => f.blas.deactivate(l.slot)?,
-                    Runner::Lipac(lp) => lp.remove(l.slot)?,
+                    Runner::Full(lp) | Runner::Lipac(lp) => lp.remove(l.slot)?,
                 }
             }
         }
     }
     let _ = frame;
     Ok(())
-}
-
-impl FullReplay {
-    fn frame(
-        &mut self,
-        world: &World,
-        frame: u32,
-        m: &mut FrameMetrics,
-    ) -> Result<Vec<u32>, SimError> {
-        self.blas.begin_frame(frame)?;
-        for l in world.live.values() {
-            self.blas
-                .request_lod(l.slot, Lod(l.lod as u8), world.estimate(l))?;
-        }
-        let work = self.blas.plan()?;
-        self.blas.take_address_changes();
-        let geometry: Vec<u32> = world
-            .live
-            .values()
-            .filter(|l| self.blas.address(l.slot).is_some())
-            .map(|l| l.slot)
-            .collect();
-        fill_work(m, &work);
-        m.tlas_instances = geometry.len() as u64;
-        m.blas_bytes = self.blas.memory_bytes();
-        Ok(geometry)
-    }
 }
 
 fn fill_work(m: &mut FrameMetrics, w: &BlasWork) {
@@ -654,29 +583,44 @@ fn blas_kind(f: InstanceFlags) -> InstanceFlags {
 }
 
 impl LipacReplay {
-    fn new(
-        grid: WorldHitboxes,
-        config: &LipacConfig,
-        catalog: MeshCatalog,
-    ) -> Result<Self, SimError> {
+    /// The `full` baseline: every live instance pinned on a Manager without
+    /// feedback.
+    fn full(grid: WorldHitboxes, catalog: MeshCatalog) -> Result<Self, SimError> {
         Ok(Self {
-            backend: CpuBackend::new(grid, config, catalog)?,
+            backend: CpuBackend::engine_selected(grid, catalog)?,
+            baseline: true,
             handles: Vec::new(),
             dense: Vec::new(),
             records: Vec::new(),
         })
     }
 
-    /// The instance's description as LiPaC gets it (the recorded LOD).
-    fn desc(l: &Live) -> InstanceDesc {
+    fn new(grid: WorldHitboxes, config: &LipacConfig, catalog: MeshCatalog) -> Result<Self, SimError> {
+        Ok(Self {
+            backend: CpuBackend::new(grid, config, catalog)?,
+            baseline: false,
+            handles: Vec::new(),
+            dense: Vec::new(),
+            records: Vec::new(),
+        })
+    }
+
+    /// The instance's description as the Manager gets it (the recorded
+    /// LOD; the baseline pins it).
+    fn desc(&self, l: &Live) -> InstanceDesc {
+        let mut flags = l.desc.flags;
+        if self.baseline {
+            flags |= InstanceFlags::PINNED;
+        }
         InstanceDesc {
             lod: l.lod,
+            flags,
             ..l.desc
         }
     }
 
-    fn register(&mut self, slot: u32, desc: InstanceDesc) -> Result<(), SimError> {
-        let h = self.backend.register(desc)?;
+    fn register(&mut self, slot: u32, l: &Live) -> Result<(), SimError> {
+        let h = self.backend.register(self.desc(l))?;
         let reg = self.backend.instance(h)?.slot as usize;
         if self.handles.len() <= slot as usize {
             self.handles.resize(slot as usize + 1, None);
@@ -701,10 +645,10 @@ impl LipacReplay {
         let h = self.handle(l.slot)?;
         if change.blas_kind {
             self.remove(l.slot)?;
-            return self.register(l.slot, Self::desc(l));
+            return self.register(l.slot, l);
         }
         if change.redescribe {
-            self.backend.update(h, Self::desc(l))?;
+            self.backend.update(h, self.desc(l))?;
         } else {
             if change.moved {
                 self.backend
@@ -734,6 +678,9 @@ impl LipacReplay {
         if !self.backend.frame_open() {
             return Ok(());
         }
+        if self.baseline {
+            return self.backend.end_frame(); // no feedback: the call order
+        }
         self.backend.instance_hits_mut().fill(0);
         for &(slot, n) in hits {
             let Some(Some(h)) = self.handles.get(slot as usize).copied() else {
@@ -741,8 +688,18 @@ impl LipacReplay {
             };
             let reg = self.backend.instance(h)?.slot;
             let record = self.backend.record(h)?;
-            if record.state() == InstanceState::Inactive {
-                if let Some(b) = self.backend.hitboxes_mut().get_mut(record.hitbox as usize) {
+            // Reduced into its hitbox's counting box (Algorithm 1): not
+            // pinned, and inactive or in an inactive hitbox.
+            let b = record.hitbox as usize;
+            let culled = !record.is_pinned()
+                && (record.state() == InstanceState::Inactive
+                    || self
+                        .backend
+                        .hitboxes()
+                        .get(b)
+                        .is_some_and(|hb| !hb.is_active()));
+            if culled {
+                if let Some(b) = self.backend.hitboxes_mut().get_mut(b) {
                     b.add_hits(n);
                 }
             } else if let Some(c) = self.backend.instance_hits_mut().get_mut(reg as usize) {
@@ -765,7 +722,11 @@ impl LipacReplay {
         let mut slots = Vec::new();
         for r in &self.records {
             let reg = r.custom_index();
-            if geometry.contains(reg) {
+            // A counting box's custom index is a hitbox's (or its omitted
+            // instance's) index, not a traced slot, even where it equals one.
+            let is_box = r.sbt_offset() == counting.instance_box_sbt
+                || r.sbt_offset() == counting.hitbox_box_sbt;
+            if !is_box && geometry.contains(reg) {
                 if let Some(&s) = self.dense.get(reg as usize) {
                     if s != u32::MAX {
                         slots.push(s);
@@ -777,8 +738,12 @@ impl LipacReplay {
         m.tlas_instances = self.records.len() as u64;
         m.counting_boxes = self.records.len() as u64 - slots.len() as u64;
         let hitboxes = self.backend.hitboxes().len() as u64;
-        m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
-        m.overhead_bytes = lipac_overhead_bytes(hitboxes, u64::from(self.backend.slot_count()));
+        if self.baseline {
+            m.blas_bytes = self.backend.blas_bytes();
+        } else {
+            m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
+            m.overhead_bytes = lipac_overhead_bytes(hitboxes, u64::from(self.backend.slot_count()));
+        }
         Ok(slots)
     }
 }

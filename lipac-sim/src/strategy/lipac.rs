@@ -22,18 +22,17 @@
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::controller::{ControlTarget, ControllerConfig};
-use lipac_core::grid::{GridConfig, HitboxGrid};
-use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
+use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::registry::InstanceHandle;
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 
-use super::{FrameContext, InstanceCatalog, Strategy, StrategyFrame};
+use super::{ControlFrame, FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, lipac_overhead_bytes};
-use crate::scene::{flags, Scene};
+use crate::scene::Scene;
 use crate::scene_blas::instance_mask;
 use crate::tlas::CountingBoxes;
 use crate::traversal::Counters;
@@ -78,16 +77,37 @@ impl LipacConfig {
     /// less error.
     pub const DEFAULT_CELL_SIZE: f64 = 32.0;
 
-    /// Paper settings for `rays_per_frame` camera rays: scaled thresholds,
+    /// The default decision rule's settings (hits per frame at 1080p, 1 spp,
+    /// scaled to the rays like the paper's θa = 1000): see
+    /// docs/EVALUATION.md, "The decayed rule".
+    pub const DEFAULT_DECAYED: DecayedSettings = DecayedSettings {
+        half_life_frames: 5.0,
+        activate: 150.0,
+        deactivate: 30.0,
+        instance_activate: 150.0,
+        instance_omit: 30.0,
+        per_shared: 0.0,
+        per_unique: 0.0,
+    };
+
+    /// Settings for `rays_per_frame` camera rays: the paper's thresholds
+    /// scaled to the rays, deciding with the decayed rule
+    /// [`Self::DEFAULT_DECAYED`] ([`Self::with_paper_rule`] for the paper's),
     /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, 4096 commands per frame,
     /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
     /// no compaction copies (lavapipe's compaction gains nothing,
     /// [`crate::memory`]), and builds ordered by waiting time alone
     /// ([`Self::age_only_priority`]).
     pub fn for_rays_per_frame(rays_per_frame: u64) -> Result<Self, SimError> {
+        let rays = rays_per_frame as f64;
+        let rule = Self::DEFAULT_DECAYED
+            .rule_for_rays_per_frame(rays)
+            .map_err(SimError::core)?;
+        let thresholds = Thresholds::for_rays_per_frame(rays)
+            .map_err(SimError::core)?
+            .with_rule(DecisionRule::Decayed(rule));
         Ok(Self {
-            thresholds: Thresholds::for_rays_per_frame(rays_per_frame as f64)
-                .map_err(SimError::core)?,
+            thresholds,
             cell_size: Self::DEFAULT_CELL_SIZE,
             latency: None,
             command_budget: 4096,
@@ -114,6 +134,26 @@ impl LipacConfig {
             frustum_bonus: 0,
             ..PriorityConfig::default()
         }
+    }
+    /// The same deciding with the paper's rule (θa, θd, σa, σo, n_a, n_d on
+    /// this frame's hits) instead of the decayed rate.
+    pub fn with_paper_rule(mut self) -> Self {
+        self.thresholds.rule = DecisionRule::Paper;
+        self
+    }
+    /// The same deciding with the decayed rule `settings` scaled to
+    /// `rays_per_frame` camera rays; settings that cannot be met (NaN, zero
+    /// or negative rates, a half-life outside 0.5..=400 frames) are an error.
+    pub fn with_decayed_rule(
+        mut self,
+        settings: &DecayedSettings,
+        rays_per_frame: u64,
+    ) -> Result<Self, SimError> {
+        let rule = settings
+            .rule_for_rays_per_frame(rays_per_frame as f64)
+            .map_err(SimError::core)?;
+        self.thresholds.rule = DecisionRule::Decayed(rule);
+        Ok(self)
     }
     /// The same with latency mitigation (lipac-core's default heuristic).
     pub fn with_latency_mitigation(mut self) -> Self {
@@ -154,20 +194,7 @@ impl Lipac {
     /// Registers every instance of `scene` (frame 0 state) in a
     /// [`CpuBackend`] whose hitbox grid covers the scene.
     pub fn new(scene: &Scene, config: LipacConfig) -> Result<Self, SimError> {
-        let b = scene.bounds();
-        let c = config.cell_size;
-        let grid = HitboxGrid::new(GridConfig {
-            min: [
-                (f64::from(b.min.x) / c).floor() * c,
-                (f64::from(b.min.z) / c).floor() * c,
-            ],
-            max: [
-                ((f64::from(b.max.x) / c).floor() + 1.0) * c,
-                ((f64::from(b.max.z) / c).floor() + 1.0) * c,
-            ],
-            cell_size: c,
-        })
-        .map_err(SimError::core)?;
+        let grid = super::scene_grid(scene, config.cell_size)?;
         let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
         let mut backend = CpuBackend::new(grid, &config, catalog)?;
         let n = scene.instances().len();
@@ -175,16 +202,7 @@ impl Lipac {
         let mut handles = Vec::with_capacity(n);
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
-            let mut f = InstanceFlags::empty();
-            if inst.is_unique() {
-                f |= InstanceFlags::UNIQUE_BLAS;
-            }
-            if inst.is_vegetation() {
-                f |= InstanceFlags::VEGETATION;
-            }
-            if inst.flags & flags::STATIC != 0 {
-                f |= InstanceFlags::STATIC;
-            }
+            let f = inst.instance_flags();
             if inst.is_animated() {
                 units.push(slot as u32);
             }
@@ -324,10 +342,24 @@ impl Strategy for Lipac {
         }
         let hitboxes = self.backend.hitboxes();
         self.stats.active_hitboxes = hitboxes.iter().filter(|h| h.is_active()).count() as u32;
+        let manager = self.backend.manager();
+        let stats = manager.stats();
+        let control = ControlFrame {
+            escape_fraction: stats.escape.and_then(|e| e.fraction()),
+            threshold_scale: stats.controller.map_or(1.0, |c| c.scale),
+            controlled_bytes: manager.controlled_bytes(),
+            target: stats.controller.map(|c| c.target),
+            unreachable: stats.controller.is_some_and(|c| c.unreachable),
+        };
         Ok(StrategyFrame {
             work: f.work,
             blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
             overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64),
+            control: Some(control),
         })
     }
 }
+
+#[cfg(test)]
+#[path = "lipac_tests.rs"]
+mod tests;

@@ -3,7 +3,7 @@
 //! with latency mitigation, with other cell sizes and streak lengths.
 
 use lipac_core::latency::ActivationHeuristic;
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecisionRule, Thresholds};
 use serde::{Deserialize, Serialize};
 
 use crate::compare::{make_strategy, Contender, SceneChoice};
@@ -176,8 +176,14 @@ impl SweepConfig {
             factor: Some(factor),
         };
         for &f in &self.factors {
+            // The paper's thresholds scaled as ever; the default decision
+            // rule's rates scaled by the same factor.
+            let mut thresholds = scaled_thresholds(rays, f)?;
+            if let DecisionRule::Decayed(r) = base.thresholds.rule {
+                thresholds.rule = DecisionRule::Decayed(r.scaled(f).map_err(SimError::core)?);
+            }
             let c = LipacConfig {
-                thresholds: scaled_thresholds(rays, f)?,
+                thresholds,
                 ..base.clone()
             };
             all.push(lipac(

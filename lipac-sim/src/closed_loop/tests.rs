@@ -1,0 +1,165 @@
+use super::*;
+use crate::compare::StrategyRun;
+use crate::metrics::{FrameMetrics, Summary};
+use crate::strategy::StrategyKind;
+
+#[test]
+fn ranks_average_ties_and_correlations_have_the_right_sign() {
+    assert_eq!(ranks(&[3.0, 1.0, 3.0, 2.0]), vec![3.5, 1.0, 3.5, 2.0]);
+    let x = [0.1, 0.2, 0.3, 0.4, 0.5];
+    let y = [0.02, 0.05, 0.04, 0.09, 0.11];
+    assert!(pearson(&x, &y) > 0.9);
+    assert!((spearman(&x, &y) - 0.9).abs() < 1e-12);
+    let neg: Vec<f64> = y.iter().map(|v| -v).collect();
+    assert!((pearson(&x, &neg) + pearson(&x, &y)).abs() < 1e-12);
+    assert!(pearson(&[1.0], &[2.0]).is_nan());
+}
+
+#[test]
+fn bad_budgets_are_errors() {
+    for mib in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e-9] {
+        assert!(manager_budget(mib).is_err(), "{mib}");
+    }
+    let Ok(ControlTarget::MemoryBudget { bytes }) = manager_budget(8.0) else {
+        panic!("8 MiB is a budget");
+    };
+    assert_eq!(bytes + blas_bytes(12), 8 << 20);
+}
+
+fn run_of(
+    name: &str,
+    bytes: &[u64],
+    target: Option<f64>,
+    escape: &[f64],
+    err: &[f64],
+) -> StrategyRun {
+    let frames = bytes
+        .iter()
+        .enumerate()
+        .map(|(i, &b)| FrameMetrics {
+            frame: i as u32,
+            blas_bytes: b,
+            error: err[i],
+            escape_fraction: Some(escape[i]),
+            threshold_scale: Some(1.0 + i as f64 / 100.0),
+            control_target: target,
+            ..FrameMetrics::default()
+        })
+        .collect();
+    StrategyRun {
+        name: name.into(),
+        summary: Summary::default(),
+        frames,
+        last_geometry: Vec::new(),
+    }
+}
+
+fn report(strategies: Vec<StrategyRun>) -> CompareReport {
+    CompareReport {
+        scene: "test".into(),
+        instances: 1,
+        frames: strategies[0].frames.len() as u32,
+        width: 1,
+        height: 1,
+        rays_per_frame: 1,
+        thresholds: [0; 6],
+        ground_truth_ms: 0.0,
+        full_tlas_ms: 0.0,
+        geometry_ms: 0.0,
+        traced_rays_per_frame: 0.0,
+        wall_s: 0.0,
+        strategies,
+        camera_cuts: vec![100],
+        blas_throughput: Default::default(),
+        gpu_model: Default::default(),
+    }
+}
+
+#[test]
+fn budget_figures_measure_the_settled_frames_and_the_jump() {
+    let budget = 1_000_000u64;
+    let n = 200;
+    // Far off before settling, 2 % over until the jump, 10 % under for 20
+    // frames after it, then on the budget.
+    let bytes: Vec<u64> = (0..n)
+        .map(|f| match f {
+            f if f < SETTLE_FRAMES as usize => 100,
+            f if f < 100 => budget * 102 / 100,
+            f if f < 120 => budget * 90 / 100,
+            _ => budget,
+        })
+        .collect();
+    let escape: Vec<f64> = (0..n).map(|f| (f % 10) as f64 / 10.0).collect();
+    // Error follows the escape fraction one frame later.
+    let err: Vec<f64> = (0..n).map(|f| ((f + 1) % 10) as f64 / 50.0).collect();
+    let target = (budget - blas_bytes(12)) as f64;
+    let r = report(vec![
+        run_of("lipac-budget", &bytes, Some(target), &escape, &err),
+        run_of("lipac", &bytes, None, &escape, &err),
+    ]);
+    let b = budget_figures(&r, &r.camera_cuts);
+    assert_eq!(b.len(), 1, "only the run with a budget");
+    let b = &b[0];
+    assert_eq!(b.budget_bytes, budget);
+    assert_eq!(b.frames, n - SETTLE_FRAMES as usize);
+    assert!((b.max_deviation - 0.10).abs() < 1e-9, "{b:?}");
+    assert!((b.max_overrun - 0.02).abs() < 1e-9, "{b:?}");
+    assert_eq!(b.frames_outside, 20);
+    assert!((b.jump_max_deviation.unwrap() - 0.10).abs() < 1e-9);
+    // Escape of frame f + 1 pairs with the error of frame f: perfectly
+    // correlated here.
+    let c = escape_error_correlation(&r).unwrap();
+    assert_eq!(c.points, 2 * (n - SETTLE_FRAMES as usize - 1));
+    assert!(c.pearson > 0.999 && c.spearman > 0.999, "{c:?}");
+    let md = markdown(&r, &r.camera_cuts).unwrap();
+    assert!(md.contains("## Closed-loop thresholds"));
+    assert!(md.contains("| lipac-budget |"));
+    assert!(md.contains("20 of 140"));
+    let svgs = plots(&r).unwrap();
+    assert_eq!(svgs.len(), 3);
+    assert!(svgs[0].1.contains("budget of lipac-budget"));
+}
+
+#[test]
+fn a_budget_run_on_the_small_scene_reports_the_controller() {
+    let config = CompareConfig {
+        frames: Some(12),
+        width: 32,
+        height: 18,
+        strategies: vec![StrategyKind::Lipac],
+        share_ground_truth: true,
+        threads: 2,
+    };
+    let opts = ClosedLoopOptions {
+        memory_budget_mib: Some(0.5),
+        escape_target: Some(0.05),
+        camera: CameraChoice::Jump,
+    };
+    let (r, _) = run(
+        SceneChoice::Small,
+        None,
+        &config,
+        &opts,
+        &[],
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let names: Vec<_> = r.strategies.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(names, ["lipac", "lipac-budget", "lipac-escape"]);
+    let budget = &r.strategies[1];
+    let t = budget.frames[0].control_target.unwrap();
+    assert_eq!(t as u64 + blas_bytes(12), (0.5 * MIB) as u64);
+    assert!(budget.frames.iter().all(|m| m.threshold_scale.is_some()));
+    assert!(r.strategies[0]
+        .frames
+        .iter()
+        .all(|m| m.control_target.is_none()));
+    assert_eq!(r.strategies[2].frames[0].control_target, Some(0.05));
+    // A bad escape target is the Manager's configuration error.
+    let bad = ClosedLoopOptions {
+        escape_target: Some(1.5),
+        ..opts
+    };
+    let e = run(SceneChoice::Small, None, &config, &bad, &[], &mut |_, _| {}).unwrap_err();
+    assert!(e.to_string().contains("(0, 1)"), "{e}");
+}
