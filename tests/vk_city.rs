@@ -110,10 +110,6 @@ struct CpuReplay {
     cube: u64,
     /// (command words, TLAS records with their own BLAS).
     totals: (usize, usize),
-    /// The GPU's hit counts by frame, until the Vulkan manager ingests them.
-    hit_log: BTreeMap<u64, Vec<u32>>,
-    /// The hit counts the Vulkan manager had in the frame replayed.
-    hits: Vec<u32>,
 }
 
 impl CpuReplay {
@@ -130,15 +126,10 @@ impl CpuReplay {
             }
             for frame in &l.ingested {
                 let c = self.commands.remove(frame).expect("ran before");
+                // Build priorities follow: the hits of that frame, as the
+                // Vulkan manager's `record_hits` of the same read-back.
                 cpu.ingest_readback(c.frame, c.counter, &c.words);
-                self.hits = self.hit_log.remove(frame).expect("ran before");
             }
-            // Build priorities: the Vulkan manager has the hit counts of the
-            // newest read-back it ingested (`record_hits`), the CPU backend
-            // those of its last feedback (`process_feedback`); give it the
-            // Vulkan manager's.
-            self.hits.resize(cpu.instance_hits_mut().len(), 0);
-            cpu.record_hits(&self.hits);
             let plan = cpu.plan(&FrameBudgets::default()).unwrap();
             assert_eq!(l.commands, plan.commands, "frame {g}: commands processed");
             assert_eq!(l.blas, plan.blas, "frame {g}: BLAS plans");
@@ -174,7 +165,6 @@ impl CpuReplay {
             assert_eq!(a, b, "frame {g}: command words");
             self.totals.0 += a.len();
             self.commands.insert(g, commands);
-            self.hit_log.insert(g, r.instance_hits.clone());
             self.next += 1;
         }
     }
@@ -228,8 +218,6 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
         commands: BTreeMap::new(),
         cube,
         totals: (0, 0),
-        hit_log: BTreeMap::new(),
-        hits: Vec::new(),
     };
     let (mut builds, mut max_latency) = (0, 0);
     for f in 1..=u64::from(o.frames) {

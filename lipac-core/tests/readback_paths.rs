@@ -8,10 +8,11 @@
 //! either kind, any priority) and a counter that may exceed the stored words
 //! (overflow), and A reads them back through a [`ReadbackRing`]. Manager B is
 //! a GPU backend: it never runs Algorithm 2 (its records' state bits are
-//! never changed by feedback, as where the GPU owns them), gets the hit
-//! counters through [`Manager::record_hits`] and the same raw
+//! never changed by feedback, as where the GPU owns them), gets the same raw
 //! `(frame, counter, words)` at the same frames, as a GPU backend hands its
-//! read-back buffer to [`Manager::ingest_readback`]. Latency mitigation runs
+//! read-back buffer to [`Manager::ingest_readback`], and with them that
+//! frame's hit counters ([`Manager::record_hits`]; A's own feedback hits
+//! become its build priorities at the same point). Latency mitigation runs
 //! in both with the same cameras. Checked every frame:
 //!
 //! * both ingest the same way and make the same decisions: ingest summaries,
@@ -154,7 +155,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
     let hitbox_sbt = ManagerConfig::new(CUBE).culling.assembly.hitbox_sbt_offset;
     let mut ring = ReadbackRing::new(LATENCY).unwrap();
     // B's read-backs: (frame it becomes readable, counter, words).
-    let mut raw: VecDeque<(u64, u32, Vec<u32>)> = VecDeque::new();
+    let mut raw: VecDeque<(u64, u32, Vec<u32>, Vec<u32>)> = VecDeque::new();
     // (a's handle, b's handle): handles carry their manager's id.
     let mut live: Vec<(InstanceHandle, InstanceHandle)> = Vec::new();
     let mut removed_slots: Vec<u32> = Vec::new();
@@ -181,11 +182,15 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
 
         // Read-backs: the ring (CPU path) and raw words (GPU path).
         while let Some(r) = ring.pop_ready(frame) {
-            let (due, counter, words) = raw.pop_front().expect("both paths hold the same frames");
+            let (due, counter, words, hits) =
+                raw.pop_front().expect("both paths hold the same frames");
             prop_assert_eq!(due, r.frame + u64::from(LATENCY));
             prop_assert_eq!((counter, &words), (r.counter, &r.words));
             let sa = a.ingest_readback(r.frame, r.counter, &r.words);
             let sb = b.ingest_readback(due - u64::from(LATENCY), counter, &words);
+            // The GPU backend's hit counters arrive with the same read-back
+            // (A holds its feedback's until now).
+            b.record_hits(&hits);
             prop_assert_eq!(sa, sb);
             let stored = (counter as usize).min(words.len()) as u32;
             prop_assert_eq!(sa.accepted + sa.rejected + sa.dead, stored);
@@ -330,7 +335,6 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
         }
         let hits = a.instance_hits_mut().to_vec();
         a.process_feedback().unwrap();
-        b.record_hits(&hits);
         let ra = a.take_commands().expect("feedback ran");
         prop_assert!(b.take_commands().is_none(), "B never runs Algorithm 2");
 
@@ -345,7 +349,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             words.push(Command::new(w.slot, kind, w.priority).unwrap().encode());
         }
         let counter = ra.counter.max(words.len() as u32) + ops.overflow;
-        raw.push_back((frame + u64::from(LATENCY), counter, words.clone()));
+        raw.push_back((frame + u64::from(LATENCY), counter, words.clone(), hits));
         ring.push(Readback {
             frame,
             counter,

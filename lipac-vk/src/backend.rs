@@ -658,7 +658,7 @@ impl LipacVk {
                 "record_frame before the previous frame's record_feedback".into(),
             ));
         }
-        let culling = manager.culling().config();
+        let culling = manager.culling_config();
         let a = &culling.assembly;
         let c = &self.config.counting;
         if a.unit_cube_blas != self.unit_cube_address()
@@ -672,17 +672,17 @@ impl LipacVk {
                 self.unit_cube_address()
             )));
         }
-        if manager.culling().hitboxes().len() != self.hitbox_count as usize {
+        if manager.hitboxes().len() != self.hitbox_count as usize {
             return Err(VkError::InvalidArgument(format!(
                 "the manager has {} hitboxes, lipac-vk was created for {}",
-                manager.culling().hitboxes().len(),
+                manager.hitboxes().len(),
                 self.hitbox_count
             )));
         }
         let value = self.ring.next_value();
         let completed = self.ring.semaphore().value()?;
-        let records = manager.registry().records();
-        let slots = manager.registry().slot_count();
+        let records = manager.records();
+        let slots = manager.slot_count();
         let mut out = RecordedFrame {
             value,
             slots,

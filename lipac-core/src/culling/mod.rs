@@ -255,7 +255,11 @@ pub struct LatencyOutcome {
     /// Instances made active that already held a BLAS or had a build
     /// pending.
     pub already_provided: u32,
-    /// Hitboxes activated so that the instances survive Algorithm 2.
+    /// Hitboxes of the activated instances set active with their streak
+    /// zeroed (so that the instances survive Algorithm 2), each counted once
+    /// until the next [`Culling::take_uploads`]. Whether a hitbox was active
+    /// already is not read: a GPU backend's CPU hitbox records do not carry
+    /// Algorithm 2's bits.
     pub hitboxes_activated: u32,
 }
 
@@ -803,10 +807,16 @@ impl<H: HitboxIndex> Culling<H> {
             view.decided_at = frame;
             let record = self.registry.records()[slot as usize];
             if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
-                if !h.is_active() {
-                    h.packed = (h.packed & !(hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT))
-                        | hitbox_bits::ACTIVE;
-                    self.hitbox_overrides.insert(record.hitbox, true);
+                // Whether or not the hitbox is active: only a CPU backend's
+                // records carry Algorithm 2's hitbox bits (a GPU backend's
+                // never change here), so the decision may not read them.
+                // Active with its streak zeroed, on the CPU records now and
+                // on the GPU's through the override ([`apply_uploads`]).
+                h.packed = (h.packed
+                    & !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT)
+                        | hitbox_bits::ACTIVE))
+                    | hitbox_bits::ACTIVE;
+                if self.hitbox_overrides.insert(record.hitbox, true) != Some(true) {
                     out.hitboxes_activated += 1;
                 }
             }

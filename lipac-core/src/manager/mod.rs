@@ -58,6 +58,7 @@ pub use error::ManagerError;
 pub use recorder::{FinishedTrace, RecorderError, RecorderOptions, TraceRecorder, DEFAULT_CAMERA};
 pub use stats::{InstanceCounts, ManagerStats, MemoryStats};
 
+use std::collections::VecDeque;
 use std::ops::Range;
 
 use glam::{Affine3A, Vec3};
@@ -289,7 +290,17 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     escape_fresh: bool,
     /// TLAS records of the last [`Manager::assemble`].
     tlas_records: Option<u64>,
+    /// CPU backends: the per-slot hits of each frame [`Manager::process_feedback`]
+    /// ran, oldest first, until that frame's commands are ingested
+    /// ([`Manager::ingest_readback`]): build priorities see a frame's hits
+    /// when its commands come back, as on a GPU backend
+    /// ([`Manager::record_hits`]). At most [`HELD_HITS_MAX`] frames.
+    held_hits: VecDeque<(u64, Vec<u32>)>,
 }
+
+/// The most frames of CPU feedback hits held for their read-back (a CPU
+/// backend that never ingests keeps only the newest).
+const HELD_HITS_MAX: usize = 64;
 
 /// The first variant of an instance's own static BLAS (`UNIQUE_BLAS |
 /// STATIC`); variants 0 and 1 are the mesh's shared BLASes.
@@ -373,6 +384,7 @@ impl<H: HitboxIndex> Manager<H> {
             escape: None,
             escape_fresh: false,
             tlas_records: None,
+            held_hits: VecDeque::new(),
         })
     }
 
@@ -394,6 +406,22 @@ impl<H: HitboxIndex> Manager<H> {
     /// cache), for inspection.
     pub fn scheduler(&self) -> &BuildScheduler {
         &self.scheduler
+    }
+
+    /// The command loop's settings: Algorithm 1's constants
+    /// ([`CullingConfig::assembly`]), the command buffer's capacity and the
+    /// thresholds Algorithm 2 runs with this frame (the controller's, with a
+    /// [`ManagerConfig::target`]). What a GPU backend checks and records
+    /// its shaders with.
+    pub fn culling_config(&self) -> &CullingConfig {
+        self.culling.config()
+    }
+
+    /// The number of GPU slots (the length of [`Manager::records`] and of
+    /// the per-slot hit counters): what a GPU backend sizes its per-slot
+    /// tables by.
+    pub fn slot_count(&self) -> u32 {
+        self.culling.registry().slot_count()
     }
 
     /// The instance records, indexed by GPU slot: what a GPU backend uploads
@@ -727,18 +755,46 @@ impl<H: HitboxIndex> Manager<H> {
     /// [`Manager::plan`] reconciles BLAS residency against the commanded
     /// state, never against the records' state bits. Never fails; bad words
     /// are counted.
+    ///
+    /// On a CPU backend this is also when frame `frame`'s hits (held since
+    /// its [`Manager::process_feedback`]) become the build priorities, the
+    /// point where a GPU backend hands them over with
+    /// [`Manager::record_hits`]: both paths prioritise with the hits of the
+    /// newest frame whose commands came back.
     pub fn ingest_readback(&mut self, frame: u64, counter: u32, words: &[u32]) -> IngestSummary {
-        self.culling.ingest_readback(frame, counter, words)
+        let summary = self.culling.ingest_readback(frame, counter, words);
+        self.release_held_hits(frame);
+        summary
     }
 
-    /// For GPU backends: the per-slot hit counters of a finished frame (read
-    /// back), used to prioritise builds. CPU backends get them from
-    /// [`Manager::process_feedback`].
+    /// For GPU backends, right after [`Manager::ingest_readback`] of the
+    /// same read-back: the per-slot hit counters of that finished frame,
+    /// used to prioritise builds. A CPU backend does not call it: its
+    /// feedback's hits are held and used at the same point
+    /// ([`Manager::ingest_readback`]).
     pub fn record_hits(&mut self, hits: &[u32]) {
+        self.set_last_hits(hits);
+        self.record_frame_hits(Some(hits));
+    }
+
+    /// The build priorities: `hits` per slot (a frame's hit counters).
+    fn set_last_hits(&mut self, hits: &[u32]) {
         for (e, &h) in self.slots.iter_mut().zip(hits) {
             e.last_hits = h;
         }
-        self.record_frame_hits(Some(hits));
+    }
+
+    /// CPU backends: the held hits of frame `frame` become the build
+    /// priorities; older held frames (never ingested) are dropped.
+    fn release_held_hits(&mut self, frame: u64) {
+        while self.held_hits.front().is_some_and(|(f, _)| *f < frame) {
+            self.held_hits.pop_front();
+        }
+        if self.held_hits.front().is_some_and(|(f, _)| *f == frame) {
+            if let Some((_, hits)) = self.held_hits.pop_front() {
+                self.set_last_hits(&hits);
+            }
+        }
     }
 
     /// Plans the frame, once per frame after [`Manager::begin_frame`]:
@@ -895,7 +951,8 @@ impl<H: HitboxIndex> Manager<H> {
     }
 
     /// Algorithm 2 over this frame's hits ([`Culling::process_feedback`]),
-    /// for CPU backends. The hits are kept to prioritise builds.
+    /// for CPU backends. The hits are held until this frame's commands are
+    /// ingested ([`Manager::ingest_readback`]), then prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
         self.record_frame_hits(None); // before Algorithm 2 changes states
         let escape = control::escape_sample(
@@ -906,9 +963,18 @@ impl<H: HitboxIndex> Manager<H> {
         let stats = self.culling.process_feedback()?;
         // Only once Algorithm 2 ran: a refused call changes nothing.
         self.observe_escape(escape);
-        for (e, &h) in self.slots.iter_mut().zip(self.culling.instance_hits()) {
-            e.last_hits = h;
-        }
+        let frame = self.culling.frame();
+        let mut held = if self.held_hits.len() >= HELD_HITS_MAX {
+            self.held_hits
+                .pop_front()
+                .map(|(_, v)| v)
+                .unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        held.clear();
+        held.extend_from_slice(self.culling.instance_hits());
+        self.held_hits.push_back((frame, held));
         Ok(stats)
     }
 
