@@ -3,7 +3,7 @@
 
 use std::io::Cursor;
 
-use lipac_core::instance::InstanceFlags;
+use lipac_core::instance::{InstanceFlags, MeshId};
 use lipac_core::trace::{InstanceEvent, TraceFormat};
 use lipac_sim::import::camera_path::CameraSource;
 use lipac_sim::import::{import_gltf, write_trace, ImportConfig, Imported};
@@ -124,7 +124,7 @@ fn json(parts: &str, buffers: &str, camera: bool) -> String {
  {{"name":"tree_oak","mesh":0,"translation":[3,0,-8],"scale":[0.5,2,0.5]}},
  {{"name":"crowd","mesh":0,"extras":{{"lipac":{{"animated":true}}}},
    "extensions":{{"EXT_mesh_gpu_instancing":{{"attributes":{{"TRANSLATION":4}}}}}}}},
- {{"name":"ground","mesh":1,"scale":[4,1,4]}}{cam_node}],
+ {{"name":"ground","mesh":1,"extras":{{"lipac":{{"pinned":true}}}},"scale":[4,1,4]}}{cam_node}],
 "meshes":[
  {{"name":"box","primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}},
  {{"name":"terrain","primitives":[{{"attributes":{{"POSITION":2}},"indices":3}}]}}],
@@ -191,7 +191,25 @@ fn hierarchy_instancing_lods_and_flags_are_imported() {
     let im = import(&gltf_file(false), 4);
     let s = &im.summary;
     assert_eq!((s.meshes, s.instances, s.gpu_instanced), (2, 6, 3));
-    assert_eq!((s.vegetation, s.animated, s.pinned), (1, 3, 0));
+    assert_eq!((s.vegetation, s.animated, s.pinned), (1, 3, 1));
+    // The pinned node's instance (the ground, mesh 1) and only it carries
+    // lipac-core's PINNED flag.
+    let adds: Vec<_> = im.frames[0]
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            InstanceEvent::Add(a) => Some(a),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(adds.len(), 6);
+    for a in adds {
+        assert_eq!(
+            a.flags.contains(InstanceFlags::PINNED),
+            a.mesh == MeshId(1),
+            "{a:?}"
+        );
+    }
     assert!(!s.file_cameras);
     // Three LODs with geometry; the flat grid simplifies, nothing grows.
     for m in &im.header.meshes {

@@ -94,7 +94,7 @@ pub fn run_import(a: ImportArgs) -> ExitCode {
             println!(
                 "{} meshes ({} with the file's LODs; triangles per LOD {} / {} / {}), \
                  {} instances ({} GPU-instanced, \
-                 {} vegetation, {} animated, {} pinned: not a lipac-core flag yet, ignored), \
+                 {} vegetation, {} animated, {} pinned), \
                  {} frames, cameras from {}{} -> {}",
                 s.meshes,
                 s.file_lods,

@@ -16,9 +16,8 @@
 //!   "pinned": true}}` on the node or an ancestor (innermost wins).
 //!   `vegetation` sets the trace flag; instances not animated are `static`;
 //!   animated ones turn about their vertical axis (0.05 rad per frame), a
-//!   pose update every frame (glTF animations are not read). `pinned` has
-//!   no lipac-core flag yet (issue 13): it is counted in the summary and
-//!   otherwise ignored.
+//!   pose update every frame (glTF animations are not read). `pinned` sets
+//!   [`InstanceFlags::PINNED`] (always traced, never culled).
 //! * **Cameras** ([`camera_path`]): the file's camera nodes, or a generated
 //!   orbit or fly-through. Each frame records the LOD of every instance by
 //!   its distance from the camera (LOD 0 within 10 bounding radii, 1
@@ -166,7 +165,7 @@ pub struct ImportSummary {
     pub vegetation: usize,
     /// Animated.
     pub animated: usize,
-    /// Flagged pinned (ignored, see the module docs).
+    /// Flagged pinned ([`InstanceFlags::PINNED`]).
     pub pinned: usize,
     /// Whether the cameras came from the file.
     pub file_cameras: bool,
@@ -406,6 +405,9 @@ pub fn to_trace(
                 }
                 if !p.flags.animated {
                     fl |= InstanceFlags::STATIC;
+                }
+                if p.flags.pinned {
+                    fl |= InstanceFlags::PINNED;
                 }
                 events.push(InstanceEvent::Add(AddInstance {
                     id: id as u64,
