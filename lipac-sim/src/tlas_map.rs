@@ -14,8 +14,11 @@
 //!   without hits this frame, darker the more hits it counted.
 //!
 //! Active hitboxes have no record of their own and are not drawn. Terrain
-//! tiles are drawn as outlines. lipac-sim has no pinned (always resident)
-//! instances; a strategy that pins geometry shows it as active.
+//! tiles are drawn as outlines. **Pinned** instances (the scene's
+//! [`flags::PINNED`], e.g. lipac-sim's terrain tiles: always resident, never
+//! culled) are drawn in their own colour whatever the TLAS holds (terrain
+//! tiles as an outline), counted apart ([`TlasMap::pinned`]) and left out of
+//! [`TlasMap::count`].
 //!
 //! The map is a PNG ([`TlasMap::png`]: seen from above, x to the right,
 //! z down, the scene's footprint); [`TlasMap::legend`] names its colours.
@@ -56,6 +59,9 @@ pub struct MapInstance {
     pub hits: u32,
     /// A terrain tile (drawn as an outline).
     pub terrain: bool,
+    /// Pinned (the scene's [`flags::PINNED`]: always resident, never
+    /// culled); drawn in its own colour whatever the TLAS holds.
+    pub pinned: bool,
 }
 
 /// One inactive hitbox's counting box on the map.
@@ -170,6 +176,7 @@ impl TlasMap {
                 state,
                 hits: counters.instances.get(i).copied().unwrap_or(0),
                 terrain: inst.flags & flags::TERRAIN != 0,
+                pinned: inst.is_pinned(),
             })
             .collect();
         let f = camera.forward();
@@ -190,12 +197,17 @@ impl TlasMap {
         })
     }
 
-    /// Instances in `state` (terrain tiles excluded).
+    /// Instances in `state` (terrain tiles and pinned instances excluded).
     pub fn count(&self, state: MapState) -> usize {
         self.instances
             .iter()
-            .filter(|i| !i.terrain && i.state == state)
+            .filter(|i| !i.terrain && !i.pinned && i.state == state)
             .count()
+    }
+
+    /// Pinned instances (terrain tiles included).
+    pub fn pinned(&self) -> usize {
+        self.instances.iter().filter(|i| i.pinned).count()
     }
 
     /// The map's legend: name, colour and number of each kind of mark (in
@@ -206,7 +218,10 @@ impl TlasMap {
             (
                 "terrain tile (outline)",
                 TERRAIN,
-                self.instances.iter().filter(|i| i.terrain).count(),
+                self.instances
+                    .iter()
+                    .filter(|i| i.terrain && !i.pinned)
+                    .count(),
             ),
             (
                 "inactive hitbox, no hits",
@@ -228,6 +243,11 @@ impl TlasMap {
                 "active instance (geometry)",
                 ACTIVE,
                 self.count(MapState::Active),
+            ),
+            (
+                "pinned instance (always resident; terrain: outline)",
+                PINNED,
+                self.pinned(),
             ),
             (
                 "instance hit this frame",
@@ -275,7 +295,7 @@ impl TlasMap {
                     fill,
                 );
             };
-        for i in self.instances.iter().filter(|i| i.terrain) {
+        for i in self.instances.iter().filter(|i| i.terrain && !i.pinned) {
             rect(&mut img, i.min, i.max, TERRAIN, 1.0, false);
         }
         // Hit hitboxes darken with their share of the frame's most hit one.
@@ -302,10 +322,13 @@ impl TlasMap {
             for i in self
                 .instances
                 .iter()
-                .filter(|i| !i.terrain && i.state == state)
+                .filter(|i| !i.terrain && !i.pinned && i.state == state)
             {
                 rect(&mut img, i.min, i.max, color, 1.0, true);
             }
+        }
+        for i in self.instances.iter().filter(|i| i.pinned) {
+            rect(&mut img, i.min, i.max, PINNED, 1.0, !i.terrain);
         }
         for i in self.instances.iter().filter(|i| !i.terrain && i.hits > 0) {
             let m = to((i.min + i.max) * 0.5);
@@ -342,6 +365,7 @@ const INACTIVE: [u8; 3] = [0x9a, 0x9a, 0x9a];
 const OMITTED: [u8; 3] = [0x2c, 0xa0, 0x2c];
 const ACTIVE: [u8; 3] = [0x1f, 0x4e, 0xb4];
 const HIT: [u8; 3] = [0xd6, 0x27, 0x28];
+const PINNED: [u8; 3] = [0x8e, 0x44, 0xad];
 
 /// A square RGB canvas.
 struct Raster {
@@ -399,3 +423,6 @@ impl Raster {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
