@@ -686,6 +686,7 @@ impl Comparison {
                                 &self.counting,
                                 self.previous[i].as_ref().unwrap_or(&gt.counters),
                                 camera,
+                                s.hitbox_cells().as_deref(),
                             )?,
                         });
                     }
@@ -704,6 +705,7 @@ impl Comparison {
                                 &self.counting,
                                 &gt.counters,
                                 camera,
+                                s.hitbox_cells().as_deref(),
                             )?,
                         });
                     }

@@ -307,6 +307,11 @@ pub trait Strategy {
     fn hitboxes(&self) -> usize {
         0
     }
+    /// Its hitbox cells with their state, for the TLAS map
+    /// ([`crate::tlas_map::TlasMap::new`]); `None` without hitboxes.
+    fn hitbox_cells(&self) -> Option<Vec<crate::tlas_map::HitboxCell>> {
+        None
+    }
     /// Produces this frame's TLAS records into `out` (cleared first).
     /// `previous` holds the hit counters its previous frame traced (`None`
     /// in the first frame).

@@ -13,9 +13,16 @@
 //! * **inactive hitbox**: a counting box standing for a whole cell, pale
 //!   without hits this frame, darker the more hits it counted.
 //!
-//! Active hitboxes have no record of their own and are not drawn. Terrain
-//! tiles are drawn as outlines. lipac-sim has no pinned (always resident)
-//! instances; a strategy that pins geometry shows it as active.
+//! Active hitboxes have no TLAS record of their own: a strategy with
+//! hitboxes (LiPaC) hands its cells to [`TlasMap::new`] ([`HitboxCell`],
+//! from [`crate::strategy::Strategy::hitbox_cells`]) and its **active
+//! hitboxes** are drawn as blue outlines over a light blue fill; without
+//! cells (the baselines) none are drawn. Terrain
+//! tiles are drawn as outlines. **Pinned** instances (the scene's
+//! [`flags::PINNED`], e.g. lipac-sim's terrain tiles: always resident, never
+//! culled) are drawn in their own colour whatever the TLAS holds (terrain
+//! tiles as an outline), counted apart ([`TlasMap::pinned`]) and left out of
+//! [`TlasMap::count`].
 //!
 //! The map is a PNG ([`TlasMap::png`]: seen from above, x to the right,
 //! z down, the scene's footprint); [`TlasMap::legend`] names its colours.
@@ -56,6 +63,9 @@ pub struct MapInstance {
     pub hits: u32,
     /// A terrain tile (drawn as an outline).
     pub terrain: bool,
+    /// Pinned (the scene's [`flags::PINNED`]: always resident, never
+    /// culled); drawn in its own colour whatever the TLAS holds.
+    pub pinned: bool,
 }
 
 /// One inactive hitbox's counting box on the map.
@@ -71,6 +81,22 @@ pub struct MapHitbox {
     pub hits: u32,
 }
 
+/// One hitbox cell as a strategy with hitboxes holds it (the optional
+/// input of [`TlasMap::new`], from [`crate::strategy::Strategy::hitbox_cells`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HitboxCell {
+    /// Hitbox index.
+    pub index: u32,
+    /// Cell minimum corner (x, z), m.
+    pub min: Vec2,
+    /// Cell maximum corner (x, z), m.
+    pub max: Vec2,
+    /// Whether the hitbox is active (its instances may be in the TLAS).
+    pub active: bool,
+    /// The hit count its record holds when the map is taken.
+    pub hits: u32,
+}
+
 /// The map of one strategy's TLAS in one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TlasMap {
@@ -78,6 +104,8 @@ pub struct TlasMap {
     pub instances: Vec<MapInstance>,
     /// Inactive hitboxes (one per hitbox counting record).
     pub hitboxes: Vec<MapHitbox>,
+    /// Active hitboxes (from the strategy's cells; empty without them).
+    pub active_hitboxes: Vec<MapHitbox>,
     /// Camera position (x, z).
     pub camera: Vec2,
     /// Unit directions (x, z) of the frustum's left and right edges.
@@ -94,13 +122,17 @@ fn xz(v: Vec3) -> Vec2 {
 
 impl TlasMap {
     /// The map of `records` (a strategy's TLAS) over `scene`, with the hit
-    /// counts of the frame's render and `camera`.
+    /// counts of the frame's render and `camera`. `cells`, where the
+    /// strategy has hitboxes, adds the active ones (cells with infinite
+    /// bounds are skipped); the inactive ones come from the records either
+    /// way.
     pub fn new(
         scene: &Scene,
         records: &[TlasInstance],
         counting: &CountingBoxes,
         counters: &Counters,
         camera: &Camera,
+        cells: Option<&[HitboxCell]>,
     ) -> Result<Self, SimError> {
         let n = scene.instances().len();
         let mut state = vec![MapState::Inactive; n];
@@ -170,6 +202,7 @@ impl TlasMap {
                 state,
                 hits: counters.instances.get(i).copied().unwrap_or(0),
                 terrain: inst.flags & flags::TERRAIN != 0,
+                pinned: inst.is_pinned(),
             })
             .collect();
         let f = camera.forward();
@@ -179,10 +212,22 @@ impl TlasMap {
             let d = xz(f + right * (s * th));
             d.try_normalize().unwrap_or(Vec2::X)
         };
+        let active_hitboxes = cells
+            .unwrap_or_default()
+            .iter()
+            .filter(|c| c.active && c.min.is_finite() && c.max.is_finite())
+            .map(|c| MapHitbox {
+                index: c.index,
+                min: c.min,
+                max: c.max,
+                hits: c.hits,
+            })
+            .collect();
         let b = scene.bounds();
         Ok(Self {
             instances,
             hitboxes,
+            active_hitboxes,
             camera: xz(camera.position),
             frustum: [edge(-1.0), edge(1.0)],
             bounds_min: xz(b.min),
@@ -190,12 +235,17 @@ impl TlasMap {
         })
     }
 
-    /// Instances in `state` (terrain tiles excluded).
+    /// Instances in `state` (terrain tiles and pinned instances excluded).
     pub fn count(&self, state: MapState) -> usize {
         self.instances
             .iter()
-            .filter(|i| !i.terrain && i.state == state)
+            .filter(|i| !i.terrain && !i.pinned && i.state == state)
             .count()
+    }
+
+    /// Pinned instances (terrain tiles included).
+    pub fn pinned(&self) -> usize {
+        self.instances.iter().filter(|i| i.pinned).count()
     }
 
     /// The map's legend: name, colour and number of each kind of mark (in
@@ -206,7 +256,15 @@ impl TlasMap {
             (
                 "terrain tile (outline)",
                 TERRAIN,
-                self.instances.iter().filter(|i| i.terrain).count(),
+                self.instances
+                    .iter()
+                    .filter(|i| i.terrain && !i.pinned)
+                    .count(),
+            ),
+            (
+                "active hitbox (outline)",
+                HITBOX_ACTIVE,
+                self.active_hitboxes.len(),
             ),
             (
                 "inactive hitbox, no hits",
@@ -228,6 +286,11 @@ impl TlasMap {
                 "active instance (geometry)",
                 ACTIVE,
                 self.count(MapState::Active),
+            ),
+            (
+                "pinned instance (always resident; terrain: outline)",
+                PINNED,
+                self.pinned(),
             ),
             (
                 "instance hit this frame",
@@ -275,8 +338,12 @@ impl TlasMap {
                     fill,
                 );
             };
-        for i in self.instances.iter().filter(|i| i.terrain) {
+        for i in self.instances.iter().filter(|i| i.terrain && !i.pinned) {
             rect(&mut img, i.min, i.max, TERRAIN, 1.0, false);
+        }
+        for h in &self.active_hitboxes {
+            rect(&mut img, h.min, h.max, HITBOX_ACTIVE, 0.12, true);
+            rect(&mut img, h.min, h.max, HITBOX_ACTIVE, 1.0, false);
         }
         // Hit hitboxes darken with their share of the frame's most hit one.
         let most = self
@@ -302,10 +369,13 @@ impl TlasMap {
             for i in self
                 .instances
                 .iter()
-                .filter(|i| !i.terrain && i.state == state)
+                .filter(|i| !i.terrain && !i.pinned && i.state == state)
             {
                 rect(&mut img, i.min, i.max, color, 1.0, true);
             }
+        }
+        for i in self.instances.iter().filter(|i| i.pinned) {
+            rect(&mut img, i.min, i.max, PINNED, 1.0, !i.terrain);
         }
         for i in self.instances.iter().filter(|i| !i.terrain && i.hits > 0) {
             let m = to((i.min + i.max) * 0.5);
@@ -342,6 +412,8 @@ const INACTIVE: [u8; 3] = [0x9a, 0x9a, 0x9a];
 const OMITTED: [u8; 3] = [0x2c, 0xa0, 0x2c];
 const ACTIVE: [u8; 3] = [0x1f, 0x4e, 0xb4];
 const HIT: [u8; 3] = [0xd6, 0x27, 0x28];
+const PINNED: [u8; 3] = [0x8e, 0x44, 0xad];
+const HITBOX_ACTIVE: [u8; 3] = [0x4a, 0x90, 0xd9];
 
 /// A square RGB canvas.
 struct Raster {
@@ -399,3 +471,6 @@ impl Raster {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -55,6 +55,7 @@ fn snapshots_show_the_ground_truth_the_error_and_the_tlas() {
         assert_eq!(full.map.count(MapState::Omitted), 0);
         assert_eq!(full.map.count(MapState::Inactive), 0);
         assert!(full.map.hitboxes.is_empty());
+        assert!(full.map.active_hitboxes.is_empty(), "no hitboxes");
 
         // LiPaC: the heat map is black exactly where its light equals the
         // ground truth's.
@@ -85,6 +86,18 @@ fn snapshots_show_the_ground_truth_the_error_and_the_tlas() {
             s.frame
         );
         assert!(lipac.map.count(MapState::Active) < full.map.count(MapState::Active));
+        // It starts with every hitbox inactive and has activated some
+        // by frame 5.
+        assert_eq!(lipac.map.active_hitboxes.is_empty(), s.frame == 0);
+        // Its active hitboxes (from its Manager) are none of the inactive
+        // ones (from its counting records).
+        for a in &lipac.map.active_hitboxes {
+            assert!(
+                lipac.map.hitboxes.iter().all(|h| h.index != a.index),
+                "hitbox {} both active and inactive",
+                a.index
+            );
+        }
     }
     // LiPaC starts with everything culled.
     assert!(snaps[0].strategies[1].error > 0.0);

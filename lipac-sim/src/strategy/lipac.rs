@@ -22,6 +22,7 @@
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::controller::{ControlTarget, ControllerConfig};
+use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
@@ -35,6 +36,7 @@ use crate::memory::{blas_bytes, lipac_overhead_bytes};
 use crate::scene::Scene;
 use crate::scene_blas::instance_mask;
 use crate::tlas::CountingBoxes;
+use crate::tlas_map::HitboxCell;
 use crate::traversal::Counters;
 
 /// Settings of [`Lipac`].
@@ -284,6 +286,24 @@ impl Strategy for Lipac {
     }
     fn hitboxes(&self) -> usize {
         self.backend.hitboxes().len()
+    }
+    fn hitbox_cells(&self) -> Option<Vec<HitboxCell>> {
+        let manager = self.backend.manager();
+        let index = manager.registry().hitbox_index();
+        let cells = (0u32..)
+            .zip(manager.hitboxes())
+            .filter_map(|(i, h)| {
+                let (min, max) = index.xz_bounds(i)?;
+                Some(HitboxCell {
+                    index: i,
+                    min,
+                    max,
+                    active: h.is_active(),
+                    hits: h.hits(),
+                })
+            })
+            .collect();
+        Some(cells)
     }
     fn frame(
         &mut self,
