@@ -1,6 +1,7 @@
 use super::*;
 use crate::layout::{hitbox_bits, instance_bits};
 use glam::Vec2;
+use lipac_test_support::{Rng64, XorShift64};
 
 /// A row of `n` cells of `size` along x, spanning z in [0, size).
 pub(crate) struct Row {
@@ -349,13 +350,8 @@ fn bad_inputs_are_errors_or_counted() {
 /// and far (±100 km) from the origin, with awkward non-representable sizes.
 #[test]
 fn unit_cube_transform_contains_target_far_from_origin() {
-    let mut rng = 0x1234_5678_9ABC_DEF0u64;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        (rng >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = XorShift64::new(0x1234_5678_9ABC_DEF0);
+    let mut next = || (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
     for &centre in &[0.0f64, 1.0, -3.3, 1.0e5, -1.0e5, 99_999.99, -65_536.0] {
         for _ in 0..2000 {
             let c = Vec3::new(
