@@ -296,6 +296,9 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     /// when its commands come back, as on a GPU backend
     /// ([`Manager::record_hits`]). At most [`HELD_HITS_MAX`] frames.
     held_hits: VecDeque<(u64, Vec<u32>)>,
+    /// Buffers of held hits whose frame was released or dropped, reused by
+    /// the next [`Manager::process_feedback`] (no allocation per frame).
+    spare_hits: Vec<Vec<u32>>,
 }
 
 /// The most frames of CPU feedback hits held for their read-back (a CPU
@@ -385,6 +388,7 @@ impl<H: HitboxIndex> Manager<H> {
             escape_fresh: false,
             tlas_records: None,
             held_hits: VecDeque::new(),
+            spare_hits: Vec::new(),
         })
     }
 
@@ -788,13 +792,17 @@ impl<H: HitboxIndex> Manager<H> {
     /// priorities; older held frames (never ingested) are dropped.
     fn release_held_hits(&mut self, frame: u64) {
         while self.held_hits.front().is_some_and(|(f, _)| *f < frame) {
-            self.held_hits.pop_front();
+            if let Some((_, hits)) = self.held_hits.pop_front() {
+                self.spare_hits.push(hits);
+            }
         }
         if self.held_hits.front().is_some_and(|(f, _)| *f == frame) {
             if let Some((_, hits)) = self.held_hits.pop_front() {
                 self.set_last_hits(&hits);
+                self.spare_hits.push(hits);
             }
         }
+        self.spare_hits.truncate(HELD_HITS_MAX);
     }
 
     /// Plans the frame, once per frame after [`Manager::begin_frame`]:
@@ -965,13 +973,11 @@ impl<H: HitboxIndex> Manager<H> {
         self.observe_escape(escape);
         let frame = self.culling.frame();
         let mut held = if self.held_hits.len() >= HELD_HITS_MAX {
-            self.held_hits
-                .pop_front()
-                .map(|(_, v)| v)
-                .unwrap_or_default()
+            self.held_hits.pop_front().map(|(_, v)| v)
         } else {
-            Vec::new()
-        };
+            self.spare_hits.pop()
+        }
+        .unwrap_or_default();
         held.clear();
         held.extend_from_slice(self.culling.instance_hits());
         self.held_hits.push_back((frame, held));
