@@ -35,7 +35,7 @@ use lipac::core::manager::{
     DataUpload, FrameBudgets, Manager, ManagerConfig, ManagerPlan, MeshCatalog, MeshLod,
 };
 use lipac::core::thresholds::Thresholds;
-use lipac::sim::camera::{Camera, CameraPath};
+use lipac::sim::camera::{CameraPath, FlyCamera};
 use lipac::sim::mesh::TERRAIN_RESOLUTION;
 use lipac::sim::scene::{LodPolicy, Scene, SceneConfig, TERRAIN_MESH};
 use lipac::vk::{
@@ -331,7 +331,7 @@ pub fn albedo(upload: &DataUpload, out: &mut [u8]) {
     out[..n].copy_from_slice(&bytes[..n]);
 }
 
-pub fn view(camera: &Camera, o: &Options, frame: u64) -> CameraView {
+pub fn view(camera: &FlyCamera, o: &Options, frame: u64) -> CameraView {
     let (right, up) = camera.basis();
     let th = (0.5 * camera.vfov).tan();
     CameraView {

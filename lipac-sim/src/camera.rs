@@ -8,10 +8,12 @@ use lipac_core::latency::Frustum;
 use crate::error::SimError;
 use crate::scene::{Scene, FPS};
 
-/// A pinhole camera. `yaw` 0 looks along +z, positive yaw turns towards +x;
-/// `pitch` is up from the horizon (radians).
+/// The laboratory's yaw/pitch pinhole camera. A trace stores a
+/// [`lipac_core::trace::Camera`] instead; [`crate::record`] converts between
+/// them. `yaw` 0 looks along +z, positive yaw turns towards +x; `pitch` is up
+/// from the horizon (radians).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Camera {
+pub struct FlyCamera {
     /// Eye position.
     pub position: Vec3,
     /// Heading, radians.
@@ -24,12 +26,12 @@ pub struct Camera {
     pub aspect: f32,
 }
 
-/// Near plane of [`Camera::view_proj`].
+/// Near plane of [`FlyCamera::view_proj`].
 pub const NEAR: f32 = 0.1;
-/// Far plane of [`Camera::view_proj`].
+/// Far plane of [`FlyCamera::view_proj`].
 pub const FAR: f32 = 20_000.0;
 
-impl Camera {
+impl FlyCamera {
     /// A validated camera (finite values, `0 < vfov < pi`, `aspect > 0`).
     pub fn new(
         position: Vec3,
@@ -106,10 +108,10 @@ impl Camera {
     /// plane test, the one latency mitigation uses).
     ///
     /// ```
-    /// use lipac_sim::camera::Camera;
+    /// use lipac_sim::camera::FlyCamera;
     /// use lipac_core::math::Aabb;
     /// use glam::Vec3;
-    /// let cam = Camera::new(Vec3::ZERO, 0.0, 0.0, 1.0, 1.0).unwrap();
+    /// let cam = FlyCamera::new(Vec3::ZERO, 0.0, 0.0, 1.0, 1.0).unwrap();
     /// let ahead = Aabb::new(Vec3::new(-1.0, -1.0, 9.0), Vec3::new(1.0, 1.0, 11.0));
     /// let behind = Aabb::new(Vec3::new(-1.0, -1.0, -11.0), Vec3::new(1.0, 1.0, -9.0));
     /// let frustum = cam.frustum().unwrap();
@@ -182,10 +184,10 @@ impl CameraPath {
         &self.cuts
     }
     /// The camera at `frame` (clamped to the path).
-    pub fn camera_at(&self, frame: u32) -> Camera {
+    pub fn camera_at(&self, frame: u32) -> FlyCamera {
         let seg = self.cuts.iter().filter(|&&c| frame >= c).count();
         let k = interpolate(&self.segments[seg], frame as f32);
-        Camera {
+        FlyCamera {
             position: k.position,
             yaw: k.yaw,
             pitch: k.pitch,
@@ -195,7 +197,7 @@ impl CameraPath {
     }
 
     /// A camera standing still for `frames` frames.
-    pub fn fixed(camera: Camera, frames: u32) -> Self {
+    pub fn fixed(camera: FlyCamera, frames: u32) -> Self {
         let k = Key {
             frame: 0.0,
             position: camera.position,
@@ -212,7 +214,7 @@ impl CameraPath {
     }
 
     /// `a` for `at` frames, then `b` until `frames` (a camera jump).
-    pub fn jump(a: Camera, b: Camera, at: u32, frames: u32) -> Self {
+    pub fn jump(a: FlyCamera, b: FlyCamera, at: u32, frames: u32) -> Self {
         let ka = Key {
             frame: 0.0,
             position: a.position,
@@ -310,14 +312,14 @@ impl CameraPath {
         } else {
             (p(line, 0.45 * ext, 8.0), p(0.8 * ext, 0.2 * ext, 8.0))
         };
-        let a = Camera {
+        let a = FlyCamera {
             position: a_pos,
             yaw: if axis == 0 { 1.57 } else { 0.0 },
             pitch: -0.1,
             vfov,
             aspect,
         };
-        let b = Camera {
+        let b = FlyCamera {
             position: b_pos,
             yaw: 2.4,
             pitch: -0.05,

@@ -29,7 +29,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::blas::{BlasStore, BuildThroughput};
-use crate::camera::{Camera, CameraPath};
+use crate::camera::{CameraPath, FlyCamera};
 use crate::error::SimError;
 use crate::memory::tlas_bytes;
 use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, GpuModel, Summary, Tracker};
@@ -498,7 +498,7 @@ impl Comparison {
 
     /// Compares one frame: `scene` animated to `frame` (frame numbers
     /// strictly increase), seen from `camera`.
-    pub fn frame(&mut self, scene: &Scene, frame: u32, camera: &Camera) -> Result<(), SimError> {
+    pub fn frame(&mut self, scene: &Scene, frame: u32, camera: &FlyCamera) -> Result<(), SimError> {
         self.frame_at(scene, frame, camera, None)
     }
 
@@ -509,7 +509,7 @@ impl Comparison {
         &mut self,
         scene: &Scene,
         frame: u32,
-        camera: &Camera,
+        camera: &FlyCamera,
         lods: &[u8],
     ) -> Result<(), SimError> {
         self.frame_at(scene, frame, camera, Some(lods))
@@ -539,7 +539,7 @@ impl Comparison {
         &mut self,
         scene: &Scene,
         frame: u32,
-        camera: &Camera,
+        camera: &FlyCamera,
         lods: Option<&[u8]>,
     ) -> Result<(), SimError> {
         if scene.instances().len() != self.n {

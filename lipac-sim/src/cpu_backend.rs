@@ -57,7 +57,7 @@ use lipac_core::manager::{
 use lipac_core::math::Aabb;
 use lipac_core::registry::{InstanceHandle, RegistryConfig};
 
-use crate::camera::Camera;
+use crate::camera::FlyCamera;
 use crate::error::SimError;
 use crate::strategy::lipac::LipacConfig;
 use crate::strategy::BlasWork;
@@ -334,7 +334,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
     /// and Algorithm 1 into `out` (cleared first).
     pub fn run(
         &mut self,
-        camera: &Camera,
+        camera: &FlyCamera,
         out: &mut Vec<TlasInstance>,
     ) -> Result<BackendFrame, SimError> {
         let frame = self

@@ -30,7 +30,7 @@ use std::time::Instant;
 use glam::{Vec3, Vec3A};
 
 use crate::blas::BlasStore;
-use crate::camera::Camera;
+use crate::camera::FlyCamera;
 use crate::error::SimError;
 use crate::mesh::material as material_of;
 use crate::rng::sample;
@@ -299,7 +299,7 @@ impl Worker<'_> {
         albedo * self.cfg.sun_irradiance * (cos * std::f32::consts::FRAC_1_PI)
     }
 
-    fn pixel(&mut self, camera: &Camera, px: u32, py: u32) -> (Vec3, Vec3) {
+    fn pixel(&mut self, camera: &FlyCamera, px: u32, py: u32) -> (Vec3, Vec3) {
         let cfg = self.cfg;
         let fs = self.fs;
         let pixel = py * cfg.width + px;
@@ -379,7 +379,7 @@ impl Worker<'_> {
 /// `config.threads` scoped threads; the output does not depend on it.
 pub fn render(
     scene: &FrameScene<'_>,
-    camera: &Camera,
+    camera: &FlyCamera,
     frame: u32,
     config: &PathTraceConfig,
     instance_slots: usize,

@@ -29,7 +29,7 @@ use lipac_core::trace::{
     TraceFormat, TraceHeader, TraceWriter, UpdateInstance, WorldInfo,
 };
 
-use crate::camera::{Camera, CameraPath};
+use crate::camera::{CameraPath, FlyCamera};
 use crate::compare::SceneChoice;
 use crate::error::SimError;
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
@@ -154,15 +154,15 @@ pub struct RecordConfig {
 
 /// The trace camera of a laboratory camera (looking along its forward
 /// vector with +Y up).
-pub fn to_trace_camera(c: &Camera) -> trace::Camera {
+pub fn to_trace_camera(c: &FlyCamera) -> trace::Camera {
     trace::Camera::look_to(c.position, c.forward(), Vec3::Y, c.vfov, c.aspect)
 }
 
 /// The laboratory camera closest to a trace camera: yaw and pitch of its
 /// forward vector (roll is dropped).
-pub fn from_trace_camera(c: &trace::Camera) -> Result<Camera, SimError> {
+pub fn from_trace_camera(c: &trace::Camera) -> Result<FlyCamera, SimError> {
     let f = c.forward();
-    let camera = Camera::new(
+    let camera = FlyCamera::new(
         c.position,
         f.x.atan2(f.z),
         f.y.clamp(-1.0, 1.0).asin(),

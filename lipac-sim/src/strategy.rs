@@ -57,7 +57,7 @@ use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::MeshId;
 
-use crate::camera::Camera;
+use crate::camera::FlyCamera;
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{build_estimate, mesh_lod};
@@ -253,7 +253,7 @@ pub struct FrameContext<'a> {
     /// The scene, animated to `frame`.
     pub scene: &'a Scene,
     /// The camera of this frame.
-    pub camera: &'a Camera,
+    pub camera: &'a FlyCamera,
     /// Per-instance facts.
     pub catalog: &'a InstanceCatalog,
     /// Distance LOD of every instance this frame.

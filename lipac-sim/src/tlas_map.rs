@@ -32,7 +32,7 @@ use lipac_core::layout::TlasInstance;
 use lipac_core::math::rows_to_affine;
 
 use crate::blas::UNIT_CUBE;
-use crate::camera::Camera;
+use crate::camera::FlyCamera;
 use crate::error::SimError;
 use crate::scene::{flags, Scene};
 use crate::snapshot::encode_png;
@@ -131,7 +131,7 @@ impl TlasMap {
         records: &[TlasInstance],
         counting: &CountingBoxes,
         counters: &Counters,
-        camera: &Camera,
+        camera: &FlyCamera,
         cells: Option<&[HitboxCell]>,
     ) -> Result<Self, SimError> {
         let n = scene.instances().len();

@@ -3,7 +3,7 @@
 //! report files.
 
 use glam::{Affine3A, Vec3};
-use lipac_sim::camera::{Camera, CameraPath};
+use lipac_sim::camera::{CameraPath, FlyCamera};
 use lipac_sim::compare::{run, run_choice, CompareConfig, CompareReport, SceneChoice};
 use lipac_sim::mesh::{cuboid, material, mirror_block, MeshLibrary};
 use lipac_sim::report::{write_report, CSV_HEADER, PLOTS};
@@ -133,7 +133,7 @@ fn lipac_culls_instances_hidden_behind_a_wall() {
         }
     }
     let mut scene = Scene::custom(SceneConfig::small(), lib, &placed).unwrap();
-    let cam = Camera::new(Vec3::new(0.0, 5.0, -100.0), 0.0, 0.0, 1.0, 16.0 / 9.0).unwrap();
+    let cam = FlyCamera::new(Vec3::new(0.0, 5.0, -100.0), 0.0, 0.0, 1.0, 16.0 / 9.0).unwrap();
     let path = CameraPath::fixed(cam, 24);
     let r = run("wall", &mut scene, &path, &config(24), &mut |_, _| {}).unwrap();
     let hidden: Vec<u32> = (2..8).collect();
@@ -183,7 +183,7 @@ fn lipac_activates_an_instance_seen_only_in_a_mirror() {
         ),
     ];
     let mut scene = Scene::custom(SceneConfig::small(), lib, &placed).unwrap();
-    let cam = Camera::new(Vec3::new(0.0, 5.0, 0.0), 0.0, 0.0, 1.0, 16.0 / 9.0).unwrap();
+    let cam = FlyCamera::new(Vec3::new(0.0, 5.0, 0.0), 0.0, 0.0, 1.0, 16.0 / 9.0).unwrap();
     assert!(!cam
         .frustum()
         .unwrap()

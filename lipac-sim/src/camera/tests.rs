@@ -3,7 +3,7 @@ use crate::scene::SceneConfig;
 
 #[test]
 fn rays_match_the_view_projection() {
-    let cam = Camera::new(Vec3::new(1.0, 2.0, 3.0), 0.7, -0.2, 1.0, 16.0 / 9.0).unwrap();
+    let cam = FlyCamera::new(Vec3::new(1.0, 2.0, 3.0), 0.7, -0.2, 1.0, 16.0 / 9.0).unwrap();
     let vp = cam.view_proj();
     for &(px, py) in &[(0u32, 0u32), (159, 89), (80, 45), (10, 70)] {
         let d = cam.ray_direction(px, py, 160, 90, (0.0, 0.0));
@@ -63,6 +63,6 @@ fn jump_cuts_once() {
     let c = path.cuts()[0];
     assert_eq!(path.camera_at(c - 1), path.camera_at(0));
     assert!((path.camera_at(c).position - path.camera_at(c - 1).position).length() > 50.0);
-    assert!(Camera::new(Vec3::ZERO, 0.0, 0.0, 4.0, 1.0).is_err());
-    assert!(Camera::new(Vec3::NAN, 0.0, 0.0, 1.0, 1.0).is_err());
+    assert!(FlyCamera::new(Vec3::ZERO, 0.0, 0.0, 4.0, 1.0).is_err());
+    assert!(FlyCamera::new(Vec3::NAN, 0.0, 0.0, 1.0, 1.0).is_err());
 }

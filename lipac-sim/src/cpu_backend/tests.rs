@@ -49,7 +49,7 @@ fn frame(b: &mut CpuBackend, f: u32, out: &mut Vec<TlasInstance>) -> BackendFram
     b.end_frame().unwrap();
     b.begin_frame(f).unwrap();
     let camera =
-        Camera::look_at(Vec3::new(8.0, 2.0, 0.0), Vec3::new(8.0, 2.0, 8.0), 1.0, 1.0).unwrap();
+        FlyCamera::look_at(Vec3::new(8.0, 2.0, 0.0), Vec3::new(8.0, 2.0, 8.0), 1.0, 1.0).unwrap();
     b.run(&camera, out).unwrap()
 }
 
@@ -90,7 +90,7 @@ fn hits_activate_instances_and_their_builds_are_acknowledged() {
 #[test]
 fn frames_are_refused_out_of_order() {
     let mut b = backend(1);
-    let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, 1.0, 1.0).unwrap();
+    let camera = FlyCamera::look_at(Vec3::ZERO, Vec3::Z, 1.0, 1.0).unwrap();
     let mut out = Vec::new();
     assert!(b.run(&camera, &mut out).is_err(), "run before begin_frame");
     b.begin_frame(0).unwrap();

@@ -48,7 +48,7 @@ use lipac_core::trace::{InstanceEvent, TraceHeader};
 use lipac_core::WorldHitboxes;
 
 use super::{empty_frame, ReplayConfig, TraceInput};
-use crate::camera::Camera;
+use crate::camera::FlyCamera;
 use crate::compare::{CompareReport, StrategyRun};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
@@ -716,7 +716,7 @@ impl LipacReplay {
     fn frame(
         &mut self,
         frame: u32,
-        camera: &Camera,
+        camera: &FlyCamera,
         counting: &CountingBoxes,
         m: &mut FrameMetrics,
     ) -> Result<Vec<u32>, SimError> {

@@ -101,10 +101,10 @@ fn active_hitboxes_are_outlined_inactive_ones_shaded() {
 
 #[test]
 fn new_takes_the_active_cells_only() {
-    use crate::camera::Camera;
+    use crate::camera::FlyCamera;
     use crate::scene::{Scene, SceneConfig};
     let scene = Scene::generate(&SceneConfig::small()).unwrap();
-    let camera = Camera::look_at(Vec3::new(0.0, 10.0, 0.0), Vec3::X, 1.0, 1.5).unwrap();
+    let camera = FlyCamera::look_at(Vec3::new(0.0, 10.0, 0.0), Vec3::X, 1.0, 1.5).unwrap();
     let cell = |index, active, max: f32| HitboxCell {
         index,
         min: Vec2::ZERO,
