@@ -44,9 +44,10 @@ pub const PLOTS: [&str; 3] = [
     "escape_vs_error.svg",
 ];
 
-/// The camera path of a comparison.
+/// The camera path of a closed-loop comparison (`lipac compare --camera`;
+/// `lipac record` has its own [`crate::record::CameraChoice`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum CameraChoice {
+pub enum ClosedLoopPath {
     /// The paper's fly-through (270 frames).
     #[default]
     Flythrough,
@@ -55,7 +56,7 @@ pub enum CameraChoice {
     Jump,
 }
 
-impl CameraChoice {
+impl ClosedLoopPath {
     /// Frame of the jump, if any.
     pub const JUMP_AT: u32 = 135;
 
@@ -84,7 +85,7 @@ pub struct ClosedLoopOptions {
     /// `lipac-escape` with this escape fraction.
     pub escape_target: Option<f64>,
     /// The camera path.
-    pub camera: CameraChoice,
+    pub camera: ClosedLoopPath,
 }
 
 /// The controller gains of the comparison: the defaults'

@@ -23,7 +23,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
-use lipac_sim::closed_loop::{self, CameraChoice, ClosedLoopOptions};
+use lipac_sim::closed_loop::{self, ClosedLoopOptions, ClosedLoopPath};
 use lipac_sim::compare::{check_image_size, run_choice_with_snapshots, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::StrategyKind;
@@ -136,8 +136,8 @@ enum CameraArg {
 impl ClosedLoopArgs {
     fn options(&self) -> Option<ClosedLoopOptions> {
         let camera = match self.camera {
-            CameraArg::Flythrough => CameraChoice::Flythrough,
-            CameraArg::Jump => CameraChoice::Jump,
+            CameraArg::Flythrough => ClosedLoopPath::Flythrough,
+            CameraArg::Jump => ClosedLoopPath::Jump,
         };
         let o = ClosedLoopOptions {
             memory_budget_mib: self.memory_budget,

@@ -133,7 +133,7 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),
         escape_target: Some(0.05),
-        camera: CameraChoice::Jump,
+        camera: ClosedLoopPath::Jump,
     };
     let (r, _) = run(
         SceneChoice::Small,
