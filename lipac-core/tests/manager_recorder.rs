@@ -422,6 +422,48 @@ fn hits_leave_out_instances_registered_after_the_plan() {
     assert_eq!(r.next_frame().unwrap(), None);
 }
 
+#[test]
+fn a_refused_process_feedback_records_no_hits() {
+    // The recorder takes a frame's hits before Algorithm 2 changes the
+    // states; a call the manager then refuses (here: the frame's feedback
+    // was already processed) must leave the frame's hits as they were.
+    let mut m = manager();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    for x in [3.0, 5.0, 40.0] {
+        m.register(desc(1, x, 3.0)).unwrap();
+    }
+    let mut lp = Loop::new();
+    for frame in 0..3 {
+        lp.before_plan(&mut m, frame);
+        lp.plan_and_trace(&mut m);
+        // More hits, then a second feedback in the same frame: refused.
+        m.instance_hits_mut()
+            .iter_mut()
+            .for_each(|h| *h += 1_000_000);
+        for b in m.hitboxes_mut() {
+            b.add_hits(1_000_000);
+        }
+        assert!(m.process_feedback().is_err());
+    }
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    for frame in 0..3 {
+        let f = r.next_frame().unwrap().unwrap();
+        let hits = f.hits.expect("hits of the accepted call");
+        let sum: u64 = hits.iter().map(|h| u64::from(h.hits)).sum();
+        assert_eq!(sum, lp.traced[frame], "frame {frame}");
+        assert!(
+            hits.iter().all(|h| h.hits < 1_000_000),
+            "frame {frame}: {hits:?}"
+        );
+    }
+    assert_eq!(r.next_frame().unwrap(), None);
+}
+
 /// Fails every write after `ok` bytes.
 #[derive(Clone)]
 struct Failing {

@@ -281,6 +281,9 @@ pub struct TraceRecorder {
     split: Option<usize>,
     camera: Camera,
     hits: Option<Vec<InstanceHits>>,
+    /// Hits of a [`Manager::process_feedback`] that has not returned yet:
+    /// they become `hits` only if it succeeds ([`TraceRecorder::settle_hits`]).
+    pending: Option<Vec<InstanceHits>>,
     /// The hits list's allocation between frames.
     hits_buf: Vec<InstanceHits>,
     /// Per hitbox: its culled instances' shares (scratch).
@@ -348,6 +351,7 @@ impl TraceRecorder {
             split: None,
             camera: DEFAULT_CAMERA,
             hits: None,
+            pending: None,
             hits_buf: Vec::new(),
             per_hitbox: Vec::new(),
             culled: Vec::new(),
@@ -547,7 +551,7 @@ impl TraceRecorder {
         if !self.options.record_hits || self.error.is_some() || self.open.is_none() {
             return;
         }
-        let mut out = match self.hits.take() {
+        let mut out = match self.pending.take() {
             Some(v) => v,
             None => std::mem::take(&mut self.hits_buf),
         };
@@ -560,6 +564,7 @@ impl TraceRecorder {
         };
         let n = hits.len().min(self.ids.len());
         let (hits, ids) = (&hits[..n], &self.ids[..n]);
+        let readback = records.is_none();
         let (records, boxes) = records.unwrap_or((&[], &[]));
         // Pass 1 (only slots without own hits): per hitbox with hits, its
         // culled instances (k); those slots, in order.
@@ -619,7 +624,33 @@ impl TraceRecorder {
             }
             from = to + 1;
         }
-        self.hits = Some(out);
+        if readback {
+            // Read-back hits ([`Manager::record_hits`]): nothing can refuse them.
+            self.replace_hits(out);
+        } else {
+            self.pending = Some(out);
+        }
+    }
+
+    /// Makes `hits` the open frame's hit counts (its earlier ones, if any,
+    /// are replaced and their buffer kept).
+    fn replace_hits(&mut self, hits: Vec<InstanceHits>) {
+        if let Some(old) = self.hits.replace(hits) {
+            self.hits_buf = old;
+        }
+    }
+
+    /// After [`Manager::process_feedback`]: its hits (taken before
+    /// Algorithm 2 changed the states) count only if it `succeeded`; a
+    /// refused call (call order) leaves the frame's hits as they were.
+    pub(super) fn settle_hits(&mut self, succeeded: bool) {
+        if let Some(p) = self.pending.take() {
+            if succeeded && self.error.is_none() {
+                self.replace_hits(p);
+            } else {
+                self.hits_buf = p;
+            }
+        }
     }
 
     /// Writes the open frame (and the header before the first one).
@@ -754,6 +785,7 @@ impl TraceRecorder {
         self.error = Some(e);
         self.events = Vec::new();
         self.hits = None;
+        self.pending = None;
         self.split = None;
     }
 
