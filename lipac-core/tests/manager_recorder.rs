@@ -173,6 +173,8 @@ fn scripted_scene_round_trips_through_the_trace() {
             flags: d.flags,
             mask: (d.mask != 0xFF).then_some(d.mask),
             pose: pose_of(&d),
+            // The manager's GPU slot: the index of the instance's hits.
+            slot: Some(m.registry().slot(h).unwrap()),
         }));
         (id, h)
     };

@@ -130,6 +130,7 @@ fn add(
         flags,
         mask: None,
         pose: pose(m, at, 0.0),
+        slot: None,
     })
 }
 
@@ -198,6 +199,7 @@ fn valley(frames: u64, deer_geometry: bool) -> (TraceHeader, Vec<Frame>) {
             camera: camera(f),
             events,
             hits: None,
+            slot_hits: None,
         });
     }
     (h, out)
