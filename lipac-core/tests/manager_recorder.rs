@@ -466,6 +466,38 @@ fn a_refused_process_feedback_records_no_hits() {
     assert_eq!(r.next_frame().unwrap(), None);
 }
 
+#[test]
+fn instances_registered_before_attaching_get_no_hits() {
+    // Their slots are in the hit counters but not in the trace: the
+    // recorder's slot hits must leave them at 0 (a reader would refuse
+    // hits for a slot no live instance holds).
+    let mut m = manager();
+    m.register(desc(1, 3.0, 3.0)).unwrap();
+    m.register(desc(1, 5.0, 3.0)).unwrap();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    let c = m.register(desc(7, 40.0, 40.0)).unwrap();
+    let mut lp = Loop::new();
+    lp.before_plan(&mut m, 0);
+    m.plan(&FrameBudgets::default()).unwrap();
+    m.instance_hits_mut().iter_mut().for_each(|h| *h += 9);
+    m.process_feedback().unwrap();
+    lp.ring.push(m.take_commands().unwrap()).unwrap();
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    assert_eq!(r.version(), 2);
+    let f = r.next_frame().unwrap().unwrap();
+    assert_eq!(f.events.len(), 1);
+    assert_eq!(m.trace_id(c), None); // detached
+    let sh = f.slot_hits.as_ref().expect("hits by slot");
+    assert_eq!(sh.slots, [0, 0, 9]);
+    let hits: Vec<(u64, u32)> = f.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
+    assert_eq!(hits, [(0, 9)]);
+}
+
 /// Fails every write after `ok` bytes.
 #[derive(Clone)]
 struct Failing {

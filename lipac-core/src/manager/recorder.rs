@@ -288,6 +288,13 @@ pub struct TraceRecorder {
     header_meshes: Option<usize>,
     /// Trace id per GPU slot ([`NO_ID`]: none).
     ids: Vec<u64>,
+    /// Per GPU slot: `u32::MAX` if its trace instance is live in the open
+    /// frame, else 0 (none, removed, or added after the plan): the mask of
+    /// the slot hits, one AND per slot.
+    live_mask: Vec<u32>,
+    /// Slots registered after the open frame's plan (live from the next
+    /// frame on).
+    post_plan: Vec<u32>,
     next_id: u64,
     /// `next_id` at the open frame's plan: ids from it on were added after
     /// the plan (in the next frame's events), so not live in this frame.
@@ -368,6 +375,8 @@ impl TraceRecorder {
             world: None,
             header_meshes: None,
             ids: Vec::new(),
+            live_mask: Vec::new(),
+            post_plan: Vec::new(),
             next_id: 0,
             split_id: u64::MAX,
             open: None,
@@ -482,8 +491,16 @@ impl TraceRecorder {
         let i = slot as usize;
         if self.ids.len() <= i {
             self.ids.resize(i + 1, NO_ID);
+            self.live_mask.resize(i + 1, 0);
         }
         self.ids[i] = id;
+        // Registered after the plan: in the next frame's events.
+        self.live_mask[i] = if self.split.is_some() {
+            self.post_plan.push(slot);
+            0
+        } else {
+            u32::MAX
+        };
         self.push(InstanceEvent::Add(AddInstance {
             id,
             mesh: desc.mesh,
@@ -535,6 +552,9 @@ impl TraceRecorder {
     }
 
     pub(super) fn on_remove(&mut self, slot: u32) {
+        if let Some(m) = self.live_mask.get_mut(slot as usize) {
+            *m = 0;
+        }
         if let Some(id) = self.ids.get_mut(slot as usize) {
             let id = std::mem::replace(id, NO_ID);
             if id != NO_ID {
@@ -555,6 +575,12 @@ impl TraceRecorder {
         self.open = Some(frame);
         if let Some(h) = self.hits.take() {
             self.recycle(h);
+        }
+        for slot in self.post_plan.drain(..) {
+            let i = slot as usize;
+            if self.ids.get(i).is_some_and(|&id| id != NO_ID) {
+                self.live_mask[i] = u32::MAX;
+            }
         }
     }
 
@@ -577,20 +603,15 @@ impl TraceRecorder {
     /// pass over the hitboxes.
     fn slot_hits(&mut self, hits: &[u32], boxes: &[HitboxRecord]) -> SlotHits {
         let mut out = std::mem::take(&mut self.slots_buf);
-        // Ids from `limit` on are not live in the open frame (and NO_ID is
-        // above every id).
-        let limit = if self.split.is_some() {
-            self.split_id
-        } else {
-            self.next_id
-        };
-        let n = hits.len().min(self.ids.len());
+        let n = hits.len().min(self.live_mask.len());
         out.slots.clear();
+        // One AND per slot (vectorised): slots whose instance is not live
+        // in the open frame get 0.
         out.slots.extend(
             hits[..n]
                 .iter()
-                .zip(&self.ids[..n])
-                .map(|(&h, &id)| if id < limit { h } else { 0 }),
+                .zip(&self.live_mask[..n])
+                .map(|(&h, &m)| h & m),
         );
         out.boxes.clear();
         out.boxes.extend(

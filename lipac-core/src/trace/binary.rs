@@ -73,10 +73,29 @@ fn put_aabb(b: &mut Vec<u8>, a: &Aabb) {
     put_vec3(b, a.max);
 }
 fn put_pose(b: &mut Vec<u8>, p: &Pose) {
-    for x in p.transform {
-        put_f32(b, x);
+    // One append of the 18 floats (a recorded frame holds ~1k poses).
+    let mut e = [0u8; POSE_BYTES];
+    let (lo, hi) = (p.aabb.min.to_array(), p.aabb.max.to_array());
+    let floats = p.transform.iter().chain(&lo).chain(&hi);
+    for (d, x) in e.chunks_exact_mut(4).zip(floats) {
+        d.copy_from_slice(&x.to_le_bytes());
     }
-    put_aabb(b, &p.aabb);
+    b.extend_from_slice(&e);
+}
+
+/// Appends `v` as little-endian `u32`s through a small stack buffer: no
+/// zero-filled growth and no single huge copy (a recorded frame holds a
+/// count per slot, 100k and more).
+fn put_u32s(b: &mut Vec<u8>, v: &[u32]) {
+    const CHUNK: usize = 256;
+    b.reserve(4 * v.len());
+    let mut e = [0u8; 4 * CHUNK];
+    for c in v.chunks(CHUNK) {
+        for (d, x) in e.chunks_exact_mut(4).zip(c) {
+            d.copy_from_slice(&x.to_le_bytes());
+        }
+        b.extend_from_slice(&e[..4 * c.len()]);
+    }
 }
 
 /// Appends the header payload (without the preamble).
@@ -173,13 +192,7 @@ pub(crate) fn encode_frame(f: &Frame, b: &mut Vec<u8>) {
     if let Some(sh) = &f.slot_hits {
         b.push(HITS_BY_SLOT);
         put_u32(b, sh.slots.len() as u32);
-        // One resize and a vectorisable copy: a recorded frame holds a
-        // count per slot (100k and more).
-        let start = b.len();
-        b.resize(start + 4 * sh.slots.len(), 0);
-        for (dst, h) in b[start..].chunks_exact_mut(4).zip(&sh.slots) {
-            dst.copy_from_slice(&h.to_le_bytes());
-        }
+        put_u32s(b, &sh.slots);
         put_u32(b, sh.boxes.len() as u32);
         b.reserve(BOX_BYTES as usize * sh.boxes.len());
         for x in &sh.boxes {

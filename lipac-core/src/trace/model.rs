@@ -425,6 +425,18 @@ pub(crate) fn check_aabb(
 }
 
 pub(crate) fn check_pose(pose: &Pose, limits: &TraceLimits) -> Result<(), TraceErrorKind> {
+    // Fast path (every recorded move): all finite, box not inverted and
+    // within the extent limit; the element-wise checks below name a fault.
+    let (lo, hi) = (pose.aabb.min, pose.aabb.max);
+    let extent = hi - lo;
+    if pose.transform.iter().all(|v| v.is_finite())
+        && lo.is_finite()
+        && hi.is_finite()
+        && lo.cmple(hi).all()
+        && extent.cmple(Vec3::splat(limits.max_aabb_extent)).all()
+    {
+        return Ok(());
+    }
     for (i, v) in pose.transform.iter().enumerate() {
         check_finite(
             || format!("transform element {i} (row {}, column {})", i / 4, i % 4),
