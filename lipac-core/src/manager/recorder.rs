@@ -123,7 +123,9 @@ pub struct RecorderOptions {
     /// Default `true`.
     pub record_hits: bool,
     /// The header's world; `None` (default) takes the manager's
-    /// [`HitboxGrid`] (required for another hitbox structure).
+    /// [`HitboxGrid`] (required for another hitbox structure). A world
+    /// other than the manager's grid has no hitbox indices for counting
+    /// boxes: the hits are then split here and listed by id.
     pub world: Option<WorldInfo>,
     /// The limits the writer checks against. Default [`TraceLimits::default`].
     pub limits: TraceLimits,
