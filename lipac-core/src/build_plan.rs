@@ -66,6 +66,7 @@ use crate::blas_cache::{
     BlasCache, BlasError, BlasFree, BlasOwner, BlasState, CacheConfig, CacheStats, MAX_BLAS_BYTES,
 };
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
+use crate::manager::Ack;
 
 /// Priority weights (see `docs/BLAS.md`, "Priority with ageing").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -840,6 +841,45 @@ impl BuildScheduler {
             }
         }
         Ok(plan)
+    }
+
+    /// Takes one acknowledgement ([`Ack`], the one type every backend hands
+    /// back): [`BuildScheduler::ack_built`],
+    /// [`BuildScheduler::ack_compacted_size`] or
+    /// [`BuildScheduler::ack_compacted`]. An acknowledgement never planned
+    /// (or given twice) is an error and changes nothing.
+    ///
+    /// ```
+    /// # use lipac_core::blas_ids::{InstanceKey, Lod};
+    /// # use lipac_core::{Ack, MeshId};
+    /// # use lipac_core::build_plan::*;
+    /// let mut s = BuildScheduler::new(SchedulerConfig::default())?;
+    /// s.begin_frame(1)?;
+    /// let estimate = BuildEstimate { primitives: 10, result_bytes: 1024,
+    ///                                build_scratch_bytes: 512, update_scratch_bytes: 0 };
+    /// s.activate(InstanceKey(0), InstanceBlasRequest {
+    ///     geometry: BlasGeometry::Shared { mesh: MeshId(1), variant: 0, compactable: false },
+    ///     lod: Lod(0), estimate, hits: 0, in_frustum: false,
+    /// })?;
+    /// let build = s.plan(&BuildBudgets::default())?.builds().next().unwrap().id;
+    /// s.handle_ack(Ack::Built { build, result_bytes: 1000, address: 0xB000 })?;
+    /// assert_eq!(s.blas_address(InstanceKey(0)), Some(0xB000));
+    /// assert!(s.handle_ack(Ack::Built { build, result_bytes: 1000, address: 0xB000 }).is_err());
+    /// # Ok::<(), BuildPlanError>(())
+    /// ```
+    pub fn handle_ack(&mut self, ack: Ack) -> Result<(), BuildPlanError> {
+        match ack {
+            Ack::Built {
+                build,
+                result_bytes,
+                address,
+            } => self.ack_built(build, result_bytes, address),
+            Ack::CompactedSize {
+                build,
+                compacted_bytes,
+            } => self.ack_compacted_size(build, compacted_bytes),
+            Ack::Compacted { op, address } => self.ack_compacted(op, address),
+        }
     }
 
     /// Acknowledges build `build` (`result_bytes` at `address`). Instances

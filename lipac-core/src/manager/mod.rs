@@ -65,11 +65,11 @@ use glam::{Affine3A, Vec3};
 
 use crate::allocator::{AllocError, AllocHandle, TlsfAllocator};
 use crate::assembly::AssemblyStats;
-use crate::blas_ids::{BuildId, InstanceKey, Lod};
+use crate::blas_ids::{InstanceKey, Lod};
 use crate::build_plan::{
     BlasGeometry, BuildBudgets, BuildScheduler, FramePlan, InstanceBlasRequest, SchedulerConfig,
 };
-use crate::command::IngestSummary;
+use crate::command::{Command, IngestSummary};
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::culling::{
     BlasAction, CommandEvent, Culling, CullingConfig, LatencyOutcome, ProcessStats, Readback,
@@ -82,6 +82,7 @@ use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::Frustum;
 use crate::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
 use crate::math::Aabb;
+use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
 use crate::thresholds::Thresholds;
 
@@ -394,10 +395,32 @@ impl<H: HitboxIndex> Manager<H> {
 
     // ---- read access ------------------------------------------------------
 
-    /// Low-level, read-only: the command loop (registry, hitboxes, hit
-    /// counters, queue), for inspection.
-    pub fn culling(&self) -> &Culling<H> {
+    /// The command loop, for lipac-core's own tests; callers outside use the
+    /// Manager's queries ([`Manager::memory_usage`],
+    /// [`Manager::pending_command`], [`Manager::thresholds`],
+    /// [`Manager::culling_config`], [`Manager::hitboxes`]).
+    #[cfg(test)]
+    pub(crate) fn culling(&self) -> &Culling<H> {
         &self.culling
+    }
+
+    /// CPU bytes held by the command loop's containers (registry, the slot
+    /// table, hit counters, hitboxes, command buffer and queue, overrides),
+    /// from their capacities ([`Culling::memory_usage`],
+    /// [`crate::memory`]). The scheduler's and the geometry-data
+    /// allocator's share is in [`Manager::stats`].
+    pub fn memory_usage(&self) -> MemoryUsage {
+        self.culling.memory_usage()
+    }
+
+    /// Read-only: the command waiting for processing in GPU slot `slot`, if
+    /// any (the newest ingested one per live slot, or one the Manager
+    /// queued itself: an unpin, a BLAS that arrived for an inactive
+    /// instance). [`Manager::plan`] takes them, highest priority first, up
+    /// to [`FrameBudgets::commands`]; [`ManagerStats::commands_pending`]
+    /// counts them.
+    pub fn pending_command(&self, slot: u32) -> Option<Command> {
+        self.culling.pending_command(slot)
     }
 
     /// Low-level, read-only: the instance registry (records, slots, dirty
@@ -899,53 +922,13 @@ impl<H: HitboxIndex> Manager<H> {
         })
     }
 
-    /// Takes one acknowledgement from the backend: the instances waiting for
-    /// a built or compacted BLAS get its address in their records before
-    /// this returns. An acknowledgement the manager never planned (or one
-    /// acknowledged twice) is an error and changes nothing.
+    /// Takes one acknowledgement from the backend
+    /// ([`BuildScheduler::handle_ack`]): the instances waiting for a built or
+    /// compacted BLAS get its address in their records before this returns.
+    /// An acknowledgement the manager never planned (or one acknowledged
+    /// twice) is an error and changes nothing.
     pub fn handle_ack(&mut self, ack: Ack) -> Result<(), ManagerError> {
-        match ack {
-            Ack::Built {
-                build,
-                result_bytes,
-                address,
-            } => self.ack_built(build, result_bytes, address),
-            Ack::CompactedSize {
-                build,
-                compacted_bytes,
-            } => self.ack_compacted_size(build, compacted_bytes),
-            Ack::Compacted { op, address } => self.ack_compacted(op, address),
-        }
-    }
-
-    /// Acknowledges build `build` ([`BuildScheduler::ack_built`]); the
-    /// instances waiting for it get its address in their records now.
-    fn ack_built(
-        &mut self,
-        build: BuildId,
-        result_bytes: u64,
-        address: u64,
-    ) -> Result<(), ManagerError> {
-        self.scheduler.ack_built(build, result_bytes, address)?;
-        self.sync_addresses()
-    }
-
-    /// Acknowledges the compacted-size query after build `build`
-    /// ([`BuildScheduler::ack_compacted_size`]); a compaction follows in a
-    /// later plan.
-    fn ack_compacted_size(
-        &mut self,
-        build: BuildId,
-        compacted_bytes: u64,
-    ) -> Result<(), ManagerError> {
-        self.scheduler.ack_compacted_size(build, compacted_bytes)?;
-        self.sync_addresses()
-    }
-
-    /// Acknowledges compaction `op` ([`BuildScheduler::ack_compacted`]); the
-    /// instances using that BLAS get the compacted address now.
-    fn ack_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
-        self.scheduler.ack_compacted(op, address)?;
+        self.scheduler.handle_ack(ack)?;
         self.sync_addresses()
     }
 
