@@ -59,7 +59,7 @@
 //! # Ok::<(), BuildPlanError>(())
 //! ```
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::fmt;
 
 use crate::blas_cache::{
@@ -350,6 +350,9 @@ pub enum BuildPlanError {
     AlreadyActive(InstanceKey),
     /// The instance is not active.
     UnknownInstance(InstanceKey),
+    /// `activate` of a key at or above [`MAX_SLOTS`](crate::layout::MAX_SLOTS):
+    /// keys are GPU slots (the scheduler's table is dense by key).
+    KeyOutOfRange(InstanceKey),
     /// `plan` before the first `begin_frame`.
     FrameNotStarted,
     /// `plan` twice in one frame.
@@ -366,6 +369,12 @@ impl fmt::Display for BuildPlanError {
             BuildPlanError::InvalidConfig(w) => write!(f, "invalid scheduler configuration: {w}"),
             BuildPlanError::AlreadyActive(i) => write!(f, "instance {} is already active", i.0),
             BuildPlanError::UnknownInstance(i) => write!(f, "instance {} is not active", i.0),
+            BuildPlanError::KeyOutOfRange(i) => write!(
+                f,
+                "instance key {} is not a GPU slot (keys are below {})",
+                i.0,
+                crate::layout::MAX_SLOTS
+            ),
             BuildPlanError::FrameNotStarted => write!(f, "plan() before begin_frame()"),
             BuildPlanError::PlanAlreadyIssued(fr) => write!(f, "frame {fr} was already planned"),
             BuildPlanError::InvalidEstimate(w) => write!(f, "invalid build estimate: {w}"),
@@ -459,7 +468,8 @@ pub struct BuildScheduler {
     started: bool,
     planned: Option<u64>,
     next_op: u64,
-    slots: BTreeMap<InstanceKey, Slot>,
+    /// The active instances' BLAS state ([`instances`]: dense by key).
+    slots: Instances<Slot>,
     /// Requested entries waiting for a build.
     queue: HashMap<BlasId, Queued>,
     /// Instances whose pending BLAS is the key.
@@ -507,7 +517,7 @@ impl BuildScheduler {
             started: false,
             planned: None,
             next_op: 1,
-            slots: BTreeMap::new(),
+            slots: Instances::default(),
             queue: HashMap::new(),
             waiters: HashMap::new(),
             holders: HashMap::new(),
@@ -544,13 +554,18 @@ impl BuildScheduler {
 
     /// An instance becomes active and needs a BLAS. A shared BLAS that is
     /// cached and built is assigned at once; otherwise a build is queued
-    /// (the instance has no BLAS until it is acknowledged).
+    /// (the instance has no BLAS until it is acknowledged). Keys are GPU
+    /// slots: one at or above [`MAX_SLOTS`](crate::layout::MAX_SLOTS) is
+    /// [`BuildPlanError::KeyOutOfRange`].
     pub fn activate(
         &mut self,
         instance: InstanceKey,
         request: InstanceBlasRequest,
     ) -> Result<(), BuildPlanError> {
         validate(&request.estimate)?;
+        if !Instances::<Slot>::in_range(instance) {
+            return Err(BuildPlanError::KeyOutOfRange(instance));
+        }
         if self.slots.contains_key(&instance) {
             return Err(BuildPlanError::AlreadyActive(instance));
         }
@@ -938,6 +953,12 @@ impl BuildScheduler {
         Ok(())
     }
 
+    /// Whether `instance` is active (activated and not deactivated since):
+    /// it holds or waits for a BLAS. O(1).
+    pub fn is_active(&self, instance: InstanceKey) -> bool {
+        self.slots.contains_key(&instance)
+    }
+
     /// Address of the BLAS an instance currently uses (for its TLAS
     /// instance record), or `None` while its first BLAS is not built.
     pub fn blas_address(&self, instance: InstanceKey) -> Option<u64> {
@@ -1157,6 +1178,9 @@ impl BuildScheduler {
         Ok(())
     }
 }
+
+mod instances;
+use instances::Instances;
 
 #[cfg(test)]
 mod tests;

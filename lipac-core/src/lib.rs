@@ -56,6 +56,7 @@ pub mod manager;
 pub mod math;
 pub mod memory;
 pub mod registry;
+mod slot_table;
 pub mod state;
 pub mod thresholds;
 pub mod trace;

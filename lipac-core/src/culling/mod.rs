@@ -63,6 +63,7 @@ use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
+use crate::slot_table::SlotTable;
 use crate::thresholds::Thresholds;
 
 /// Settings of a [`Culling`]; checked by [`CullingConfig::validate`].
@@ -361,9 +362,6 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
     /// decayed rule's, kept across frames).
     instance_rates: Vec<u32>,
-    /// The one per-slot table of the loop (length = the registry's slot
-    /// count): the commanded state and the pending BLAS promise.
-    slots: Vec<SlotView>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -407,7 +405,6 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
             instance_rates: Vec::new(),
-            slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -443,6 +440,17 @@ impl<H: HitboxIndex> Culling<H> {
     /// [`Culling`] so that commands, hit counters and uploads follow).
     pub fn registry(&self) -> &InstanceRegistry<H> {
         &self.registry
+    }
+
+    /// The slot table ([`crate::slot_table`]), through the registry that
+    /// owns it.
+    pub(crate) fn table(&self) -> &SlotTable {
+        self.registry.table()
+    }
+
+    /// The slot table, for the Manager's column.
+    pub(crate) fn table_mut(&mut self) -> &mut SlotTable {
+        self.registry.table_mut()
     }
 
     /// The current frame.
@@ -494,7 +502,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// answered by [`Culling::set_blas`]).
     pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].awaiting)
+        Ok(self.registry.table()[slot as usize].view.awaiting)
     }
 
     /// Latency mitigation's tracker, if enabled.
@@ -526,7 +534,8 @@ impl<H: HitboxIndex> Culling<H> {
             // The hit counters and the decayed rates, 4 bytes a slot each.
             instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
                 + vec_bytes::<u32>(self.instance_rates.capacity()),
-            awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
+            // In the slot table (`slot_occupants`).
+            awaiting: 0,
             latency_bits: self
                 .latency
                 .as_ref()
@@ -575,8 +584,6 @@ impl<H: HitboxIndex> Culling<H> {
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
         self.instance_rates
             .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
-        self.slots
-            .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
         self.state_overrides.reserve(slots, additional.min(slots));
         slots
@@ -594,12 +601,11 @@ impl<H: HitboxIndex> Culling<H> {
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
             self.instance_rates.resize(n, 0);
-            self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
         self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
-        self.slots[slot as usize] = SlotView {
+        self.registry.table_mut()[slot as usize].view = SlotView {
             commanded_active: false,
             awaiting: false,
             decided_at: self.registry.frame(),
@@ -621,7 +627,7 @@ impl<H: HitboxIndex> Culling<H> {
         let frame = self.registry.frame();
         self.registry.set_state(slot, InstanceState::Inactive)?;
         self.state_overrides.insert(slot, InstanceState::Inactive);
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.commanded_active = false;
         view.decided_at = frame;
         let remove = Command {
@@ -641,7 +647,7 @@ impl<H: HitboxIndex> Culling<H> {
         // The registry wrote the state (register / update of a pinned desc).
         self.state_overrides.insert(slot, InstanceState::Active);
         let blas = self.registry.records()[slot as usize].blas;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
             view.commanded_active = true;
             view.decided_at = frame;
@@ -666,7 +672,7 @@ impl<H: HitboxIndex> Culling<H> {
         self.sync_hitbox_count();
         let slot = self.registry.slot(handle)?;
         if desc.flags.contains(InstanceFlags::PINNED) {
-            let view = self.slots[slot as usize];
+            let view = self.registry.table()[slot as usize].view;
             if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
                 self.pin(slot);
             }
@@ -706,8 +712,9 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<Removal, CoreError> {
         let instance = self.registry.remove(handle)?;
         let slot = instance.slot as usize;
-        let build_was_pending = std::mem::take(&mut self.slots[slot].awaiting);
-        self.slots[slot].commanded_active = false;
+        let view = &mut self.registry.table_mut()[slot].view;
+        let build_was_pending = std::mem::take(&mut view.awaiting);
+        view.commanded_active = false;
         self.instance_hits[slot] = 0;
         self.state_overrides.remove(instance.slot);
         Ok(Removal {
@@ -725,7 +732,7 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
         let slot = self.registry.slot(handle)?;
         let old = self.registry.set_blas(handle, address)?;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.awaiting = false;
         if address != 0 && !view.commanded_active {
             let remove = Command {
@@ -783,12 +790,17 @@ impl<H: HitboxIndex> Culling<H> {
             return Ok(LatencyOutcome::default());
         };
         let mut activate = std::mem::take(&mut self.scratch);
-        let views = &self.slots;
+        let registry = &self.registry;
         let summary = lm.update_with(
-            &self.registry,
+            registry,
             camera,
             frustum,
-            |slot| views.get(slot as usize).is_some_and(|v| v.commanded_active),
+            |slot| {
+                registry
+                    .table()
+                    .get(slot as usize)
+                    .is_some_and(|r| r.view.commanded_active)
+            },
             &mut activate,
         )?;
         let frame = self.registry.frame();
@@ -802,7 +814,7 @@ impl<H: HitboxIndex> Culling<H> {
             };
             self.registry.set_state(slot, InstanceState::Active)?;
             self.state_overrides.insert(slot, InstanceState::Active);
-            let view = &mut self.slots[slot as usize];
+            let view = &mut self.registry.table_mut()[slot as usize].view;
             view.commanded_active = true;
             view.decided_at = frame;
             let record = self.registry.records()[slot as usize];
@@ -820,10 +832,10 @@ impl<H: HitboxIndex> Culling<H> {
                     out.hitboxes_activated += 1;
                 }
             }
-            if record.blas != 0 || self.slots[slot as usize].awaiting {
+            if record.blas != 0 || self.registry.table()[slot as usize].view.awaiting {
                 out.already_provided += 1;
             } else {
-                self.slots[slot as usize].awaiting = true;
+                self.registry.table_mut()[slot as usize].view.awaiting = true;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
@@ -858,7 +870,12 @@ impl<H: HitboxIndex> Culling<H> {
             if self.registry.handle_at(c.slot).is_none() {
                 continue; // dead: counted by the queue's ingestion
             }
-            if let Some(view) = self.slots.get_mut(c.slot as usize) {
+            if let Some(view) = self
+                .registry
+                .table_mut()
+                .get_mut(c.slot as usize)
+                .map(|r| &mut r.view)
+            {
                 if view.decided_at <= frame {
                     view.commanded_active = c.kind == CommandKind::Add;
                 }
@@ -879,7 +896,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// [module docs](self)).
     pub fn commanded_active(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].commanded_active)
+        Ok(self.registry.table()[slot as usize].view.commanded_active)
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and
@@ -913,7 +930,7 @@ impl<H: HitboxIndex> Culling<H> {
                 st.dead += 1;
                 continue;
             };
-            let active = self.slots[slot].commanded_active;
+            let active = self.registry.table()[slot].view.commanded_active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
             }
@@ -930,11 +947,11 @@ impl<H: HitboxIndex> Culling<H> {
                 })
             };
             if active {
-                if record.blas != 0 || self.slots[slot].awaiting {
+                if record.blas != 0 || self.registry.table()[slot].view.awaiting {
                     st.no_op += 1;
                     continue;
                 }
-                self.slots[slot].awaiting = true;
+                self.registry.table_mut()[slot].view.awaiting = true;
                 st.requested += 1;
                 event(BlasAction::Acquire);
             } else {
@@ -946,7 +963,7 @@ impl<H: HitboxIndex> Culling<H> {
                     st.released += 1;
                     acted = true;
                 }
-                if std::mem::take(&mut self.slots[slot].awaiting) {
+                if std::mem::take(&mut self.registry.table_mut()[slot].view.awaiting) {
                     event(BlasAction::CancelBuild);
                     st.builds_cancelled += 1;
                     acted = true;
@@ -1043,9 +1060,10 @@ impl<H: HitboxIndex> Culling<H> {
     }
 }
 
-/// The loop's view of one slot (one entry per slot).
+/// The command loop's column of the slot table ([`crate::slot_table`]): its
+/// view of one slot.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-struct SlotView {
+pub(crate) struct SlotView {
     /// The commanded state: the newest ingested command said `add`, or the
     /// loop's last decision (latency mitigation) made it active.
     commanded_active: bool,
