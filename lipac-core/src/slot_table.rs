@@ -10,7 +10,7 @@
 //! | column | type | written by | what |
 //! | --- | --- | --- | --- |
 //! | [`SlotRow::occupant`] | [`SlotOccupant`] | [`crate::registry`] | the live instance's handle key, its registration serial, its mesh |
-//! | [`SlotRow::view`] | [`SlotView`] | [`crate::culling`] | the commanded state, the pending BLAS promise, the frame of the loop's last decision |
+//! | [`SlotRow::view`] | [`SlotView`] | [`crate::culling`] | the commanded state, the pending BLAS promise, the frame of the loop's last decision, the CPU's state-bit write not yet uploaded |
 //! | [`SlotRow::managed`] | [`ManagedSlot`] | [`crate::manager`] | requested and traced LOD, geometry-data range, own-BLAS variant, last hits, dirty flag |
 //!
 //! The table is owned by the [`InstanceRegistry`](crate::registry::InstanceRegistry),

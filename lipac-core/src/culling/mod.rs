@@ -585,7 +585,7 @@ impl<H: HitboxIndex> Culling<H> {
         self.instance_rates
             .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
         // Each registration writes a state override (until the next take).
-        self.state_overrides.reserve(slots, additional.min(slots));
+        self.state_overrides.reserve(additional.min(slots));
         slots
     }
 
@@ -605,15 +605,18 @@ impl<H: HitboxIndex> Culling<H> {
         self.instance_hits[slot as usize] = 0;
         self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
-        self.registry.table_mut()[slot as usize].view = SlotView {
-            commanded_active: false,
-            awaiting: false,
-            decided_at: self.registry.frame(),
-        };
+        // (Field by field: a pending state override of the slot stays
+        // listed, see `StateOverrides`.)
+        let frame = self.registry.frame();
+        let view = &mut self.registry.table_mut()[slot as usize].view;
+        view.commanded_active = false;
+        view.awaiting = false;
+        view.decided_at = frame;
         // Nothing can be pending for a fresh slot (see `remove` and
         // `ingest_readback`); make sure.
         self.queue.cancel_slot(slot);
-        self.state_overrides.insert(slot, InstanceState::Inactive);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
         if desc.flags.contains(InstanceFlags::PINNED) {
             self.pin(slot);
         }
@@ -626,7 +629,8 @@ impl<H: HitboxIndex> Culling<H> {
     fn unpin(&mut self, slot: u32) -> Result<(), CoreError> {
         let frame = self.registry.frame();
         self.registry.set_state(slot, InstanceState::Inactive)?;
-        self.state_overrides.insert(slot, InstanceState::Inactive);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
         let view = &mut self.registry.table_mut()[slot as usize].view;
         view.commanded_active = false;
         view.decided_at = frame;
@@ -645,7 +649,8 @@ impl<H: HitboxIndex> Culling<H> {
     fn pin(&mut self, slot: u32) {
         let frame = self.registry.frame();
         // The registry wrote the state (register / update of a pinned desc).
-        self.state_overrides.insert(slot, InstanceState::Active);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Active);
         let blas = self.registry.records()[slot as usize].blas;
         let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
@@ -716,7 +721,8 @@ impl<H: HitboxIndex> Culling<H> {
         let build_was_pending = std::mem::take(&mut view.awaiting);
         view.commanded_active = false;
         self.instance_hits[slot] = 0;
-        self.state_overrides.remove(instance.slot);
+        self.state_overrides
+            .remove(self.registry.table_mut(), instance.slot);
         Ok(Removal {
             instance,
             build_was_pending,
@@ -813,7 +819,8 @@ impl<H: HitboxIndex> Culling<H> {
                 continue;
             };
             self.registry.set_state(slot, InstanceState::Active)?;
-            self.state_overrides.insert(slot, InstanceState::Active);
+            self.state_overrides
+                .insert(self.registry.table_mut(), slot, InstanceState::Active);
             let view = &mut self.registry.table_mut()[slot as usize].view;
             view.commanded_active = true;
             view.decided_at = frame;
@@ -981,7 +988,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// and the CPU's state-bit writes since the last call (see
     /// [`Uploads`]). The CPU reference needs none of it.
     pub fn take_uploads(&mut self) -> Uploads {
-        let state_overrides = self.state_overrides.take();
+        let state_overrides = self.state_overrides.take(self.registry.table_mut());
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
@@ -1074,6 +1081,8 @@ pub(crate) struct SlotView {
     /// latency mitigation). Commands Algorithm 2 wrote before it do not move
     /// the commanded state: the GPU had not seen the decision.
     decided_at: u64,
+    /// The CPU's state write since the last upload ([`StateOverrides`]).
+    state_override: u8,
 }
 
 mod readback_ring;
