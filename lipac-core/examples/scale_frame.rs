@@ -175,7 +175,7 @@ impl<H: HitboxIndex> Loop<H> {
             let col = ((f64::from(x) / CELL).max(0.0) as u64).min(columns - 1);
             (col + columns - hot_start) % columns < columns.div_ceil(4)
         };
-        let hitbox_sbt = self.m.culling().config().assembly.hitbox_sbt_offset;
+        let hitbox_sbt = self.m.culling_config().assembly.hitbox_sbt_offset;
         for t in &self.tlas {
             let i = t.custom_index();
             // A hitbox's counting box (an omitted instance's box names its
@@ -218,7 +218,7 @@ fn run<H: HitboxIndex>(index: H, n: u32, side: f64, frames: usize, index_heap: i
     }
     let times: Vec<Times> = (0..frames).map(|_| l.frame()).collect();
     let med = |k: usize| median(times.iter().map(|t| t[k]).collect()) * 1e3;
-    let cull = l.m.culling().memory_usage();
+    let cull = l.m.memory_usage();
     let hitboxes = l.m.hitboxes().len() as u64;
     let index = l.m.registry().hitbox_index();
     let stats = l.m.stats();

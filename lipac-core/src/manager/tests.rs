@@ -398,16 +398,19 @@ fn reserve_covers_a_scene_of_known_size() {
     let mut rig = Rig::new(DataConfig::default());
     let m = &mut rig.m;
     m.reserve(64);
-    let loop_bytes = m.culling().memory_usage();
-    let caps = (m.slots.capacity(), m.data_dirty.capacity());
+    let loop_bytes = m.memory_usage();
+    let caps = (m.culling().table().capacity(), m.data_dirty.capacity());
     assert!(caps.0 >= 64 && caps.1 >= 64);
     for i in 0..64 {
         m.register(desc(1.0 + (i % 60) as f32, 5.0, 1 + i % 2))
             .unwrap();
     }
     // Nothing the registrations fill grew.
-    assert_eq!(m.culling().memory_usage(), loop_bytes);
-    assert_eq!((m.slots.capacity(), m.data_dirty.capacity()), caps);
+    assert_eq!(m.memory_usage(), loop_bytes);
+    assert_eq!(
+        (m.culling().table().capacity(), m.data_dirty.capacity()),
+        caps
+    );
 }
 
 #[test]
