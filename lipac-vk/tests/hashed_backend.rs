@@ -213,18 +213,75 @@ fn manager(
 #[test]
 fn hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule() {
     if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule") {
-        gpu_equals_cpu(&h, paper());
+        gpu_equals_cpu(&h, paper(), false);
     }
 }
 
 #[test]
 fn hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule() {
     if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule") {
-        gpu_equals_cpu(&h, decayed());
+        gpu_equals_cpu(&h, decayed(), false);
     }
 }
 
-fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds) {
+/// The escape sums with random per-slot hit counts up to `u32::MAX`
+/// written over the trace's (so that the sums pass 2^32 and carry).
+#[test]
+fn escape_sums_equal_the_cpu_for_random_large_hit_counts() {
+    if let Some(h) = headless("escape_sums_equal_the_cpu_for_random_large_hit_counts") {
+        gpu_equals_cpu(&h, paper(), true);
+    }
+}
+
+/// Random hit counts for `slots` slots: zero, small, or up to `u32::MAX`.
+fn random_hits(rng: &mut SplitMix64, slots: u32) -> Vec<u32> {
+    (0..slots.max(1))
+        .map(|_| match rng.below(4) {
+            0 => 0,
+            1 => rng.below(50) as u32,
+            2 => u32::MAX - rng.below(1000) as u32,
+            _ => rng.next_u32(),
+        })
+        .collect()
+}
+
+/// Records a copy of `hits` over the first counters of `dst` after the
+/// trace's writes (and before Algorithm 2 reads them); `staging` is kept
+/// alive by the caller until the frame has run.
+fn overwrite_hits(rec: &mut lipac_vk::Recorder<'_>, staging: &Buffer, dst: &Buffer) {
+    let device = rec.context().device().clone();
+    let barrier =
+        |src: vk::PipelineStageFlags2, src_access, dst: vk::PipelineStageFlags2, dst_access| {
+            let b = [vk::MemoryBarrier2::default()
+                .src_stage_mask(src)
+                .src_access_mask(src_access)
+                .dst_stage_mask(dst)
+                .dst_access_mask(dst_access)];
+            let dep = vk::DependencyInfo::default().memory_barriers(&b);
+            // SAFETY: recording on this device; the headless context enables
+            // synchronization2.
+            unsafe { device.cmd_pipeline_barrier2(rec.raw(), &dep) };
+        };
+    barrier(
+        vk::PipelineStageFlags2::ALL_COMMANDS,
+        vk::AccessFlags2::MEMORY_WRITE,
+        vk::PipelineStageFlags2::TRANSFER,
+        vk::AccessFlags2::TRANSFER_WRITE,
+    );
+    let region = [vk::BufferCopy::default().size(staging.size())];
+    // SAFETY: recording on this device; `staging` (TRANSFER_SRC) and `dst`
+    // (the hit counters, TRANSFER_DST) are live, and the region lies inside
+    // both (at most one counter per slot of the tables).
+    unsafe { device.cmd_copy_buffer(rec.raw(), staging.raw(), dst.raw(), &region) };
+    barrier(
+        vk::PipelineStageFlags2::TRANSFER,
+        vk::AccessFlags2::TRANSFER_WRITE,
+        vk::PipelineStageFlags2::ALL_COMMANDS,
+        vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE,
+    );
+}
+
+fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool) {
     let ctx = h.context();
     let mesh = GpuMesh::new(h, Mesh::bumpy_grid(4));
     let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
@@ -298,6 +355,16 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds) {
         let plan = gpu.plan(&FrameBudgets::default()).unwrap();
         let view = random_view(&mut cameras, f);
         let value = lipac.next_frame_value();
+        let staging = large_hits.then(|| {
+            let hits = random_hits(&mut cameras, gpu.slot_count());
+            Buffer::with_data(
+                ctx,
+                vk::BufferUsageFlags::TRANSFER_SRC,
+                MemoryLocation::CpuToGpu,
+                &hits,
+            )
+            .unwrap()
+        });
         let recorded = submitter
             .submit(&[], &[(&timeline, value)], |rec| {
                 let r = lipac.record_frame(rec, &plan, &gpu, &geometry, &data)?;
@@ -311,6 +378,9 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds) {
                     image: &image,
                 })?;
                 tracer.record(rec, &bindings, &view)?;
+                if let Some(staging) = &staging {
+                    overwrite_hits(rec, staging, hits);
+                }
                 lipac.retire_after_frame(bindings);
                 lipac.record_feedback(rec)?;
                 Ok(r)
@@ -335,6 +405,7 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds) {
             }
         }
         submitter.wait_idle().unwrap();
+        drop(staging);
         while timeline.value().unwrap() < value {
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
@@ -405,6 +476,12 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds) {
     assert!(evictions > 0 && reused_at_same_len > 0);
     assert!(total_commands > 0, "instances were activated");
     assert!(box_hits > 0 && traced_hits > 0, "both sums were exercised");
+    if large_hits {
+        assert!(
+            traced_hits > u64::from(u32::MAX),
+            "the sums carried past 32 bits"
+        );
+    }
     drop((submitter, lipac, tracer, image));
     assert_no_validation_errors(h);
 }
