@@ -899,7 +899,7 @@ impl LipacVk {
                     .map(|b| {
                         Buffer::new(
                             &self.ctx,
-                            b,
+                            b.max(4),
                             vk::BufferUsageFlags::TRANSFER_DST,
                             MemoryLocation::GpuToCpu,
                         )

@@ -1,7 +1,7 @@
 //! `LipacVk` driven by a `Manager<HashedHitboxes>` (the sparse hitbox index
 //! of unbounded worlds) equals the CPU backend frame by frame: cells are
 //! occupied, emptied, evicted and their indices reused (with the hitbox
-//! count unchanged, too), and the index grows three times, so the hitbox
+//! count unchanged, too), and the index grows three times (from an empty first frame), so the hitbox
 //! records and bounds grow on the GPU and the bounds of new and reused
 //! indices are rewritten. A second `Manager<HashedHitboxes>` runs the CPU
 //! reference (`assemble`, the GPU's hit counts, `process_feedback`,
@@ -102,7 +102,8 @@ impl Scene {
     /// The changes before frame `f`.
     fn script(&mut self, f: u64, m: &mut Manager<HashedHitboxes>) {
         match f {
-            1 => self.add(m, 24, (0, 4), (0, 4)),
+            // Frame 1 has no instance and no hitbox.
+            2 => self.add(m, 24, (0, 4), (0, 4)),
             4 => self.add(m, 30, (4, 8), (0, 4)),
             6 => self.clear_columns(m, 2),
             7 => {
