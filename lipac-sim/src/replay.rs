@@ -314,6 +314,7 @@ pub fn empty_frame() -> Frame {
         },
         events: Vec::new(),
         hits: None,
+        slot_hits: None,
     }
 }
 

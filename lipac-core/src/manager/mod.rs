@@ -953,7 +953,9 @@ impl<H: HitboxIndex> Manager<H> {
             self.culling.instance_hits(),
             self.culling.hitboxes(),
         );
-        let stats = self.culling.process_feedback()?;
+        let stats = self.culling.process_feedback();
+        self.record(|r| r.settle_hits(stats.is_ok())); // a refused call records no hits
+        let stats = stats?;
         // Only once Algorithm 2 ran: a refused call changes nothing.
         self.observe_escape(escape);
         let frame = self.culling.frame();

@@ -189,6 +189,9 @@ pub struct Lipac {
     /// The LOD requested for each slot.
     lods: Vec<u8>,
     units: Vec<u32>,
+    /// Whether each slot is registered pinned (followed from the scene:
+    /// a replayed trace's flag updates).
+    pinned: Vec<bool>,
     stats: LipacFrameStats,
 }
 
@@ -235,6 +238,7 @@ impl Lipac {
             lods: vec![0; handles.len()],
             handles,
             units,
+            pinned: scene.instances().iter().map(|i| i.is_pinned()).collect(),
             stats: LipacFrameStats::default(),
         })
     }
@@ -334,6 +338,18 @@ impl Strategy for Lipac {
             let inst = ctx.scene.instance(slot)?;
             self.backend
                 .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)?;
+        }
+        for ((inst, was), &h) in ctx
+            .scene
+            .instances()
+            .iter()
+            .zip(&mut self.pinned)
+            .zip(&self.handles)
+        {
+            if inst.is_pinned() != *was {
+                *was = inst.is_pinned();
+                self.backend.set_pinned(h, *was)?;
+            }
         }
         for (slot, (&lod, last)) in ctx.lods.iter().zip(&mut self.lods).enumerate() {
             if lod != *last {
