@@ -91,6 +91,14 @@ pub trait HitboxIndex {
     /// `None` for an index out of range (or one that holds no cell now).
     fn xz_bounds(&self, index: u32) -> Option<(Vec2, Vec2)>;
 
+    /// `Some((nx, nz))` if the structure is a dense grid whose index `i` is
+    /// cell `(i % nx, i / nx)` ([`crate::grid::HitboxGrid`]): what adaptive
+    /// hitboxes ([`crate::hitbox_tree`]) merge over. The default is `None`
+    /// (adaptive hitboxes are then refused).
+    fn dense_dims(&self) -> Option<(u32, u32)> {
+        None
+    }
+
     /// Registration hook: an instance with world bounds `aabb` is added to
     /// (or moved into) the structure; returns its hitbox, creating it if the
     /// structure creates hitboxes on demand ([`HitboxIndex::len`] may grow).

@@ -58,6 +58,7 @@ pub mod feedback;
 pub mod grid;
 pub mod hashed_hitboxes;
 pub mod hitbox_index;
+pub mod hitbox_tree;
 pub mod instance;
 pub mod latency;
 pub mod layout;

@@ -702,6 +702,15 @@ impl LipacVk {
                 self.unit_cube_address()
             )));
         }
+        if culling.adaptive_hitboxes.is_on() {
+            // AssemblyPipeline::record_adaptive assembles them, but the
+            // counting shaders do not resolve merged boxes yet.
+            return Err(VkError::InvalidArgument(
+                "adaptive hitboxes (CullingConfig::adaptive_hitboxes) are not supported by \
+                 lipac-vk's frame loop yet: set adaptive_hitboxes.levels = 0"
+                    .into(),
+            ));
+        }
         let index = manager.registry().hitbox_index();
         if manager.hitboxes().len() != index.len() as usize {
             return Err(VkError::InvalidArgument(format!(

@@ -51,12 +51,13 @@ use std::collections::HashMap;
 
 use glam::{Affine3A, Vec3};
 
-use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
+use crate::assembly::{assemble_tlas_adaptive, AssemblyConfig, AssemblyStats};
 use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
 use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
+use crate::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
 use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS};
@@ -91,6 +92,10 @@ pub struct CullingConfig {
     /// Who decides which instances are active: LiPaC's hit feedback (the
     /// default) or the engine alone, through the pinned flag.
     pub selection: Selection,
+    /// Adaptive hitboxes: merged counting boxes for cold regions
+    /// ([`crate::hitbox_tree`]); off by default (one box per inactive
+    /// hitbox, the paper's rule). Dense grids only.
+    pub adaptive_hitboxes: AdaptiveHitboxes,
 }
 
 /// Who decides which instances are active ([`CullingConfig::selection`]).
@@ -126,6 +131,7 @@ impl CullingConfig {
             latency_mitigation: Some(ActivationHeuristic::default()),
             readback_latency: 2,
             selection: Selection::HitFeedback,
+            adaptive_hitboxes: AdaptiveHitboxes::OFF,
         }
     }
 
@@ -172,6 +178,17 @@ impl CullingConfig {
             if v >= 1 << 24 {
                 return invalid(format!("assembly.{name} = {v} does not fit 24 bits"));
             }
+        }
+        let ad = &self.adaptive_hitboxes;
+        if ad.is_on()
+            && (ad.merged_box_sbt_offset == a.omitted_box_sbt_offset
+                || ad.merged_box_sbt_offset == a.hitbox_sbt_offset)
+        {
+            return invalid(format!(
+                "adaptive_hitboxes.merged_box_sbt_offset = {} must differ from the other \
+                 counting SBT offsets",
+                ad.merged_box_sbt_offset
+            ));
         }
         if let Some(h) = self.latency_mitigation {
             if self.selection == Selection::EngineSelected {
@@ -372,6 +389,8 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     state_overrides: StateOverrides,
     hitbox_overrides: HashMap<u32, bool>,
     scratch: Vec<u32>,
+    /// Adaptive hitboxes' quadtree (`None`: off).
+    tree: Option<HitboxTree>,
 }
 
 impl<H: HitboxIndex> Culling<H> {
@@ -400,6 +419,7 @@ impl<H: HitboxIndex> Culling<H> {
         } else {
             HashMap::new()
         };
+        let tree = HitboxTree::for_index(&index, config.adaptive_hitboxes)?;
         Ok(Self {
             registry: InstanceRegistry::new(index, config.registry)?,
             hitboxes: vec![hitbox; hitbox_count],
@@ -413,6 +433,7 @@ impl<H: HitboxIndex> Culling<H> {
             state_overrides: StateOverrides::default(),
             hitbox_overrides,
             scratch: Vec::new(),
+            tree,
             config,
         })
     }
@@ -420,6 +441,11 @@ impl<H: HitboxIndex> Culling<H> {
     /// The settings.
     pub fn config(&self) -> &CullingConfig {
         &self.config
+    }
+
+    /// The adaptive hitboxes' quadtree, `None` when the option is off.
+    pub fn hitbox_tree(&self) -> Option<&HitboxTree> {
+        self.tree.as_ref()
     }
 
     /// Replaces the thresholds Algorithm 2 runs with (the Manager's
@@ -998,14 +1024,15 @@ impl<H: HitboxIndex> Culling<H> {
         }
     }
 
-    /// Algorithm 1 ([`assemble_tlas`]) over the registry's records: fills
+    /// Algorithm 1 ([`assemble_tlas_adaptive`]) over the registry's records: fills
     /// `out` (cleared first) with this frame's TLAS instances.
     pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, CoreError> {
-        assemble_tlas(
+        assemble_tlas_adaptive(
             self.registry.records(),
             &mut self.hitboxes,
             self.registry.hitbox_index(),
             &self.config.assembly,
+            self.tree.as_ref(),
             out,
         )
         .map_err(CoreError::Assembly)

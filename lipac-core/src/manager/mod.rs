@@ -435,6 +435,31 @@ impl<H: HitboxIndex> Manager<H> {
         self.culling.pending_command(slot)
     }
 
+    /// The adaptive hitboxes' quadtree ([`crate::hitbox_tree`]), when
+    /// [`CullingConfig::adaptive_hitboxes`] is on.
+    pub fn hitbox_tree(&self) -> Option<&crate::hitbox_tree::HitboxTree> {
+        self.culling.hitbox_tree()
+    }
+
+    /// The leaf counting boxes (hitbox index, unit-cube transform) that the
+    /// merged counting box of tree node `node` stands for, appended to `out`:
+    /// what a CPU tracer counts a hit on a merged box as. Returns `false`
+    /// (and appends nothing) when adaptive hitboxes are off; an unknown node
+    /// appends nothing.
+    pub fn merged_leaf_boxes(&self, node: u32, out: &mut Vec<(u32, [f32; 12])>) -> bool {
+        let Some(tree) = self.culling.hitbox_tree() else {
+            return false;
+        };
+        tree.leaf_boxes(
+            node,
+            self.culling.hitboxes(),
+            self.culling.registry().hitbox_index(),
+            &self.culling.config().assembly,
+            out,
+        );
+        true
+    }
+
     /// Low-level, read-only: the instance registry (records, slots, dirty
     /// ranges), for inspection.
     pub fn registry(&self) -> &InstanceRegistry<H> {
