@@ -105,6 +105,8 @@ fn record_then_replay_reproduces_compare_exactly() {
             strategies: strategies.clone(),
             share_ground_truth: true,
             threads: 2,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
         },
         &mut |_, _| {},
     )
