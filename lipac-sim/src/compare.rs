@@ -446,6 +446,7 @@ impl Comparison {
             .filter_map(|i| library.mesh(i as crate::mesh::MeshIndex).ok())
             .flat_map(|m| m.lods.iter());
         let throughput = BuildThroughput::measure(meshes, THROUGHPUT_MEASURE_MS)?;
+        let kinds = catalog.missing_kinds();
         Ok(Self {
             start,
             scene_name: scene_name.to_string(),
@@ -457,7 +458,13 @@ impl Comparison {
             catalog,
             names,
             strategies,
-            trackers: (0..k).map(|_| Tracker::new(n)).collect(),
+            trackers: (0..k)
+                .map(|_| {
+                    let mut t = Tracker::new(n);
+                    t.set_kinds(kinds.clone());
+                    t
+                })
+                .collect(),
             metrics: (0..k).map(|_| Vec::new()).collect(),
             previous: (0..k).map(|_| None).collect(),
             last_geometry: (0..k).map(|_| Vec::new()).collect(),

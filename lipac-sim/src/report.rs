@@ -173,6 +173,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
          re-entering the TLAS within 30 frames of leaving it. The full-scene strategy reuses the \
          ground truth's render (identical TLAS).\n"
     );
+    s.push_str(&breakdown_markdown(r));
     let _ = writeln!(
         s,
         "Ground truth: {:.1} ms per frame to render, {:.1} ms for the full TLAS, {:.1} ms for the \
@@ -234,6 +235,68 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     if let Some(section) = crate::closed_loop::markdown(r, &r.camera_cuts) {
         s.push_str(&section);
     }
+    s
+}
+
+/// The sections "Where the memory goes" and "What is missing" of
+/// `report.md`: each strategy's mean memory by term and its missing
+/// instances by kind and by how long they stayed missing.
+pub fn breakdown_markdown(r: &CompareReport) -> String {
+    let mut s = String::from("## Where the memory goes\n\n");
+    s.push_str(
+        "| strategy | terrain BLAS MiB | own BLAS | shared BLAS in use | shared BLAS cached only | \
+         TLAS geometry records | TLAS counting boxes | LiPaC buffers | total |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for st in &r.strategies {
+        let m = &st.summary;
+        let p = m.mean_split_mib;
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            st.name, p[0], p[1], p[2], p[3], p[4], p[5], p[6], m.mean_mib
+        );
+    }
+    s.push_str(
+        "\nMeans over the frames. \"Cached only\": shared BLASes no active instance uses, kept \
+         by the BLAS cache's retention; the total also counts LiPaC's counting-box unit cube.\n\n\
+         ## What is missing\n\n\
+         | strategy | missing / frame: terrain | shared BLAS | own BLAS | ground-truth hits on \
+         missing | instances missing 1–2 frames (hits) | 3–10 | 11–30 | > 30 |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for st in &r.strategies {
+        let m = &st.summary;
+        let k = m.mean_missing_by_kind;
+        let t = &m.missing_tail;
+        let total = t.hits.iter().sum::<u64>().max(1) as f64;
+        let class = |c: usize| {
+            format!(
+                "{} ({:.0} %)",
+                t.instances[c],
+                100.0 * t.hits[c] as f64 / total
+            )
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} % | {} | {} | {} | {} |",
+            st.name,
+            k[0],
+            k[1],
+            k[2],
+            100.0 * m.missing_hit_share,
+            class(0),
+            class(1),
+            class(2),
+            class(3)
+        );
+    }
+    s.push_str(
+        "\nMissing: instances the ground-truth bounce rays hit this frame that the strategy \
+         does not trace as geometry. The classes count each instance once by the number of \
+         frames it was missing while hit, with the share of all hits on missing instances \
+         that fell in those frames.\n\n",
+    );
     s
 }
 

@@ -374,6 +374,7 @@ impl Strategy for Lipac {
         Ok(StrategyFrame {
             work: f.work,
             blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
+            blas_split: ctx.catalog.blas_split(manager.scheduler().cache()),
             overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64),
             control: Some(control),
         })
