@@ -11,6 +11,11 @@
 //!   sets the scaled thresholds in the command loop's configuration, which
 //!   the CPU's Algorithm 2 uses and a GPU backend uploads when it records
 //!   the frame.
+//! * A memory budget has a second lever: in a frame over the budget the
+//!   BLAS cache is trimmed (every BLAS no instance uses is evicted; their
+//!   frees follow after the frames in flight), since that memory does not
+//!   depend on the thresholds
+//!   ([`ControllerConfig::evict_cached_over_budget`]).
 
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::hitbox_index::HitboxIndex;
@@ -126,6 +131,12 @@ impl<H: HitboxIndex> Manager<H> {
             return Ok(());
         };
         let scale = c.update(memory, escape);
+        // The second lever: over budget, the memory the thresholds cannot
+        // reach soon (BLASes only the cache's retention keeps) goes now.
+        if c.wants_eviction(memory) {
+            let evicted = self.scheduler.trim_cache();
+            c.note_eviction(evicted);
+        }
         let t = self
             .base_thresholds
             .scaled(scale)
