@@ -166,6 +166,10 @@ pub struct CompareReport {
     /// Frames at which the camera path jumps ([`CameraPath::cuts`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub camera_cuts: Vec<u32>,
+    /// LiPaC's decision rule in words ([`crate::report::rule_description`]):
+    /// the paper's thresholds above, or the decayed rule's rates.
+    #[serde(default)]
+    pub rule: String,
 }
 
 impl CompareReport {
@@ -773,6 +777,7 @@ impl Comparison {
             gpu_model: self.gpu,
             strategies,
             camera_cuts: Vec::new(),
+            rule: crate::report::rule_description(&th),
         };
         Ok((report, self.snapshots))
     }

@@ -6,6 +6,8 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use lipac_core::thresholds::{DecisionRule, Thresholds};
+
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::html::report_html;
@@ -117,13 +119,22 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# lipac: culling strategies compared\n");
     let th = r.thresholds;
+    let paper = format!(
+        "the paper's rule, thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, n_a = {}, n_d = {}",
+        th[0], th[1], th[2], th[3], th[4], th[5]
+    );
     let _ = writeln!(
         s,
         "Scene `{}` ({} instances), {} frames of the fly-through at {}x{} ({} camera rays per frame; \
-         LiPaC thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, n_a = {}, n_d = {}). \
-         Wall time {:.1} s.\n",
-        r.scene, r.instances, r.frames, r.width, r.height, r.rays_per_frame, th[0], th[1], th[2],
-        th[3], th[4], th[5], r.wall_s
+         LiPaC decides with {}). Wall time {:.1} s.\n",
+        r.scene,
+        r.instances,
+        r.frames,
+        r.width,
+        r.height,
+        r.rays_per_frame,
+        if r.rule.is_empty() { &paper } else { &r.rule },
+        r.wall_s
     );
     if let Some(h) = headline(r) {
         for line in h.lines() {
@@ -236,6 +247,44 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
         s.push_str(&section);
     }
     s
+}
+
+/// LiPaC's decision rule in words, as the report prints it: the paper's
+/// thresholds, or the decayed rule's half-life and rates in hits per frame.
+///
+/// ```
+/// use lipac_sim::report::rule_description;
+/// use lipac_core::thresholds::Thresholds;
+/// use lipac_sim::strategy::lipac::LipacConfig;
+/// assert!(rule_description(&Thresholds::paper()).starts_with("the paper's rule"));
+/// let default = LipacConfig::for_rays_per_frame(128 * 72).unwrap().thresholds;
+/// let d = rule_description(&default);
+/// assert!(d.starts_with("the decayed rule: half-life 5.5 frames (shift 3)"), "{d}");
+/// ```
+pub fn rule_description(t: &Thresholds) -> String {
+    match t.rule {
+        DecisionRule::Paper => format!(
+            "the paper's rule, thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, \
+             n_a = {}, n_d = {}",
+            t.theta_a, t.theta_d, t.sigma_a, t.sigma_o, t.n_a, t.n_d
+        ),
+        DecisionRule::Decayed(d) => {
+            let hits = |rate: u32| f64::from(rate) / 65536.0;
+            format!(
+                "the decayed rule: half-life {:.1} frames (shift {}), a hitbox activates above {:.3} \
+                 and deactivates below {:.3} hits per frame, a unique-BLAS instance above {:.3} / \
+                 below {:.3}, plus {:.3} / {:.3} per inactive shared / unique instance",
+                std::f64::consts::LN_2 * f64::from(1u32 << d.shift.min(30)),
+                d.shift,
+                hits(d.activate),
+                hits(d.deactivate),
+                hits(d.instance_activate),
+                hits(d.instance_omit),
+                hits(d.per_shared),
+                hits(d.per_unique)
+            )
+        }
+    }
 }
 
 /// The sections "Where the memory goes" and "What is missing" of

@@ -20,7 +20,7 @@
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::hitbox_index::HitboxIndex;
 use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
-use crate::thresholds::Thresholds;
+use crate::thresholds::{DecisionRule, Thresholds};
 
 use super::{Manager, ManagerError};
 
@@ -75,8 +75,9 @@ impl<H: HitboxIndex> Manager<H> {
     /// unique, compacted; not those waiting to be freed), TLAS records of
     /// the last [`Manager::assemble`] (without one, a GPU backend's table:
     /// every slot plus every hitbox) times
-    /// [`ControllerConfig::tlas_record_bytes`], hitbox records and hit
-    /// counters.
+    /// [`ControllerConfig::tlas_record_bytes`], hitbox records, hit
+    /// counters and, under the decayed rule, its per-slot rates (4 bytes
+    /// each).
     pub fn controlled_bytes(&self) -> u64 {
         let per_record = self
             .controller
@@ -95,6 +96,11 @@ impl<H: HitboxIndex> Manager<H> {
             .saturating_add(records.saturating_mul(per_record))
             .saturating_add(hitboxes * std::mem::size_of::<HitboxRecord>() as u64)
             .saturating_add(slots * 4)
+            .saturating_add(match self.base_thresholds.rule {
+                // The decayed rule's per-slot rate buffer.
+                DecisionRule::Decayed(_) => slots * 4,
+                DecisionRule::Paper => 0,
+            })
     }
 
     /// For GPU backends that read back their counting-box hits: this

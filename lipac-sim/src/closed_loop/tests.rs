@@ -71,6 +71,7 @@ fn report(strategies: Vec<StrategyRun>) -> CompareReport {
         wall_s: 0.0,
         strategies,
         camera_cuts: vec![100],
+        rule: String::new(),
         blas_throughput: Default::default(),
         gpu_model: Default::default(),
     }
