@@ -11,11 +11,16 @@
 //!   sets the scaled thresholds in the command loop's configuration, which
 //!   the CPU's Algorithm 2 uses and a GPU backend uploads when it records
 //!   the frame.
+//! * A memory budget has a second lever: in a frame over the budget the
+//!   BLAS cache is trimmed (every BLAS no instance uses is evicted; their
+//!   frees follow after the frames in flight), since that memory does not
+//!   depend on the thresholds
+//!   ([`ControllerConfig::evict_cached_over_budget`]).
 
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::hitbox_index::HitboxIndex;
 use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
-use crate::thresholds::Thresholds;
+use crate::thresholds::{DecisionRule, Thresholds};
 
 use super::{Manager, ManagerError};
 
@@ -70,8 +75,9 @@ impl<H: HitboxIndex> Manager<H> {
     /// unique, compacted; not those waiting to be freed), TLAS records of
     /// the last [`Manager::assemble`] (without one, a GPU backend's table:
     /// every slot plus every hitbox) times
-    /// [`ControllerConfig::tlas_record_bytes`], hitbox records and hit
-    /// counters.
+    /// [`ControllerConfig::tlas_record_bytes`], hitbox records, hit
+    /// counters and, under the decayed rule, its per-slot rates (4 bytes
+    /// each).
     pub fn controlled_bytes(&self) -> u64 {
         let per_record = self
             .controller
@@ -90,6 +96,11 @@ impl<H: HitboxIndex> Manager<H> {
             .saturating_add(records.saturating_mul(per_record))
             .saturating_add(hitboxes * std::mem::size_of::<HitboxRecord>() as u64)
             .saturating_add(slots * 4)
+            .saturating_add(match self.base_thresholds.rule {
+                // The decayed rule's per-slot rate buffer.
+                DecisionRule::Decayed(_) => slots * 4,
+                DecisionRule::Paper => 0,
+            })
     }
 
     /// For GPU backends that read back their counting-box hits: this
@@ -126,6 +137,12 @@ impl<H: HitboxIndex> Manager<H> {
             return Ok(());
         };
         let scale = c.update(memory, escape);
+        // The second lever: over budget, the memory the thresholds cannot
+        // reach soon (BLASes only the cache's retention keeps) goes now.
+        if c.wants_eviction(memory) {
+            let evicted = self.scheduler.trim_cache();
+            c.note_eviction(evicted);
+        }
         let t = self
             .base_thresholds
             .scaled(scale)
