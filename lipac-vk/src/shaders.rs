@@ -52,7 +52,7 @@ pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp")
 
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 12] = [
+pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),

@@ -184,6 +184,7 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
+        ..CompareConfig::default()
     };
     let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
     let j = CameraPath::city_jump(&scene, 32.0 / 18.0);
