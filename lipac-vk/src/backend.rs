@@ -1,7 +1,9 @@
 //! The engine-facing object, [`LipacVk`] (its docs describe the frame).
 
 use crate::as_pool::AccelerationStructurePool;
-use crate::assembly::{hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline};
+use crate::assembly::{
+    hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, InstanceBuffers,
+};
 use crate::blas::{BlasBatch, GpuBlas};
 use crate::commands::{OneShot, Recorder};
 use crate::context::DeviceContext;
@@ -17,11 +19,13 @@ use crate::tlas::GpuTlas;
 use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance};
+use lipac_core::layout::{HitboxRecord, InstanceCold, InstanceHeights, InstanceHot, TlasInstance};
 use lipac_core::manager::{Ack, DataUpload, Manager, ManagerPlan};
 use lipac_core::thresholds::Thresholds;
 
-const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
+const HOT_BYTES: u64 = std::mem::size_of::<InstanceHot>() as u64;
+const HEIGHTS_BYTES: u64 = std::mem::size_of::<InstanceHeights>() as u64;
+const COLD_BYTES: u64 = std::mem::size_of::<InstanceCold>() as u64;
 const HITBOX_BYTES: u64 = std::mem::size_of::<HitboxRecord>() as u64;
 const TLAS_RECORD_BYTES: u64 = std::mem::size_of::<TlasInstance>() as u64;
 
@@ -238,7 +242,11 @@ struct UploadSet {
 #[derive(Debug)]
 struct SlotTables {
     capacity: u32,
-    instances: Buffer,
+    /// The instance arrays ([`lipac_core::layout::InstanceArrays`] on the
+    /// GPU): hot, heights, cold.
+    hot: Buffer,
+    heights: Buffer,
+    cold: Buffer,
     instance_hits: Buffer,
     /// The decayed rule's per-slot hit rates (kept across frames and growth).
     instance_rates: Buffer,
@@ -247,6 +255,16 @@ struct SlotTables {
     assembly: AssemblyBindings,
     feedback: FeedbackBindings,
     uploads: Vec<UploadSet>,
+}
+
+impl SlotTables {
+    fn instance_buffers(&self) -> InstanceBuffers<'_> {
+        InstanceBuffers {
+            hot: &self.hot,
+            heights: &self.heights,
+            cold: &self.cold,
+        }
+    }
 }
 
 /// The extra host-visible copies of one read-back ring slot.
@@ -555,7 +573,9 @@ impl LipacVk {
             + self.command_counter.size()
             + self.tlas_counter.size();
         if let Some(t) = &self.tables {
-            table_bytes += t.instances.size()
+            table_bytes += t.hot.size()
+                + t.heights.size()
+                + t.cold.size()
                 + t.instance_hits.size()
                 + t.instance_rates.size()
                 + t.data_offsets.size()
@@ -704,7 +724,9 @@ impl LipacVk {
                 .max(self.config.initial_slot_capacity)
                 .max(old_capacity.saturating_mul(2));
             let tables = self.make_tables(capacity)?;
-            fill_zero(rec, &tables.instances);
+            fill_zero(rec, &tables.hot);
+            fill_zero(rec, &tables.heights);
+            fill_zero(rec, &tables.cold);
             fill_zero(rec, &tables.data_offsets);
             fill_zero(rec, &tables.instance_rates);
             if first {
@@ -718,12 +740,18 @@ impl LipacVk {
                     vk::AccessFlags2::TRANSFER_READ | vk::AccessFlags2::TRANSFER_WRITE,
                 );
                 let bytes = u64::from(old.capacity);
-                copy(
-                    rec,
-                    &old.instances,
-                    &tables.instances,
-                    &[vk::BufferCopy::default().size(bytes * RECORD_BYTES)],
-                );
+                for (from, to, per_slot) in [
+                    (&old.hot, &tables.hot, HOT_BYTES),
+                    (&old.heights, &tables.heights, HEIGHTS_BYTES),
+                    (&old.cold, &tables.cold, COLD_BYTES),
+                ] {
+                    copy(
+                        rec,
+                        from,
+                        to,
+                        &[vk::BufferCopy::default().size(bytes * per_slot)],
+                    );
+                }
                 copy(
                     rec,
                     &old.data_offsets,
@@ -763,7 +791,7 @@ impl LipacVk {
             Some(i) => i,
             None => {
                 let bindings = self.uploader.bind(&UploadTargets {
-                    instances: &tables.instances,
+                    instances: tables.instance_buffers(),
                     hitboxes: &self.hitboxes,
                 })?;
                 tables.uploads.push(UploadSet {
@@ -928,7 +956,14 @@ impl LipacVk {
     fn make_tables(&self, capacity: u32) -> Result<SlotTables> {
         let ctx = &self.ctx;
         let n = u64::from(capacity);
-        let instances = buffer(ctx, n * RECORD_BYTES, STORAGE | TRANSFER)?;
+        let hot = buffer(ctx, n * HOT_BYTES, STORAGE | TRANSFER)?;
+        let heights = buffer(ctx, n * HEIGHTS_BYTES, STORAGE | TRANSFER)?;
+        let cold = buffer(ctx, n * COLD_BYTES, STORAGE | TRANSFER)?;
+        let instances = InstanceBuffers {
+            hot: &hot,
+            heights: &heights,
+            cold: &cold,
+        };
         let instance_hits = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let instance_rates = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let data_offsets = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
@@ -940,14 +975,14 @@ impl LipacVk {
                 | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR,
         )?;
         let assembly = self.assembly.bind(&AssemblyBuffers {
-            instances: &instances,
+            instances,
             hitboxes: &self.hitboxes,
             hitbox_bounds: &self.bounds,
             tlas_instances: &tlas_instances,
             tlas_counter: &self.tlas_counter,
         })?;
         let feedback = self.feedback.bind(&FeedbackBuffers {
-            instances: &instances,
+            instance_hot: &hot,
             instance_hits: &instance_hits,
             hitboxes: &self.hitboxes,
             commands: &self.commands,
@@ -956,7 +991,9 @@ impl LipacVk {
         })?;
         Ok(SlotTables {
             capacity,
-            instances,
+            hot,
+            heights,
+            cold,
             instance_hits,
             instance_rates,
             data_offsets,

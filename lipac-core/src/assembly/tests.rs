@@ -1,5 +1,5 @@
 use super::*;
-use crate::layout::{hitbox_bits, instance_bits};
+use crate::layout::{hitbox_bits, instance_bits, InstanceRecord};
 use glam::Vec2;
 use lipac_test_support::{Rng64, XorShift64};
 
@@ -81,7 +81,8 @@ fn run(
         origin: 0.0,
     };
     let mut out = vec![TlasInstance::default(); 3]; // stale content must be cleared
-    let stats = assemble_tlas(instances, hitboxes, &index, &cfg(), &mut out).unwrap();
+    let instances = InstanceArrays::from_records(instances);
+    let stats = assemble_tlas(&instances, hitboxes, &index, &cfg(), &mut out).unwrap();
     (stats, out)
 }
 
@@ -327,7 +328,7 @@ fn bad_inputs_are_errors_or_counted() {
     };
     let mut out = Vec::new();
     assert!(matches!(
-        assemble_tlas(&[], &mut hb, &index, &cfg(), &mut out),
+        assemble_tlas(&InstanceArrays::new(), &mut hb, &index, &cfg(), &mut out),
         Err(AssemblyError::HitboxCountMismatch {
             index: 2,
             records: 1

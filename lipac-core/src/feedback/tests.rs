@@ -1,9 +1,10 @@
 use super::*;
 use crate::command::CommandQueue;
+use crate::layout::InstanceRecord;
 
 const TH: Thresholds = Thresholds::paper();
 
-fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceHot {
     let mut r = InstanceRecord {
         hitbox,
         packed: instance_bits::ALIVE
@@ -16,7 +17,7 @@ fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
         ..Default::default()
     };
     r.set_state(state);
-    r
+    r.hot()
 }
 
 fn hitbox(active: bool) -> HitboxRecord {
@@ -29,13 +30,13 @@ fn hitbox(active: bool) -> HitboxRecord {
 /// One frame: reset hitbox hits, add this frame's counting-box hits,
 /// run Algorithm 2 with a fresh command buffer of `capacity`.
 struct Frame {
-    instances: Vec<InstanceRecord>,
+    instances: Vec<InstanceHot>,
     hits: Vec<u32>,
     hitboxes: Vec<HitboxRecord>,
 }
 
 impl Frame {
-    fn new(instances: Vec<InstanceRecord>, hitboxes: Vec<HitboxRecord>) -> Self {
+    fn new(instances: Vec<InstanceHot>, hitboxes: Vec<HitboxRecord>) -> Self {
         Self {
             hits: vec![0; instances.len()],
             instances,
@@ -241,7 +242,7 @@ fn lines_31_32_omitted_above_sigma_a_is_added() {
 #[test]
 fn lines_34_35_active_unique_below_sigma_o_is_omitted() {
     let mut no_blas = inst(InstanceState::Active, 0, true);
-    no_blas.blas = 0;
+    no_blas.packed &= !instance_bits::HAS_BLAS;
     let mut f = Frame::new(
         vec![
             inst(InstanceState::Active, 0, true),
@@ -260,7 +261,7 @@ fn lines_34_35_active_unique_below_sigma_o_is_omitted() {
     assert_eq!(cmds, vec![remove(0, TH.sigma_o - 1)]);
 }
 
-fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceHot {
     let mut r = inst(state, hitbox, unique);
     r.packed |= instance_bits::PINNED;
     r
@@ -449,7 +450,7 @@ mod decayed {
         Thresholds::paper().with_rule(DecisionRule::Decayed(RULE))
     }
 
-    fn inst(state: InstanceState, unique: bool, blas: u64) -> InstanceRecord {
+    fn inst(state: InstanceState, unique: bool, blas: u64) -> InstanceHot {
         let mut r = InstanceRecord {
             packed: instance_bits::ALIVE
                 | if unique {
@@ -461,13 +462,13 @@ mod decayed {
             ..Default::default()
         };
         r.set_state(state);
-        r
+        r.hot()
     }
 
     /// One frame: the hitbox gets `box_hits` (counting box) with `cost`
     /// inactive instances, then Algorithm 2.
     fn frame(
-        instances: &mut [InstanceRecord],
+        instances: &mut [InstanceHot],
         hits: &[u32],
         rates: &mut [u32],
         hitbox: &mut HitboxRecord,
@@ -584,7 +585,7 @@ mod decayed {
         assert_eq!(i[0].state(), InstanceState::Active);
         // The BLAS arrives and the instance is no longer hit: back to omitted
         // once the rate is below 0.5.
-        i[0].blas = 0xB1A5;
+        i[0].packed |= instance_bits::HAS_BLAS;
         let mut frames = 0;
         while i[0].state() == InstanceState::Active {
             frame(&mut i, &[0], &mut rates, &mut h, 1000, 0);
@@ -608,7 +609,7 @@ mod decayed {
         };
         let mut i = [
             inst(InstanceState::Active, false, 1),
-            InstanceRecord::default(), // dead
+            InstanceHot::default(), // dead
             inst(InstanceState::Omitted, true, 0),
         ];
         let mut rates = [7, 8, 9];
