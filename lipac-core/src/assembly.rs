@@ -278,9 +278,13 @@ pub fn assemble_tlas(
     begin_frame(hitboxes);
     let mut stats = AssemblyStats::default();
 
-    // Pass 1: one GPU thread per slot, over the hot array.
-    let (heights, cold) = (instances.heights(), instances.cold());
-    for (slot, m) in instances.hot().iter().enumerate() {
+    // Pass 1: one GPU thread per slot, over the hot array. The arrays have
+    // equal lengths (InstanceArrays); cut to it, indexing needs no check.
+    let hot = instances.hot();
+    let n = hot.len();
+    let (heights, cold) = (&instances.heights()[..n], &instances.cold()[..n]);
+    for slot in 0..n {
+        let m = hot[slot];
         if !m.is_alive() {
             continue;
         }
@@ -308,7 +312,6 @@ pub fn assemble_tlas(
                     stats.active_without_blas += 1;
                     continue;
                 }
-                // Equal lengths by construction (InstanceArrays).
                 let c = &cold[slot];
                 out.push(TlasInstance::new(
                     c.transform,

@@ -319,40 +319,41 @@ fn process(
         stats.hitboxes_deactivated += u32::from(change < 0);
     }
 
-    // Lines 14–38: one thread per slot.
-    for (slot, (m, &hits)) in instances.iter_mut().zip(instance_hits).enumerate() {
+    // Lines 14–38: one thread per slot. The slices are cut to the slot
+    // count (checked equal above) so that indexing by slot needs no check.
+    let n = instances.len();
+    let instance_hits = &instance_hits[..n];
+    for slot in 0..n {
+        let packed = instances[slot].packed;
         // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
         // rate of either is 0 (a dead slot is reused only after quarantine).
-        if m.packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
+        if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
             if let Some((_, rates)) = decayed.as_mut() {
                 rates[slot] = 0;
             }
             continue;
         }
-        let Some(h) = hitboxes.get(m.hitbox as usize) else {
+        let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
             stats.invalid_instances += 1;
             continue;
         };
-        let old = m.state();
-        let h_active = h.is_active();
-        let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
-        // Fast path: nothing in lines 16–37 can fire (and the rate of an
-        // inactive or shared-BLAS instance is 0).
-        match (old, h_active) {
-            (InstanceState::Inactive, false) => {
-                if let Some((_, rates)) = decayed.as_mut() {
-                    rates[slot] = 0;
-                }
-                continue;
+        let h_active = h.packed & hitbox_bits::ACTIVE != 0;
+        let unique = packed & instance_bits::UNIQUE_BLAS != 0;
+        // Fast path, on the bits alone: nothing in lines 16–37 can fire for
+        // an inactive instance (state bits 0, or the unused 3) in an
+        // inactive hitbox, nor for a shared-BLAS active or omitted one in an
+        // active hitbox (and the rate of either is 0).
+        let bits = packed & instance_bits::STATE_MASK;
+        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
+        if h_active != inactive && (inactive || !unique) {
+            if let Some((_, rates)) = decayed.as_mut() {
+                rates[slot] = 0;
             }
-            (InstanceState::Active, true) | (InstanceState::Omitted, true) if !unique => {
-                if let Some((_, rates)) = decayed.as_mut() {
-                    rates[slot] = 0;
-                }
-                continue;
-            }
-            _ => {}
+            continue;
         }
+        let m = &mut instances[slot];
+        let hits = instance_hits[slot];
+        let old = m.state();
         let slot = slot as u32;
         let command = |kind, hits| Command {
             slot,
