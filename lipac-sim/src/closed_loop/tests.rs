@@ -129,6 +129,8 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),
