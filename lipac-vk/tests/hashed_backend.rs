@@ -446,7 +446,7 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
         for (c, g) in cpu.hitboxes_mut().iter_mut().zip(&diag.hitboxes) {
             c.add_hits(g.hits());
         }
-        cpu.process_feedback().unwrap();
+        let fed = cpu.process_feedback().unwrap();
         let c = cpu.take_commands().expect("feedback ran");
         assert_eq!(c.counter, r.commands.counter(), "frame {f}");
         let (mut a, mut b) = (c.words.clone(), r.commands.words().to_vec());
@@ -455,8 +455,15 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
         assert_eq!(a, b, "frame {f}: command words");
         total_commands += a.len();
         // The escape fraction's sums: the GPU's equal the CPU's sample.
+        // Algorithm 2's sums on the CPU (FeedbackStats), and the sample the
+        // CPU path hands the manager's controller.
+        assert_eq!(
+            (r.escape.box_hits, r.escape.total_hits - r.escape.box_hits),
+            (fed.box_hits, fed.traced_hits),
+            "frame {f}: escape sums"
+        );
         let cpu_escape = cpu.stats().escape.expect("process_feedback samples");
-        assert_eq!(r.escape, cpu_escape, "frame {f}: escape sums");
+        assert_eq!(r.escape, cpu_escape, "frame {f}: escape sample");
         box_hits += r.escape.box_hits;
         traced_hits += r.escape.total_hits - r.escape.box_hits;
         cpu_commands = Some(c);
