@@ -529,7 +529,10 @@ fn read_back_hits_are_recorded_by_slot_without_boxes() {
             let mut r = TraceReader::new(bytes.as_slice()).unwrap();
             std::iter::from_fn(|| r.next_frame().unwrap()).collect()
         };
-        let sh: Vec<_> = frames.iter().map(|f| f.slot_hits.clone().unwrap()).collect();
+        let sh: Vec<_> = frames
+            .iter()
+            .map(|f| f.slot_hits.clone().unwrap())
+            .collect();
         assert_eq!(sh[0].slots, [0, 41], "jsonl {jsonl}");
         assert_eq!(sh[1].slots, [0, 7], "jsonl {jsonl}");
         assert!(sh.iter().all(|s| s.boxes.is_empty()));
