@@ -12,6 +12,9 @@ pub const TRACE_TEST_SPV: &[u8] = include_bytes!("../shaders/spv/trace_test.spv"
 /// straight into the `HitboxRecord` buffer (`LIPAC_HITBOX_RECORDS`; see
 /// [`crate::HitboxCounting::Records`]).
 pub const TRACE_COUNTING_SPV: &[u8] = include_bytes!("../shaders/spv/trace_counting.spv");
+/// SPIR-V of `trace_merged.comp`: `trace_counting.comp` resolving adaptive
+/// hitboxes' merged boxes to their leaf boxes ([`crate::MergedTraceTestPipeline`]).
+pub const TRACE_MERGED_SPV: &[u8] = include_bytes!("../shaders/spv/trace_merged.spv");
 /// SPIR-V of `upload_records.comp`: the record upload scatter
 /// ([`crate::RecordUploader`]).
 pub const UPLOAD_RECORDS_SPV: &[u8] = include_bytes!("../shaders/spv/upload_records.spv");
@@ -49,10 +52,11 @@ pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp")
 
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 12] = [
+pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
+    ("trace_merged", TRACE_MERGED_SPV),
     ("upload_records", UPLOAD_RECORDS_SPV),
     ("hitbox_reset", HITBOX_RESET_SPV),
     ("assemble_instances", ASSEMBLE_INSTANCES_SPV),
