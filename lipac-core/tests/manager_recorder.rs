@@ -498,6 +498,52 @@ fn instances_registered_before_attaching_get_no_hits() {
     assert_eq!(hits, [(0, 9)]);
 }
 
+#[test]
+fn read_back_hits_are_recorded_by_slot_without_boxes() {
+    // A GPU backend hands the read-back hit counters to record_hits: they
+    // are written by slot, as they are (no counting boxes), in both
+    // encodings, and read back as each live instance's own hits.
+    for jsonl in [false, true] {
+        let mut m = manager();
+        let w = Vec::<u8>::new();
+        let r = if jsonl {
+            TraceRecorder::jsonl(w, RecorderOptions::default())
+        } else {
+            TraceRecorder::new(w, RecorderOptions::default())
+        };
+        m.attach_recorder(r).unwrap();
+        let a = m.register(desc(1, 3.0, 3.0)).unwrap();
+        m.register(desc(7, 40.0, 40.0)).unwrap();
+        m.begin_frame(0).unwrap();
+        m.plan(&FrameBudgets::default()).unwrap();
+        m.record_hits(&[0, 41]);
+        m.begin_frame(1).unwrap();
+        m.remove(a).unwrap();
+        m.plan(&FrameBudgets::default()).unwrap();
+        m.record_hits(&[5, 7]); // slot 0 is dead now: not recorded
+        let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+        let frames: Vec<lipac_core::trace::Frame> = if jsonl {
+            let mut r = JsonlReader::new(bytes.as_slice()).unwrap();
+            std::iter::from_fn(|| r.next_frame().unwrap()).collect()
+        } else {
+            let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+            std::iter::from_fn(|| r.next_frame().unwrap()).collect()
+        };
+        let sh: Vec<_> = frames
+            .iter()
+            .map(|f| f.slot_hits.clone().unwrap())
+            .collect();
+        assert_eq!(sh[0].slots, [0, 41], "jsonl {jsonl}");
+        assert_eq!(sh[1].slots, [0, 7], "jsonl {jsonl}");
+        assert!(sh.iter().all(|s| s.boxes.is_empty()));
+        let hits = |f: &lipac_core::trace::Frame| -> Vec<(u64, u32)> {
+            f.hits.iter().flatten().map(|h| (h.id, h.hits)).collect()
+        };
+        assert_eq!(hits(&frames[0]), [(1, 41)]);
+        assert_eq!(hits(&frames[1]), [(1, 7)]);
+    }
+}
+
 /// Fails every write after `ok` bytes.
 #[derive(Clone)]
 struct Failing {

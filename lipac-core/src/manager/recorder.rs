@@ -60,7 +60,7 @@
 //!
 //! The trace is format version 2: every `add` carries the instance's GPU
 //! slot ([`AddInstance::slot`]) and a frame's hits are written by slot
-//! ([`SlotHits`]: a copy of the per-slot hit counters, plus the counting
+//! ([`SlotHits`](crate::trace::SlotHits): a copy of the per-slot hit counters, plus the counting
 //! boxes of the inactive hitboxes by hitbox index), so recording costs no
 //! pass over the instance records; readers split each box's hits over its
 //! instances by the same rule and give back per-instance hits
@@ -109,8 +109,8 @@ use crate::layout::{HitboxRecord, InstanceHot, InstanceState};
 use crate::math::{affine_to_rows, Aabb};
 use crate::registry::InstanceHandle;
 use crate::trace::{
-    AddInstance, BoxHits, Camera, Frame, InstanceEvent, InstanceHits, JsonlWriter, LodGeometry,
-    LodInfo, MeshInfo, Pose, SlotHits, TraceError, TraceErrorKind, TraceHeader, TraceLimits,
+    AddInstance, Camera, EncodedSlotHits, Frame, InstanceEvent, InstanceHits, JsonlWriter,
+    LodGeometry, LodInfo, MeshInfo, Pose, TraceError, TraceErrorKind, TraceHeader, TraceLimits,
     TraceWriter, UpdateInstance, WorldInfo,
 };
 
@@ -208,7 +208,12 @@ impl FinishedTrace {
 /// The encoder behind a recorder, with its writer's type erased.
 trait Sink: Send + Sync {
     fn start(&mut self, header: &TraceHeader, limits: TraceLimits) -> Result<(), TraceError>;
-    fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError>;
+    /// Writes `frame`, with `slots` as its hits when given.
+    fn write_frame(
+        &mut self,
+        frame: &mut Frame,
+        slots: Option<&EncodedSlotHits>,
+    ) -> Result<(), TraceError>;
     fn finish(self: Box<Self>) -> Result<Box<dyn Any + Send + Sync>, TraceError>;
 }
 
@@ -256,12 +261,22 @@ impl<W: Write + Send + Sync + 'static> Sink for WriterSink<W> {
         };
         Ok(())
     }
-    fn write_frame(&mut self, frame: &Frame) -> Result<(), TraceError> {
-        match &mut self.state {
+    fn write_frame(
+        &mut self,
+        frame: &mut Frame,
+        slots: Option<&EncodedSlotHits>,
+    ) -> Result<(), TraceError> {
+        match (&mut self.state, slots) {
             // The recorder's hits are consistent by construction (`on_hits`);
             // events, cameras and limits are checked as always.
-            SinkState::Binary(w) => w.write_frame_trusted_hits(frame),
-            SinkState::Jsonl(w) => w.write_frame_trusted_hits(frame),
+            (SinkState::Binary(w), Some(enc)) => w.write_frame_encoded(frame, enc),
+            (SinkState::Binary(w), None) => w.write_frame_trusted_hits(frame),
+            (SinkState::Jsonl(w), enc) => {
+                frame.slot_hits = enc.map(EncodedSlotHits::decode);
+                let r = w.write_frame_trusted_hits(frame);
+                frame.slot_hits = None;
+                r
+            }
             _ => Err(gone()),
         }
     }
@@ -314,9 +329,9 @@ pub struct TraceRecorder {
     /// The hits list's allocation between frames.
     hits_buf: Vec<InstanceHits>,
     /// The slot hits' allocations between frames.
-    slots_buf: SlotHits,
+    slots_buf: EncodedSlotHits,
     /// The trace's world is the manager's [`HitboxGrid`]: counting-box hits
-    /// are written by hitbox index ([`SlotHits::boxes`]); otherwise (a
+    /// are written by hitbox index ([`SlotHits::boxes`](crate::trace::SlotHits::boxes)); otherwise (a
     /// hashed index, or another world given) they are split here.
     boxes_by_grid: bool,
     /// Per hitbox: its culled instances' shares (scratch).
@@ -388,7 +403,7 @@ impl TraceRecorder {
             hits: None,
             pending: None,
             hits_buf: Vec::new(),
-            slots_buf: SlotHits::default(),
+            slots_buf: EncodedSlotHits::default(),
             boxes_by_grid: false,
             per_hitbox: Vec::new(),
             culled: Vec::new(),
@@ -594,38 +609,26 @@ impl TraceRecorder {
         }
     }
 
-    /// Hits of the open frame, by slot (format version 2, [`SlotHits`]):
+    /// Hits of the open frame, by slot (format version 2, [`SlotHits`](crate::trace::SlotHits)):
     /// each slot's own hits as they are (one copy; 0 for slots whose
     /// instance is not live in the open frame: not recorded, removed, or
     /// added after the plan), and with `boxes` the counting-box hits of
     /// every inactive hitbox that has some (an active hitbox has no
     /// counting box). A reader splits those over the box's instances as
-    /// [`TraceRecorder::on_hits`] would (see [`SlotHits`]). No pass over
+    /// [`TraceRecorder::on_hits`] would (see [`SlotHits`](crate::trace::SlotHits)). No pass over
     /// the instance records: the cost is a copy of the hit counters and a
     /// pass over the hitboxes.
-    fn slot_hits(&mut self, hits: &[u32], boxes: &[HitboxRecord]) -> SlotHits {
+    fn slot_hits(&mut self, hits: &[u32], boxes: &[HitboxRecord]) -> EncodedSlotHits {
         let mut out = std::mem::take(&mut self.slots_buf);
         let n = hits.len().min(self.live_mask.len());
-        out.slots.clear();
-        // One AND per slot (vectorised): slots whose instance is not live
-        // in the open frame get 0.
-        out.slots.extend(
-            hits[..n]
-                .iter()
-                .zip(&self.live_mask[..n])
-                .map(|(&h, &m)| h & m),
-        );
-        out.boxes.clear();
-        out.boxes.extend(
-            boxes
-                .iter()
-                .enumerate()
-                .filter(|(_, b)| !b.is_active() && b.hits() > 0)
-                .map(|(i, b)| BoxHits {
-                    hitbox: i as u32,
-                    hits: b.hits(),
-                }),
-        );
+        // Encoded at once, one AND per slot: slots whose instance is not
+        // live in the open frame get 0.
+        out.set_masked(&hits[..n], &self.live_mask[..n]);
+        for (i, b) in boxes.iter().enumerate() {
+            if !b.is_active() && b.hits() > 0 {
+                out.push_box(i as u32, b.hits());
+            }
+        }
         out
     }
 
@@ -798,19 +801,20 @@ impl TraceRecorder {
         frame.camera = self.camera;
         frame.events.clear();
         frame.events.extend(self.events.drain(..split));
+        let mut slots = None;
         match self.hits.take() {
             Some(HitsOut::List(v)) => frame.hits = Some(v),
-            Some(HitsOut::Slots(v)) => frame.slot_hits = Some(v),
+            Some(HitsOut::Slots(v)) => slots = Some(v),
             None => {}
         }
         let sink = self.sink.as_mut().ok_or(RecorderError::Write(gone()))?;
-        let r = sink.write_frame(&frame);
+        let r = sink.write_frame(&mut frame, slots.as_ref());
         self.frames += u64::from(r.is_ok());
         self.written_events += frame.events.len() as u64;
         if let Some(v) = frame.hits.take() {
             self.hits_buf = v;
         }
-        if let Some(v) = frame.slot_hits.take() {
+        if let Some(v) = slots {
             self.slots_buf = v;
         }
         self.frame = frame;
@@ -944,7 +948,7 @@ const NO_ID: u64 = u64::MAX;
 #[derive(Debug)]
 enum HitsOut {
     List(Vec<InstanceHits>),
-    Slots(SlotHits),
+    Slots(EncodedSlotHits),
 }
 
 /// A counting box's hits split over its `k` culled instances: each gets

@@ -87,14 +87,88 @@ fn put_pose(b: &mut Vec<u8>, p: &Pose) {
 /// zero-filled growth and no single huge copy (a recorded frame holds a
 /// count per slot, 100k and more).
 fn put_u32s(b: &mut Vec<u8>, v: &[u32]) {
+    put_masked_u32s(b, v, None);
+}
+
+/// As [`put_u32s`], each value ANDed with `mask`'s (when given; as long as
+/// `v`). Whole chunks go through fixed-size arrays, which the compiler
+/// vectorises.
+fn put_masked_u32s(b: &mut Vec<u8>, v: &[u32], mask: Option<&[u32]>) {
     const CHUNK: usize = 256;
     b.reserve(4 * v.len());
     let mut e = [0u8; 4 * CHUNK];
-    for c in v.chunks(CHUNK) {
-        for (d, x) in e.chunks_exact_mut(4).zip(c) {
+    let mut x = [0u32; CHUNK];
+    let ones = [u32::MAX; CHUNK];
+    let whole = v.len() / CHUNK * CHUNK;
+    for (i, c) in v[..whole].chunks_exact(CHUNK).enumerate() {
+        let m = mask
+            .and_then(|m| m.get(i * CHUNK..(i + 1) * CHUNK))
+            .unwrap_or(&ones);
+        for ((x, &c), &m) in x.iter_mut().zip(c).zip(m) {
+            *x = c & m;
+        }
+        for (d, x) in e.chunks_exact_mut(4).zip(&x) {
             d.copy_from_slice(&x.to_le_bytes());
         }
-        b.extend_from_slice(&e[..4 * c.len()]);
+        b.extend_from_slice(&e);
+    }
+    for (i, &c) in v[whole..].iter().enumerate() {
+        let m = mask
+            .and_then(|m| m.get(whole + i))
+            .copied()
+            .unwrap_or(u32::MAX);
+        b.extend_from_slice(&(c & m).to_le_bytes());
+    }
+}
+
+/// A frame's hits by slot already encoded (the Manager's recorder encodes
+/// them when the hits are taken, one pass over the hit counters): the
+/// little-endian slot counts and the counting boxes.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct EncodedSlotHits {
+    /// `4 × slots` bytes.
+    bytes: Vec<u8>,
+    /// `8 × boxes` bytes: (hitbox, hits), hitboxes increasing.
+    boxes: Vec<u8>,
+}
+
+impl EncodedSlotHits {
+    /// Sets the slot counts to `hits[s] & mask[s]` (`mask` at least as long)
+    /// and clears the boxes.
+    pub(crate) fn set_masked(&mut self, hits: &[u32], mask: &[u32]) {
+        self.bytes.clear();
+        put_masked_u32s(&mut self.bytes, hits, Some(mask));
+        self.boxes.clear();
+    }
+    /// Appends a counting box (above the previous one's hitbox).
+    pub(crate) fn push_box(&mut self, hitbox: u32, hits: u32) {
+        let mut e = [0u8; 8];
+        e[..4].copy_from_slice(&hitbox.to_le_bytes());
+        e[4..].copy_from_slice(&hits.to_le_bytes());
+        self.boxes.extend_from_slice(&e);
+    }
+    /// Slots encoded.
+    pub(crate) fn slots(&self) -> usize {
+        self.bytes.len() / 4
+    }
+    /// Counting boxes encoded.
+    pub(crate) fn box_count(&self) -> usize {
+        self.boxes.len() / 8
+    }
+    /// The decoded form (for the JSON-lines writer).
+    pub(crate) fn decode(&self) -> SlotHits {
+        let u = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        SlotHits {
+            slots: self.bytes.chunks_exact(4).map(u).collect(),
+            boxes: self
+                .boxes
+                .chunks_exact(8)
+                .map(|b| BoxHits {
+                    hitbox: u(&b[..4]),
+                    hits: u(&b[4..]),
+                })
+                .collect(),
+        }
     }
 }
 
@@ -290,6 +364,8 @@ pub struct TraceWriter<W: Write> {
     w: W,
     offset: u64,
     buf: Vec<u8>,
+    /// The counting boxes of [`TraceWriter::write_frame_encoded`].
+    tail: Vec<u8>,
     validator: TraceValidator,
     limits: TraceLimits,
 }
@@ -344,6 +420,7 @@ impl<W: Write> TraceWriter<W> {
             w,
             offset,
             buf,
+            tail: Vec::new(),
             validator: TraceValidator::with_meshes(meshes, limits, &header.world, version),
             limits,
         })
@@ -366,6 +443,74 @@ impl<W: Write> TraceWriter<W> {
     /// construction (see [`TraceValidator::check_frame_trusted_hits`]).
     pub(crate) fn write_frame_trusted_hits(&mut self, frame: &Frame) -> Result<(), TraceError> {
         self.write_checked(frame, true)
+    }
+
+    /// The recorder's path: `frame` (without hits of its own) with the hits
+    /// by slot `enc`, encoded beforehand and written as they are (no copy
+    /// into the frame buffer). Checked as
+    /// [`TraceWriter::write_frame_trusted_hits`] (the slot count and the
+    /// counting boxes against the limits and the grid).
+    pub(crate) fn write_frame_encoded(
+        &mut self,
+        frame: &Frame,
+        enc: &EncodedSlotHits,
+    ) -> Result<(), TraceError> {
+        let index = self.validator.frames();
+        let err = |offset: u64, event: Option<u32>, kind| TraceError {
+            location: TraceLocation::Byte(offset),
+            frame_index: Some(index),
+            frame_number: Some(frame.number),
+            event,
+            kind,
+        };
+        if frame.hits.is_some() || frame.slot_hits.is_some() {
+            return Err(err(
+                self.offset,
+                None,
+                TraceErrorKind::InvalidValue {
+                    what: "frame".into(),
+                    reason: "hits given twice".into(),
+                },
+            ));
+        }
+        if let Err(FrameFault { event, kind }) = self.validator.check_frame_trusted_hits(frame) {
+            return Err(err(self.offset, event, kind));
+        }
+        // Slot and box counts; the boxes' order and range hold by
+        // construction (the recorder lists a grid's hitboxes in order).
+        self.validator
+            .check_encoded_slot_hits(enc.slots() as u64, enc.box_count() as u64)
+            .map_err(|kind| err(self.offset, None, kind))?;
+        self.buf.clear();
+        encode_frame(frame, &mut self.buf);
+        // The hits flag (none) goes: hits by slot follow.
+        self.buf.pop();
+        self.buf.push(HITS_BY_SLOT);
+        put_u32(&mut self.buf, enc.slots() as u32);
+        self.tail.clear();
+        put_u32(&mut self.tail, enc.box_count() as u32);
+        let total = (self.buf.len() + enc.bytes.len() + 4 + enc.boxes.len()) as u64;
+        if total > u64::from(self.limits.max_frame_bytes) {
+            return Err(err(
+                self.offset,
+                None,
+                TraceErrorKind::LimitExceeded {
+                    what: "frame record bytes",
+                    value: total,
+                    limit: self.limits.max_frame_bytes.into(),
+                },
+            ));
+        }
+        let at = self.offset;
+        self.w
+            .write_all(&(total as u32).to_le_bytes())
+            .and_then(|()| self.w.write_all(&self.buf))
+            .and_then(|()| self.w.write_all(&enc.bytes))
+            .and_then(|()| self.w.write_all(&self.tail))
+            .and_then(|()| self.w.write_all(&enc.boxes))
+            .map_err(|e| err(at, None, TraceErrorKind::io(&e)))?;
+        self.offset += 4 + total;
+        Ok(())
     }
 
     fn write_checked(&mut self, frame: &Frame, trusted_hits: bool) -> Result<(), TraceError> {

@@ -43,6 +43,7 @@ mod jsonl;
 mod model;
 mod validate;
 
+pub(crate) use binary::EncodedSlotHits;
 pub use binary::{TraceReader, TraceWriter, PREAMBLE_BYTES};
 pub use convert::{binary_to_jsonl, jsonl_to_binary, Peeked, TraceFormat, MAX_DETECT_WHITESPACE};
 pub use error::{TraceError, TraceErrorKind, TraceLocation};

@@ -443,6 +443,33 @@ impl TraceValidator {
         Ok(())
     }
 
+    /// The counts of hits by slot encoded by the Manager's recorder (whose
+    /// boxes are a grid's hitboxes in order by construction): version 2,
+    /// the slot count within its limits, boxes only in a bounded world and
+    /// no more than its grid has.
+    pub(crate) fn check_encoded_slot_hits(
+        &self,
+        slots: u64,
+        boxes: u64,
+    ) -> Result<(), TraceErrorKind> {
+        if self.version < 2 {
+            return Err(TraceErrorKind::NotInVersion {
+                what: "slot hit counts",
+                version: self.version,
+            });
+        }
+        check_slot_count(slots, &self.limits)?;
+        let cells = self.grid.as_ref().map_or(0, |g| u64::from(g.len()));
+        if boxes > cells {
+            return Err(TraceErrorKind::LimitExceeded {
+                what: "counting-box hit counts in frame",
+                value: boxes,
+                limit: cells,
+            });
+        }
+        Ok(())
+    }
+
     /// The per-instance hits of a checked [`SlotHits`] (see its docs), in
     /// slot order, into `out`; `false` (and `out` empty) when live
     /// instances are not tracked (after a skipped frame), so slots cannot
