@@ -182,11 +182,10 @@ impl<H: HitboxIndex> Loop<H> {
             let col = ((f64::from(x) / CELL).max(0.0) as u64).min(columns - 1);
             (col + columns - hot_start) % columns < columns.div_ceil(4)
         };
-        let hitbox_sbt = self.m.culling().config().assembly.hitbox_sbt_offset;
+        let hitbox_sbt = self.m.culling_config().assembly.hitbox_sbt_offset;
         let merged_sbt = self
             .m
-            .culling()
-            .config()
+            .culling_config()
             .adaptive_hitboxes
             .merged_box_sbt_offset;
         let mut leaves = Vec::new();
@@ -194,25 +193,16 @@ impl<H: HitboxIndex> Loop<H> {
             let i = t.custom_index();
             // Adaptive hitboxes: a merged box is hit as its leaf boxes would
             // have been (one hit count per leaf box).
-            if let Some(tree) = self.m.culling().hitbox_tree() {
-                if t.sbt_offset() == merged_sbt {
-                    leaves.clear();
-                    let c = self.m.culling();
-                    tree.leaf_boxes(
-                        i,
-                        c.hitboxes(),
-                        c.registry().hitbox_index(),
-                        &c.config().assembly,
-                        &mut leaves,
-                    );
-                    for &(leaf, lt) in &leaves {
-                        let h = if hot(lt[3]) { 2500 } else { 10 };
-                        if let Some(b) = self.m.hitboxes_mut().get_mut(leaf as usize) {
-                            b.add_hits(h);
-                        }
+            if self.m.hitbox_tree().is_some() && t.sbt_offset() == merged_sbt {
+                leaves.clear();
+                self.m.merged_leaf_boxes(i, &mut leaves);
+                for &(leaf, lt) in &leaves {
+                    let h = if hot(lt[3]) { 2500 } else { 10 };
+                    if let Some(b) = self.m.hitboxes_mut().get_mut(leaf as usize) {
+                        b.add_hits(h);
                     }
-                    continue;
                 }
+                continue;
             }
             // A hitbox's counting box (an omitted instance's box names its
             // slot, like a traced instance).
@@ -261,7 +251,7 @@ fn run<H: HitboxIndex>(
     }
     let times: Vec<Times> = (0..frames).map(|_| l.frame()).collect();
     let med = |k: usize| median(times.iter().map(|t| t[k]).collect()) * 1e3;
-    let cull = l.m.culling().memory_usage();
+    let cull = l.m.memory_usage();
     let hitboxes = l.m.hitboxes().len() as u64;
     let index = l.m.registry().hitbox_index();
     let stats = l.m.stats();

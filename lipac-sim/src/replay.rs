@@ -316,6 +316,7 @@ pub fn empty_frame() -> Frame {
         },
         events: Vec::new(),
         hits: None,
+        slot_hits: None,
     }
 }
 

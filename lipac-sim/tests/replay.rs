@@ -255,6 +255,7 @@ fn churn(frames: u64, live: u64) -> Vec<u8> {
         camera: camera(),
         events: Vec::new(),
         hits: Some(Vec::new()),
+        slot_hits: None,
     };
     let place = |id: u64| pose_at(8.0 + (id * 37 % 240) as f32, 8.0 + (id * 91 % 240) as f32);
     for n in 0..frames {
@@ -279,6 +280,7 @@ fn churn(frames: u64, live: u64) -> Vec<u8> {
                 },
                 mask: None,
                 pose: place(next_id),
+                slot: None,
             }));
             alive.push_back(next_id);
             next_id += 1;

@@ -36,6 +36,11 @@ pub const FEEDBACK_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback
 /// SPIR-V of `feedback_instances.comp` (Algorithm 2 lines 14–38).
 pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_instances.spv");
 
+/// SPIR-V of `escape_sums.comp`: the escape fraction's box and traced hit
+/// sums of a frame (read back with its commands, see
+/// [`crate::FrameReadback::escape`]).
+pub const ESCAPE_SUMS_SPV: &[u8] = include_bytes!("../shaders/spv/escape_sums.spv");
+
 /// SPIR-V of `camera_trace.comp`: a frame's primary, shadow and bounce rays
 /// generated on the GPU through the counting include
 /// ([`crate::CameraTracer`]).
@@ -47,7 +52,7 @@ pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp")
 
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 12] = [
+pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
@@ -60,6 +65,7 @@ pub const ALL_SPV: [(&str, &[u8]); 12] = [
     ("feedback_accumulate", FEEDBACK_ACCUMULATE_SPV),
     ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
     ("feedback_instances", FEEDBACK_INSTANCES_SPV),
+    ("escape_sums", ESCAPE_SUMS_SPV),
 ];
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,

@@ -64,6 +64,7 @@ use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
+use crate::slot_table::SlotTable;
 use crate::thresholds::Thresholds;
 
 /// Settings of a [`Culling`]; checked by [`CullingConfig::validate`].
@@ -378,9 +379,6 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
     /// decayed rule's, kept across frames).
     instance_rates: Vec<u32>,
-    /// The one per-slot table of the loop (length = the registry's slot
-    /// count): the commanded state and the pending BLAS promise.
-    slots: Vec<SlotView>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -427,7 +425,6 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
             instance_rates: Vec::new(),
-            slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -469,6 +466,17 @@ impl<H: HitboxIndex> Culling<H> {
     /// [`Culling`] so that commands, hit counters and uploads follow).
     pub fn registry(&self) -> &InstanceRegistry<H> {
         &self.registry
+    }
+
+    /// The slot table ([`crate::slot_table`]), through the registry that
+    /// owns it.
+    pub(crate) fn table(&self) -> &SlotTable {
+        self.registry.table()
+    }
+
+    /// The slot table, for the Manager's column.
+    pub(crate) fn table_mut(&mut self) -> &mut SlotTable {
+        self.registry.table_mut()
     }
 
     /// The current frame.
@@ -520,7 +528,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// answered by [`Culling::set_blas`]).
     pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].awaiting)
+        Ok(self.registry.table()[slot as usize].view.awaiting)
     }
 
     /// Latency mitigation's tracker, if enabled.
@@ -552,7 +560,8 @@ impl<H: HitboxIndex> Culling<H> {
             // The hit counters and the decayed rates, 4 bytes a slot each.
             instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
                 + vec_bytes::<u32>(self.instance_rates.capacity()),
-            awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
+            // In the slot table (`slot_occupants`).
+            awaiting: 0,
             latency_bits: self
                 .latency
                 .as_ref()
@@ -601,10 +610,8 @@ impl<H: HitboxIndex> Culling<H> {
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
         self.instance_rates
             .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
-        self.slots
-            .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
-        self.state_overrides.reserve(slots, additional.min(slots));
+        self.state_overrides.reserve(additional.min(slots));
         slots
     }
 
@@ -620,20 +627,22 @@ impl<H: HitboxIndex> Culling<H> {
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
             self.instance_rates.resize(n, 0);
-            self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
         self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
-        self.slots[slot as usize] = SlotView {
-            commanded_active: false,
-            awaiting: false,
-            decided_at: self.registry.frame(),
-        };
+        // (Field by field: a pending state override of the slot stays
+        // listed, see `StateOverrides`.)
+        let frame = self.registry.frame();
+        let view = &mut self.registry.table_mut()[slot as usize].view;
+        view.commanded_active = false;
+        view.awaiting = false;
+        view.decided_at = frame;
         // Nothing can be pending for a fresh slot (see `remove` and
         // `ingest_readback`); make sure.
         self.queue.cancel_slot(slot);
-        self.state_overrides.insert(slot, InstanceState::Inactive);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
         if desc.flags.contains(InstanceFlags::PINNED) {
             self.pin(slot);
         }
@@ -646,8 +655,9 @@ impl<H: HitboxIndex> Culling<H> {
     fn unpin(&mut self, slot: u32) -> Result<(), CoreError> {
         let frame = self.registry.frame();
         self.registry.set_state(slot, InstanceState::Inactive)?;
-        self.state_overrides.insert(slot, InstanceState::Inactive);
-        let view = &mut self.slots[slot as usize];
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.commanded_active = false;
         view.decided_at = frame;
         let remove = Command {
@@ -665,9 +675,10 @@ impl<H: HitboxIndex> Culling<H> {
     fn pin(&mut self, slot: u32) {
         let frame = self.registry.frame();
         // The registry wrote the state (register / update of a pinned desc).
-        self.state_overrides.insert(slot, InstanceState::Active);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Active);
         let blas = self.registry.records()[slot as usize].blas;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
             view.commanded_active = true;
             view.decided_at = frame;
@@ -692,7 +703,7 @@ impl<H: HitboxIndex> Culling<H> {
         self.sync_hitbox_count();
         let slot = self.registry.slot(handle)?;
         if desc.flags.contains(InstanceFlags::PINNED) {
-            let view = self.slots[slot as usize];
+            let view = self.registry.table()[slot as usize].view;
             if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
                 self.pin(slot);
             }
@@ -732,10 +743,12 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<Removal, CoreError> {
         let instance = self.registry.remove(handle)?;
         let slot = instance.slot as usize;
-        let build_was_pending = std::mem::take(&mut self.slots[slot].awaiting);
-        self.slots[slot].commanded_active = false;
+        let view = &mut self.registry.table_mut()[slot].view;
+        let build_was_pending = std::mem::take(&mut view.awaiting);
+        view.commanded_active = false;
         self.instance_hits[slot] = 0;
-        self.state_overrides.remove(instance.slot);
+        self.state_overrides
+            .remove(self.registry.table_mut(), instance.slot);
         Ok(Removal {
             instance,
             build_was_pending,
@@ -751,7 +764,7 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
         let slot = self.registry.slot(handle)?;
         let old = self.registry.set_blas(handle, address)?;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.awaiting = false;
         if address != 0 && !view.commanded_active {
             let remove = Command {
@@ -809,12 +822,17 @@ impl<H: HitboxIndex> Culling<H> {
             return Ok(LatencyOutcome::default());
         };
         let mut activate = std::mem::take(&mut self.scratch);
-        let views = &self.slots;
+        let registry = &self.registry;
         let summary = lm.update_with(
-            &self.registry,
+            registry,
             camera,
             frustum,
-            |slot| views.get(slot as usize).is_some_and(|v| v.commanded_active),
+            |slot| {
+                registry
+                    .table()
+                    .get(slot as usize)
+                    .is_some_and(|r| r.view.commanded_active)
+            },
             &mut activate,
         )?;
         let frame = self.registry.frame();
@@ -827,8 +845,9 @@ impl<H: HitboxIndex> Culling<H> {
                 continue;
             };
             self.registry.set_state(slot, InstanceState::Active)?;
-            self.state_overrides.insert(slot, InstanceState::Active);
-            let view = &mut self.slots[slot as usize];
+            self.state_overrides
+                .insert(self.registry.table_mut(), slot, InstanceState::Active);
+            let view = &mut self.registry.table_mut()[slot as usize].view;
             view.commanded_active = true;
             view.decided_at = frame;
             let record = self.registry.records()[slot as usize];
@@ -846,10 +865,10 @@ impl<H: HitboxIndex> Culling<H> {
                     out.hitboxes_activated += 1;
                 }
             }
-            if record.blas != 0 || self.slots[slot as usize].awaiting {
+            if record.blas != 0 || self.registry.table()[slot as usize].view.awaiting {
                 out.already_provided += 1;
             } else {
-                self.slots[slot as usize].awaiting = true;
+                self.registry.table_mut()[slot as usize].view.awaiting = true;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
@@ -884,7 +903,12 @@ impl<H: HitboxIndex> Culling<H> {
             if self.registry.handle_at(c.slot).is_none() {
                 continue; // dead: counted by the queue's ingestion
             }
-            if let Some(view) = self.slots.get_mut(c.slot as usize) {
+            if let Some(view) = self
+                .registry
+                .table_mut()
+                .get_mut(c.slot as usize)
+                .map(|r| &mut r.view)
+            {
                 if view.decided_at <= frame {
                     view.commanded_active = c.kind == CommandKind::Add;
                 }
@@ -905,7 +929,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// [module docs](self)).
     pub fn commanded_active(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].commanded_active)
+        Ok(self.registry.table()[slot as usize].view.commanded_active)
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and
@@ -939,7 +963,7 @@ impl<H: HitboxIndex> Culling<H> {
                 st.dead += 1;
                 continue;
             };
-            let active = self.slots[slot].commanded_active;
+            let active = self.registry.table()[slot].view.commanded_active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
             }
@@ -956,11 +980,11 @@ impl<H: HitboxIndex> Culling<H> {
                 })
             };
             if active {
-                if record.blas != 0 || self.slots[slot].awaiting {
+                if record.blas != 0 || self.registry.table()[slot].view.awaiting {
                     st.no_op += 1;
                     continue;
                 }
-                self.slots[slot].awaiting = true;
+                self.registry.table_mut()[slot].view.awaiting = true;
                 st.requested += 1;
                 event(BlasAction::Acquire);
             } else {
@@ -972,7 +996,7 @@ impl<H: HitboxIndex> Culling<H> {
                     st.released += 1;
                     acted = true;
                 }
-                if std::mem::take(&mut self.slots[slot].awaiting) {
+                if std::mem::take(&mut self.registry.table_mut()[slot].view.awaiting) {
                     event(BlasAction::CancelBuild);
                     st.builds_cancelled += 1;
                     acted = true;
@@ -990,7 +1014,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// and the CPU's state-bit writes since the last call (see
     /// [`Uploads`]). The CPU reference needs none of it.
     pub fn take_uploads(&mut self) -> Uploads {
-        let state_overrides = self.state_overrides.take();
+        let state_overrides = self.state_overrides.take(self.registry.table_mut());
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
@@ -1070,9 +1094,10 @@ impl<H: HitboxIndex> Culling<H> {
     }
 }
 
-/// The loop's view of one slot (one entry per slot).
+/// The command loop's column of the slot table ([`crate::slot_table`]): its
+/// view of one slot.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-struct SlotView {
+pub(crate) struct SlotView {
     /// The commanded state: the newest ingested command said `add`, or the
     /// loop's last decision (latency mitigation) made it active.
     commanded_active: bool,
@@ -1083,6 +1108,8 @@ struct SlotView {
     /// latency mitigation). Commands Algorithm 2 wrote before it do not move
     /// the commanded state: the GPU had not seen the decision.
     decided_at: u64,
+    /// The CPU's state write since the last upload ([`StateOverrides`]).
+    state_override: u8,
 }
 
 mod readback_ring;

@@ -22,13 +22,13 @@
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::controller::{ControlTarget, ControllerConfig};
-use lipac_core::culling::Culling;
 use lipac_core::grid::HitboxGrid;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
+use lipac_core::hitbox_tree::AdaptiveHitboxes;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::manager::Manager;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 
@@ -201,6 +201,9 @@ pub struct Lipac {
     /// The LOD requested for each slot.
     lods: Vec<u8>,
     units: Vec<u32>,
+    /// Whether each slot is registered pinned (followed from the scene:
+    /// a replayed trace's flag updates).
+    pinned: Vec<bool>,
     stats: LipacFrameStats,
 }
 
@@ -247,6 +250,7 @@ impl Lipac {
             lods: vec![0; handles.len()],
             handles,
             units,
+            pinned: scene.instances().iter().map(|i| i.is_pinned()).collect(),
             stats: LipacFrameStats::default(),
         })
     }
@@ -295,20 +299,12 @@ impl Lipac {
 /// This frame's merged boxes of a [`Lipac`] with adaptive hitboxes: the
 /// leaf boxes from its Manager's hitbox records.
 struct LipacMergedBoxes<'a> {
-    tree: &'a HitboxTree,
-    culling: &'a Culling<HitboxGrid>,
+    manager: &'a Manager<HitboxGrid>,
 }
 
 impl MergedBoxes for LipacMergedBoxes<'_> {
     fn leaf_boxes(&self, node: u32, out: &mut Vec<(u32, [f32; 12])>) {
-        let c = self.culling;
-        self.tree.leaf_boxes(
-            node,
-            c.hitboxes(),
-            c.registry().hitbox_index(),
-            &c.config().assembly,
-            out,
-        );
+        self.manager.merged_leaf_boxes(node, out);
     }
 }
 
@@ -317,9 +313,9 @@ impl Strategy for Lipac {
         self.name
     }
     fn merged_boxes(&self) -> Option<Box<dyn MergedBoxes + '_>> {
-        let culling = self.backend.manager().culling();
-        let tree = culling.hitbox_tree()?;
-        Some(Box::new(LipacMergedBoxes { tree, culling }))
+        let manager = self.backend.manager();
+        manager.hitbox_tree()?;
+        Some(Box::new(LipacMergedBoxes { manager }))
     }
     fn hitboxes(&self) -> usize {
         self.backend.hitboxes().len()
@@ -371,6 +367,18 @@ impl Strategy for Lipac {
             let inst = ctx.scene.instance(slot)?;
             self.backend
                 .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)?;
+        }
+        for ((inst, was), &h) in ctx
+            .scene
+            .instances()
+            .iter()
+            .zip(&mut self.pinned)
+            .zip(&self.handles)
+        {
+            if inst.is_pinned() != *was {
+                *was = inst.is_pinned();
+                self.backend.set_pinned(h, *was)?;
+            }
         }
         for (slot, (&lod, last)) in ctx.lods.iter().zip(&mut self.lods).enumerate() {
             if lod != *last {
