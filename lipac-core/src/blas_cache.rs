@@ -830,6 +830,23 @@ impl BlasCache {
         self.entries.get(id).map(|e| &e.info)
     }
 
+    /// Every entry with the bytes it counts against the budget (its BLAS,
+    /// a build's reserved estimate, a compaction target; scratch not
+    /// included), in no particular order: for memory breakdowns (which
+    /// bytes are shared in use, shared only cached, unique).
+    pub fn entries(&self) -> impl Iterator<Item = (BlasId, &BlasInfo, u64)> + '_ {
+        self.entries.iter().map(|(id, e)| {
+            let b = contribution(e);
+            (
+                id,
+                &e.info,
+                b.shared
+                    .saturating_add(b.unique)
+                    .saturating_add(b.compacted),
+            )
+        })
+    }
+
     /// The shared entry for `key`, if cached (any state).
     pub fn lookup(&self, key: &BlasKey) -> Option<BlasId> {
         self.shared.get(key).copied()

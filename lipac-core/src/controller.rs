@@ -112,13 +112,23 @@ pub struct ControllerConfig {
     /// Bytes one TLAS record costs on the backend (lavapipe: 176), for the
     /// memory a [`ControlTarget::MemoryBudget`] measures.
     pub tlas_record_bytes: u64,
+    /// The second lever of a [`ControlTarget::MemoryBudget`]: in a frame
+    /// whose memory is over the budget, the Manager evicts every BLAS no
+    /// instance uses from its cache at once
+    /// ([`crate::Manager::trim_blas_cache`]) instead of waiting for the
+    /// cache's retention (`max_unused_frames`). That memory does not depend
+    /// on the thresholds and is what overshoots after a camera jump (the
+    /// old view's BLASes). Nothing in use is evicted; an evicted BLAS needed
+    /// again is rebuilt.
+    pub evict_cached_over_budget: bool,
 }
 
 impl Default for ControllerConfig {
     /// Scale in [1/32, 32], `k_p` = 0.3, `k_i` = 0.03, over-gain 2, step
     /// 0.1, dead band 0.01, error clamp 1, smoothing 0.3, 30 warm-up frames,
     /// unreachable after 30 saturated frames, 176-byte TLAS records
-    /// (lavapipe). Measured in docs/EVALUATION.md, "Closed-loop thresholds".
+    /// (lavapipe), cached BLASes evicted over budget. Measured in
+    /// docs/EVALUATION.md, "Closed-loop thresholds".
     fn default() -> Self {
         Self {
             min_scale: 1.0 / 32.0,
@@ -133,6 +143,7 @@ impl Default for ControllerConfig {
             warmup_frames: 30,
             unreachable_frames: 30,
             tlas_record_bytes: 176,
+            evict_cached_over_budget: true,
         }
     }
 }
@@ -213,6 +224,11 @@ pub struct ControllerStats {
     pub unreachable: bool,
     /// Times the scale's direction of change reversed.
     pub reversals: u64,
+    /// Frames over a memory budget in which cached BLASes no instance uses
+    /// were evicted ([`ControllerConfig::evict_cached_over_budget`]).
+    pub evicting_frames: u64,
+    /// BLASes evicted so.
+    pub evicted: u64,
 }
 
 /// The closed-loop controller; see the [module docs](self).
@@ -345,6 +361,20 @@ impl ThresholdController {
     /// What the controller did so far.
     pub fn stats(&self) -> ControllerStats {
         self.stats
+    }
+
+    /// Whether a memory budget's second lever should act on a frame that
+    /// measured `memory_bytes`: the budget is exceeded and
+    /// [`ControllerConfig::evict_cached_over_budget`] is set.
+    pub fn wants_eviction(&self, memory_bytes: u64) -> bool {
+        self.config.evict_cached_over_budget
+            && matches!(self.target, ControlTarget::MemoryBudget { bytes } if memory_bytes > bytes)
+    }
+
+    /// Records that the second lever evicted `blases` BLASes this frame.
+    pub fn note_eviction(&mut self, blases: usize) {
+        self.stats.evicting_frames += 1;
+        self.stats.evicted = self.stats.evicted.saturating_add(blases as u64);
     }
 
     /// Feeds one frame: `memory_bytes` for a budget, `escape` for an escape

@@ -174,6 +174,10 @@ pub struct CompareReport {
     /// Frames at which the camera path jumps ([`CameraPath::cuts`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub camera_cuts: Vec<u32>,
+    /// LiPaC's decision rule in words ([`crate::report::rule_description`]):
+    /// the paper's thresholds above, or the decayed rule's rates.
+    #[serde(default)]
+    pub rule: String,
 }
 
 impl CompareReport {
@@ -458,6 +462,7 @@ impl Comparison {
             .filter_map(|i| library.mesh(i as crate::mesh::MeshIndex).ok())
             .flat_map(|m| m.lods.iter());
         let throughput = BuildThroughput::measure(meshes, THROUGHPUT_MEASURE_MS)?;
+        let kinds = catalog.missing_kinds();
         Ok(Self {
             start,
             scene_name: scene_name.to_string(),
@@ -469,7 +474,13 @@ impl Comparison {
             catalog,
             names,
             strategies,
-            trackers: (0..k).map(|_| Tracker::new(n)).collect(),
+            trackers: (0..k)
+                .map(|_| {
+                    let mut t = Tracker::new(n);
+                    t.set_kinds(kinds.clone());
+                    t
+                })
+                .collect(),
             metrics: (0..k).map(|_| Vec::new()).collect(),
             previous: (0..k).map(|_| None).collect(),
             last_geometry: (0..k).map(|_| Vec::new()).collect(),
@@ -782,6 +793,7 @@ impl Comparison {
             gpu_model: self.gpu,
             strategies,
             camera_cuts: Vec::new(),
+            rule: crate::report::rule_description(&th),
         };
         Ok((report, self.snapshots))
     }

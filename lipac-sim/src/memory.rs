@@ -9,8 +9,8 @@
 //!   instance (lavapipe: exact from n = 16 on);
 //! * LiPaC's own buffers: 20 bytes per hitbox (the paper's 12 plus the
 //!   decayed rule's rate and cost words) and 4 bytes of hit feedback per
-//!   instance slot ([`lipac_core::grid`]; the decayed rule's 4-byte rate per
-//!   slot is not counted).
+//!   instance slot ([`lipac_core::grid`]), plus, under the decayed rule, its
+//!   4-byte rate per slot ([`decayed_rate_bytes`]).
 //!
 //! The CPU tracer's own structures (obvhs CWBVHs) are a different size; the
 //! comparison reports the model, which is what a Vulkan backend on lavapipe
@@ -64,6 +64,22 @@ pub fn tlas_bytes(instances: u64) -> u64 {
 /// ```
 pub fn lipac_overhead_bytes(hitboxes: u64, instance_slots: u64) -> u64 {
     hitboxes * HITBOX_BYTES + instance_slots * HIT_FEEDBACK_BYTES_PER_INSTANCE
+}
+
+/// Bytes of the decayed rule's per-slot rate buffer
+/// ([`lipac_core::thresholds::DecisionRule::Decayed`]: one `u32` per
+/// instance slot), 0 under the paper's rule.
+///
+/// ```
+/// use lipac_sim::memory::decayed_rate_bytes;
+/// use lipac_core::thresholds::Thresholds;
+/// assert_eq!(decayed_rate_bytes(&Thresholds::paper(), 1000), 0);
+/// ```
+pub fn decayed_rate_bytes(thresholds: &lipac_core::thresholds::Thresholds, slots: u64) -> u64 {
+    match thresholds.rule {
+        lipac_core::thresholds::DecisionRule::Paper => 0,
+        lipac_core::thresholds::DecisionRule::Decayed(_) => 4 * slots,
+    }
 }
 
 /// Bytes of geometry-instance data one instance needs in the Manager's

@@ -136,6 +136,72 @@ pub struct FrameMetrics {
     /// Sum of the four modelled GPU times, ms.
     #[serde(default)]
     pub gpu_frame_ms: f64,
+    /// `blas_bytes` by what holds them ([`BlasSplit`]).
+    #[serde(default)]
+    pub blas_split: BlasSplit,
+    /// `needed_missing` by the instance's kind ([`MissingKind`], in its
+    /// order: terrain, shared BLAS, own BLAS).
+    #[serde(default)]
+    pub missing_by_kind: [u64; 3],
+    /// Ground-truth hits (bounce rays) on the instances missing this frame.
+    #[serde(default)]
+    pub missing_hits: u64,
+    /// Ground-truth hits on every instance this frame.
+    #[serde(default)]
+    pub needed_hits: u64,
+}
+
+/// A strategy's BLAS bytes by what holds them (sums to its BLAS bytes but
+/// for the counting-box unit cube; builds in flight count their reserved
+/// estimate; scratch is none in the sim, whose builds complete at once).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlasSplit {
+    /// Terrain tiles' own BLASes in use.
+    pub terrain: u64,
+    /// Other instances' own BLASes in use (animated units,
+    /// terrain-adapted buildings).
+    pub unique: u64,
+    /// Shared BLASes with at least one active instance.
+    pub shared_used: u64,
+    /// BLASes no active instance uses (shared ones, and own static ones of
+    /// deactivated instances), kept by the BLAS cache's retention
+    /// (`max_unused_frames`) for reuse.
+    pub shared_cached: u64,
+}
+
+impl BlasSplit {
+    /// The sum of the four.
+    pub fn total(&self) -> u64 {
+        self.terrain + self.unique + self.shared_used + self.shared_cached
+    }
+}
+
+/// The kinds of instances [`Tracker`] splits missing instances by.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MissingKind {
+    /// A terrain tile.
+    Terrain,
+    /// An instance of a shared BLAS.
+    #[default]
+    Shared,
+    /// An instance with its own BLAS (animated, terrain-adapted).
+    Unique,
+}
+
+/// Classes of [`MissingTail`]: an instance is counted in the first class
+/// whose bound is at least the number of frames it was missing while the
+/// ground truth hit it (1–2: the read-back latency; 3–10; 11–30; more).
+pub const MISSING_CLASS_BOUNDS: [u32; 4] = [2, 10, 30, u32::MAX];
+
+/// How long needed instances stayed missing over a run: per
+/// [`MISSING_CLASS_BOUNDS`] class, the instances and the ground-truth hits
+/// on them in the frames they were missing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MissingTail {
+    /// Instances per class.
+    pub instances: [u64; 4],
+    /// Their ground-truth hits while missing, per class.
+    pub hits: [u64; 4],
 }
 
 impl FrameMetrics {
@@ -262,6 +328,21 @@ pub struct Summary {
     /// Mean modelled GPU frame time, ms.
     #[serde(default)]
     pub mean_gpu_frame_ms: f64,
+    /// Mean memory by term, MiB: terrain BLASes, other own BLASes, shared
+    /// BLASes in use, shared BLASes only cached ([`BlasSplit`]), TLAS
+    /// records of geometry, TLAS records of counting boxes, LiPaC's own
+    /// buffers.
+    #[serde(default)]
+    pub mean_split_mib: [f64; 7],
+    /// Mean needed-but-missing instances per frame by [`MissingKind`].
+    #[serde(default)]
+    pub mean_missing_by_kind: [f64; 3],
+    /// Share of the ground-truth hits that fell on missing instances.
+    #[serde(default)]
+    pub missing_hit_share: f64,
+    /// How long missing instances stayed missing.
+    #[serde(default)]
+    pub missing_tail: MissingTail,
 }
 
 /// Modelled GPU time of acceleration-structure work and tracing: each
@@ -360,6 +441,11 @@ pub struct Tracker {
     /// (an open latency sample); `Some(u32::MAX)` once sampled.
     need: Vec<Option<u32>>,
     latencies: Vec<u32>,
+    /// Per slot: its kind (empty: every slot [`MissingKind::Shared`]).
+    kinds: Vec<MissingKind>,
+    /// Per slot: frames it was needed and missing, and the ground-truth
+    /// hits on it in those frames.
+    missing: Vec<(u32, u64)>,
 }
 
 const SAMPLED: u32 = u32::MAX;
@@ -373,7 +459,32 @@ impl Tracker {
             last_exit: vec![None; instances],
             need: vec![None; instances],
             latencies: Vec::new(),
+            kinds: Vec::new(),
+            missing: vec![(0, 0); instances],
         }
+    }
+
+    /// Splits missing instances by `kinds` (one per slot; slots beyond
+    /// count as [`MissingKind::Shared`]).
+    pub fn set_kinds(&mut self, kinds: Vec<MissingKind>) {
+        self.kinds = kinds;
+    }
+
+    /// How long needed instances stayed missing so far.
+    pub fn missing_tail(&self) -> MissingTail {
+        let mut t = MissingTail::default();
+        for &(frames, hits) in &self.missing {
+            if frames == 0 {
+                continue;
+            }
+            let c = MISSING_CLASS_BOUNDS
+                .iter()
+                .position(|&b| frames <= b)
+                .unwrap_or(MISSING_CLASS_BOUNDS.len() - 1);
+            t.instances[c] += 1;
+            t.hits[c] += hits;
+        }
+        t
     }
 
     /// Records frame `frame`: `geometry` are the custom indices of the real
@@ -404,9 +515,18 @@ impl Tracker {
                     self.last_exit[i] = Some(frame);
                 }
             }
-            let hit = needed.get(i).is_some_and(|&h| h > 0);
+            let h = needed.get(i).copied().unwrap_or(0);
+            let hit = h > 0;
+            m.needed_hits += u64::from(h);
             if hit && !is {
                 m.needed_missing += 1;
+                m.missing_hits += u64::from(h);
+                let kind = self.kinds.get(i).copied().unwrap_or_default();
+                m.missing_by_kind[kind as usize] += 1;
+                if let Some(e) = self.missing.get_mut(i) {
+                    e.0 += 1;
+                    e.1 += u64::from(h);
+                }
             }
             match self.need[i] {
                 None if hit => {
@@ -440,6 +560,7 @@ impl Tracker {
             self.now.resize(instances, false);
             self.last_exit.resize(instances, None);
             self.need.resize(instances, None);
+            self.missing.resize(instances, (0, 0));
         }
     }
 
@@ -451,6 +572,7 @@ impl Tracker {
             self.in_tlas[i] = false;
             self.last_exit[i] = None;
             self.need[i] = None;
+            self.missing[i] = (0, 0);
         }
     }
 
@@ -461,6 +583,7 @@ impl Tracker {
             + self.now.capacity()
             + self.last_exit.capacity()
             + self.need.capacity()
+            + self.missing.capacity()
     }
 
     /// All latency samples so far.
@@ -491,6 +614,7 @@ pub fn apply_strategy_frame(m: &mut FrameMetrics, f: &StrategyFrame) {
     m.primitives_built = primitives_built;
     m.primitives_refit = primitives_refit;
     m.blas_bytes = f.blas_bytes;
+    m.blas_split = f.blas_split;
     m.overhead_bytes = f.overhead_bytes;
     if let Some(c) = f.control {
         m.escape_fraction = c.escape_fraction;
@@ -588,6 +712,34 @@ pub fn summarize(strategy: &str, frames: &[FrameMetrics], tracker: &Tracker) -> 
         mean_gpu_tlas_build_ms: mean(&|m| m.gpu_tlas_build_ms),
         mean_gpu_trace_ms: mean(&|m| m.gpu_trace_ms),
         mean_gpu_frame_ms: mean(&|m| m.gpu_frame_ms),
+        mean_split_mib: [
+            mean(&|m| m.blas_split.terrain as f64 / MIB),
+            mean(&|m| m.blas_split.unique as f64 / MIB),
+            mean(&|m| m.blas_split.shared_used as f64 / MIB),
+            mean(&|m| m.blas_split.shared_cached as f64 / MIB),
+            mean(&|m| {
+                crate::memory::tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)) as f64
+                    / MIB
+            }),
+            mean(&|m| {
+                (crate::memory::tlas_bytes(m.tlas_instances).saturating_sub(
+                    crate::memory::tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)),
+                )) as f64
+                    / MIB
+            }),
+            mean(&|m| m.overhead_bytes as f64 / MIB),
+        ],
+        mean_missing_by_kind: [0, 1, 2].map(|k| mean(&|m| m.missing_by_kind[k] as f64)),
+        missing_hit_share: {
+            let needed: u64 = frames.iter().map(|m| m.needed_hits).sum();
+            let missing: u64 = frames.iter().map(|m| m.missing_hits).sum();
+            if needed == 0 {
+                0.0
+            } else {
+                missing as f64 / needed as f64
+            }
+        },
+        missing_tail: tracker.missing_tail(),
     }
 }
 

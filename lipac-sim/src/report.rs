@@ -6,6 +6,8 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use lipac_core::thresholds::{DecisionRule, Thresholds};
+
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::html::report_html;
@@ -117,13 +119,22 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# lipac: culling strategies compared\n");
     let th = r.thresholds;
+    let paper = format!(
+        "the paper's rule, thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, n_a = {}, n_d = {}",
+        th[0], th[1], th[2], th[3], th[4], th[5]
+    );
     let _ = writeln!(
         s,
         "Scene `{}` ({} instances), {} frames of the fly-through at {}x{} ({} camera rays per frame; \
-         LiPaC thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, n_a = {}, n_d = {}). \
-         Wall time {:.1} s.\n",
-        r.scene, r.instances, r.frames, r.width, r.height, r.rays_per_frame, th[0], th[1], th[2],
-        th[3], th[4], th[5], r.wall_s
+         LiPaC decides with {}). Wall time {:.1} s.\n",
+        r.scene,
+        r.instances,
+        r.frames,
+        r.width,
+        r.height,
+        r.rays_per_frame,
+        if r.rule.is_empty() { &paper } else { &r.rule },
+        r.wall_s
     );
     if let Some(h) = headline(r) {
         for line in h.lines() {
@@ -173,6 +184,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
          re-entering the TLAS within 30 frames of leaving it. The full-scene strategy reuses the \
          ground truth's render (identical TLAS).\n"
     );
+    s.push_str(&breakdown_markdown(r));
     let _ = writeln!(
         s,
         "Ground truth: {:.1} ms per frame to render, {:.1} ms for the full TLAS, {:.1} ms for the \
@@ -234,6 +246,106 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     if let Some(section) = crate::closed_loop::markdown(r, &r.camera_cuts) {
         s.push_str(&section);
     }
+    s
+}
+
+/// LiPaC's decision rule in words, as the report prints it: the paper's
+/// thresholds, or the decayed rule's half-life and rates in hits per frame.
+///
+/// ```
+/// use lipac_sim::report::rule_description;
+/// use lipac_core::thresholds::Thresholds;
+/// use lipac_sim::strategy::lipac::LipacConfig;
+/// assert!(rule_description(&Thresholds::paper()).starts_with("the paper's rule"));
+/// let default = LipacConfig::for_rays_per_frame(128 * 72).unwrap().thresholds;
+/// let d = rule_description(&default);
+/// assert!(d.starts_with("the decayed rule: half-life 5.5 frames (shift 3)"), "{d}");
+/// ```
+pub fn rule_description(t: &Thresholds) -> String {
+    match t.rule {
+        DecisionRule::Paper => format!(
+            "the paper's rule, thresholds scaled to them: θa = {}, θd = {}, σa = {}, σo = {}, \
+             n_a = {}, n_d = {}",
+            t.theta_a, t.theta_d, t.sigma_a, t.sigma_o, t.n_a, t.n_d
+        ),
+        DecisionRule::Decayed(d) => {
+            let hits = |rate: u32| f64::from(rate) / 65536.0;
+            format!(
+                "the decayed rule: half-life {:.1} frames (shift {}), a hitbox activates above {:.3} \
+                 and deactivates below {:.3} hits per frame, a unique-BLAS instance above {:.3} / \
+                 below {:.3}, plus {:.3} / {:.3} per inactive shared / unique instance",
+                std::f64::consts::LN_2 * f64::from(1u32 << d.shift.min(30)),
+                d.shift,
+                hits(d.activate),
+                hits(d.deactivate),
+                hits(d.instance_activate),
+                hits(d.instance_omit),
+                hits(d.per_shared),
+                hits(d.per_unique)
+            )
+        }
+    }
+}
+
+/// The sections "Where the memory goes" and "What is missing" of
+/// `report.md`: each strategy's mean memory by term and its missing
+/// instances by kind and by how long they stayed missing.
+pub fn breakdown_markdown(r: &CompareReport) -> String {
+    let mut s = String::from("## Where the memory goes\n\n");
+    s.push_str(
+        "| strategy | terrain BLAS MiB | own BLAS | shared BLAS in use | shared BLAS cached only | \
+         TLAS geometry records | TLAS counting boxes | LiPaC buffers | total |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for st in &r.strategies {
+        let m = &st.summary;
+        let p = m.mean_split_mib;
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            st.name, p[0], p[1], p[2], p[3], p[4], p[5], p[6], m.mean_mib
+        );
+    }
+    s.push_str(
+        "\nMeans over the frames. \"Cached only\": shared BLASes no active instance uses, kept \
+         by the BLAS cache's retention; the total also counts LiPaC's counting-box unit cube.\n\n\
+         ## What is missing\n\n\
+         | strategy | missing / frame: terrain | shared BLAS | own BLAS | ground-truth hits on \
+         missing | instances missing 1–2 frames (hits) | 3–10 | 11–30 | > 30 |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for st in &r.strategies {
+        let m = &st.summary;
+        let k = m.mean_missing_by_kind;
+        let t = &m.missing_tail;
+        let total = t.hits.iter().sum::<u64>().max(1) as f64;
+        let class = |c: usize| {
+            format!(
+                "{} ({:.0} %)",
+                t.instances[c],
+                100.0 * t.hits[c] as f64 / total
+            )
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} % | {} | {} | {} | {} |",
+            st.name,
+            k[0],
+            k[1],
+            k[2],
+            100.0 * m.missing_hit_share,
+            class(0),
+            class(1),
+            class(2),
+            class(3)
+        );
+    }
+    s.push_str(
+        "\nMissing: instances the ground-truth bounce rays hit this frame that the strategy \
+         does not trace as geometry. The classes count each instance once by the number of \
+         frames it was missing while hit, with the share of all hits on missing instances \
+         that fell in those frames.\n\n",
+    );
     s
 }
 

@@ -12,7 +12,7 @@
 //! | [`FrustumRadius`] | instances in the view frustum or within a radius (800 m) |
 //! | [`Heuristic`] | instances near the camera or large on screen ([`ActivationHeuristic`]) |
 //! | [`lipac::Lipac`] | what LiPaC's hit feedback keeps, plus counting boxes; optionally with latency mitigation |
-//! | [`Oracle`] | exactly the instances the ground-truth paths hit this frame |
+//! | [`Oracle`] | exactly the instances the ground-truth paths hit this frame, and the pinned ones (terrain) |
 //!
 //! # One loop: every strategy on the Manager
 //!
@@ -31,8 +31,9 @@
 //! synchronously. Sizes come from [`crate::memory`]. The baselines get
 //! unlimited per-frame command and build budgets (their set is complete
 //! every frame); LiPaC gets the budgets an engine would set. LiPaC pins the
-//! terrain tiles (as the paper never culls terrain); the baselines' rules
-//! decide for terrain as for everything else.
+//! terrain tiles (as the paper never culls terrain), and so does the
+//! [`Oracle`], LiPaC's yardstick; the other baselines' rules decide for
+//! terrain as for everything else.
 //!
 //! # Geometry traced
 //!
@@ -47,6 +48,7 @@ pub mod lipac;
 use std::collections::HashMap;
 
 use glam::Vec3;
+use lipac_core::blas_cache::{BlasCache, BlasOwner};
 use lipac_core::build_plan::{BuildBudgets, BuildEstimate, FramePlan, UpdateMode};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::instance::{InstanceDesc, InstanceFlags};
@@ -62,7 +64,8 @@ use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{build_estimate, mesh_lod};
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
-use crate::scene::{flags, Scene, SceneInstance};
+use crate::metrics::{BlasSplit, MissingKind};
+use crate::scene::{flags, Scene, SceneInstance, TERRAIN_MESH};
 use crate::scene_blas::instance_mask;
 use crate::traversal::Counters;
 
@@ -85,6 +88,7 @@ pub struct InstanceCatalog {
     triangles: Vec<[u32; LOD_COUNT]>,
     kinds: Vec<BlasOwnership>,
     meshes: Vec<MeshId>,
+    terrain: Vec<bool>,
 }
 
 impl InstanceCatalog {
@@ -94,7 +98,9 @@ impl InstanceCatalog {
         let mut triangles = Vec::with_capacity(n);
         let mut kinds = Vec::with_capacity(n);
         let mut meshes = Vec::with_capacity(n);
+        let mut terrain = Vec::with_capacity(n);
         for inst in scene.instances() {
+            terrain.push(inst.flags & flags::TERRAIN != 0);
             let kind = if inst.is_animated() {
                 BlasOwnership::Animated
             } else if inst.is_unique() {
@@ -118,6 +124,7 @@ impl InstanceCatalog {
             triangles,
             kinds,
             meshes,
+            terrain,
         })
     }
     /// Number of instances.
@@ -139,6 +146,41 @@ impl InstanceCatalog {
     /// BLAS ownership of instance `slot`.
     pub fn kind(&self, slot: u32) -> Option<BlasOwnership> {
         self.kinds.get(slot as usize).copied()
+    }
+    /// Whether instance `slot` is a terrain tile.
+    pub fn is_terrain(&self, slot: u32) -> bool {
+        self.terrain.get(slot as usize).copied().unwrap_or(false)
+    }
+    /// Every instance's kind for the missing-instance split
+    /// ([`crate::metrics::Tracker::set_kinds`]).
+    pub fn missing_kinds(&self) -> Vec<MissingKind> {
+        self.kinds
+            .iter()
+            .zip(&self.terrain)
+            .map(|(&k, &t)| match (t, k) {
+                (true, _) => MissingKind::Terrain,
+                (false, BlasOwnership::Shared) => MissingKind::Shared,
+                (false, _) => MissingKind::Unique,
+            })
+            .collect()
+    }
+    /// The BLAS bytes `cache` holds by [`BlasSplit`] term. An own static
+    /// BLAS (terrain tile, terrain-adapted building) is a shared cache
+    /// entry of its own variant (2 and up, one per registration: the
+    /// Manager's rule); terrain tiles' mesh is [`TERRAIN_MESH`].
+    pub fn blas_split(&self, cache: &BlasCache) -> BlasSplit {
+        let mut split = BlasSplit::default();
+        for (_, info, bytes) in cache.entries() {
+            let term = match info.owner {
+                _ if info.refs == 0 => &mut split.shared_cached,
+                BlasOwner::Shared(k) if k.mesh.0 == TERRAIN_MESH => &mut split.terrain,
+                BlasOwner::Shared(k) if k.variant >= 2 => &mut split.unique,
+                BlasOwner::Shared(_) => &mut split.shared_used,
+                BlasOwner::Unique { .. } => &mut split.unique,
+            };
+            *term += bytes;
+        }
+        split
     }
     /// Build sizes of instance `slot` at `lod` ([`crate::memory`]).
     pub fn estimate(&self, slot: u32, lod: usize) -> BuildEstimate {
@@ -277,6 +319,8 @@ pub struct StrategyFrame {
     pub work: BlasWork,
     /// Modelled bytes of the BLASes it holds.
     pub blas_bytes: u64,
+    /// Those bytes by what holds them.
+    pub blas_split: BlasSplit,
     /// Modelled bytes of its own buffers (LiPaC: hitboxes, hit counters).
     pub overhead_bytes: u64,
     /// LiPaC: the closed-loop view of the frame ([`ControlFrame`]).
@@ -449,6 +493,9 @@ impl SetStrategy {
         Ok(StrategyFrame {
             work: f.work,
             blas_bytes: self.backend.blas_bytes(),
+            blas_split: ctx
+                .catalog
+                .blas_split(self.backend.manager().scheduler().cache()),
             overhead_bytes: 0,
             control: None,
         })
@@ -579,7 +626,10 @@ impl Strategy for Heuristic {
     }
 }
 
-/// Exactly the instances this frame's ground-truth bounce rays hit.
+/// Exactly the instances this frame's ground-truth bounce rays hit, plus
+/// the pinned ones (terrain tiles), which LiPaC keeps too: the yardstick of
+/// LiPaC's memory compares like with like (docs/EVALUATION.md, "Where
+/// LiPaC's memory goes").
 ///
 /// Shadow rays need nothing: the rasterized-shadow fallback of
 /// [`crate::pathtrace`] covers every culled caster, so sun visibility is
@@ -615,7 +665,8 @@ impl Strategy for Oracle {
             });
         }
         let hits = ctx.ground_truth_hits;
-        self.0.run_selected(ctx, out, |slot, _| hits[slot] > 0)
+        self.0
+            .run_selected(ctx, out, |slot, inst| hits[slot] > 0 || inst.is_pinned())
     }
 }
 

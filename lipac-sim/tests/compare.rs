@@ -284,3 +284,60 @@ fn report_files_are_well_formed() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_oracle_keeps_the_pinned_terrain_and_the_breakdowns_add_up() {
+    let r = small(
+        6,
+        48,
+        27,
+        &[StrategyKind::Oracle, StrategyKind::Lipac],
+        false,
+    );
+    let scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+    let pinned: Vec<u32> = (0u32..)
+        .zip(scene.instances())
+        .filter(|(_, i)| i.is_pinned())
+        .map(|(s, _)| s)
+        .collect();
+    assert!(!pinned.is_empty(), "the small scene pins its terrain");
+    let oracle = r.strategy("oracle").unwrap();
+    for s in &pinned {
+        assert!(oracle.last_geometry.contains(s), "terrain slot {s} culled");
+    }
+    let unit_cube = lipac_sim::memory::blas_bytes(12);
+    for st in &r.strategies {
+        for m in &st.frames {
+            // The split covers every BLAS byte (LiPaC's unit cube aside).
+            let extra = if st.name == "lipac" { unit_cube } else { 0 };
+            assert_eq!(m.blas_split.total() + extra, m.blas_bytes, "{}", st.name);
+            assert_eq!(m.missing_by_kind.iter().sum::<u64>(), m.needed_missing);
+            assert!(m.missing_hits <= m.needed_hits);
+        }
+        // Pinned terrain is in use every frame once built, never cached.
+        let last = st.frames.last().unwrap();
+        assert!(last.blas_split.terrain > 0, "{}", st.name);
+        let s = &st.summary;
+        let split: f64 = s.mean_split_mib.iter().sum();
+        assert!(
+            (split + extra_mib(st.name.as_str()) - s.mean_mib).abs() < 1e-3,
+            "{}: {split} vs {}",
+            st.name,
+            s.mean_mib
+        );
+        let missing: u64 = s.missing_tail.instances.iter().sum();
+        let missing_frames: u64 = st.frames.iter().map(|m| m.needed_missing).sum();
+        assert!(missing <= missing_frames && (missing > 0) == (missing_frames > 0));
+    }
+    // LiPaC starts cold, so something was missing, and the oracle misses nothing.
+    assert!(r.strategy("lipac").unwrap().summary.missing_hit_share > 0.0);
+    assert_eq!(oracle.summary.missing_hit_share, 0.0);
+}
+
+fn extra_mib(name: &str) -> f64 {
+    if name == "lipac" {
+        lipac_sim::memory::blas_bytes(12) as f64 / (1024.0 * 1024.0)
+    } else {
+        0.0
+    }
+}

@@ -334,3 +334,24 @@ fn invalid_acks_and_config_are_errors() {
         Err(BlasError::WrongState { .. })
     ));
 }
+
+#[test]
+fn entries_sum_to_the_live_bytes() {
+    let mut c = cache(1 << 20, 2);
+    let a = built(&mut c, key(1, 0), 300, 1);
+    let b = built(&mut c, key(2, 0), 500, 2);
+    c.release(b).unwrap();
+    let u = c.create_unique(InstanceKey(7), MeshId(3), Lod(0));
+    assert!(c.try_reserve_build(u, 200, 64, BuildId(3)).unwrap());
+    let mut seen: Vec<(bool, u32, u64)> = c
+        .entries()
+        .map(|(_, info, bytes)| (info.owner.is_shared(), info.refs, bytes))
+        .collect();
+    seen.sort_unstable();
+    // The unique build counts its reserved estimate; the released shared
+    // entry is still cached with no user.
+    assert_eq!(seen, vec![(false, 1, 200), (true, 0, 500), (true, 1, 300)]);
+    let total: u64 = c.entries().map(|(_, _, b)| b).sum();
+    assert_eq!(total, c.live_bytes());
+    assert!(c.entries().any(|(id, _, _)| id == a));
+}

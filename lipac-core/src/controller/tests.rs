@@ -316,3 +316,26 @@ proptest! {
         prop_assert_eq!(c.stats().reversals, 0);
     }
 }
+
+#[test]
+fn the_second_lever_acts_only_over_a_memory_budget() {
+    let budget = ControlTarget::MemoryBudget { bytes: 1000 };
+    let mut c = ThresholdController::new(budget, ControllerConfig::default()).unwrap();
+    assert!(!c.wants_eviction(1000), "at the budget");
+    assert!(c.wants_eviction(1001));
+    c.note_eviction(3);
+    c.note_eviction(0);
+    assert_eq!((c.stats().evicting_frames, c.stats().evicted), (2, 3));
+    let off = ControllerConfig {
+        evict_cached_over_budget: false,
+        ..ControllerConfig::default()
+    };
+    let c = ThresholdController::new(budget, off).unwrap();
+    assert!(!c.wants_eviction(u64::MAX));
+    let escape = ControlTarget::EscapeFraction { fraction: 0.1 };
+    let c = ThresholdController::new(escape, ControllerConfig::default()).unwrap();
+    assert!(
+        !c.wants_eviction(u64::MAX),
+        "an escape target has no budget"
+    );
+}

@@ -3,19 +3,25 @@
 //! Algorithm 2.
 //!
 //! * [`Manager::process_feedback`] (CPU backends) takes an
-//!   [`EscapeSample`] from the hit counters before Algorithm 2 adds the
-//!   instance hits to the hitboxes; a GPU backend that reads back its
+//!   [`EscapeSample`] from the hit sums Algorithm 2 made while reading the
+//!   hit counters, before it added the instance hits to the hitboxes; a GPU backend that reads back its
 //!   counting-box hits hands one in with [`Manager::observe_escape`].
 //! * [`Manager::plan`] feeds the controller once per frame, after the
 //!   scheduler planned, with the memory and the newest escape sample, and
 //!   sets the scaled thresholds in the command loop's configuration, which
 //!   the CPU's Algorithm 2 uses and a GPU backend uploads when it records
 //!   the frame.
+//! * A memory budget has a second lever: in a frame over the budget the
+//!   BLAS cache is trimmed (every BLAS no instance uses is evicted; their
+//!   frees follow after the frames in flight), since that memory does not
+//!   depend on the thresholds
+//!   ([`ControllerConfig::evict_cached_over_budget`]).
 
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
+use crate::feedback::FeedbackStats;
 use crate::hitbox_index::HitboxIndex;
-use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
-use crate::thresholds::Thresholds;
+use crate::layout::HitboxRecord;
+use crate::thresholds::{DecisionRule, Thresholds};
 
 use super::{Manager, ManagerError};
 
@@ -42,26 +48,12 @@ pub(super) fn controller_of(
 
 /// This frame's counted hits: counting boxes (the hitboxes' counts before
 /// Algorithm 2 adds instance hits, and omitted instances' counts) and
-/// traced instances.
-pub(super) fn escape_sample(
-    records: &[InstanceRecord],
-    instance_hits: &[u32],
-    hitboxes: &[HitboxRecord],
-) -> EscapeSample {
-    let mut boxes: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
-    let mut traced = 0u64;
-    for (r, &h) in records.iter().zip(instance_hits) {
-        if !r.is_alive() {
-            continue;
-        }
-        match r.state() {
-            InstanceState::Omitted => boxes += u64::from(h),
-            _ => traced += u64::from(h),
-        }
-    }
+/// traced instances, as Algorithm 2 summed them while reading each state
+/// ([`FeedbackStats::box_hits`], [`FeedbackStats::traced_hits`]).
+pub(super) fn escape_sample(stats: &FeedbackStats) -> EscapeSample {
     EscapeSample {
-        box_hits: boxes,
-        total_hits: boxes + traced,
+        box_hits: stats.box_hits,
+        total_hits: stats.box_hits + stats.traced_hits,
     }
 }
 
@@ -70,8 +62,9 @@ impl<H: HitboxIndex> Manager<H> {
     /// unique, compacted; not those waiting to be freed), TLAS records of
     /// the last [`Manager::assemble`] (without one, a GPU backend's table:
     /// every slot plus every hitbox) times
-    /// [`ControllerConfig::tlas_record_bytes`], hitbox records and hit
-    /// counters.
+    /// [`ControllerConfig::tlas_record_bytes`], hitbox records, hit
+    /// counters and, under the decayed rule, its per-slot rates (4 bytes
+    /// each).
     pub fn controlled_bytes(&self) -> u64 {
         let per_record = self
             .controller
@@ -90,6 +83,11 @@ impl<H: HitboxIndex> Manager<H> {
             .saturating_add(records.saturating_mul(per_record))
             .saturating_add(hitboxes * std::mem::size_of::<HitboxRecord>() as u64)
             .saturating_add(slots * 4)
+            .saturating_add(match self.base_thresholds.rule {
+                // The decayed rule's per-slot rate buffer.
+                DecisionRule::Decayed(_) => slots * 4,
+                DecisionRule::Paper => 0,
+            })
     }
 
     /// For GPU backends that read back their counting-box hits: this
@@ -126,6 +124,12 @@ impl<H: HitboxIndex> Manager<H> {
             return Ok(());
         };
         let scale = c.update(memory, escape);
+        // The second lever: over budget, the memory the thresholds cannot
+        // reach soon (BLASes only the cache's retention keeps) goes now.
+        if c.wants_eviction(memory) {
+            let evicted = self.scheduler.trim_cache();
+            c.note_eviction(evicted);
+        }
         let t = self
             .base_thresholds
             .scaled(scale)

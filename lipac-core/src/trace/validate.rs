@@ -46,8 +46,14 @@ impl FrameFault {
 /// `remove` one that is; hit counts name ids live after the frame's events,
 /// each at most once.
 ///
-/// Memory grows with the number of *live* instances (one map entry each),
-/// never with the length of the trace. After an error the validator's state
+/// Version 2: an `add` may carry a slot (below
+/// [`TraceLimits::max_live_instances`], not held by a live instance), and
+/// hits by slot ([`crate::trace::SlotHits`]) name held slots, with counting
+/// boxes of the world grid in increasing order; readers derive
+/// [`Frame::hits`] from them.
+///
+/// Memory grows with the number of *live* instances (one map entry each,
+/// two with a slot), never with the length of the trace. After an error the validator's state
 /// is unspecified; a stream with an error is not read further.
 ///
 /// ```

@@ -490,7 +490,8 @@ fn main() -> ExitCode {
         for b in closed_loop::budget_figures(&report, &report.camera_cuts) {
             println!(
                 "{}: budget {:.2} MiB, frames {}+: mean {:.2} MiB, max deviation {:.1} %, \
-                 max overrun {:+.1} %, {} of {} frames > 5 % off, after the jump {}, final scale {:.3}{}",
+                 max overrun {:+.1} %, {} of {} frames > 5 % off ({} over, {} under at scale > 1), \
+                 after the jump {}, final scale {:.3}{}",
                 b.name,
                 b.budget_bytes as f64 / (1024.0 * 1024.0),
                 closed_loop::SETTLE_FRAMES,
@@ -499,6 +500,8 @@ fn main() -> ExitCode {
                 100.0 * b.max_overrun,
                 b.frames_outside,
                 b.frames,
+                b.frames_over,
+                b.frames_spare,
                 b.jump_max_deviation
                     .map_or("-".into(), |d| format!("{:.1} %", 100.0 * d)),
                 b.final_scale,

@@ -96,3 +96,41 @@ fn gpu_model_is_the_documented_formula() {
     assert_eq!((w.blas_build_ms, w.frame_ms), (0.0, 0.0));
     assert_eq!(w.gpu_frame_ms, m.gpu_frame_ms);
 }
+
+#[test]
+fn missing_instances_are_split_by_kind_and_persistence() {
+    let mut t = Tracker::new(3);
+    t.set_kinds(vec![
+        MissingKind::Terrain,
+        MissingKind::Unique,
+        MissingKind::Shared,
+    ]);
+    let mut frames = Vec::new();
+    // Slot 0 (terrain) missing while hit in frames 0..12, slot 1 (own BLAS)
+    // in frame 0 only, slot 2 (shared) always present.
+    for f in 0..12u32 {
+        let mut m = FrameMetrics {
+            frame: f,
+            ..Default::default()
+        };
+        let needed = [2, u32::from(f == 0) * 5, 3];
+        t.observe(f, [2].into_iter(), &needed, &mut m);
+        frames.push(m);
+    }
+    // Kinds in MissingKind's order: terrain, shared, own BLAS.
+    assert_eq!(frames[0].missing_by_kind, [1, 0, 1]);
+    assert_eq!(frames[1].missing_by_kind, [1, 0, 0]);
+    assert_eq!((frames[0].missing_hits, frames[0].needed_hits), (7, 10));
+    assert_eq!((frames[5].missing_hits, frames[5].needed_hits), (2, 5));
+    // Slot 1: missing 1 frame (class 1–2); slot 0: 12 frames (class 11–30).
+    let tail = t.missing_tail();
+    assert_eq!(tail.instances, [1, 0, 1, 0]);
+    assert_eq!(tail.hits, [5, 0, 24, 0]);
+    let s = summarize("x", &frames, &t);
+    assert_eq!(s.missing_tail, tail);
+    assert!((s.missing_hit_share - 29.0 / 65.0).abs() < 1e-12);
+    assert!((s.mean_missing_by_kind[0] - 1.0).abs() < 1e-12);
+    // A reset slot forgets its history.
+    t.reset(0);
+    assert_eq!(t.missing_tail().instances, [1, 0, 0, 0]);
+}

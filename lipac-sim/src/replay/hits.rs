@@ -437,6 +437,7 @@ pub fn replay_hits_with<R: Read>(
             thresholds: [
                 th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
             ],
+            rule: crate::report::rule_description(&th),
             ground_truth_ms: 0.0,
             full_tlas_ms: 0.0,
             geometry_ms: 0.0,
@@ -745,7 +746,9 @@ impl LipacReplay {
             m.blas_bytes = self.backend.blas_bytes();
         } else {
             m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
-            m.overhead_bytes = lipac_overhead_bytes(hitboxes, u64::from(self.backend.slot_count()));
+            let slots = u64::from(self.backend.slot_count());
+            m.overhead_bytes = lipac_overhead_bytes(hitboxes, slots)
+                + crate::memory::decayed_rate_bytes(&self.backend.manager().thresholds(), slots);
         }
         Ok(slots)
     }

@@ -35,7 +35,7 @@ use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use super::{ControlFrame, FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, lipac_overhead_bytes};
+use crate::memory::{blas_bytes, decayed_rate_bytes, lipac_overhead_bytes};
 use crate::scene::Scene;
 use crate::scene_blas::instance_mask;
 use crate::tlas::{CountingBoxes, MergedBoxes};
@@ -419,7 +419,9 @@ impl Strategy for Lipac {
         Ok(StrategyFrame {
             work: f.work,
             blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
-            overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64),
+            blas_split: ctx.catalog.blas_split(manager.scheduler().cache()),
+            overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64)
+                + decayed_rate_bytes(&self.config.thresholds, n as u64),
             control: Some(control),
         })
     }
