@@ -6,7 +6,7 @@
 //!
 //! ```sh
 //! cargo run --release -p lipac-core --example scale_frame -- \
-//!     [instances=100000] [grid|hashed] [side_m=auto] [frames=30]
+//!     [instances=100000] [grid|hashed] [side_m=auto] [frames=30] [adaptive_levels=0]
 //! /usr/bin/time -f %M cargo run ...   # peak RSS in KiB
 //! ```
 //!
@@ -21,12 +21,16 @@
 //! tracer (every TLAS record hit; a band a quarter of the world wide is hot
 //! and moves one column of cells every 8 frames), `process_feedback`,
 //! `take_commands`. Latency mitigation off. 16 warm-up frames, then medians
-//! over `frames`.
+//! over `frames`. `adaptive_levels > 0` (grid only) turns on adaptive
+//! hitboxes (`lipac_core::hitbox_tree`); the stub tracer hits a merged box
+//! as its leaf boxes.
 
 use std::time::Instant;
 
 use glam::{Affine3A, Vec3};
+use lipac_core::assembly::AssemblyStats;
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
+use lipac_core::hitbox_tree::AdaptiveHitboxes;
 use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, HitboxIndex, InstanceDesc,
     InstanceFlags, InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod,
@@ -47,6 +51,7 @@ struct Loop<H: HitboxIndex> {
     side: f64,
     next_blas: u64,
     rng: u64,
+    last: AssemblyStats,
 }
 
 /// Seconds of `plan`, `assemble`, `process_feedback` and the whole frame.
@@ -83,7 +88,7 @@ impl<H: HitboxIndex> Loop<H> {
 
     /// The Manager with `n` instances registered; returns it and the
     /// registration time in seconds (`reserve` + `register` one by one).
-    fn new(index: H, n: u32, side: f64) -> (Self, f64) {
+    fn new(index: H, n: u32, side: f64, adaptive: u8) -> (Self, f64) {
         let lod = |tris: u64| MeshLod {
             estimate: BuildEstimate {
                 primitives: tris,
@@ -102,6 +107,7 @@ impl<H: HitboxIndex> Loop<H> {
         let mut config = ManagerConfig::new(CUBE);
         config.culling.latency_mitigation = None;
         config.culling.readback_latency = 2;
+        config.culling.adaptive_hitboxes = AdaptiveHitboxes::with_levels(adaptive);
         let m = Manager::new(index, config, catalog).expect("manager");
         let mut l = Self {
             m,
@@ -113,6 +119,7 @@ impl<H: HitboxIndex> Loop<H> {
             side,
             next_blas: 0,
             rng: 0x9E37_79B9_7F4A_7C15,
+            last: AssemblyStats::default(),
         };
         let start = Instant::now();
         l.m.reserve(n as usize);
@@ -166,7 +173,7 @@ impl<H: HitboxIndex> Loop<H> {
             });
         }
         let t_a1 = Instant::now();
-        self.m.assemble(&mut self.tlas).expect("assemble");
+        self.last = self.m.assemble(&mut self.tlas).expect("assemble");
         let a1_s = t_a1.elapsed().as_secs_f64();
         // Stub tracer: a hot band of cell columns moving every 8 frames.
         let columns = (self.side / CELL).ceil().max(1.0) as u64;
@@ -175,9 +182,28 @@ impl<H: HitboxIndex> Loop<H> {
             let col = ((f64::from(x) / CELL).max(0.0) as u64).min(columns - 1);
             (col + columns - hot_start) % columns < columns.div_ceil(4)
         };
-        let hitbox_sbt = self.m.culling().config().assembly.hitbox_sbt_offset;
+        let hitbox_sbt = self.m.culling_config().assembly.hitbox_sbt_offset;
+        let merged_sbt = self
+            .m
+            .culling_config()
+            .adaptive_hitboxes
+            .merged_box_sbt_offset;
+        let mut leaves = Vec::new();
         for t in &self.tlas {
             let i = t.custom_index();
+            // Adaptive hitboxes: a merged box is hit as its leaf boxes would
+            // have been (one hit count per leaf box).
+            if self.m.hitbox_tree().is_some() && t.sbt_offset() == merged_sbt {
+                leaves.clear();
+                self.m.merged_leaf_boxes(i, &mut leaves);
+                for &(leaf, lt) in &leaves {
+                    let h = if hot(lt[3]) { 2500 } else { 10 };
+                    if let Some(b) = self.m.hitboxes_mut().get_mut(leaf as usize) {
+                        b.add_hits(h);
+                    }
+                }
+                continue;
+            }
             // A hitbox's counting box (an omitted instance's box names its
             // slot, like a traced instance).
             if t.acceleration_structure_reference == CUBE && t.sbt_offset() == hitbox_sbt {
@@ -211,14 +237,21 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-fn run<H: HitboxIndex>(index: H, n: u32, side: f64, frames: usize, index_heap: impl Fn(&H) -> u64) {
-    let (mut l, reg) = Loop::new(index, n, side);
+fn run<H: HitboxIndex>(
+    index: H,
+    n: u32,
+    side: f64,
+    frames: usize,
+    adaptive: u8,
+    index_heap: impl Fn(&H) -> u64,
+) {
+    let (mut l, reg) = Loop::new(index, n, side, adaptive);
     for _ in 0..16 {
         l.frame();
     }
     let times: Vec<Times> = (0..frames).map(|_| l.frame()).collect();
     let med = |k: usize| median(times.iter().map(|t| t[k]).collect()) * 1e3;
-    let cull = l.m.culling().memory_usage();
+    let cull = l.m.memory_usage();
     let hitboxes = l.m.hitboxes().len() as u64;
     let index = l.m.registry().hitbox_index();
     let stats = l.m.stats();
@@ -244,6 +277,17 @@ fn run<H: HitboxIndex>(index: H, n: u32, side: f64, frames: usize, index_heap: i
         l.tlas.len(),
         stats.instances.active
     );
+    let a = l.last;
+    println!(
+        "last frame: counting boxes {} (hitbox boxes {}, merged boxes {} for {} hitboxes, \
+         omitted-instance boxes {}), active instances emitted {}",
+        a.hitbox_boxes + a.merged_boxes + a.omitted_boxes,
+        a.hitbox_boxes,
+        a.merged_boxes,
+        a.merged_hitboxes,
+        a.omitted_boxes,
+        a.active
+    );
     println!(
         "CPU memory: Culling per slot {:.1} B/instance; hitbox records {:.1} MB \
          ({} B/hitbox CPU + GPU), index {:.1} MB ({:.1} B/hitbox); GPU instance records {:.1} MB",
@@ -263,6 +307,7 @@ fn main() {
     let auto = (f64::from(n) / 16.0).sqrt().ceil().max(1.0) * CELL;
     let side: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(auto);
     let frames: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(30);
+    let adaptive: u8 = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(0);
     match kind {
         "hashed" => {
             let index = HashedHitboxes::new(HashedConfig {
@@ -270,7 +315,7 @@ fn main() {
                 ..HashedConfig::default()
             })
             .expect("hashed index");
-            run(index, n, side, frames, HashedHitboxes::heap_bytes);
+            run(index, n, side, frames, adaptive, HashedHitboxes::heap_bytes);
         }
         _ => {
             let grid = HitboxGrid::new(GridConfig {
@@ -279,7 +324,7 @@ fn main() {
                 cell_size: CELL,
             })
             .expect("grid");
-            run(grid, n, side, frames, |_| 0);
+            run(grid, n, side, frames, adaptive, |_| 0);
         }
     }
 }

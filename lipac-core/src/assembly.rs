@@ -31,6 +31,7 @@ use std::fmt;
 use glam::Vec3;
 
 use crate::hitbox_index::HitboxIndex;
+use crate::hitbox_tree::HitboxTree;
 use crate::layout::{
     hitbox_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance, MAX_SLOTS,
     VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
@@ -99,6 +100,13 @@ pub struct AssemblyStats {
     pub invalid_instances: u32,
     /// Hitboxes skipped because the index has no bounds for them.
     pub invalid_hitboxes: u32,
+    /// Adaptive hitboxes: merged counting boxes emitted (each standing for
+    /// two or more hitboxes with inactive instances; not in
+    /// [`AssemblyStats::hitbox_boxes`]).
+    pub merged_boxes: u32,
+    /// Adaptive hitboxes: hitboxes with inactive instances represented by
+    /// those merged boxes.
+    pub merged_hitboxes: u32,
 }
 
 /// Inputs of [`assemble_tlas`] that do not fit together.
@@ -113,6 +121,14 @@ pub enum AssemblyError {
     },
     /// More instance records than 24-bit custom indices.
     TooManySlots(usize),
+    /// The adaptive hitbox tree was built for another grid than the index
+    /// (or the index is not a dense grid: `index` is `None`).
+    TreeMismatch {
+        /// The tree's leaf grid `(nx, nz)`.
+        tree: (u32, u32),
+        /// [`HitboxIndex::dense_dims`] of the index.
+        index: Option<(u32, u32)>,
+    },
 }
 
 impl fmt::Display for AssemblyError {
@@ -128,6 +144,16 @@ impl fmt::Display for AssemblyError {
                     "{n} instance slots exceed the 24-bit custom index limit {MAX_SLOTS}"
                 )
             }
+            Self::TreeMismatch { tree, index } => write!(
+                f,
+                "adaptive hitbox tree over a {} x {} grid, but the hitbox index is {}",
+                tree.0,
+                tree.1,
+                match index {
+                    Some((nx, nz)) => format!("a {nx} x {nz} grid"),
+                    None => "not a dense grid (adaptive hitboxes need HitboxGrid)".into(),
+                }
+            ),
         }
     }
 }
@@ -261,6 +287,29 @@ pub fn assemble_tlas(
     cfg: &AssemblyConfig,
     out: &mut Vec<TlasInstance>,
 ) -> Result<AssemblyStats, AssemblyError> {
+    assemble_tlas_adaptive(instances, hitboxes, index, cfg, None, out)
+}
+
+/// [`assemble_tlas`] with adaptive hitboxes: with `tree`, pass 2 emits one
+/// counting box per maximal merged quadtree node of inactive hitboxes
+/// instead of one per hitbox ([`crate::hitbox_tree`]); with `None` it is
+/// [`assemble_tlas`] exactly.
+pub fn assemble_tlas_adaptive(
+    instances: &[InstanceRecord],
+    hitboxes: &mut [HitboxRecord],
+    index: &impl HitboxIndex,
+    cfg: &AssemblyConfig,
+    tree: Option<&HitboxTree>,
+    out: &mut Vec<TlasInstance>,
+) -> Result<AssemblyStats, AssemblyError> {
+    if let Some(tree) = tree {
+        if index.dense_dims() != Some(tree.leaf_dims()) {
+            return Err(AssemblyError::TreeMismatch {
+                tree: tree.leaf_dims(),
+                index: index.dense_dims(),
+            });
+        }
+    }
     if index.len() as usize != hitboxes.len() {
         return Err(AssemblyError::HitboxCountMismatch {
             index: index.len(),
@@ -352,38 +401,62 @@ pub fn assemble_tlas(
         }
     }
 
-    // Pass 2: one GPU thread per hitbox.
-    for (i, h) in hitboxes.iter().enumerate() {
-        // Inactive (not active: see the module docs) and holding at least one
-        // inactive instance.
-        if h.is_active() || h.min_y > h.max_y {
-            continue;
-        }
-        let i = i as u32;
-        let Some((lo, hi)) = index.xz_bounds(i) else {
-            stats.invalid_hitboxes += 1;
-            continue;
-        };
-        let min = Vec3::new(lo.x, h.min_y, lo.y);
-        let max = Vec3::new(hi.x, h.max_y, hi.y);
-        let Some(transform) = unit_cube_transform(min, max, cfg.min_box_extent) else {
-            stats.invalid_hitboxes += 1;
-            continue;
-        };
-        out.push(TlasInstance::new(
-            transform,
-            i,
-            cfg.counting_mask,
-            cfg.hitbox_sbt_offset,
-            COUNTING_BOX_FLAGS,
-            cfg.unit_cube_blas,
-        ));
-        stats.hitbox_boxes += 1;
-        if h.min_y == h.max_y {
-            stats.flat_hitbox_boxes += 1;
+    // Pass 2: one GPU thread per hitbox (adaptive: see `crate::hitbox_tree`).
+    match tree {
+        Some(tree) => tree.emit_boxes(hitboxes, index, cfg, out, &mut stats),
+        None => {
+            for (i, h) in hitboxes.iter().enumerate() {
+                emit_leaf_box(i as u32, h, index, cfg, out, &mut stats);
+            }
         }
     }
     Ok(stats)
+}
+
+/// Pass 2 for one hitbox: a counting box for hitbox `i` if it is inactive
+/// (not active: see the module docs) and holds at least one inactive
+/// instance.
+pub(crate) fn emit_leaf_box(
+    i: u32,
+    h: &HitboxRecord,
+    index: &impl HitboxIndex,
+    cfg: &AssemblyConfig,
+    out: &mut Vec<TlasInstance>,
+    stats: &mut AssemblyStats,
+) {
+    if h.is_active() || h.min_y > h.max_y {
+        return;
+    }
+    let Some(transform) = leaf_box_transform(i, h, index, cfg) else {
+        stats.invalid_hitboxes += 1;
+        return;
+    };
+    out.push(TlasInstance::new(
+        transform,
+        i,
+        cfg.counting_mask,
+        cfg.hitbox_sbt_offset,
+        COUNTING_BOX_FLAGS,
+        cfg.unit_cube_blas,
+    ));
+    stats.hitbox_boxes += 1;
+    if h.min_y == h.max_y {
+        stats.flat_hitbox_boxes += 1;
+    }
+}
+
+/// The unit-cube transform of hitbox `i`'s counting box: its x/z bounds and
+/// this frame's height range (`None` without bounds or for non-finite ones).
+pub(crate) fn leaf_box_transform(
+    i: u32,
+    h: &HitboxRecord,
+    index: &impl HitboxIndex,
+    cfg: &AssemblyConfig,
+) -> Option<[f32; 12]> {
+    let (lo, hi) = index.xz_bounds(i)?;
+    let min = Vec3::new(lo.x, h.min_y, lo.y);
+    let max = Vec3::new(hi.x, h.max_y, hi.y);
+    unit_cube_transform(min, max, cfg.min_box_extent)
 }
 
 /// Sorts TLAS records into a canonical order (by reference, custom index and

@@ -59,13 +59,14 @@
 //! # Ok::<(), BuildPlanError>(())
 //! ```
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::fmt;
 
 use crate::blas_cache::{
     BlasCache, BlasError, BlasFree, BlasOwner, BlasState, CacheConfig, CacheStats, MAX_BLAS_BYTES,
 };
 use crate::blas_ids::{BlasId, BlasKey, BuildId, InstanceKey, Lod, MeshId};
+use crate::manager::Ack;
 
 /// Priority weights (see `docs/BLAS.md`, "Priority with ageing").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -349,6 +350,9 @@ pub enum BuildPlanError {
     AlreadyActive(InstanceKey),
     /// The instance is not active.
     UnknownInstance(InstanceKey),
+    /// `activate` of a key at or above [`MAX_SLOTS`](crate::layout::MAX_SLOTS):
+    /// keys are GPU slots (the scheduler's table is dense by key).
+    KeyOutOfRange(InstanceKey),
     /// `plan` before the first `begin_frame`.
     FrameNotStarted,
     /// `plan` twice in one frame.
@@ -365,6 +369,12 @@ impl fmt::Display for BuildPlanError {
             BuildPlanError::InvalidConfig(w) => write!(f, "invalid scheduler configuration: {w}"),
             BuildPlanError::AlreadyActive(i) => write!(f, "instance {} is already active", i.0),
             BuildPlanError::UnknownInstance(i) => write!(f, "instance {} is not active", i.0),
+            BuildPlanError::KeyOutOfRange(i) => write!(
+                f,
+                "instance key {} is not a GPU slot (keys are below {})",
+                i.0,
+                crate::layout::MAX_SLOTS
+            ),
             BuildPlanError::FrameNotStarted => write!(f, "plan() before begin_frame()"),
             BuildPlanError::PlanAlreadyIssued(fr) => write!(f, "frame {fr} was already planned"),
             BuildPlanError::InvalidEstimate(w) => write!(f, "invalid build estimate: {w}"),
@@ -458,7 +468,8 @@ pub struct BuildScheduler {
     started: bool,
     planned: Option<u64>,
     next_op: u64,
-    slots: BTreeMap<InstanceKey, Slot>,
+    /// The active instances' BLAS state ([`instances`]: dense by key).
+    slots: Instances<Slot>,
     /// Requested entries waiting for a build.
     queue: HashMap<BlasId, Queued>,
     /// Instances whose pending BLAS is the key.
@@ -506,7 +517,7 @@ impl BuildScheduler {
             started: false,
             planned: None,
             next_op: 1,
-            slots: BTreeMap::new(),
+            slots: Instances::default(),
             queue: HashMap::new(),
             waiters: HashMap::new(),
             holders: HashMap::new(),
@@ -543,13 +554,18 @@ impl BuildScheduler {
 
     /// An instance becomes active and needs a BLAS. A shared BLAS that is
     /// cached and built is assigned at once; otherwise a build is queued
-    /// (the instance has no BLAS until it is acknowledged).
+    /// (the instance has no BLAS until it is acknowledged). Keys are GPU
+    /// slots: one at or above [`MAX_SLOTS`](crate::layout::MAX_SLOTS) is
+    /// [`BuildPlanError::KeyOutOfRange`].
     pub fn activate(
         &mut self,
         instance: InstanceKey,
         request: InstanceBlasRequest,
     ) -> Result<(), BuildPlanError> {
         validate(&request.estimate)?;
+        if !Instances::<Slot>::in_range(instance) {
+            return Err(BuildPlanError::KeyOutOfRange(instance));
+        }
         if self.slots.contains_key(&instance) {
             return Err(BuildPlanError::AlreadyActive(instance));
         }
@@ -842,6 +858,45 @@ impl BuildScheduler {
         Ok(plan)
     }
 
+    /// Takes one acknowledgement ([`Ack`], the one type every backend hands
+    /// back): [`BuildScheduler::ack_built`],
+    /// [`BuildScheduler::ack_compacted_size`] or
+    /// [`BuildScheduler::ack_compacted`]. An acknowledgement never planned
+    /// (or given twice) is an error and changes nothing.
+    ///
+    /// ```
+    /// # use lipac_core::blas_ids::{InstanceKey, Lod};
+    /// # use lipac_core::{Ack, MeshId};
+    /// # use lipac_core::build_plan::*;
+    /// let mut s = BuildScheduler::new(SchedulerConfig::default())?;
+    /// s.begin_frame(1)?;
+    /// let estimate = BuildEstimate { primitives: 10, result_bytes: 1024,
+    ///                                build_scratch_bytes: 512, update_scratch_bytes: 0 };
+    /// s.activate(InstanceKey(0), InstanceBlasRequest {
+    ///     geometry: BlasGeometry::Shared { mesh: MeshId(1), variant: 0, compactable: false },
+    ///     lod: Lod(0), estimate, hits: 0, in_frustum: false,
+    /// })?;
+    /// let build = s.plan(&BuildBudgets::default())?.builds().next().unwrap().id;
+    /// s.handle_ack(Ack::Built { build, result_bytes: 1000, address: 0xB000 })?;
+    /// assert_eq!(s.blas_address(InstanceKey(0)), Some(0xB000));
+    /// assert!(s.handle_ack(Ack::Built { build, result_bytes: 1000, address: 0xB000 }).is_err());
+    /// # Ok::<(), BuildPlanError>(())
+    /// ```
+    pub fn handle_ack(&mut self, ack: Ack) -> Result<(), BuildPlanError> {
+        match ack {
+            Ack::Built {
+                build,
+                result_bytes,
+                address,
+            } => self.ack_built(build, result_bytes, address),
+            Ack::CompactedSize {
+                build,
+                compacted_bytes,
+            } => self.ack_compacted_size(build, compacted_bytes),
+            Ack::Compacted { op, address } => self.ack_compacted(op, address),
+        }
+    }
+
     /// Acknowledges build `build` (`result_bytes` at `address`). Instances
     /// waiting for it switch to it now (their old BLAS is released).
     pub fn ack_built(
@@ -896,6 +951,12 @@ impl BuildScheduler {
             self.address_changes.extend(h.iter().copied());
         }
         Ok(())
+    }
+
+    /// Whether `instance` is active (activated and not deactivated since):
+    /// it holds or waits for a BLAS. O(1).
+    pub fn is_active(&self, instance: InstanceKey) -> bool {
+        self.slots.contains_key(&instance)
     }
 
     /// Address of the BLAS an instance currently uses (for its TLAS
@@ -1117,6 +1178,9 @@ impl BuildScheduler {
         Ok(())
     }
 }
+
+mod instances;
+use instances::Instances;
 
 #[cfg(test)]
 mod tests;

@@ -332,6 +332,10 @@ impl HitboxIndex for HitboxGrid {
         self.dims[0] * self.dims[1]
     }
 
+    fn dense_dims(&self) -> Option<(u32, u32)> {
+        Some(self.dims())
+    }
+
     fn hitbox_at(&self, p: Vec3) -> Option<u32> {
         let (cx, cz) = self.cell_at(f64::from(p.x), f64::from(p.z))?;
         self.index(cx, cz)

@@ -30,6 +30,10 @@
 //! the hitbox record of an evicted index
 //! ([`crate::culling::Culling::begin_frame`] does).
 //!
+//! Every index that gets a cell or loses one is logged for GPU backends,
+//! which keep a copy of the bounds ([`HitboxIndex::bounds_changes`]; the
+//! log keeps the changes since the frame start before the last one).
+//!
 //! A full index ([`HashedConfig::max_cells`] live cells) refuses a new cell
 //! with [`CoreError::TooManyHitboxes`]; nothing panics on input.
 //!
@@ -65,7 +69,7 @@ use std::collections::{BinaryHeap, VecDeque};
 
 use crate::error::CoreError;
 use crate::grid::{exact_center, outward_f32_bounds, DEFAULT_MAX_GRID_CELLS, HITBOX_BYTES};
-use crate::hitbox_index::HitboxIndex;
+use crate::hitbox_index::{BoundsChanges, HitboxIndex};
 use crate::math::Aabb;
 use crate::memory::vec_bytes;
 use glam::{Vec2, Vec3};
@@ -149,6 +153,13 @@ pub struct HashedHitboxes {
     /// was occupied again (or became empty later) are skipped.
     empty: VecDeque<(u64, u32)>,
     frame: u64,
+    /// The tail of the bounds-change log ([`HitboxIndex::bounds_changes`]).
+    changes: Vec<u32>,
+    /// Changes logged ever.
+    changes_total: u64,
+    /// Entries of `changes` logged before the last `begin_frame` (dropped
+    /// at the next).
+    changes_before: usize,
 }
 
 /// SplitMix64's finaliser: a 64-bit mix of the two cell coordinates.
@@ -207,6 +218,9 @@ impl HashedHitboxes {
             free: BinaryHeap::new(),
             empty: VecDeque::new(),
             frame: 0,
+            changes: Vec::new(),
+            changes_total: 0,
+            changes_before: 0,
         })
     }
 
@@ -237,6 +251,13 @@ impl HashedHitboxes {
             + vec_bytes::<Cell>(self.cells.capacity())
             + vec_bytes::<u32>(self.free.capacity())
             + vec_bytes::<(u64, u32)>(self.empty.capacity())
+            + vec_bytes::<u32>(self.changes.capacity())
+    }
+
+    /// Logs that hitbox `index`'s bounds changed.
+    fn log_change(&mut self, index: u32) {
+        self.changes.push(index);
+        self.changes_total += 1;
     }
 
     /// Instances in hitbox `index` (0 for an index without a cell).
@@ -399,6 +420,7 @@ impl HashedHitboxes {
         self.cells[index as usize] = Cell::default();
         self.live -= 1;
         self.free.push(Reverse(index));
+        self.log_change(index);
     }
 }
 
@@ -482,6 +504,7 @@ impl HitboxIndex for HashedHitboxes {
             key,
         };
         self.live += 1;
+        self.log_change(index);
         Ok(index)
     }
 
@@ -507,6 +530,9 @@ impl HitboxIndex for HashedHitboxes {
     /// [`HashedConfig::evict_after_frames`] frames before `frame`.
     fn begin_frame(&mut self, frame: u64, evicted: &mut Vec<u32>) {
         self.frame = self.frame.max(frame);
+        // Keep the changes since the previous frame start.
+        self.changes.drain(..self.changes_before);
+        self.changes_before = self.changes.len();
         let after = u64::from(self.config.evict_after_frames);
         while let Some(&(since, index)) = self.empty.front() {
             if since.saturating_add(after) > self.frame {
@@ -518,6 +544,15 @@ impl HitboxIndex for HashedHitboxes {
                 self.evict(index);
                 evicted.push(index);
             }
+        }
+    }
+
+    /// Every index that got a cell ([`HitboxIndex::occupy`] of a new cell)
+    /// or lost one (eviction), since the frame start before the last.
+    fn bounds_changes(&self) -> BoundsChanges<'_> {
+        BoundsChanges {
+            total: self.changes_total,
+            recent: &self.changes,
         }
     }
 }
@@ -584,6 +619,9 @@ impl HitboxIndex for WorldHitboxes {
     }
     fn begin_frame(&mut self, frame: u64, evicted: &mut Vec<u32>) {
         both!(self, i => i.begin_frame(frame, evicted))
+    }
+    fn bounds_changes(&self) -> BoundsChanges<'_> {
+        both!(self, i => i.bounds_changes())
     }
 }
 

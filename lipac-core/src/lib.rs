@@ -32,6 +32,15 @@
 //!   [`state`] (the state machine), [`thresholds`] (and [`controller`], the
 //!   closed loop on them);
 //! * [`trace`]: recorded instance traces.
+//!
+//! [`culling::Culling`], [`registry::InstanceRegistry`] and
+//! [`build_plan::BuildScheduler`] stay public, as low-level parts, because
+//! lipac-core's integration tests and benches, lipac-test-support and
+//! lipac-vk's executor tests drive them without a Manager. Their per-slot
+//! state is one table, a row per GPU slot with a column per part (the
+//! registry's occupant, the command loop's view, the Manager's LODs and data
+//! range); the scheduler keeps only the BLAS residency of active instances,
+//! dense by slot (`docs/MANAGER.md`, "Per-slot state: one table").
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
@@ -49,6 +58,7 @@ pub mod feedback;
 pub mod grid;
 pub mod hashed_hitboxes;
 pub mod hitbox_index;
+pub mod hitbox_tree;
 pub mod instance;
 pub mod latency;
 pub mod layout;
@@ -56,6 +66,7 @@ pub mod manager;
 pub mod math;
 pub mod memory;
 pub mod registry;
+mod slot_table;
 pub mod state;
 pub mod thresholds;
 pub mod trace;

@@ -20,10 +20,12 @@ pub struct MemoryUsage {
     /// The CPU mirror of the GPU instance buffer: one 96-byte
     /// [`InstanceRecord`](crate::layout::InstanceRecord) per slot.
     pub records: u64,
-    /// Handle map (`slotmap`): every instance's slot and mesh (the rest of
-    /// its description is read back from its record).
+    /// Handle map (`slotmap`): every instance's slot (the rest of its
+    /// description is read back from its record and its slot's row).
     pub handles: u64,
-    /// Per-slot occupant (handle and registration serial).
+    /// The per-slot table (`slot_table`): per slot its occupant (handle,
+    /// registration serial, mesh), the command loop's view (commanded state,
+    /// pending BLAS) and the Manager's state (LODs, data range, last hits).
     pub slot_occupants: u64,
     /// Free-slot heap and quarantine queue.
     pub free_lists: u64,
@@ -31,7 +33,8 @@ pub struct MemoryUsage {
     pub dirty: u64,
     /// Per-slot hit counters (the CPU copy of the paper's 4 bytes).
     pub instance_hits: u64,
-    /// Per-slot "waiting for a BLAS" flags.
+    /// Per-slot "waiting for a BLAS" flags: 0 now, they are a column of
+    /// the slot table, counted in [`MemoryUsage::slot_occupants`].
     pub awaiting: u64,
     /// Latency mitigation's per-slot visibility bits.
     pub latency_bits: u64,

@@ -42,6 +42,7 @@ use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::layout::{instance_bits, InstanceRecord, InstanceState, MAX_SLOTS};
 use crate::math::{affine_to_rows, rows_to_affine, Aabb};
+use crate::slot_table::SlotTable;
 use glam::{Affine3A, Vec3};
 use slotmap::{Key, SlotMap};
 use std::cmp::Reverse;
@@ -131,20 +132,30 @@ pub struct RemovedInstance {
     pub hitbox: u32,
 }
 
-/// What the handle map keeps per instance: only what the slot's
-/// [`InstanceRecord`] does not hold (the rest of the [`InstanceDesc`] is
-/// rebuilt from the record, see [`desc_from_record`]).
+impl SlotOccupant {
+    /// The (current or last) occupant's mesh.
+    pub(crate) fn mesh(&self) -> MeshId {
+        self.mesh
+    }
+}
+
+/// What the handle map keeps per instance: its slot (the rest is in the
+/// slot's row of the [`SlotTable`] and its [`InstanceRecord`], from which
+/// the [`InstanceDesc`] is rebuilt, see [`desc_from_record`]).
 #[derive(Clone, Copy, Debug)]
 struct Entry {
     slot: u32,
-    mesh: MeshId,
 }
 
+/// The registry's column of the [`SlotTable`]: who lives in the slot.
 #[derive(Clone, Copy, Debug, Default)]
-struct SlotOccupant {
+pub(crate) struct SlotOccupant {
     handle: Option<EntryKey>,
     /// Registration serial of the current (or last) occupant.
     serial: u64,
+    /// The occupant's mesh (the one field of its description its record
+    /// does not hold).
+    mesh: MeshId,
 }
 
 /// All instances of a scene with their GPU slots and records.
@@ -201,7 +212,9 @@ pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
     id: u32,
     instances: SlotMap<EntryKey, Entry>,
     records: Vec<InstanceRecord>,
-    occupants: Vec<SlotOccupant>,
+    /// The one per-slot table ([`crate::slot_table`]), as long as
+    /// `records`; the registry writes its occupant column.
+    table: SlotTable,
     free: BinaryHeap<Reverse<u32>>,
     /// `(frame from which the slot may be reused, slot)`, in frame order.
     quarantine: VecDeque<(u64, u32)>,
@@ -337,7 +350,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             id: next_registry_id(),
             instances: SlotMap::with_key(),
             records: Vec::new(),
-            occupants: Vec::new(),
+            table: SlotTable::default(),
             free: BinaryHeap::new(),
             quarantine: VecDeque::new(),
             frame: 0,
@@ -412,7 +425,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let slots = self.records.len() + new_slots;
         self.instances.reserve(additional);
         self.records.reserve_exact(new_slots);
-        self.occupants.reserve_exact(new_slots);
+        self.table.reserve_exact(new_slots);
         self.dirty.reserve(slots, additional);
         slots
     }
@@ -420,7 +433,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// Live instances the registry can hold now without reallocating its
     /// handle map or slot buffers (quarantined slots not counted).
     pub fn capacity(&self) -> usize {
-        let unused = self.records.capacity().min(self.occupants.capacity()) - self.records.len();
+        let unused = self.records.capacity().min(self.table.capacity()) - self.records.len();
         let slots =
             (self.instances.len() + self.free.len() + unused).min(self.config.max_slots as usize);
         self.instances.capacity().min(slots)
@@ -470,12 +483,9 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             self.free.pop();
         } else {
             self.records.push(InstanceRecord::default());
-            self.occupants.push(SlotOccupant::default());
+            self.table.push_slot();
         }
-        let key = self.instances.insert(Entry {
-            slot,
-            mesh: desc.mesh,
-        });
+        let key = self.instances.insert(Entry { slot });
         let handle = self.handle(key);
         let state = if desc.flags.contains(InstanceFlags::PINNED) {
             InstanceState::Active
@@ -483,9 +493,10 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             InstanceState::Inactive
         };
         self.records[slot as usize] = build_record(&desc, rows, hitbox, state, 0);
-        self.occupants[slot as usize] = SlotOccupant {
+        self.table[slot as usize].occupant = SlotOccupant {
             handle: Some(key),
             serial: self.registrations,
+            mesh: desc.mesh,
         };
         self.registrations += 1;
         self.dirty.mark(slot);
@@ -504,21 +515,21 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         handle: InstanceHandle,
         desc: InstanceDesc,
     ) -> Result<InstanceDesc, CoreError> {
-        let key = self.key(handle)?;
         let entry = self.entry(handle)?;
         let rows = self.check(&desc)?;
         let hitbox = self.index.occupy(&desc.aabb)?;
         let record = &mut self.records[entry.slot as usize];
         self.index.vacate(record.hitbox);
-        let old = desc_from_record(record, entry.mesh);
+        let occupant = &mut self.table[entry.slot as usize].occupant;
+        let old = desc_from_record(record, occupant.mesh);
         let state = if desc.flags.contains(InstanceFlags::PINNED) {
             InstanceState::Active
         } else {
             record.state()
         };
         *record = build_record(&desc, rows, hitbox, state, record.blas);
+        occupant.mesh = desc.mesh;
         self.dirty.mark(entry.slot);
-        self.instances[key].mesh = desc.mesh;
         Ok(old)
     }
 
@@ -569,7 +580,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let slot = entry.slot;
         let record = std::mem::take(&mut self.records[slot as usize]);
         self.index.vacate(record.hitbox);
-        self.occupants[slot as usize].handle = None;
+        let mesh = self.table[slot as usize].occupant.mesh;
+        self.table[slot as usize].occupant.handle = None;
         self.dirty.mark(slot);
         if self.config.quarantine_frames == 0 {
             self.free.push(Reverse(slot));
@@ -581,7 +593,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         }
         Ok(RemovedInstance {
             slot,
-            desc: desc_from_record(&record, entry.mesh),
+            desc: desc_from_record(&record, mesh),
             blas: record.blas,
             state: record.state(),
             hitbox: record.hitbox,
@@ -691,8 +703,9 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// The live instance in `slot`, or `None` for a dead, quarantined or
     /// out-of-range slot (e.g. a late command for a removed instance).
     pub fn handle_at(&self, slot: u32) -> Option<InstanceHandle> {
-        self.occupants
+        self.table
             .get(slot as usize)?
+            .occupant
             .handle
             .map(|k| self.handle(k))
     }
@@ -725,12 +738,17 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// mesh, bit for bit), so it is returned by value.
     pub fn desc(&self, handle: InstanceHandle) -> Result<InstanceDesc, CoreError> {
         let e = self.entry(handle)?;
-        Ok(desc_from_record(&self.records[e.slot as usize], e.mesh))
+        let slot = e.slot as usize;
+        Ok(desc_from_record(
+            &self.records[slot],
+            self.table[slot].occupant.mesh,
+        ))
     }
 
     /// An instance's mesh.
     pub fn mesh(&self, handle: InstanceHandle) -> Result<MeshId, CoreError> {
-        self.entry(handle).map(|e| e.mesh)
+        self.entry(handle)
+            .map(|e| self.table[e.slot as usize].occupant.mesh)
     }
 
     /// An instance's LOD.
@@ -830,8 +848,19 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         !self.dirty.is_empty()
     }
 
-    /// CPU bytes held, from capacities: `(records, handles, slot occupants,
-    /// free lists, dirty set)`; see [`crate::memory`].
+    /// The one per-slot table ([`crate::slot_table`]), a row per slot.
+    pub(crate) fn table(&self) -> &SlotTable {
+        &self.table
+    }
+
+    /// The per-slot table, for the command loop's and the Manager's
+    /// columns (the occupant column is the registry's alone).
+    pub(crate) fn table_mut(&mut self) -> &mut SlotTable {
+        &mut self.table
+    }
+
+    /// CPU bytes held, from capacities: `(records, handles, the slot table
+    /// (every part's column), free lists, dirty set)`; see [`crate::memory`].
     pub(crate) fn heap_bytes(&self) -> (u64, u64, u64, u64, u64) {
         use crate::memory::vec_bytes;
         // slotmap 1.x: a slot is a union of the value and the free-list
@@ -841,7 +870,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         (
             vec_bytes::<InstanceRecord>(self.records.capacity()),
             (self.instances.capacity() * slot) as u64,
-            vec_bytes::<SlotOccupant>(self.occupants.capacity()),
+            self.table.heap_bytes(),
             vec_bytes::<u32>(self.free.capacity())
                 + vec_bytes::<(u64, u32)>(self.quarantine.capacity()),
             self.dirty.heap_bytes(),
@@ -860,7 +889,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// per-slot caches (e.g. [`crate::latency::LatencyMitigation`]) notice
     /// that it holds another instance.
     pub fn serial_at(&self, slot: u32) -> Option<u64> {
-        let o = self.occupants.get(slot as usize)?;
+        let o = &self.table.get(slot as usize)?.occupant;
         o.handle.map(|_| o.serial)
     }
 }

@@ -166,17 +166,17 @@ fn run(rig: &mut Rig, frames: u64, jump: u64) -> Result<Vec<u64>, ManagerError> 
         }
         out.push(rig.frame(f)?);
         // The thresholds Algorithm 2 ran with (and a GPU backend uploads,
-        // lipac-vk reads `culling().config().thresholds` when it records
-        // the frame) are the configured ones scaled by the controller.
+        // lipac-vk reads `culling_config().thresholds` when it records the
+        // frame) are the configured ones scaled by the controller.
         let s = rig.manager.stats();
         if let Some(c) = s.controller {
             assert_eq!(
-                rig.manager.culling().config().thresholds,
+                rig.manager.thresholds(),
                 base_thresholds().scaled(c.scale).unwrap()
             );
             assert_eq!(
                 rig.manager.thresholds(),
-                rig.manager.culling().config().thresholds
+                rig.manager.culling_config().thresholds
             );
         }
     }

@@ -173,6 +173,8 @@ fn scripted_scene_round_trips_through_the_trace() {
             flags: d.flags,
             mask: (d.mask != 0xFF).then_some(d.mask),
             pose: pose_of(&d),
+            // The manager's GPU slot: the index of the instance's hits.
+            slot: Some(m.registry().slot(h).unwrap()),
         }));
         (id, h)
     };
@@ -420,6 +422,80 @@ fn hits_leave_out_instances_registered_after_the_plan() {
     let hits: Vec<(u64, u32)> = f1.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
     assert_eq!(hits, [(1, 5)]);
     assert_eq!(r.next_frame().unwrap(), None);
+}
+
+#[test]
+fn a_refused_process_feedback_records_no_hits() {
+    // The recorder takes a frame's hits before Algorithm 2 changes the
+    // states; a call the manager then refuses (here: the frame's feedback
+    // was already processed) must leave the frame's hits as they were.
+    let mut m = manager();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    for x in [3.0, 5.0, 40.0] {
+        m.register(desc(1, x, 3.0)).unwrap();
+    }
+    let mut lp = Loop::new();
+    for frame in 0..3 {
+        lp.before_plan(&mut m, frame);
+        lp.plan_and_trace(&mut m);
+        // More hits, then a second feedback in the same frame: refused.
+        m.instance_hits_mut()
+            .iter_mut()
+            .for_each(|h| *h += 1_000_000);
+        for b in m.hitboxes_mut() {
+            b.add_hits(1_000_000);
+        }
+        assert!(m.process_feedback().is_err());
+    }
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    for frame in 0..3 {
+        let f = r.next_frame().unwrap().unwrap();
+        let hits = f.hits.expect("hits of the accepted call");
+        let sum: u64 = hits.iter().map(|h| u64::from(h.hits)).sum();
+        assert_eq!(sum, lp.traced[frame], "frame {frame}");
+        assert!(
+            hits.iter().all(|h| h.hits < 1_000_000),
+            "frame {frame}: {hits:?}"
+        );
+    }
+    assert_eq!(r.next_frame().unwrap(), None);
+}
+
+#[test]
+fn instances_registered_before_attaching_get_no_hits() {
+    // Their slots are in the hit counters but not in the trace: the
+    // recorder's slot hits must leave them at 0 (a reader would refuse
+    // hits for a slot no live instance holds).
+    let mut m = manager();
+    m.register(desc(1, 3.0, 3.0)).unwrap();
+    m.register(desc(1, 5.0, 3.0)).unwrap();
+    m.attach_recorder(TraceRecorder::new(
+        Vec::<u8>::new(),
+        RecorderOptions::default(),
+    ))
+    .unwrap();
+    let c = m.register(desc(7, 40.0, 40.0)).unwrap();
+    let mut lp = Loop::new();
+    lp.before_plan(&mut m, 0);
+    m.plan(&FrameBudgets::default()).unwrap();
+    m.instance_hits_mut().iter_mut().for_each(|h| *h += 9);
+    m.process_feedback().unwrap();
+    lp.ring.push(m.take_commands().unwrap()).unwrap();
+    let bytes: Vec<u8> = m.detach_recorder().unwrap().into_writer().unwrap();
+    let mut r = TraceReader::new(bytes.as_slice()).unwrap();
+    assert_eq!(r.version(), 2);
+    let f = r.next_frame().unwrap().unwrap();
+    assert_eq!(f.events.len(), 1);
+    assert_eq!(m.trace_id(c), None); // detached
+    let sh = f.slot_hits.as_ref().expect("hits by slot");
+    assert_eq!(sh.slots, [0, 0, 9]);
+    let hits: Vec<(u64, u32)> = f.hits.unwrap().iter().map(|h| (h.id, h.hits)).collect();
+    assert_eq!(hits, [(0, 9)]);
 }
 
 /// Fails every write after `ok` bytes.

@@ -148,7 +148,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
     let frustums = frustums();
     let mut live: Vec<InstanceHandle> = Vec::with_capacity(MAX_LIVE);
     let mut tlas: Vec<TlasInstance> = Vec::new();
-    let hitbox_count = m.culling().hitboxes().len();
+    let hitbox_count = m.hitboxes().len();
     // Per hitbox: how many rays its region attracts (a random walk).
     let mut heat: Vec<u32> = (0..hitbox_count).map(|_| rng.below(800) as u32).collect();
     let mut max_active = 0;

@@ -14,6 +14,7 @@ use lipac_core::build_plan::{
 use lipac_core::error::CoreError;
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::InstanceDesc;
+use lipac_core::layout::MAX_SLOTS;
 use lipac_core::manager::{
     FrameBudgets, Manager, ManagerConfig, ManagerError, MeshCatalog, MeshLod, MAX_LOD_DATA_BYTES,
 };
@@ -167,14 +168,19 @@ fn frames_past_max_frame_are_refused_and_max_frame_plans() {
         hits: 0,
         in_frustum: false,
     };
-    s.activate(InstanceKey(u32::MAX), unique).unwrap();
+    // Keys are GPU slots: the largest is accepted, one beyond is refused.
+    assert_eq!(
+        s.activate(InstanceKey(MAX_SLOTS), unique),
+        Err(BuildPlanError::KeyOutOfRange(InstanceKey(MAX_SLOTS)))
+    );
+    s.activate(InstanceKey(MAX_SLOTS - 1), unique).unwrap();
     let plan = s.plan(&BuildBudgets::default()).unwrap();
     let b = *plan.builds().next().unwrap();
     s.ack_built(b.id, 100, 0xA000).unwrap();
     s.begin_frame(MAX_FRAME).unwrap();
     let plan = s.plan(&BuildBudgets::default()).unwrap();
     assert_eq!(plan.updates().count(), 1, "the unique BLAS is refit");
-    s.deactivate(InstanceKey(u32::MAX)).unwrap();
+    s.deactivate(InstanceKey(MAX_SLOTS - 1)).unwrap();
     assert_eq!(s.stats().cache.pending_frees, 1);
     assert!(s.begin_frame(MAX_FRAME + 1).is_err());
 

@@ -209,7 +209,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             let slots = a.registry().slot_count();
             for &w in &words[..stored as usize] {
                 let c = Command::decode(w, MAX_SLOTS).unwrap();
-                let kept = a.culling().pending_command(c.slot);
+                let kept = a.pending_command(c.slot);
                 if c.slot < slots && a.registry().handle_at(c.slot).is_some() {
                     prop_assert_eq!(kept, gpu.pending(c.slot), "slot {}", c.slot);
                 } else {
@@ -305,8 +305,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
                 v.blas == 0 && !v.awaiting_blas
             };
             if !agrees {
-                let commanded =
-                    a.culling().pending_command(v.slot).is_some() || in_flight.contains(&v.slot);
+                let commanded = a.pending_command(v.slot).is_some() || in_flight.contains(&v.slot);
                 prop_assert!(
                     commanded,
                     "slot {} disagrees with no command: {:?}",

@@ -39,6 +39,7 @@ fn add(id: u64) -> InstanceEvent {
         flags: InstanceFlags::empty(),
         mask: None,
         pose: pose_at(1.0, 2.0, 3.0),
+        slot: None,
     })
 }
 
@@ -65,6 +66,7 @@ fn one_add() -> Vec<u8> {
             camera: camera(),
             events: vec![add(1)],
             hits: None,
+            slot_hits: None,
         }],
     )
 }
@@ -118,16 +120,17 @@ fn wrong_magic_and_version() {
     assert!(matches!(e.kind, TraceErrorKind::BadMagic { .. }), "{e}");
     assert!(e.to_string().contains("not a lipac trace"), "{e}");
 
-    let e = err(&patch(one_add(), 8, &[2, 0]));
+    let e = err(&patch(one_add(), 8, &[3, 0]));
     assert_eq!(e.location, TraceLocation::Byte(8));
     assert_eq!(
         e.kind,
         TraceErrorKind::UnsupportedVersion {
-            found: 2,
-            supported: 1
+            found: 3,
+            supported: 2
         }
     );
-    assert!(e.to_string().contains("version 2"), "{e}");
+    assert!(e.to_string().contains("version 3"), "{e}");
+    assert!(e.to_string().contains("versions 1 to 2"), "{e}");
 }
 
 #[test]
@@ -395,6 +398,7 @@ fn live_instance_rules() {
         camera: camera(),
         events,
         hits: None,
+        slot_hits: None,
     };
     let write = |frames: &[Frame]| -> TraceError {
         let mut w = TraceWriter::new(Vec::new(), &h).unwrap();
@@ -475,12 +479,14 @@ fn semantic_errors_in_binary_name_the_event_offset() {
         camera: camera(),
         events: vec![add(1)],
         hits: None,
+        slot_hits: None,
     };
     let f1 = Frame {
         number: 1,
         camera: camera(),
         events: vec![add(2)],
         hits: None,
+        slot_hits: None,
     };
     let b = to_binary(&h, &[f0, f1]);
     let frame1 = FRAME0 + 4 + u32::from_le_bytes(b[FRAME0..PAYLOAD0].try_into().unwrap()) as usize;
@@ -502,6 +508,8 @@ fn skipping_frames_stops_live_tracking_but_keeps_value_checks() {
     assert_eq!(r.skip_frame().unwrap(), Some(frames[0].number));
     assert!(!r.validator().tracks_live());
     let mut n = 1;
+    // Hits by slot cannot be named without the live set: not derived.
+    let frames = without_derived_hits(&frames);
     while let Some(f) = r.next_frame().unwrap() {
         assert_eq!(f, frames[n]);
         n += 1;
@@ -581,7 +589,7 @@ fn jsonl_errors_name_the_line() {
         e.kind,
         TraceErrorKind::UnsupportedVersion {
             found: 9,
-            supported: 1
+            supported: 2
         }
     );
     assert_eq!(e.location, TraceLocation::Line(1));

@@ -55,6 +55,7 @@ fn binary_removes() -> Vec<u8> {
         camera: camera(),
         events: vec![],
         hits: None,
+        slot_hits: None,
     })
     .unwrap();
     let mut bytes = w.finish().unwrap();
@@ -91,6 +92,7 @@ fn jsonl_many_events(max_events: u32) -> Vec<u8> {
         camera: camera(),
         events: vec![],
         hits: None,
+        slot_hits: None,
     })
     .unwrap();
     let text = String::from_utf8(w.finish().unwrap()).unwrap();

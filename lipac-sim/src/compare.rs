@@ -95,6 +95,12 @@ pub struct CompareConfig {
     pub share_ground_truth: bool,
     /// Render threads (0 = all cores).
     pub threads: usize,
+    /// LiPaC's adaptive hitbox merge levels (0: off, one counting box per
+    /// inactive hitbox; [`lipac_core::hitbox_tree`]).
+    pub adaptive_levels: u8,
+    /// LiPaC's hitbox cell size in metres (`None`:
+    /// [`LipacConfig::DEFAULT_CELL_SIZE`]).
+    pub lipac_cell_size: Option<f64>,
 }
 
 impl Default for CompareConfig {
@@ -107,6 +113,8 @@ impl Default for CompareConfig {
             strategies: StrategyKind::ALL.to_vec(),
             share_ground_truth: true,
             threads: 0,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
         }
     }
 }
@@ -270,7 +278,11 @@ pub fn run(
 /// The strategies of `config.strategies`, under their own names.
 fn contenders_of(scene: &Scene, config: &CompareConfig) -> Result<Vec<Contender>, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
+        .with_adaptive_hitboxes(config.adaptive_levels);
+    if let Some(cell) = config.lipac_cell_size {
+        lipac_config.cell_size = cell;
+    }
     config
         .strategies
         .iter()
@@ -656,8 +668,12 @@ impl Comparison {
                 (None, &self.full_tlas)
             } else {
                 let t = Instant::now();
-                self.tlas
-                    .rebuild(&self.store, &self.records, &self.counting)?;
+                self.tlas.rebuild_with(
+                    &self.store,
+                    &self.records,
+                    &self.counting,
+                    s.merged_boxes().as_deref(),
+                )?;
                 m.tlas_build_ms = ms(t);
                 let out = render(
                     &FrameScene {

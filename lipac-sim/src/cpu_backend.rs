@@ -132,12 +132,15 @@ impl<H: HitboxIndex> CpuBackend<H> {
             command_capacity: config.command_capacity,
             latency_mitigation: config.latency,
             readback_latency: config.readback_latency,
+            adaptive_hitboxes: config.adaptive_hitboxes,
             ..CullingConfig::new(unit_cube)
         };
         let counting = CountingBoxes::default();
         if culling.assembly.omitted_box_sbt_offset != counting.instance_box_sbt
             || culling.assembly.hitbox_sbt_offset != counting.hitbox_box_sbt
             || culling.assembly.counting_mask != counting.counting_mask
+            || (culling.adaptive_hitboxes.is_on()
+                && culling.adaptive_hitboxes.merged_box_sbt_offset != counting.merged_box_sbt)
         {
             return Err(SimError::BadConfig(
                 "assembly and tracer disagree on counting boxes",

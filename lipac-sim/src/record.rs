@@ -360,6 +360,7 @@ pub fn record<W: Write>(
         camera: to_trace_camera(&path.camera_at(0)),
         events: Vec::new(),
         hits: None,
+        slot_hits: None,
     };
     for f in 0..frames {
         scene.set_frame(f);
@@ -379,6 +380,7 @@ pub fn record<W: Write>(
                     flags: instance_flags(inst),
                     mask: (mask != 0xFF).then_some(mask),
                     pose: p,
+                    slot: None,
                 }));
                 poses.push(p);
                 lods[slot] = lod;

@@ -106,6 +106,8 @@ impl ReplayConfig {
             },
             share_ground_truth: true,
             threads: self.threads,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
         }
     }
 }
@@ -314,6 +316,7 @@ pub fn empty_frame() -> Frame {
         },
         events: Vec::new(),
         hits: None,
+        slot_hits: None,
     }
 }
 

@@ -365,6 +365,11 @@ pub trait Strategy {
         previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError>;
+    /// The resolver of this frame's merged counting boxes (adaptive
+    /// hitboxes, [`crate::tlas::MergedBoxes`]), `None` without them.
+    fn merged_boxes(&self) -> Option<Box<dyn crate::tlas::MergedBoxes + '_>> {
+        None
+    }
     /// Whether this frame's records are exactly `ctx.full_records` (then the
     /// ground truth's render can be reused).
     fn is_full_scene(&self) -> bool {

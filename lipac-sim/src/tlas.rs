@@ -4,10 +4,17 @@
 //!
 //! Each record names its BLAS by `acceleration_structure_reference`
 //! ([`crate::blas::BvhBlasId::reference`]; 0 = inactive, skipped). Records
-//! whose SBT offset is one of [`CountingBoxes`]'s two counting offsets
+//! whose SBT offset is one of [`CountingBoxes`]'s counting offsets
 //! become *counting boxes* (the BLAS's bounds, normally the unit cube, under
 //! the record's transform); all others are real geometry. Records with mask 0
 //! can never be hit and are dropped.
+//!
+//! Adaptive hitboxes' *merged boxes* ([`lipac_core::hitbox_tree`]; SBT
+//! offset [`CountingBoxes::merged_box_sbt`], custom index = tree node id)
+//! need [`CpuTlas::rebuild_with`] and a [`MergedBoxes`] resolver: the TLAS
+//! keeps each merged box's leaf boxes, and a ray that enters a merged box
+//! meets the nearest leaf box it enters there (or none), exactly as with
+//! one box per leaf.
 
 use glam::{Affine3A, Vec3A};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_FORCE_NO_OPAQUE, VK_INSTANCE_FORCE_OPAQUE};
@@ -41,6 +48,26 @@ pub struct CountingBoxes {
     pub hitbox_box_sbt: u32,
     /// Mask bit that counting boxes carry (rays clear it to ignore boxes).
     pub counting_mask: u8,
+    /// SBT offset of adaptive hitboxes' *merged* boxes: a hit counts into
+    /// the hitbox counter of the leaf box it enters
+    /// ([`lipac_core::hitbox_tree`]).
+    pub merged_box_sbt: u32,
+}
+
+impl CountingBoxes {
+    /// Whether `sbt` marks a counting box of any kind.
+    pub fn is_box(&self, sbt: u32) -> bool {
+        sbt == self.instance_box_sbt || sbt == self.hitbox_box_sbt || sbt == self.merged_box_sbt
+    }
+}
+
+/// Resolves a merged box (custom index = tree node id) to the leaf hitbox
+/// boxes it stands for: [`lipac_core::hitbox_tree::HitboxTree::leaf_boxes`]
+/// over the frame's hitbox records.
+pub trait MergedBoxes {
+    /// Appends `(leaf hitbox, unit-cube transform)` of node `node`'s leaf
+    /// boxes to `out`.
+    fn leaf_boxes(&self, node: u32, out: &mut Vec<(u32, [f32; 12])>);
 }
 
 impl Default for CountingBoxes {
@@ -49,6 +76,7 @@ impl Default for CountingBoxes {
             instance_box_sbt: 1,
             hitbox_box_sbt: 2,
             counting_mask: masks::COUNTING,
+            merged_box_sbt: 3,
         }
     }
 }
@@ -59,6 +87,8 @@ pub(crate) enum EntryKind {
     Geometry,
     InstanceBox,
     HitboxBox,
+    /// A merged box: its leaves are `leaves` in [`CpuTlas::merged_leaves`].
+    MergedBox,
 }
 
 /// One usable record, in BVH primitive order.
@@ -72,6 +102,8 @@ pub(crate) struct TlasEntry {
     pub(crate) kind: EntryKind,
     /// 0: alpha test as the BLAS says; 1: force opaque; 2: force alpha test.
     pub(crate) opacity: u8,
+    /// Merged boxes: `start..end` in [`CpuTlas::merged_leaves`].
+    pub(crate) leaves: (u32, u32),
 }
 
 /// A TLAS over a slice of [`TlasInstance`] records.
@@ -95,8 +127,11 @@ pub(crate) struct TlasEntry {
 pub struct CpuTlas {
     pub(crate) bvh: CwBvh,
     pub(crate) entries: Vec<TlasEntry>,
+    /// Leaf boxes of merged boxes: `(leaf hitbox, world to object)`.
+    pub(crate) merged_leaves: Vec<(u32, Affine3A)>,
     records: usize,
     boxes: usize,
+    merged: usize,
 }
 
 impl CpuTlas {
@@ -121,10 +156,25 @@ impl CpuTlas {
         records: &[TlasInstance],
         counting: &CountingBoxes,
     ) -> Result<(), SimError> {
+        self.rebuild_with(store, records, counting, None)
+    }
+
+    /// [`Self::rebuild`] for records that may hold merged boxes, resolved
+    /// by `merged`; a merged box without a resolver is an error.
+    pub fn rebuild_with(
+        &mut self,
+        store: &BlasStore,
+        records: &[TlasInstance],
+        counting: &CountingBoxes,
+        merged: Option<&dyn MergedBoxes>,
+    ) -> Result<(), SimError> {
         self.entries.clear();
+        self.merged_leaves.clear();
         self.bvh = CwBvh::default();
         self.records = records.len();
         self.boxes = 0;
+        self.merged = 0;
+        let mut leaf_scratch = Vec::new();
         let mut entries = Vec::with_capacity(records.len());
         let mut aabbs: Vec<BvhAabb> = Vec::with_capacity(records.len());
         for (i, r) in records.iter().enumerate() {
@@ -152,6 +202,8 @@ impl CpuTlas {
                 EntryKind::InstanceBox
             } else if sbt == counting.hitbox_box_sbt {
                 EntryKind::HitboxBox
+            } else if sbt == counting.merged_box_sbt {
+                EntryKind::MergedBox
             } else if blas.kind() == BvhBlasKind::UnitCube {
                 return Err(SimError::BadConfig(
                     "the unit-cube BLAS needs a counting SBT offset",
@@ -164,6 +216,22 @@ impl CpuTlas {
             }
             if kind != EntryKind::Geometry {
                 self.boxes += 1;
+            }
+            let mut leaves = (0, 0);
+            if kind == EntryKind::MergedBox {
+                let resolver = merged.ok_or(SimError::BadConfig(
+                    "a merged counting box needs a MergedBoxes resolver (rebuild_with)",
+                ))?;
+                leaf_scratch.clear();
+                resolver.leaf_boxes(r.custom_index(), &mut leaf_scratch);
+                let start = self.merged_leaves.len() as u32;
+                for (leaf, t) in &leaf_scratch {
+                    // As a leaf box's own entry: the same inverse.
+                    self.merged_leaves
+                        .push((*leaf, rows_to_affine(t).inverse()));
+                }
+                leaves = (start, self.merged_leaves.len() as u32);
+                self.merged += 1;
             }
             let b = blas.bounds();
             aabbs.push(world_bounds(&object_to_world, b.min.into(), b.max.into()));
@@ -183,6 +251,7 @@ impl CpuTlas {
                 mask: r.mask(),
                 kind,
                 opacity,
+                leaves,
             });
         }
         let (bvh, _) = build_cwbvh(&aabbs, BuildQuality::CpuTlas);
@@ -204,6 +273,10 @@ impl CpuTlas {
     pub fn box_count(&self) -> usize {
         self.boxes
     }
+    /// Of [`Self::box_count`], the merged boxes of adaptive hitboxes.
+    pub fn merged_box_count(&self) -> usize {
+        self.merged
+    }
     /// Length of the record slice it was built from.
     pub fn record_count(&self) -> usize {
         self.records
@@ -213,6 +286,7 @@ impl CpuTlas {
         self.bvh.nodes.len() * 80
             + self.bvh.primitive_indices.len() * 4
             + self.entries.len() * std::mem::size_of::<TlasEntry>()
+            + self.merged_leaves.len() * std::mem::size_of::<(u32, Affine3A)>()
     }
 }
 

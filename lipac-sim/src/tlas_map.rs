@@ -142,7 +142,10 @@ impl TlasMap {
                 continue;
             }
             let (sbt, custom) = (r.sbt_offset(), r.custom_index());
-            if sbt == counting.hitbox_box_sbt {
+            // Merged boxes (adaptive hitboxes) are drawn as one box; their
+            // hits are the leaves' (custom index = tree node id, no counter).
+            let merged = sbt == counting.merged_box_sbt;
+            if sbt == counting.hitbox_box_sbt || merged {
                 let t = rows_to_affine(&r.transform);
                 let (mut lo, mut hi) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(-f32::INFINITY));
                 for i in 0..8 {
@@ -174,7 +177,11 @@ impl TlasMap {
                     index: custom,
                     min: Vec2::new(lo.x, lo.z),
                     max: Vec2::new(hi.x, hi.z),
-                    hits: counters.hitboxes.get(custom as usize).copied().unwrap_or(0),
+                    hits: if merged {
+                        0
+                    } else {
+                        counters.hitboxes.get(custom as usize).copied().unwrap_or(0)
+                    },
                 });
                 continue;
             }

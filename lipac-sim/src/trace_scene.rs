@@ -20,12 +20,18 @@
 //!   55 % of its surface opaque, in cells that scale with the mesh).
 //!   [`TraceSceneOptions::vegetation_alpha`] `false` (the scene file's
 //!   `"vegetation_alpha": false`, `lipac replay --no-vegetation-alpha`)
-//!   traces vegetation opaque. Everything else is wall.
+//!   traces vegetation opaque. Everything else is wall: the non-vegetation
+//!   instances of a mesh used both ways trace as a second, wall copy of the
+//!   mesh (slots are per mesh and material), and an update that flips
+//!   `vegetation` moves the instance to a slot of the other copy (the old
+//!   one is parked), so the material and the vegetation mask follow the
+//!   flag from that frame on.
 //! * **Sun and sky**: [`crate::pathtrace::PathTraceConfig`]'s defaults,
 //!   overridden by [`Lighting`] (a small JSON scene file,
 //!   [`TraceSceneOptions::with_json`]).
 //! * **Instances** from the events, at any frame: adds, updates (pose, LOD,
-//!   flags), removes; cameras as recorded. The trace is read twice: a first
+//!   flags: `pinned` reaches LiPaC's Manager in that frame, a changed
+//!   `static` makes the slot animated), removes; cameras as recorded. The trace is read twice: a first
 //!   pass ([`TracePlan::scan`]) assigns every instance a scene slot, reusing
 //!   the slots of removed instances of the same mesh, so the scene holds as
 //!   many slots as instances of each mesh are live at once, not as many as
@@ -174,12 +180,26 @@ impl TraceSceneOptions {
 }
 
 /// Scene slots of trace instances: a removed instance's slot goes to the
-/// next added instance of the same mesh.
+/// next added instance of the same key ([`slot_key`]: header mesh and
+/// vegetation flag).
 #[derive(Clone, Debug, Default)]
 struct SlotAlloc {
     live: HashMap<u64, u32>,
     free: HashMap<u32, Vec<u32>>,
+    /// The key of every slot.
     mesh: Vec<u32>,
+}
+
+/// The slot key of an instance of header mesh `mesh` (index) with flags
+/// `f`: vegetation and other instances of one mesh trace with different
+/// materials, so they hold different slots (an update that flips the
+/// vegetation flag moves the instance to a slot of the other key).
+fn slot_key(mesh: u32, f: InstanceFlags) -> u32 {
+    mesh * 2 + u32::from(f.contains(InstanceFlags::VEGETATION))
+}
+
+fn key_is_vegetation(key: u32) -> bool {
+    key & 1 == 1
 }
 
 impl SlotAlloc {
@@ -213,14 +233,32 @@ impl SlotAlloc {
 /// vegetation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TracePlan {
-    /// Scene mesh (header order) of every slot.
+    /// Slot key ([`slot_key`]) of every slot.
     slot_mesh: Vec<u32>,
     /// Whether the slot's occupant moves, comes or goes after frame 0.
     slot_dynamic: Vec<bool>,
     /// Header meshes used by a vegetation instance.
     vegetation: HashSet<u32>,
+    /// Header meshes used by vegetation and by other instances: they get a
+    /// second scene mesh (wall) after the header's, in header order.
+    mixed: Vec<u32>,
     /// Frames in the trace.
     frames: u64,
+}
+
+impl TracePlan {
+    /// The scene mesh of slot key `key`: the header mesh's own index (its
+    /// material leaves if any of its instances is vegetation, else wall),
+    /// or, for the non-vegetation instances of a mesh used both ways, its
+    /// wall variant after the header's meshes.
+    fn scene_mesh_of(&self, key: u32, meshes: usize) -> u32 {
+        let mesh = key / 2;
+        if key_is_vegetation(key) == self.vegetation.contains(&mesh) {
+            return mesh;
+        }
+        let rank = self.mixed.binary_search(&mesh).unwrap_or(self.mixed.len());
+        (meshes + rank) as u32
+    }
 }
 
 /// Header mesh id → (scene mesh index, LOD count).
@@ -251,35 +289,81 @@ impl TracePlan {
         let mut alloc = SlotAlloc::default();
         let mut dynamic = Vec::new();
         let mut vegetation = HashSet::new();
+        let mut plain = HashSet::new();
+        // The static flag of every slot's occupant.
+        let mut is_static: Vec<bool> = Vec::new();
         let mut frame = empty_frame();
         let mut frames = 0u64;
+        let add = |alloc: &mut SlotAlloc,
+                   dynamic: &mut Vec<bool>,
+                   is_static: &mut Vec<bool>,
+                   (id, key): (u64, u32),
+                   later: bool,
+                   st: bool| {
+            let (slot, new) = alloc.add(id, key);
+            if new {
+                dynamic.push(later);
+                is_static.push(st);
+            } else {
+                dynamic[slot as usize] = true;
+                is_static[slot as usize] = st;
+            }
+            slot
+        };
         while input.next_frame_into(&mut frame)? {
             let later = frames > 0;
             for e in &frame.events {
                 match e {
                     InstanceEvent::Add(a) => {
                         let mesh = scene_mesh(&index, a.mesh)?;
-                        let (slot, new) = alloc.add(a.id, mesh);
-                        if new {
-                            dynamic.push(later);
-                        } else {
-                            dynamic[slot as usize] = true;
-                        }
-                        if a.flags.contains(InstanceFlags::VEGETATION) {
+                        let key = slot_key(mesh, a.flags);
+                        let st = a.flags.contains(InstanceFlags::STATIC);
+                        add(
+                            &mut alloc,
+                            &mut dynamic,
+                            &mut is_static,
+                            (a.id, key),
+                            later,
+                            st,
+                        );
+                        if key_is_vegetation(key) {
                             vegetation.insert(mesh);
+                        } else {
+                            plain.insert(mesh);
                         }
                     }
                     InstanceEvent::Update(u) => {
-                        let slot = alloc.slot(u.id).ok_or_else(|| {
+                        let mut slot = alloc.slot(u.id).ok_or_else(|| {
                             SimError::Replay(format!("update of instance {}, not live", u.id))
                         })?;
+                        if let Some(f) = u.flags {
+                            let key = alloc.mesh[slot as usize];
+                            let new_key = slot_key(key / 2, f);
+                            if new_key != key {
+                                // Vegetation flipped: to a slot of the other
+                                // material (the old one is parked).
+                                alloc.remove(u.id);
+                                dynamic[slot as usize] = true;
+                                let st = f.contains(InstanceFlags::STATIC);
+                                let ids = (u.id, new_key);
+                                slot =
+                                    add(&mut alloc, &mut dynamic, &mut is_static, ids, later, st);
+                            }
+                            if key_is_vegetation(new_key) {
+                                vegetation.insert(new_key / 2);
+                            } else {
+                                plain.insert(new_key / 2);
+                            }
+                            // A static flag that changes: animated for the
+                            // strategies (their BLAS kind cannot change).
+                            let st = f.contains(InstanceFlags::STATIC);
+                            if later && is_static[slot as usize] != st {
+                                dynamic[slot as usize] = true;
+                            }
+                            is_static[slot as usize] = st;
+                        }
                         if u.pose.is_some() {
                             dynamic[slot as usize] = true;
-                        }
-                        if u.flags
-                            .is_some_and(|f| f.contains(InstanceFlags::VEGETATION))
-                        {
-                            vegetation.insert(alloc.mesh[slot as usize]);
                         }
                     }
                     InstanceEvent::Remove { id } => {
@@ -292,10 +376,13 @@ impl TracePlan {
             }
             frames += 1;
         }
+        let mut mixed: Vec<u32> = vegetation.intersection(&plain).copied().collect();
+        mixed.sort_unstable();
         Ok(Self {
             slot_mesh: alloc.mesh,
             slot_dynamic: dynamic,
             vegetation,
+            mixed,
             frames,
         })
     }
@@ -424,6 +511,11 @@ pub struct TraceScene {
     scene: Scene,
     alloc: SlotAlloc,
     index: HashMap<MeshId, (u32, u32)>,
+    /// Scene mesh of every slot key of the trace.
+    key_mesh: HashMap<u32, u32>,
+    /// The recorded transform of every slot's occupant (kept for a move to
+    /// a slot of the other material).
+    rows: Vec<[f32; 12]>,
     dynamic: Vec<bool>,
     lods: Vec<u8>,
     lod_counts: Vec<u32>,
@@ -453,8 +545,15 @@ impl TraceScene {
         let mut library = MeshLibrary::new();
         let mut box_proxies = Vec::new();
         let mut unmap = Vec::with_capacity(header.meshes.len());
-        for (i, m) in header.meshes.iter().enumerate() {
-            let leaves = plan.vegetation.contains(&(i as u32));
+        // The header's meshes (leaves if any instance is vegetation), then
+        // the wall variants of the meshes used both ways.
+        let variants = (0..header.meshes.len())
+            .map(|i| (i, plan.vegetation.contains(&(i as u32))))
+            .chain(plan.mixed.iter().map(|&m| (m as usize, false)));
+        let mut lod_counts = Vec::new();
+        for (i, leaves) in variants {
+            let m = &header.meshes[i];
+            lod_counts.push(m.lods.len() as u32);
             let map = if leaves && options.vegetation_alpha {
                 crown_map(&geometry_bounds(m))
             } else {
@@ -476,7 +575,7 @@ impl TraceScene {
                 lods[sim] = g;
                 proxied |= p;
             }
-            if proxied {
+            if proxied && !box_proxies.contains(&m.id.0) {
                 box_proxies.push(m.id.0);
             }
             let mut bounds = Aabb::new(
@@ -504,9 +603,14 @@ impl TraceScene {
             (0.5 * (w.min[1] + w.max[1])) as f32,
         );
         let extent = ((w.max[0] - w.min[0]).max(w.max[1] - w.min[1]) as f32).max(1.0);
+        let key_mesh: HashMap<u32, u32> = plan
+            .slot_mesh
+            .iter()
+            .map(|&k| (k, plan.scene_mesh_of(k, header.meshes.len())))
+            .collect();
         let mut placed = Vec::with_capacity(plan.slots());
-        for (slot, &mesh) in plan.slot_mesh.iter().enumerate() {
-            placed.push(parked(&library, mesh, centre, slot)?);
+        for (slot, key) in plan.slot_mesh.iter().enumerate() {
+            placed.push(parked(&library, key_mesh[key], centre, slot)?);
         }
         let config = SceneConfig {
             extent,
@@ -518,9 +622,11 @@ impl TraceScene {
             scene,
             alloc: SlotAlloc::default(),
             index,
+            key_mesh,
+            rows: vec![[0.0; 12]; plan.slots()],
             dynamic: plan.slot_dynamic.clone(),
             lods: vec![(LOD_COUNT - 1) as u8; plan.slots()],
-            lod_counts: header.meshes.iter().map(|m| m.lods.len() as u32).collect(),
+            lod_counts,
             unmap,
             park_at: centre,
             box_proxies,
@@ -573,12 +679,8 @@ impl TraceScene {
                     .index
                     .get(&a.mesh)
                     .ok_or_else(|| SimError::Replay(format!("mesh {} unknown", a.mesh.0)))?;
-                let (slot, _) = self.alloc.add(a.id, mesh);
-                if self.alloc.mesh.len() > self.scene.instances().len() {
-                    return Err(SimError::Replay(
-                        "the trace differs from its first read (more slots)".into(),
-                    ));
-                }
+                let key = slot_key(mesh, a.flags);
+                let (slot, mesh) = self.add_slot(a.id, key)?;
                 let inst = SceneInstance {
                     transform: traceable(&a.pose.transform)? * self.unmap[mesh as usize],
                     aabb: a.pose.aabb,
@@ -586,17 +688,38 @@ impl TraceScene {
                     flags: self.sim_flags(slot, a.flags),
                 };
                 self.scene.set_instance(slot, inst)?;
+                self.rows[slot as usize] = a.pose.transform;
                 self.lods[slot as usize] = sim_lod(a.lod, k);
             }
             InstanceEvent::Update(u) => {
-                let slot = self
+                let mut slot = self
                     .alloc
                     .slot(u.id)
                     .ok_or_else(|| SimError::Replay("not live".into()))?;
                 let mut inst = *self.scene.instance(slot)?;
+                if let Some(f) = u.flags {
+                    let key = self.alloc.mesh[slot as usize];
+                    let new_key = slot_key(key / 2, f);
+                    if new_key != key {
+                        // Vegetation flipped: the instance moves to a slot
+                        // of the other material (as the first pass did),
+                        // the old slot is parked.
+                        let old = slot;
+                        self.alloc.remove(u.id);
+                        let (s, mesh) = self.add_slot(u.id, new_key)?;
+                        slot = s;
+                        inst.mesh = mesh;
+                        inst.transform =
+                            traceable(&self.rows[old as usize])? * self.unmap[mesh as usize];
+                        self.rows[slot as usize] = self.rows[old as usize];
+                        self.lods[slot as usize] = self.lods[old as usize];
+                        self.park(old)?;
+                    }
+                }
                 if let Some(p) = &u.pose {
                     inst.transform = traceable(&p.transform)? * self.unmap[inst.mesh as usize];
                     inst.aabb = p.aabb;
+                    self.rows[slot as usize] = p.transform;
                 }
                 if let Some(f) = u.flags {
                     inst.flags = self.sim_flags(slot, f);
@@ -616,12 +739,30 @@ impl TraceScene {
                     .alloc
                     .remove(*id)
                     .ok_or_else(|| SimError::Replay("not live".into()))?;
-                let mesh = self.scene.instance(slot)?.mesh;
-                let p = parked(self.scene.library(), mesh, self.park_at, slot as usize)?;
-                self.scene.set_instance(slot, p)?;
-                self.lods[slot as usize] = (LOD_COUNT - 1) as u8;
+                self.park(slot)?;
             }
         }
+        Ok(())
+    }
+
+    /// A slot for instance `id` with slot key `key`, and its scene mesh.
+    fn add_slot(&mut self, id: u64, key: u32) -> Result<(u32, u32), SimError> {
+        let (slot, _) = self.alloc.add(id, key);
+        let mesh = self.key_mesh.get(&key).copied();
+        match mesh {
+            Some(mesh) if self.alloc.mesh.len() <= self.scene.instances().len() => Ok((slot, mesh)),
+            _ => Err(SimError::Replay(
+                "the trace differs from its first read (more slots)".into(),
+            )),
+        }
+    }
+
+    /// Parks `slot` below the world (no live instance).
+    fn park(&mut self, slot: u32) -> Result<(), SimError> {
+        let mesh = self.scene.instance(slot)?.mesh;
+        let p = parked(self.scene.library(), mesh, self.park_at, slot as usize)?;
+        self.scene.set_instance(slot, p)?;
+        self.lods[slot as usize] = (LOD_COUNT - 1) as u8;
         Ok(())
     }
 

@@ -165,7 +165,9 @@ pub enum BoxKind {
 pub struct BoxHit {
     /// Which counter it feeds.
     pub kind: BoxKind,
-    /// Custom index of the box record (instance slot or hitbox index).
+    /// The counter's index: the box record's custom index (instance slot
+    /// or hitbox index), or for a merged box the leaf hitbox whose box the
+    /// ray entered.
     pub custom_index: u32,
     /// Index of the record in the TLAS input slice.
     pub record: u32,
@@ -227,11 +229,7 @@ impl SlotSet {
         let mut s = Self::new();
         for r in records {
             let sbt = r.sbt_offset();
-            if r.acceleration_structure_reference != 0
-                && r.mask() != 0
-                && sbt != counting.instance_box_sbt
-                && sbt != counting.hitbox_box_sbt
-            {
+            if r.acceleration_structure_reference != 0 && r.mask() != 0 && !counting.is_box(sbt) {
                 s.insert(r.custom_index());
             }
         }
@@ -341,7 +339,8 @@ pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
     let (o, d) = (ray.origin, ray.direction);
     let mut tray = BvhRay::new(o, d, ray.tmin, ray.tmax);
     let mut best: Option<(usize, usize)> = None;
-    let mut best_box: Option<(usize, f32)> = None;
+    // (entry, entry distance, leaf hitbox for a merged box)
+    let mut best_box: Option<(usize, f32, u32)> = None;
     let mut blas_state = Traversal::default();
     let mut state = tlas.bvh.new_traversal(d);
     let mut node;
@@ -385,10 +384,28 @@ pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
                                 best = Some((ei, p));
                             }
                         }
+                    } else if e.kind == EntryKind::MergedBox {
+                        // The nearest leaf box the ray enters, each tested
+                        // as its own entry would be (same inverse, same
+                        // arithmetic): the count of the leaf-only TLAS.
+                        let (min, max) = (blas.bounds.min.into(), blas.bounds.max.into());
+                        let leaves = &tlas.merged_leaves[e.leaves.0 as usize..e.leaves.1 as usize];
+                        for (leaf, w2o) in leaves {
+                            let leaf_ray = BvhRay::new(
+                                w2o.transform_point3a(o),
+                                w2o.transform_vector3a(d),
+                                tray.tmin,
+                                tray.tmax,
+                            );
+                            let t = box_entry(min, max, &leaf_ray);
+                            if t < best_box.map_or(f32::INFINITY, |b| b.1) {
+                                best_box = Some((ei, t, *leaf));
+                            }
+                        }
                     } else {
                         let t = box_entry(blas.bounds.min.into(), blas.bounds.max.into(), &lray);
                         if t < best_box.map_or(f32::INFINITY, |b| b.1) {
-                            best_box = Some((ei, t));
+                            best_box = Some((ei, t, e.custom_index));
                         }
                     }
                 }
@@ -410,7 +427,7 @@ pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
         })
     });
     let t_hit = hit.map_or(f32::INFINITY, |h| h.t);
-    let counted_box = best_box.filter(|b| b.1 <= t_hit).map(|(ei, t)| {
+    let counted_box = best_box.filter(|b| b.1 <= t_hit).map(|(ei, t, index)| {
         let e = &tlas.entries[ei];
         BoxHit {
             kind: if e.kind == EntryKind::InstanceBox {
@@ -418,7 +435,7 @@ pub fn trace(tlas: &CpuTlas, store: &BlasStore, ray: &Ray, skip: Option<&SlotSet
             } else {
                 BoxKind::Hitbox
             },
-            custom_index: e.custom_index,
+            custom_index: index,
             record: e.record,
             t,
         }

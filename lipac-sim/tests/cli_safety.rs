@@ -275,6 +275,7 @@ fn add(id: u64, lo: glam::Vec3, hi: glam::Vec3) -> InstanceEvent {
             transform: [1.0, 0.0, 0.0, c.x, 0.0, 1.0, 0.0, c.y, 0.0, 0.0, 1.0, c.z],
             aabb: lipac_core::math::Aabb::new(lo, hi),
         },
+        slot: None,
     })
 }
 
@@ -299,6 +300,7 @@ fn frame(number: u64, aspect: f32, events: Vec<InstanceEvent>) -> Frame {
         camera: camera(aspect),
         events,
         hits: Some(hits),
+        slot_hits: None,
     }
 }
 

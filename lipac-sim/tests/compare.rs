@@ -18,6 +18,8 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         strategies: strategies.to_vec(),
         share_ground_truth: share,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -97,6 +99,8 @@ fn config(frames: u32) -> CompareConfig {
         ],
         share_ground_truth: true,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     }
 }
 

@@ -105,6 +105,8 @@ fn record_then_replay_reproduces_compare_exactly() {
             strategies: strategies.clone(),
             share_ground_truth: true,
             threads: 2,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
         },
         &mut |_, _| {},
     )
@@ -253,6 +255,7 @@ fn churn(frames: u64, live: u64) -> Vec<u8> {
         camera: camera(),
         events: Vec::new(),
         hits: Some(Vec::new()),
+        slot_hits: None,
     };
     let place = |id: u64| pose_at(8.0 + (id * 37 % 240) as f32, 8.0 + (id * 91 % 240) as f32);
     for n in 0..frames {
@@ -277,6 +280,7 @@ fn churn(frames: u64, live: u64) -> Vec<u8> {
                 },
                 mask: None,
                 pose: place(next_id),
+                slot: None,
             }));
             alive.push_back(next_id);
             next_id += 1;

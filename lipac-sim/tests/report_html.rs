@@ -96,6 +96,8 @@ fn report_html_renders_in_headless_chromium() {
         ],
         share_ground_truth: true,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     let (r, snaps) =
         run_choice_with_snapshots(SceneChoice::Small, None, &config, &[0, 3], &mut |_, _| {})

@@ -15,6 +15,8 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         strategies: StrategyKind::ALL.to_vec(),
         share_ground_truth: true,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;

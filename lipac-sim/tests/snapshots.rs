@@ -30,6 +30,8 @@ fn run(frames: u32, snapshots: &[u32]) -> (lipac_sim::compare::CompareReport, Ve
         // ground truth's is then a property of the renderer.
         share_ground_truth: false,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     run_choice_with_snapshots(SceneChoice::Small, None, &config, snapshots, &mut |_, _| {}).unwrap()
 }

@@ -130,6 +130,7 @@ fn add(
         flags,
         mask: None,
         pose: pose(m, at, 0.0),
+        slot: None,
     })
 }
 
@@ -198,6 +199,7 @@ fn valley(frames: u64, deer_geometry: bool) -> (TraceHeader, Vec<Frame>) {
             camera: camera(f),
             events,
             hits: None,
+            slot_hits: None,
         });
     }
     (h, out)
@@ -580,4 +582,124 @@ fn a_pipe_of_many_frames_keeps_the_slots_of_the_live_instances() {
     feeder.join().unwrap();
     assert_eq!(report.frames, 300);
     assert_eq!(report.instances, 7);
+}
+
+/// The valley with two flag updates mid-trace: house 50, buried under the
+/// ground where no ray reaches it (so LiPaC never activates it for hits),
+/// becomes pinned at frame 3; house 11 becomes vegetation at frame 4 (the
+/// other houses stay wall).
+fn flag_valley(frames: u64) -> (TraceHeader, Vec<Frame>) {
+    let (h, mut out) = valley(frames, true);
+    out[0].events.push(add(
+        &h,
+        50,
+        HOUSE,
+        0,
+        Vec3::new(60.0, -40.0, -60.0),
+        InstanceFlags::STATIC,
+    ));
+    let flags = |id, flags| {
+        InstanceEvent::Update(UpdateInstance {
+            id,
+            pose: None,
+            lod: None,
+            flags: Some(flags),
+            mask: None,
+        })
+    };
+    out[3]
+        .events
+        .push(flags(50, InstanceFlags::STATIC | InstanceFlags::PINNED));
+    out[4]
+        .events
+        .push(flags(11, InstanceFlags::STATIC | InstanceFlags::VEGETATION));
+    (h, out)
+}
+
+#[test]
+fn mid_trace_flag_updates_reach_the_tracer_and_lipac() {
+    let frames_n = 8;
+    let (h, frames) = flag_valley(frames_n);
+    let bytes = write(&h, &frames);
+    // The scene: house 11 moves to a leaves slot (alpha-tested, vegetation
+    // mask) at frame 4, its old slot is parked; house 50 is pinned from
+    // frame 3 on.
+    let mut input = TraceInput::new(TraceFormat::Binary, Cursor::new(&bytes[..])).unwrap();
+    let plan = TracePlan::scan(&h, &mut input).unwrap();
+    let mut ts = TraceScene::new(&h, &plan, &TraceSceneOptions::default()).unwrap();
+    let mut pinned_slot = None;
+    for (f, frame) in frames.iter().enumerate() {
+        ts.apply(frame).unwrap();
+        let s11 = ts.slot_of(11).unwrap();
+        let inst = *ts.scene().instance(s11).unwrap();
+        let mesh = ts.scene().library().mesh(inst.mesh).unwrap();
+        let leaves = mesh.lods[0].alpha_tested.iter().all(|&a| a);
+        assert_eq!(inst.is_vegetation(), f >= 4, "frame {f}");
+        assert_eq!(leaves, f >= 4, "frame {f}");
+        // Same world placement either way (the leaves mesh lives in the
+        // crown's space, its instance carries the inverse map).
+        let p = inst
+            .transform
+            .transform_point3(Vec3::from(mesh.lods[0].triangles[0].v0));
+        assert!(p.x > -15.0 && p.x < -5.0 && p.y > -1.0, "frame {f}: {p}");
+        // Every other house stays wall.
+        let s12 = ts.slot_of(12).unwrap();
+        let m12 = ts.scene().instance(s12).unwrap().mesh;
+        assert!(ts.scene().library().mesh(m12).unwrap().lods[0]
+            .alpha_tested
+            .iter()
+            .all(|&a| !a));
+        let s50 = ts.slot_of(50).unwrap();
+        assert_eq!(ts.scene().instance(s50).unwrap().is_pinned(), f >= 3);
+        pinned_slot = Some(s50);
+    }
+    let pinned_slot = pinned_slot.unwrap() as usize;
+    // Replayed: full and oracle still exact; LiPaC traces house 50 from
+    // the update on (its BLAS requested at once).
+    let numbers: Vec<u32> = frames.iter().map(|f| f.number as u32).collect();
+    let config = ReplayConfig {
+        strategies: vec![
+            StrategyKind::Full,
+            StrategyKind::Oracle,
+            StrategyKind::Lipac,
+        ],
+        width: 48,
+        height: 27,
+        threads: 2,
+        snapshots: numbers.clone(),
+        ..ReplayConfig::default()
+    };
+    let r = replay_trace(
+        || TraceInput::new(TraceFormat::Binary, Cursor::new(&bytes[..])),
+        &config,
+        &TraceSceneOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap();
+    for name in ["full", "oracle"] {
+        let s = r.report.strategy(name).unwrap();
+        assert!(
+            s.frames.iter().all(|m| m.error == 0.0),
+            "{name}: {:?}",
+            s.frames.iter().map(|m| m.error).collect::<Vec<_>>()
+        );
+    }
+    assert_eq!(r.snapshots.len(), frames.len());
+    let lipac_state = |f: usize| {
+        let snap = &r.snapshots[f];
+        let s = snap.strategies.iter().find(|s| s.name == "lipac").unwrap();
+        s.map.instances[pinned_slot]
+    };
+    use lipac_sim::tlas_map::MapState;
+    for f in 0..3 {
+        assert_ne!(lipac_state(f).state, MapState::Active, "frame {f}");
+        assert!(!lipac_state(f).pinned, "frame {f}");
+    }
+    for f in 3..frames.len() {
+        let i = lipac_state(f);
+        assert!(i.pinned, "frame {f}");
+        // Activated and its BLAS requested at once: traced from the
+        // update's frame on.
+        assert_eq!(i.state, MapState::Active, "frame {f}");
+    }
 }

@@ -53,6 +53,7 @@ fn trace(world: WorldInfo, pitch: f32) -> Vec<u8> {
                             transform: affine_to_rows(&Affine3A::from_translation(c)),
                             aabb: Aabb::new(c - Vec3::ONE, c + Vec3::ONE),
                         },
+                        slot: None,
                     })
                 })
                 .collect()
@@ -71,6 +72,7 @@ fn trace(world: WorldInfo, pitch: f32) -> Vec<u8> {
             camera,
             events,
             hits: Some(hits),
+            slot_hits: None,
         })
         .unwrap();
     }

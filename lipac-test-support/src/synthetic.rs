@@ -33,8 +33,7 @@ use lipac_core::{BuildId, BuildPlanError, HitboxIndex};
 use crate::Rng64;
 
 /// Where acknowledgements go: a `Manager` ([`Manager::handle_ack`]) or a
-/// bare `BuildScheduler` (`ack_built`, `ack_compacted_size`,
-/// `ack_compacted`).
+/// bare `BuildScheduler` (`BuildScheduler::handle_ack`).
 pub trait AckSink {
     /// The refusal.
     type Error: std::fmt::Debug;
@@ -52,18 +51,7 @@ impl<H: HitboxIndex> AckSink for Manager<H> {
 impl AckSink for BuildScheduler {
     type Error = BuildPlanError;
     fn ack(&mut self, ack: Ack) -> Result<(), BuildPlanError> {
-        match ack {
-            Ack::Built {
-                build,
-                result_bytes,
-                address,
-            } => self.ack_built(build, result_bytes, address),
-            Ack::CompactedSize {
-                build,
-                compacted_bytes,
-            } => self.ack_compacted_size(build, compacted_bytes),
-            Ack::Compacted { op, address } => self.ack_compacted(op, address),
-        }
+        self.handle_ack(ack)
     }
 }
 

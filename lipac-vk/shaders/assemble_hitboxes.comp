@@ -4,7 +4,9 @@
 // back from ordered keys into f32 bits (every hitbox), then appends a
 // counting box spanning the cell's x/z bounds and [minY, maxY] for each
 // inactive hitbox with at least one inactive instance (minY <= maxY; flat
-// ranges are padded to minExtent like omitted boxes).
+// ranges are padded to minExtent like omitted boxes). With adaptive hitboxes
+// (pc.adaptiveLevels > 0) it only converts the heights: assemble_merged.comp
+// emits the boxes after a barrier (it reads neighbouring hitboxes).
 #extension GL_GOOGLE_include_directive : require
 #include "lipac_assembly.glsl"
 
@@ -15,6 +17,9 @@ void main() {
         uint maxBits = lipacFromOrderedKey(h.maxY);
         hitboxes[i].minY = minBits;
         hitboxes[i].maxY = maxBits;
+        if (pc.adaptiveLevels > 0u) {
+            continue;
+        }
         // Keys compare like the floats: minY > maxY means no inactive instance.
         if ((h.packed & LIPAC_HITBOX_ACTIVE) != 0u || h.minY > h.maxY) {
             continue;

@@ -1,7 +1,7 @@
 // lipac_assembly.glsl -- interface and helpers shared by lipac's TLAS
 // assembly passes (Algorithm 1): hitbox_reset.comp, assemble_instances.comp,
-// assemble_hitboxes.comp. One descriptor set layout and one push-constant
-// block for all three (lipac_vk::AssemblyPipeline).
+// assemble_hitboxes.comp, assemble_merged.comp. One descriptor set layout
+// and one push-constant block for all of them (lipac_vk::AssemblyPipeline).
 #ifndef LIPAC_ASSEMBLY_GLSL
 #define LIPAC_ASSEMBLY_GLSL
 
@@ -25,6 +25,11 @@ layout(push_constant) uniform AssemblyPush {
     uint instanceCount;      // slots to process
     uint hitboxCount;        // hitboxes to process
     uint tlasCapacity;       // records tlasOut can hold
+    // Adaptive hitboxes (lipac_core::hitbox_tree; 0 levels = off):
+    uint adaptiveLevels;     // merge levels
+    uint gridNx;             // the dense grid's cells along x
+    uint gridNz;             // ... and z
+    uint mergedSbt;          // SBT offset of merged boxes
 } pc;
 
 // VK_GEOMETRY_INSTANCE_FORCE_OPAQUE | TRIANGLE_FACING_CULL_DISABLE

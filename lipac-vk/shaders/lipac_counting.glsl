@@ -34,6 +34,25 @@
 //                           default: rayQueryConfirmIntersectionEXT(rq)
 //   LIPAC_CANDIDATE_AABB(rq) statement run for a candidate procedural AABB;
 //                           default: nothing (AABBs are ignored)
+// Adaptive hitboxes (lipac_core::hitbox_tree; merged counting boxes stand for
+// several inactive hitboxes), all of these or none:
+//   LIPAC_SBT_MERGED_BOX    uint: SBT record offset of merged boxes
+//   LIPAC_HITBOX_RECORDS    (as above) the hitbox records Algorithm 1 left
+//                           (heights, active bits)
+//   LIPAC_HITBOX_BOUNDS     name of a buffer array of vec4 per hitbox: its
+//                           x/z bounds (lo.x, lo.z, hi.x, hi.z), lipac_vk's
+//                           hitbox bounds buffer
+//   LIPAC_GRID_NX, LIPAC_GRID_NZ, LIPAC_ADAPTIVE_LEVELS  uint: the grid and
+//                           the merge levels; LIPAC_MIN_BOX_EXTENT float:
+//                           AssemblyConfig::min_box_extent
+// A merged box is resolved to its leaf hitboxes' boxes: the ray counts the
+// nearest leaf box it enters (as hitbox LIPAC_SBT_HITBOX_BOX, index = the
+// leaf), or meets no box there and goes on, so the counts are those of one
+// box per hitbox. The trace then takes two queries: the boxes alone (every
+// box face a candidate, gl_RayFlagsNoOpaqueEXT), then the closest real hit
+// with boxes masked out; the nearest box counts if it starts before that
+// hit, its start being its entry (tMin for a ray starting inside it), as in
+// lipac-sim's tracer.
 //
 // Boxes should be instances with VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_KHR
 // and TRIANGLE_FACING_CULL_DISABLE: then they show up as candidates and are
@@ -76,8 +95,85 @@
 
 // Whether an instance SBT record offset marks a counting box.
 bool lipacIsCountingBox(uint sbtOffset) {
+#ifdef LIPAC_SBT_MERGED_BOX
+    if (sbtOffset == uint(LIPAC_SBT_MERGED_BOX)) {
+        return true;
+    }
+#endif
     return sbtOffset == uint(LIPAC_SBT_OMITTED_BOX) || sbtOffset == uint(LIPAC_SBT_HITBOX_BOX);
 }
+
+#ifdef LIPAC_SBT_MERGED_BOX
+#ifndef LIPAC_HITBOX_RECORDS
+#error "lipac_counting.glsl: LIPAC_SBT_MERGED_BOX needs LIPAC_HITBOX_RECORDS"
+#endif
+// Entry and exit of the ray into [lo, hi], clipped to [tMin, tMax].
+bool lipacSlab(vec3 lo, vec3 hi, vec3 o, vec3 invD, float tMin, float tMax,
+               out float tNear, out float tFar) {
+    vec3 t0 = (lo - o) * invD;
+    vec3 t1 = (hi - o) * invD;
+    vec3 a = min(t0, t1);
+    vec3 b = max(t0, t1);
+    tNear = max(max(a.x, a.y), max(a.z, tMin));
+    tFar = min(min(b.x, b.y), min(b.z, tMax));
+    return tNear <= tFar;
+}
+
+// The nearest box of merged box `id`'s leaf hitboxes the ray enters in
+// [tMin, tMax]: its entry distance and hitbox index.
+bool lipacMergedLeaf(uint id, vec3 o, vec3 d, float tMin, float tMax,
+                     out float tLeaf, out uint leaf) {
+    tLeaf = tMax;
+    leaf = 0u;
+    uint nx = uint(LIPAC_GRID_NX);
+    uint nz = uint(LIPAC_GRID_NZ);
+    uint level = 0u;
+    uint base = 0u;
+    uint w = 1u;
+    for (uint l = 1u; l <= uint(LIPAC_ADAPTIVE_LEVELS); ++l) {
+        uint wl = (nx + (1u << l) - 1u) >> l;
+        uint hl = (nz + (1u << l) - 1u) >> l;
+        if (id < base + wl * hl) {
+            level = l;
+            w = wl;
+            break;
+        }
+        base += wl * hl;
+    }
+    if (level == 0u) {
+        return false;
+    }
+    uint k = id - base;
+    uint x0 = (k % w) << level, z0 = (k / w) << level;
+    uint x1 = min(x0 + (1u << level), nx), z1 = min(z0 + (1u << level), nz);
+    vec3 invD = 1.0 / d;
+    float ext = float(LIPAC_MIN_BOX_EXTENT);
+    bool found = false;
+    for (uint z = z0; z < z1; ++z) {
+        for (uint x = x0; x < x1; ++x) {
+            uint i = x + z * nx;
+            LipacHitboxRecord h = LIPAC_HITBOX_RECORDS[i];
+            float minY = uintBitsToFloat(h.minY);
+            float maxY = uintBitsToFloat(h.maxY);
+            if ((h.packed & 1u) != 0u || minY > maxY) {
+                continue;
+            }
+            vec4 b = LIPAC_HITBOX_BOUNDS[i];
+            vec3 lo = vec3(b.x, minY, b.y);
+            vec3 hi = vec3(b.z, maxY, b.w);
+            vec3 pad = max(vec3(ext) - (hi - lo), vec3(0.0)) * 0.5;
+            float tn, tf;
+            if (lipacSlab(lo - pad, hi + pad, o, invD, tMin, tMax, tn, tf) &&
+                (!found || tn < tLeaf)) {
+                found = true;
+                tLeaf = tn;
+                leaf = i;
+            }
+        }
+    }
+    return found;
+}
+#endif
 
 // Counts one hit on the box with this SBT record offset and custom index.
 void lipacCountBox(uint sbtOffset, uint customIndex) {
@@ -110,8 +206,119 @@ struct LipacHit {
 // Traces one ray through `tlas`, counting at most one counting box (the
 // nearest, if it lies before the closest real hit), and returns the closest
 // real hit.
+#ifdef LIPAC_SBT_MERGED_BOX
+// Start of the box instance `m` (object to world of the unit cube) along the
+// ray within [tMin, tMax]: its entry, or tMin from inside; false on a miss.
+bool lipacBoxEntry(mat4x3 m, vec3 o, vec3 invD, float tMin, float tMax, out float tIn,
+                   out float tOut) {
+    return lipacSlab(m[3], m[3] + vec3(m[0].x, m[1].y, m[2].z), o, invD, tMin, tMax, tIn, tOut);
+}
+
+// lipacTraceCounting with merged boxes (see the header).
+LipacHit lipacTraceCountingMerged(accelerationStructureEXT tlas, uint rayFlags, uint cullMask,
+                                  vec3 origin, float tMin, vec3 direction, float tMax) {
+    LipacHit res;
+    res.hit = false;
+    res.t = tMax;
+    res.customIndex = 0u;
+    res.instanceId = 0u;
+    res.sbtOffset = 0u;
+    res.geometryIndex = 0u;
+    res.primitiveIndex = 0u;
+    res.barycentrics = vec2(0.0);
+    res.frontFace = false;
+    res.countedBox = false;
+
+    bool haveBox = false;
+    float boxT = tMax;
+    uint boxSbt = 0u;
+    uint boxIndex = 0u;
+    vec3 invD = 1.0 / direction;
+    uint boxMask = cullMask & uint(LIPAC_COUNTING_MASK);
+
+    // The boxes alone, every box face on the ray as a candidate (NoOpaque:
+    // nothing is committed before the nearest box is known); a box found is
+    // confirmed, which culls only faces beyond it (boxes have disjoint x/z
+    // footprints, so none that could start before it).
+    if (boxMask != 0u) {
+        uint flags = (rayFlags & ~(gl_RayFlagsOpaqueEXT | gl_RayFlagsTerminateOnFirstHitEXT)) |
+                     gl_RayFlagsNoOpaqueEXT;
+        rayQueryEXT rq;
+        rayQueryInitializeEXT(rq, tlas, flags, boxMask, origin, tMin, direction, tMax);
+        while (rayQueryProceedEXT(rq)) {
+            if (rayQueryGetIntersectionTypeEXT(rq, false) !=
+                gl_RayQueryCandidateIntersectionTriangleEXT) {
+                continue;
+            }
+            uint sbt = rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(rq, false);
+            if (!lipacIsCountingBox(sbt)) {
+                continue;
+            }
+            uint index = uint(rayQueryGetIntersectionInstanceCustomIndexEXT(rq, false));
+            float t, tOut;
+            if (sbt == uint(LIPAC_SBT_MERGED_BOX)) {
+                uint leaf;
+                if (!lipacMergedLeaf(index, origin, direction, tMin, tMax, t, leaf)) {
+                    continue;
+                }
+                sbt = uint(LIPAC_SBT_HITBOX_BOX);
+                index = leaf;
+            } else if (!lipacBoxEntry(rayQueryGetIntersectionObjectToWorldEXT(rq, false), origin,
+                                      invD, tMin, tMax, t, tOut)) {
+                t = rayQueryGetIntersectionTEXT(rq, false);
+            }
+            if (!haveBox || t < boxT) {
+                haveBox = true;
+                boxT = t;
+                boxSbt = sbt;
+                boxIndex = index;
+                rayQueryConfirmIntersectionEXT(rq);
+            }
+        }
+    }
+
+    // The closest real hit, boxes masked out.
+    rayQueryEXT rq;
+    rayQueryInitializeEXT(rq, tlas, rayFlags, lipacMaskOutCountingBoxes(cullMask), origin, tMin,
+                          direction, tMax);
+    while (rayQueryProceedEXT(rq)) {
+        if (rayQueryGetIntersectionTypeEXT(rq, false) ==
+            gl_RayQueryCandidateIntersectionTriangleEXT) {
+            LIPAC_CANDIDATE_TRIANGLE(rq);
+        } else {
+            LIPAC_CANDIDATE_AABB(rq);
+        }
+    }
+    if (rayQueryGetIntersectionTypeEXT(rq, true) != gl_RayQueryCommittedIntersectionNoneEXT) {
+        res.hit = true;
+        res.t = rayQueryGetIntersectionTEXT(rq, true);
+        res.customIndex = uint(rayQueryGetIntersectionInstanceCustomIndexEXT(rq, true));
+        res.instanceId = uint(rayQueryGetIntersectionInstanceIdEXT(rq, true));
+        res.sbtOffset =
+            rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(rq, true);
+        res.geometryIndex = uint(rayQueryGetIntersectionGeometryIndexEXT(rq, true));
+        res.primitiveIndex = uint(rayQueryGetIntersectionPrimitiveIndexEXT(rq, true));
+        res.barycentrics = rayQueryGetIntersectionBarycentricsEXT(rq, true);
+        res.frontFace = rayQueryGetIntersectionFrontFaceEXT(rq, true);
+    }
+    if (haveBox && boxT <= res.t) {
+        lipacCountBox(boxSbt, boxIndex);
+        res.countedBox = true;
+    }
+#ifdef LIPAC_COUNT_COMMITTED_HITS
+    if (res.hit) {
+        LIPAC_COUNT_INSTANCE(res.customIndex);
+    }
+#endif
+    return res;
+}
+#endif
+
 LipacHit lipacTraceCounting(accelerationStructureEXT tlas, uint rayFlags, uint cullMask,
                             vec3 origin, float tMin, vec3 direction, float tMax) {
+#ifdef LIPAC_SBT_MERGED_BOX
+    return lipacTraceCountingMerged(tlas, rayFlags, cullMask, origin, tMin, direction, tMax);
+#endif
     LipacHit res;
     res.hit = false;
     res.t = tMax;

@@ -11,7 +11,12 @@
 //!    omitted → counting box, inactive → `atomicMin`/`atomicMax` of its y
 //!    range into its hitbox on order-preserving keys);
 //! 3. `assemble_hitboxes.comp`: one thread per hitbox (keys back to f32, a
-//!    counting box for each inactive hitbox with an inactive instance).
+//!    counting box for each inactive hitbox with an inactive instance);
+//! 4. with adaptive hitboxes only ([`AssemblyPipeline::record_adaptive`],
+//!    [`lipac_core::hitbox_tree`]): pass 3 only converts the heights and
+//!    `assemble_merged.comp` (one thread per hitbox) emits the boxes, merged
+//!    over cold quadtree nodes, matching
+//!    [`lipac_core::assembly::assemble_tlas_adaptive`].
 //!
 //! Records past the counter stay zero, i.e. inactive (reference 0), so the
 //! TLAS can be built over a fixed count (e.g. [`AssemblyBindings::tlas_capacity`])
@@ -24,16 +29,20 @@ use crate::compute::{
 use crate::context::DeviceContext;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
-use crate::shaders::{ASSEMBLE_HITBOXES_SPV, ASSEMBLE_INSTANCES_SPV, HITBOX_RESET_SPV};
+use crate::shaders::{
+    ASSEMBLE_HITBOXES_SPV, ASSEMBLE_INSTANCES_SPV, ASSEMBLE_MERGED_SPV, HITBOX_RESET_SPV,
+};
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 use lipac_core::assembly::AssemblyConfig;
 use lipac_core::hitbox_index::HitboxIndex;
+use lipac_core::hitbox_tree::HitboxTree;
 use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance, MAX_SLOTS};
 
 const RESET: usize = 0;
 const INSTANCES: usize = 1;
 const HITBOXES: usize = 2;
+const MERGED: usize = 3;
 const BINDINGS: u32 = 5;
 
 /// Push constants of the assembly passes (`lipac_assembly.glsl`).
@@ -48,7 +57,10 @@ struct AssemblyPush {
     instance_count: u32,
     hitbox_count: u32,
     tlas_capacity: u32,
-    _pad: u32,
+    adaptive_levels: u32,
+    grid_nx: u32,
+    grid_nz: u32,
+    merged_sbt: u32,
 }
 
 /// One hitbox's cell in x/z as the GPU reads it: `[lo.x, lo.z, hi.x, hi.z]`
@@ -175,6 +187,7 @@ impl AssemblyPipeline {
                 HITBOX_RESET_SPV,
                 ASSEMBLE_INSTANCES_SPV,
                 ASSEMBLE_HITBOXES_SPV,
+                ASSEMBLE_MERGED_SPV,
             ],
         )?;
         Ok(Self { kernels })
@@ -251,6 +264,44 @@ impl AssemblyPipeline {
         config: &AssemblyConfig,
         slot_count: u32,
     ) -> Result<()> {
+        self.record_adaptive(rec, bindings, config, None, slot_count)
+    }
+
+    /// [`Self::record`] with adaptive hitboxes: with `tree`, the hitbox
+    /// boxes are merged over cold quadtree nodes as
+    /// [`lipac_core::assembly::assemble_tlas_adaptive`] does (one more
+    /// pass, `assemble_merged.comp`); `None` is [`Self::record`].
+    ///
+    /// # Errors
+    ///
+    /// As [`Self::record`]; [`VkError::InvalidArgument`] when the tree's
+    /// grid has another cell count than the hitbox buffer.
+    pub fn record_adaptive(
+        &self,
+        rec: &mut Recorder<'_>,
+        bindings: &AssemblyBindings,
+        config: &AssemblyConfig,
+        tree: Option<&HitboxTree>,
+        slot_count: u32,
+    ) -> Result<()> {
+        let (grid_nx, grid_nz, adaptive_levels, merged_sbt) = match tree {
+            Some(t) => {
+                let (nx, nz) = t.leaf_dims();
+                if u64::from(nx) * u64::from(nz) != u64::from(bindings.hitboxes) {
+                    return Err(VkError::InvalidArgument(format!(
+                        "adaptive hitbox tree over {nx} x {nz} cells but {} hitbox records",
+                        bindings.hitboxes
+                    )));
+                }
+                (
+                    nx,
+                    nz,
+                    u32::from(t.levels()),
+                    t.config().merged_box_sbt_offset,
+                )
+            }
+            None => (1, 1, 0, 0),
+        };
         if slot_count > bindings.slots {
             return Err(VkError::InvalidArgument(format!(
                 "{slot_count} slots but the instance buffer holds {}",
@@ -276,7 +327,10 @@ impl AssemblyPipeline {
             instance_count: slot_count,
             hitbox_count: bindings.hitboxes,
             tlas_capacity: bindings.tlas_capacity,
-            _pad: 0,
+            adaptive_levels,
+            grid_nx,
+            grid_nz,
+            merged_sbt,
         };
         let push = bytemuck::bytes_of(&push);
         rec.memory_barrier(
@@ -298,6 +352,11 @@ impl AssemblyPipeline {
         compute_to_compute(rec, false);
         self.kernels
             .dispatch(rec, sets, HITBOXES, push, bindings.hitboxes)?;
+        if adaptive_levels > 0 {
+            compute_to_compute(rec, false);
+            self.kernels
+                .dispatch(rec, sets, MERGED, push, bindings.hitboxes)?;
+        }
         compute_to_everything(rec);
         Ok(())
     }

@@ -1,14 +1,16 @@
 //! The engine-facing object, [`LipacVk`] (its docs describe the frame).
 
 use crate::as_pool::AccelerationStructurePool;
-use crate::assembly::{hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline};
+use crate::assembly::{AssemblyBindings, AssemblyBuffers, AssemblyPipeline};
 use crate::blas::{BlasBatch, GpuBlas};
 use crate::commands::{OneShot, Recorder};
 use crate::context::DeviceContext;
 use crate::counting::{CountingBoxConfig, UnitCube};
 use crate::error::{Result, VkError};
+use crate::escape::{EscapeBindings, EscapeSums};
 use crate::executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 use crate::feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
+use crate::hitbox_tables::HitboxTables;
 use crate::lifetimes::{Retirement, TlasPair};
 use crate::memory::{Buffer, MemoryLocation, ScratchBuffer};
 use crate::readback::{CommandReadback, CommandReadbackRing};
@@ -16,6 +18,7 @@ use crate::timeline::TimelineSemaphore;
 use crate::tlas::GpuTlas;
 use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
+use lipac_core::controller::EscapeSample;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance};
 use lipac_core::manager::{Ack, DataUpload, Manager, ManagerPlan};
@@ -24,6 +27,9 @@ use lipac_core::thresholds::Thresholds;
 const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
 const HITBOX_BYTES: u64 = std::mem::size_of::<HitboxRecord>() as u64;
 const TLAS_RECORD_BYTES: u64 = std::mem::size_of::<TlasInstance>() as u64;
+/// Words of a read-back slot's counters before the hit counters: the TLAS
+/// record count and the four words of the escape sums.
+const COUNTER_HEADER_WORDS: u64 = 5;
 
 const STORAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
 const TRANSFER: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
@@ -36,6 +42,10 @@ pub struct LipacVkConfig {
     /// Slots the per-slot GPU tables hold at first; they grow (at least
     /// doubling) when the manager's registry has more.
     pub initial_slot_capacity: u32,
+    /// Hitboxes the hitbox tables hold at first, at least the index's
+    /// [`HitboxIndex::len`] at creation (0: just that). They grow (at least
+    /// doubling) when the index grows (a hashed index creating cells).
+    pub initial_hitbox_capacity: u32,
     /// Read-back ring slots: at least the engine's frames in flight plus
     /// one, so that [`LipacVk::record_feedback`] never finds its slot unread
     /// (2..=16).
@@ -58,13 +68,14 @@ pub struct LipacVkConfig {
 }
 
 impl Default for LipacVkConfig {
-    /// 1024 slots, 4 read-back slots (3 frames in flight), 65 536 command
+    /// 1024 slots, the index's hitboxes, 4 read-back slots (3 frames in flight), 65 536 command
     /// words (the manager's default), 64 MiB pool
     /// blocks, the default counting configuration, a fast-trace TLAS, no
     /// diagnostics.
     fn default() -> Self {
         Self {
             initial_slot_capacity: 1024,
+            initial_hitbox_capacity: 0,
             readback_slots: 4,
             command_capacity: 65_536,
             pool_block_size: crate::as_pool::DEFAULT_POOL_BLOCK_SIZE,
@@ -115,6 +126,12 @@ pub struct RecordedFrame {
     pub slot_tables_grew: bool,
     /// Whether the geometry-data buffer grew this frame.
     pub data_grew: bool,
+    /// Whether the hitbox records and bounds grew this frame (the index
+    /// has more hitboxes; [`LipacVk::hitbox_records`] is a new buffer).
+    pub hitbox_tables_grew: bool,
+    /// Hitbox bounds written this frame (all at the first frame and after
+    /// growth, then those of the index's new, reused and evicted cells).
+    pub hitbox_bounds_written: u32,
     /// Slots Algorithm 1 ran over.
     pub slots: u32,
     /// TLAS records built over (slots + hitboxes, the most Algorithm 1 emits).
@@ -145,6 +162,12 @@ pub struct FrameReadback {
     pub instance_hits: Vec<u32>,
     /// TLAS records Algorithm 1 appended (instances and counting boxes).
     pub tlas_records: u32,
+    /// The escape fraction's sums of the frame, summed on the GPU after the
+    /// trace: counting-box hits and all counted hits, the sample
+    /// [`Manager::process_feedback`] takes on the CPU. [`Polled::deliver`]
+    /// hands it to [`Manager::observe_escape`] (the closed-loop
+    /// [`lipac_core::controller::ControlTarget::EscapeFraction`]).
+    pub escape: EscapeSample,
     /// The diagnostics copies, if enabled.
     pub diagnostics: Option<FrameDiagnostics>,
 }
@@ -166,8 +189,9 @@ impl Polled {
     /// Hands everything to `manager`: acknowledgements first, then each
     /// read-back's commands with the frame that wrote them
     /// ([`Manager::ingest_readback`], the same call as for CPU backends: the
-    /// commands set the manager's commanded state) and hit counters
-    /// ([`Manager::record_hits`]).
+    /// commands set the manager's commanded state), hit counters
+    /// ([`Manager::record_hits`]) and escape sums
+    /// ([`Manager::observe_escape`], the newest read-back's last).
     ///
     /// # Errors
     ///
@@ -188,6 +212,7 @@ impl Polled {
         for r in &self.readbacks {
             manager.ingest_readback(r.frame, r.commands.counter(), r.commands.words());
             manager.record_hits(&r.instance_hits);
+            manager.observe_escape(r.escape);
         }
         result
     }
@@ -200,7 +225,8 @@ pub struct LipacVkStats {
     pub executor: ExecutorStats,
     /// Slots the per-slot tables hold.
     pub slot_capacity: u32,
-    /// Bytes of the per-slot tables, hitbox records and command buffer.
+    /// Bytes of the per-slot tables, hitbox records and bounds, and command
+    /// buffer.
     pub table_bytes: u64,
     /// Bytes of the geometry-data buffer.
     pub data_bytes: u64,
@@ -246,17 +272,19 @@ struct SlotTables {
     tlas_instances: Buffer,
     assembly: AssemblyBindings,
     feedback: FeedbackBindings,
+    escape: EscapeBindings,
     uploads: Vec<UploadSet>,
 }
 
 /// The extra host-visible copies of one read-back ring slot.
 #[derive(Debug)]
 struct ReadbackExtra {
-    /// `[tlas count, hits ...]`.
+    /// `[tlas count, escape sums (4 words), hits ...]`.
     counters: Buffer,
     diagnostics: Option<Buffer>,
     frame: u64,
     slots: u32,
+    hitboxes: u32,
     tlas_records: u32,
 }
 
@@ -265,6 +293,7 @@ struct FrameInProgress {
     value: u64,
     frame: u64,
     slots: u32,
+    hitboxes: u32,
     tlas_records: u32,
     thresholds: Thresholds,
 }
@@ -310,10 +339,10 @@ pub struct LipacVk {
     executor: PlanExecutor,
     _cube: UnitCube,
     cube_blas: GpuBlas,
-    hitbox_count: u32,
-    hitboxes: Buffer,
-    bounds: Buffer,
+    hitbox: HitboxTables,
     tlas_counter: Buffer,
+    escape: EscapeSums,
+    escape_sums: Buffer,
     commands: Buffer,
     command_counter: Buffer,
     tables: Option<SlotTables>,
@@ -399,10 +428,7 @@ impl LipacVk {
                 config.readback_slots, config.initial_slot_capacity, config.command_capacity
             )));
         }
-        let hitbox_count = index.len();
-        if hitbox_count > lipac_core::layout::MAX_SLOTS {
-            return Err(VkError::InvalidArgument(format!("{hitbox_count} hitboxes")));
-        }
+        let hitbox = HitboxTables::new(ctx, index, config.initial_hitbox_capacity)?;
         let pool = AccelerationStructurePool::new(ctx, config.pool_block_size)?;
         let executor = PlanExecutor::new(ctx, pool)?;
         let cube = UnitCube::new(ctx)?;
@@ -417,19 +443,10 @@ impl LipacVk {
             .blases
             .pop()
             .ok_or_else(|| VkError::InvalidArgument("unit cube BLAS not built".into()))?;
-        let hitboxes = buffer(
-            ctx,
-            u64::from(hitbox_count) * HITBOX_BYTES,
-            STORAGE | TRANSFER,
-        )?;
-        let bounds = Buffer::with_data(
-            ctx,
-            STORAGE,
-            MemoryLocation::CpuToGpu,
-            &hitbox_bounds(index),
-        )?;
         Ok(Self {
             tlas_counter: buffer(ctx, 4, STORAGE | TRANSFER)?,
+            escape: EscapeSums::new(ctx)?,
+            escape_sums: buffer(ctx, crate::escape::SUMS_BYTES, STORAGE | TRANSFER)?,
             commands: buffer(
                 ctx,
                 4 * u64::from(config.command_capacity),
@@ -449,9 +466,7 @@ impl LipacVk {
             executor,
             _cube: cube,
             cube_blas,
-            hitbox_count,
-            hitboxes,
-            bounds,
+            hitbox,
             tables: None,
             data: None,
             in_progress: None,
@@ -520,8 +535,16 @@ impl LipacVk {
     }
 
     /// The hitbox records (`LIPAC_HITBOX_RECORDS` of the engine's shaders).
+    /// The buffer changes when the hitbox index grows
+    /// ([`RecordedFrame::hitbox_tables_grew`]): bind it per frame.
     pub fn hitbox_records(&self) -> &Buffer {
-        &self.hitboxes
+        self.hitbox.records()
+    }
+
+    /// Hitboxes the hitbox tables hold now (at least the manager's
+    /// [`HitboxIndex::len`] at the last [`LipacVk::record_frame`]).
+    pub fn hitbox_capacity(&self) -> u32 {
+        self.hitbox.capacity()
     }
 
     /// The geometry-data buffer (`None` before the first frame); replaced
@@ -549,8 +572,8 @@ impl LipacVk {
 
     /// Counters and memory.
     pub fn stats(&self) -> LipacVkStats {
-        let mut table_bytes = self.hitboxes.size()
-            + self.bounds.size()
+        let mut table_bytes = self.hitbox.bytes()
+            + self.escape_sums.size()
             + self.commands.size()
             + self.command_counter.size()
             + self.tlas_counter.size();
@@ -602,14 +625,15 @@ impl LipacVk {
             let extra = self.extras[slot].as_ref().ok_or_else(|| {
                 VkError::InvalidArgument(format!("read-back slot {slot} without its copies"))
             })?;
-            let counters: Vec<u32> = extra.counters.read(0, 1 + extra.slots as usize)?;
+            let header = COUNTER_HEADER_WORDS as usize;
+            let counters: Vec<u32> = extra.counters.read(0, header + extra.slots as usize)?;
             let diagnostics = match &extra.diagnostics {
                 Some(d) => {
                     let tlas_bytes = u64::from(extra.tlas_records) * TLAS_RECORD_BYTES;
                     let count = (counters[0] as usize).min(extra.tlas_records as usize);
                     Some(FrameDiagnostics {
                         tlas_instances: d.read(0, count)?,
-                        hitboxes: d.read(tlas_bytes, self.hitbox_count as usize)?,
+                        hitboxes: d.read(tlas_bytes, extra.hitboxes as usize)?,
                     })
                 }
                 None => None,
@@ -617,8 +641,14 @@ impl LipacVk {
             readbacks.push(FrameReadback {
                 frame: extra.frame,
                 commands,
-                instance_hits: counters[1..].to_vec(),
+                instance_hits: counters[header..].to_vec(),
                 tlas_records: counters[0],
+                escape: crate::escape::sample_of([
+                    counters[1],
+                    counters[2],
+                    counters[3],
+                    counters[4],
+                ]),
                 diagnostics,
             });
         }
@@ -672,11 +702,21 @@ impl LipacVk {
                 self.unit_cube_address()
             )));
         }
-        if manager.hitboxes().len() != self.hitbox_count as usize {
+        if culling.adaptive_hitboxes.is_on() {
+            // AssemblyPipeline::record_adaptive assembles them, but the
+            // counting shaders do not resolve merged boxes yet.
+            return Err(VkError::InvalidArgument(
+                "adaptive hitboxes (CullingConfig::adaptive_hitboxes) are not supported by \
+                 lipac-vk's frame loop yet: set adaptive_hitboxes.levels = 0"
+                    .into(),
+            ));
+        }
+        let index = manager.registry().hitbox_index();
+        if manager.hitboxes().len() != index.len() as usize {
             return Err(VkError::InvalidArgument(format!(
-                "the manager has {} hitboxes, lipac-vk was created for {}",
+                "the manager has {} hitbox records for {} hitboxes",
                 manager.hitboxes().len(),
-                self.hitbox_count
+                index.len()
             )));
         }
         let value = self.ring.next_value();
@@ -696,6 +736,19 @@ impl LipacVk {
             )));
         }
 
+        // Hitbox tables: grown with the index (records copied, bounds
+        // re-uploaded), evicted records reset, new and changed bounds written.
+        let hitbox = self.hitbox.record(
+            &self.ctx,
+            rec,
+            index,
+            manager.registry().evicted_hitboxes(),
+            &mut self.retirement,
+            value,
+        )?;
+        out.hitbox_tables_grew = hitbox.grew;
+        out.hitbox_bounds_written = hitbox.bounds_written;
+
         // Slot tables: created at the first frame, grown (contents kept).
         let first = self.tables.is_none();
         if first || slots > self.tables.as_ref().map_or(0, |t| t.capacity) {
@@ -707,9 +760,6 @@ impl LipacVk {
             fill_zero(rec, &tables.instances);
             fill_zero(rec, &tables.data_offsets);
             fill_zero(rec, &tables.instance_rates);
-            if first {
-                fill_zero(rec, &self.hitboxes);
-            }
             if let Some(old) = self.tables.take() {
                 rec.memory_barrier(
                     vk::PipelineStageFlags2::ALL_COMMANDS,
@@ -741,6 +791,8 @@ impl LipacVk {
             }
             transfer_to_all(rec);
             self.tables = Some(tables);
+        } else if hitbox.grew {
+            self.rebind_tables(value)?;
         }
 
         // Geometry data: growth, then this plan's ranges.
@@ -764,7 +816,7 @@ impl LipacVk {
             None => {
                 let bindings = self.uploader.bind(&UploadTargets {
                     instances: &tables.instances,
-                    hitboxes: &self.hitboxes,
+                    hitboxes: self.hitbox.records(),
                 })?;
                 tables.uploads.push(UploadSet {
                     bindings,
@@ -784,7 +836,8 @@ impl LipacVk {
         self.feedback
             .record_clear_instance_hits(rec, &tables.feedback)?;
         self.assembly.record(rec, &tables.assembly, a, slots)?;
-        let tlas_records = slots + self.hitbox_count;
+        let hitboxes = self.hitbox.count();
+        let tlas_records = slots + hitboxes;
         self.tlas.record_build(
             rec,
             &tables.tlas_instances,
@@ -799,6 +852,7 @@ impl LipacVk {
             value,
             frame: plan.frame,
             slots,
+            hitboxes,
             tlas_records,
             thresholds: culling.thresholds,
         });
@@ -828,10 +882,10 @@ impl LipacVk {
             VkError::InvalidArgument("record_feedback before the first frame".into())
         })?;
         // The extra copies of this ring slot (not in use: the slot was read).
-        let counters_bytes = 4 * (1 + u64::from(tables.capacity));
+        let counters_bytes = 4 * (COUNTER_HEADER_WORDS + u64::from(tables.capacity));
         let diag_bytes = self.config.read_back_diagnostics.then(|| {
             u64::from(frame.tlas_records) * TLAS_RECORD_BYTES
-                + u64::from(self.hitbox_count) * HITBOX_BYTES
+                + u64::from(frame.hitboxes) * HITBOX_BYTES
         });
         let reuse = self.extras[slot].take().filter(|e| {
             e.counters.size() >= counters_bytes
@@ -854,7 +908,7 @@ impl LipacVk {
                     .map(|b| {
                         Buffer::new(
                             &self.ctx,
-                            b,
+                            b.max(4),
                             vk::BufferUsageFlags::TRANSFER_DST,
                             MemoryLocation::GpuToCpu,
                         )
@@ -862,11 +916,13 @@ impl LipacVk {
                     .transpose()?,
                 frame: 0,
                 slots: 0,
+                hitboxes: 0,
                 tlas_records: 0,
             },
         };
         extra.frame = frame.frame;
         extra.slots = frame.slots;
+        extra.hitboxes = frame.hitboxes;
         extra.tlas_records = frame.tlas_records;
 
         // The traces' writes, then the copies taken before Algorithm 2.
@@ -887,13 +943,30 @@ impl LipacVk {
             );
             copy(
                 rec,
-                &self.hitboxes,
+                self.hitbox.records(),
                 d,
                 &[vk::BufferCopy::default()
                     .dst_offset(tlas_bytes)
-                    .size(u64::from(self.hitbox_count) * HITBOX_BYTES)],
+                    .size(u64::from(frame.hitboxes) * HITBOX_BYTES)],
             );
         }
+        // The escape fraction's sums, from the trace's counts (before
+        // Algorithm 2 adds instance hits to the hitboxes).
+        self.escape.record(
+            rec,
+            &tables.escape,
+            &self.escape_sums,
+            frame.slots,
+            frame.hitboxes,
+        )?;
+        copy(
+            rec,
+            &self.escape_sums,
+            &extra.counters,
+            &[vk::BufferCopy::default()
+                .dst_offset(4)
+                .size(crate::escape::SUMS_BYTES)],
+        );
         self.feedback
             .record(rec, &tables.feedback, &frame.thresholds, frame.slots)?;
         if frame.slots > 0 {
@@ -902,7 +975,7 @@ impl LipacVk {
                 &tables.instance_hits,
                 &extra.counters,
                 &[vk::BufferCopy::default()
-                    .dst_offset(4)
+                    .dst_offset(4 * COUNTER_HEADER_WORDS)
                     .size(4 * u64::from(frame.slots))],
             );
         }
@@ -932,28 +1005,9 @@ impl LipacVk {
         let instance_hits = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let instance_rates = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let data_offsets = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
-        let tlas_instances = buffer(
-            ctx,
-            (n + u64::from(self.hitbox_count)) * TLAS_RECORD_BYTES,
-            STORAGE
-                | TRANSFER
-                | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR,
-        )?;
-        let assembly = self.assembly.bind(&AssemblyBuffers {
-            instances: &instances,
-            hitboxes: &self.hitboxes,
-            hitbox_bounds: &self.bounds,
-            tlas_instances: &tlas_instances,
-            tlas_counter: &self.tlas_counter,
-        })?;
-        let feedback = self.feedback.bind(&FeedbackBuffers {
-            instances: &instances,
-            instance_hits: &instance_hits,
-            hitboxes: &self.hitboxes,
-            commands: &self.commands,
-            command_counter: &self.command_counter,
-            instance_rates: &instance_rates,
-        })?;
+        let tlas_instances = self.tlas_instances(capacity)?;
+        let (assembly, feedback, escape) =
+            self.bind_tables(&instances, &instance_hits, &instance_rates, &tlas_instances)?;
         Ok(SlotTables {
             capacity,
             instances,
@@ -963,8 +1017,84 @@ impl LipacVk {
             tlas_instances,
             assembly,
             feedback,
+            escape,
             uploads: Vec::new(),
         })
+    }
+
+    /// The TLAS instance buffer for `capacity` slots and the hitbox
+    /// capacity (Algorithm 1 emits at most one record per slot and hitbox).
+    fn tlas_instances(&self, capacity: u32) -> Result<Buffer> {
+        buffer(
+            &self.ctx,
+            (u64::from(capacity) + u64::from(self.hitbox.capacity())) * TLAS_RECORD_BYTES,
+            STORAGE
+                | TRANSFER
+                | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR,
+        )
+    }
+
+    /// The descriptor sets of the Algorithm 1, Algorithm 2 and escape-sum
+    /// passes over these per-slot buffers and the current hitbox tables.
+    fn bind_tables(
+        &self,
+        instances: &Buffer,
+        instance_hits: &Buffer,
+        instance_rates: &Buffer,
+        tlas_instances: &Buffer,
+    ) -> Result<(AssemblyBindings, FeedbackBindings, EscapeBindings)> {
+        let assembly = self.assembly.bind(&AssemblyBuffers {
+            instances,
+            hitboxes: self.hitbox.records(),
+            hitbox_bounds: self.hitbox.bounds(),
+            tlas_instances,
+            tlas_counter: &self.tlas_counter,
+        })?;
+        let feedback = self.feedback.bind(&FeedbackBuffers {
+            instances,
+            instance_hits,
+            hitboxes: self.hitbox.records(),
+            commands: &self.commands,
+            command_counter: &self.command_counter,
+            instance_rates,
+        })?;
+        let escape = self.escape.bind(
+            instances,
+            instance_hits,
+            self.hitbox.records(),
+            &self.escape_sums,
+        )?;
+        Ok((assembly, feedback, escape))
+    }
+
+    /// After the hitbox tables grew (and the slot tables did not): a TLAS
+    /// instance buffer with room for the new hitboxes, and descriptor sets
+    /// and upload staging bound to the new hitbox buffers. The replaced
+    /// ones are retired until the GPU passes `value` (frames in flight
+    /// still use them).
+    fn rebind_tables(&mut self, value: u64) -> Result<()> {
+        let Some(t) = self.tables.as_ref() else {
+            return Ok(());
+        };
+        let tlas_instances = self.tlas_instances(t.capacity)?;
+        let (assembly, feedback, escape) = self.bind_tables(
+            &t.instances,
+            &t.instance_hits,
+            &t.instance_rates,
+            &tlas_instances,
+        )?;
+        let Some(t) = self.tables.as_mut() else {
+            return Ok(());
+        };
+        let old = (
+            std::mem::replace(&mut t.tlas_instances, tlas_instances),
+            std::mem::replace(&mut t.assembly, assembly),
+            std::mem::replace(&mut t.feedback, feedback),
+            std::mem::replace(&mut t.escape, escape),
+            std::mem::take(&mut t.uploads),
+        );
+        self.retirement.retire(value, old);
+        Ok(())
     }
 
     /// Data-buffer growth and this plan's data uploads; returns whether the

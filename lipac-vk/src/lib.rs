@@ -66,11 +66,14 @@ mod context;
 mod counting;
 mod device_allocator;
 mod error;
+mod escape;
 mod executor;
 mod feedback;
 mod headless;
+mod hitbox_tables;
 mod lifetimes;
 mod memory;
+mod merged_trace;
 mod ray_query;
 mod ray_query_test_pipeline;
 mod readback;
@@ -114,6 +117,7 @@ pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use headless::{HeadlessContext, Validation};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
+pub use merged_trace::{MergedTraceBindings, MergedTraceBuffers, MergedTraceTestPipeline};
 pub use ray_query_test_pipeline::{
     GpuHit, GpuRay, HitboxCounting, RayQueryTestBindings, RayQueryTestBuffers, RayQueryTestPipeline,
 };

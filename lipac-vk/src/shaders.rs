@@ -12,6 +12,9 @@ pub const TRACE_TEST_SPV: &[u8] = include_bytes!("../shaders/spv/trace_test.spv"
 /// straight into the `HitboxRecord` buffer (`LIPAC_HITBOX_RECORDS`; see
 /// [`crate::HitboxCounting::Records`]).
 pub const TRACE_COUNTING_SPV: &[u8] = include_bytes!("../shaders/spv/trace_counting.spv");
+/// SPIR-V of `trace_merged.comp`: `trace_counting.comp` resolving adaptive
+/// hitboxes' merged boxes to their leaf boxes ([`crate::MergedTraceTestPipeline`]).
+pub const TRACE_MERGED_SPV: &[u8] = include_bytes!("../shaders/spv/trace_merged.spv");
 /// SPIR-V of `upload_records.comp`: the record upload scatter
 /// ([`crate::RecordUploader`]).
 pub const UPLOAD_RECORDS_SPV: &[u8] = include_bytes!("../shaders/spv/upload_records.spv");
@@ -22,6 +25,9 @@ pub const HITBOX_RESET_SPV: &[u8] = include_bytes!("../shaders/spv/hitbox_reset.
 pub const ASSEMBLE_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/assemble_instances.spv");
 /// SPIR-V of `assemble_hitboxes.comp` (Algorithm 1 pass 2).
 pub const ASSEMBLE_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/assemble_hitboxes.spv");
+/// SPIR-V of `assemble_merged.comp` (Algorithm 1 pass 2 with adaptive
+/// hitboxes, `lipac_core::hitbox_tree`).
+pub const ASSEMBLE_MERGED_SPV: &[u8] = include_bytes!("../shaders/spv/assemble_merged.spv");
 /// SPIR-V of `feedback_accumulate.comp` (Algorithm 2 lines 1–6,
 /// [`crate::FeedbackPipeline`]).
 pub const FEEDBACK_ACCUMULATE_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_accumulate.spv");
@@ -29,6 +35,11 @@ pub const FEEDBACK_ACCUMULATE_SPV: &[u8] = include_bytes!("../shaders/spv/feedba
 pub const FEEDBACK_HITBOXES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_hitboxes.spv");
 /// SPIR-V of `feedback_instances.comp` (Algorithm 2 lines 14–38).
 pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedback_instances.spv");
+
+/// SPIR-V of `escape_sums.comp`: the escape fraction's box and traced hit
+/// sums of a frame (read back with its commands, see
+/// [`crate::FrameReadback::escape`]).
+pub const ESCAPE_SUMS_SPV: &[u8] = include_bytes!("../shaders/spv/escape_sums.spv");
 
 /// SPIR-V of `camera_trace.comp`: a frame's primary, shadow and bounce rays
 /// generated on the GPU through the counting include
@@ -41,17 +52,20 @@ pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp")
 
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 10] = [
+pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
+    ("trace_merged", TRACE_MERGED_SPV),
     ("upload_records", UPLOAD_RECORDS_SPV),
     ("hitbox_reset", HITBOX_RESET_SPV),
     ("assemble_instances", ASSEMBLE_INSTANCES_SPV),
     ("assemble_hitboxes", ASSEMBLE_HITBOXES_SPV),
+    ("assemble_merged", ASSEMBLE_MERGED_SPV),
     ("feedback_accumulate", FEEDBACK_ACCUMULATE_SPV),
     ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
     ("feedback_instances", FEEDBACK_INSTANCES_SPV),
+    ("escape_sums", ESCAPE_SUMS_SPV),
 ];
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,

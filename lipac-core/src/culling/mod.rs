@@ -51,18 +51,20 @@ use std::collections::HashMap;
 
 use glam::{Affine3A, Vec3};
 
-use crate::assembly::{assemble_tlas, AssemblyConfig, AssemblyStats};
+use crate::assembly::{assemble_tlas_adaptive, AssemblyConfig, AssemblyStats};
 use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSummary};
 use crate::error::CoreError;
 use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
+use crate::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
 use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
+use crate::slot_table::SlotTable;
 use crate::thresholds::Thresholds;
 
 /// Settings of a [`Culling`]; checked by [`CullingConfig::validate`].
@@ -90,6 +92,10 @@ pub struct CullingConfig {
     /// Who decides which instances are active: LiPaC's hit feedback (the
     /// default) or the engine alone, through the pinned flag.
     pub selection: Selection,
+    /// Adaptive hitboxes: merged counting boxes for cold regions
+    /// ([`crate::hitbox_tree`]); off by default (one box per inactive
+    /// hitbox, the paper's rule). Dense grids only.
+    pub adaptive_hitboxes: AdaptiveHitboxes,
 }
 
 /// Who decides which instances are active ([`CullingConfig::selection`]).
@@ -125,6 +131,7 @@ impl CullingConfig {
             latency_mitigation: Some(ActivationHeuristic::default()),
             readback_latency: 2,
             selection: Selection::HitFeedback,
+            adaptive_hitboxes: AdaptiveHitboxes::OFF,
         }
     }
 
@@ -171,6 +178,17 @@ impl CullingConfig {
             if v >= 1 << 24 {
                 return invalid(format!("assembly.{name} = {v} does not fit 24 bits"));
             }
+        }
+        let ad = &self.adaptive_hitboxes;
+        if ad.is_on()
+            && (ad.merged_box_sbt_offset == a.omitted_box_sbt_offset
+                || ad.merged_box_sbt_offset == a.hitbox_sbt_offset)
+        {
+            return invalid(format!(
+                "adaptive_hitboxes.merged_box_sbt_offset = {} must differ from the other \
+                 counting SBT offsets",
+                ad.merged_box_sbt_offset
+            ));
         }
         if let Some(h) = self.latency_mitigation {
             if self.selection == Selection::EngineSelected {
@@ -361,9 +379,6 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     /// Decayed hit rates of unique-BLAS instances (16.16, one per slot; the
     /// decayed rule's, kept across frames).
     instance_rates: Vec<u32>,
-    /// The one per-slot table of the loop (length = the registry's slot
-    /// count): the commanded state and the pending BLAS promise.
-    slots: Vec<SlotView>,
     commands: CommandBuffer,
     /// Algorithm 2 ran and its commands were not taken yet.
     untaken: bool,
@@ -374,6 +389,8 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     state_overrides: StateOverrides,
     hitbox_overrides: HashMap<u32, bool>,
     scratch: Vec<u32>,
+    /// Adaptive hitboxes' quadtree (`None`: off).
+    tree: Option<HitboxTree>,
 }
 
 impl<H: HitboxIndex> Culling<H> {
@@ -402,12 +419,12 @@ impl<H: HitboxIndex> Culling<H> {
         } else {
             HashMap::new()
         };
+        let tree = HitboxTree::for_index(&index, config.adaptive_hitboxes)?;
         Ok(Self {
             registry: InstanceRegistry::new(index, config.registry)?,
             hitboxes: vec![hitbox; hitbox_count],
             instance_hits: Vec::new(),
             instance_rates: Vec::new(),
-            slots: Vec::new(),
             commands: CommandBuffer::new(config.command_capacity),
             untaken: false,
             fed_back: false,
@@ -416,6 +433,7 @@ impl<H: HitboxIndex> Culling<H> {
             state_overrides: StateOverrides::default(),
             hitbox_overrides,
             scratch: Vec::new(),
+            tree,
             config,
         })
     }
@@ -423,6 +441,11 @@ impl<H: HitboxIndex> Culling<H> {
     /// The settings.
     pub fn config(&self) -> &CullingConfig {
         &self.config
+    }
+
+    /// The adaptive hitboxes' quadtree, `None` when the option is off.
+    pub fn hitbox_tree(&self) -> Option<&HitboxTree> {
+        self.tree.as_ref()
     }
 
     /// Replaces the thresholds Algorithm 2 runs with (the Manager's
@@ -443,6 +466,17 @@ impl<H: HitboxIndex> Culling<H> {
     /// [`Culling`] so that commands, hit counters and uploads follow).
     pub fn registry(&self) -> &InstanceRegistry<H> {
         &self.registry
+    }
+
+    /// The slot table ([`crate::slot_table`]), through the registry that
+    /// owns it.
+    pub(crate) fn table(&self) -> &SlotTable {
+        self.registry.table()
+    }
+
+    /// The slot table, for the Manager's column.
+    pub(crate) fn table_mut(&mut self) -> &mut SlotTable {
+        self.registry.table_mut()
     }
 
     /// The current frame.
@@ -494,7 +528,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// answered by [`Culling::set_blas`]).
     pub fn awaiting_blas(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].awaiting)
+        Ok(self.registry.table()[slot as usize].view.awaiting)
     }
 
     /// Latency mitigation's tracker, if enabled.
@@ -526,7 +560,8 @@ impl<H: HitboxIndex> Culling<H> {
             // The hit counters and the decayed rates, 4 bytes a slot each.
             instance_hits: vec_bytes::<u32>(self.instance_hits.capacity())
                 + vec_bytes::<u32>(self.instance_rates.capacity()),
-            awaiting: vec_bytes::<SlotView>(self.slots.capacity()),
+            // In the slot table (`slot_occupants`).
+            awaiting: 0,
             latency_bits: self
                 .latency
                 .as_ref()
@@ -575,10 +610,8 @@ impl<H: HitboxIndex> Culling<H> {
             .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
         self.instance_rates
             .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
-        self.slots
-            .reserve_exact(slots.saturating_sub(self.slots.len()));
         // Each registration writes a state override (until the next take).
-        self.state_overrides.reserve(slots, additional.min(slots));
+        self.state_overrides.reserve(additional.min(slots));
         slots
     }
 
@@ -594,20 +627,22 @@ impl<H: HitboxIndex> Culling<H> {
         if self.instance_hits.len() < n {
             self.instance_hits.resize(n, 0);
             self.instance_rates.resize(n, 0);
-            self.slots.resize(n, SlotView::default());
         }
         self.instance_hits[slot as usize] = 0;
         self.instance_rates[slot as usize] = 0;
         // The Manager's decision at this frame: inactive, no BLAS promised.
-        self.slots[slot as usize] = SlotView {
-            commanded_active: false,
-            awaiting: false,
-            decided_at: self.registry.frame(),
-        };
+        // (Field by field: a pending state override of the slot stays
+        // listed, see `StateOverrides`.)
+        let frame = self.registry.frame();
+        let view = &mut self.registry.table_mut()[slot as usize].view;
+        view.commanded_active = false;
+        view.awaiting = false;
+        view.decided_at = frame;
         // Nothing can be pending for a fresh slot (see `remove` and
         // `ingest_readback`); make sure.
         self.queue.cancel_slot(slot);
-        self.state_overrides.insert(slot, InstanceState::Inactive);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
         if desc.flags.contains(InstanceFlags::PINNED) {
             self.pin(slot);
         }
@@ -620,8 +655,9 @@ impl<H: HitboxIndex> Culling<H> {
     fn unpin(&mut self, slot: u32) -> Result<(), CoreError> {
         let frame = self.registry.frame();
         self.registry.set_state(slot, InstanceState::Inactive)?;
-        self.state_overrides.insert(slot, InstanceState::Inactive);
-        let view = &mut self.slots[slot as usize];
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Inactive);
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.commanded_active = false;
         view.decided_at = frame;
         let remove = Command {
@@ -639,9 +675,10 @@ impl<H: HitboxIndex> Culling<H> {
     fn pin(&mut self, slot: u32) {
         let frame = self.registry.frame();
         // The registry wrote the state (register / update of a pinned desc).
-        self.state_overrides.insert(slot, InstanceState::Active);
+        self.state_overrides
+            .insert(self.registry.table_mut(), slot, InstanceState::Active);
         let blas = self.registry.records()[slot as usize].blas;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
             view.commanded_active = true;
             view.decided_at = frame;
@@ -666,7 +703,7 @@ impl<H: HitboxIndex> Culling<H> {
         self.sync_hitbox_count();
         let slot = self.registry.slot(handle)?;
         if desc.flags.contains(InstanceFlags::PINNED) {
-            let view = self.slots[slot as usize];
+            let view = self.registry.table()[slot as usize].view;
             if !old.flags.contains(InstanceFlags::PINNED) || !view.commanded_active {
                 self.pin(slot);
             }
@@ -706,10 +743,12 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<Removal, CoreError> {
         let instance = self.registry.remove(handle)?;
         let slot = instance.slot as usize;
-        let build_was_pending = std::mem::take(&mut self.slots[slot].awaiting);
-        self.slots[slot].commanded_active = false;
+        let view = &mut self.registry.table_mut()[slot].view;
+        let build_was_pending = std::mem::take(&mut view.awaiting);
+        view.commanded_active = false;
         self.instance_hits[slot] = 0;
-        self.state_overrides.remove(instance.slot);
+        self.state_overrides
+            .remove(self.registry.table_mut(), instance.slot);
         Ok(Removal {
             instance,
             build_was_pending,
@@ -725,7 +764,7 @@ impl<H: HitboxIndex> Culling<H> {
     pub fn set_blas(&mut self, handle: InstanceHandle, address: u64) -> Result<u64, CoreError> {
         let slot = self.registry.slot(handle)?;
         let old = self.registry.set_blas(handle, address)?;
-        let view = &mut self.slots[slot as usize];
+        let view = &mut self.registry.table_mut()[slot as usize].view;
         view.awaiting = false;
         if address != 0 && !view.commanded_active {
             let remove = Command {
@@ -783,12 +822,17 @@ impl<H: HitboxIndex> Culling<H> {
             return Ok(LatencyOutcome::default());
         };
         let mut activate = std::mem::take(&mut self.scratch);
-        let views = &self.slots;
+        let registry = &self.registry;
         let summary = lm.update_with(
-            &self.registry,
+            registry,
             camera,
             frustum,
-            |slot| views.get(slot as usize).is_some_and(|v| v.commanded_active),
+            |slot| {
+                registry
+                    .table()
+                    .get(slot as usize)
+                    .is_some_and(|r| r.view.commanded_active)
+            },
             &mut activate,
         )?;
         let frame = self.registry.frame();
@@ -801,8 +845,9 @@ impl<H: HitboxIndex> Culling<H> {
                 continue;
             };
             self.registry.set_state(slot, InstanceState::Active)?;
-            self.state_overrides.insert(slot, InstanceState::Active);
-            let view = &mut self.slots[slot as usize];
+            self.state_overrides
+                .insert(self.registry.table_mut(), slot, InstanceState::Active);
+            let view = &mut self.registry.table_mut()[slot as usize].view;
             view.commanded_active = true;
             view.decided_at = frame;
             let record = self.registry.records()[slot as usize];
@@ -820,10 +865,10 @@ impl<H: HitboxIndex> Culling<H> {
                     out.hitboxes_activated += 1;
                 }
             }
-            if record.blas != 0 || self.slots[slot as usize].awaiting {
+            if record.blas != 0 || self.registry.table()[slot as usize].view.awaiting {
                 out.already_provided += 1;
             } else {
-                self.slots[slot as usize].awaiting = true;
+                self.registry.table_mut()[slot as usize].view.awaiting = true;
                 out.requests.push(BlasRequest {
                     handle,
                     slot,
@@ -858,7 +903,12 @@ impl<H: HitboxIndex> Culling<H> {
             if self.registry.handle_at(c.slot).is_none() {
                 continue; // dead: counted by the queue's ingestion
             }
-            if let Some(view) = self.slots.get_mut(c.slot as usize) {
+            if let Some(view) = self
+                .registry
+                .table_mut()
+                .get_mut(c.slot as usize)
+                .map(|r| &mut r.view)
+            {
                 if view.decided_at <= frame {
                     view.commanded_active = c.kind == CommandKind::Add;
                 }
@@ -879,7 +929,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// [module docs](self)).
     pub fn commanded_active(&self, handle: InstanceHandle) -> Result<bool, CoreError> {
         let slot = self.registry.slot(handle)?;
-        Ok(self.slots[slot as usize].commanded_active)
+        Ok(self.registry.table()[slot as usize].view.commanded_active)
     }
 
     /// Takes up to `budget` pending commands, highest priority first, and
@@ -913,7 +963,7 @@ impl<H: HitboxIndex> Culling<H> {
                 st.dead += 1;
                 continue;
             };
-            let active = self.slots[slot].commanded_active;
+            let active = self.registry.table()[slot].view.commanded_active;
             if active != (c.kind == CommandKind::Add) {
                 st.stale_kind += 1;
             }
@@ -930,11 +980,11 @@ impl<H: HitboxIndex> Culling<H> {
                 })
             };
             if active {
-                if record.blas != 0 || self.slots[slot].awaiting {
+                if record.blas != 0 || self.registry.table()[slot].view.awaiting {
                     st.no_op += 1;
                     continue;
                 }
-                self.slots[slot].awaiting = true;
+                self.registry.table_mut()[slot].view.awaiting = true;
                 st.requested += 1;
                 event(BlasAction::Acquire);
             } else {
@@ -946,7 +996,7 @@ impl<H: HitboxIndex> Culling<H> {
                     st.released += 1;
                     acted = true;
                 }
-                if std::mem::take(&mut self.slots[slot].awaiting) {
+                if std::mem::take(&mut self.registry.table_mut()[slot].view.awaiting) {
                     event(BlasAction::CancelBuild);
                     st.builds_cancelled += 1;
                     acted = true;
@@ -964,7 +1014,7 @@ impl<H: HitboxIndex> Culling<H> {
     /// and the CPU's state-bit writes since the last call (see
     /// [`Uploads`]). The CPU reference needs none of it.
     pub fn take_uploads(&mut self) -> Uploads {
-        let state_overrides = self.state_overrides.take();
+        let state_overrides = self.state_overrides.take(self.registry.table_mut());
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
@@ -974,14 +1024,15 @@ impl<H: HitboxIndex> Culling<H> {
         }
     }
 
-    /// Algorithm 1 ([`assemble_tlas`]) over the registry's records: fills
+    /// Algorithm 1 ([`assemble_tlas_adaptive`]) over the registry's records: fills
     /// `out` (cleared first) with this frame's TLAS instances.
     pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, CoreError> {
-        assemble_tlas(
+        assemble_tlas_adaptive(
             self.registry.records(),
             &mut self.hitboxes,
             self.registry.hitbox_index(),
             &self.config.assembly,
+            self.tree.as_ref(),
             out,
         )
         .map_err(CoreError::Assembly)
@@ -1043,9 +1094,10 @@ impl<H: HitboxIndex> Culling<H> {
     }
 }
 
-/// The loop's view of one slot (one entry per slot).
+/// The command loop's column of the slot table ([`crate::slot_table`]): its
+/// view of one slot.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-struct SlotView {
+pub(crate) struct SlotView {
     /// The commanded state: the newest ingested command said `add`, or the
     /// loop's last decision (latency mitigation) made it active.
     commanded_active: bool,
@@ -1056,6 +1108,8 @@ struct SlotView {
     /// latency mitigation). Commands Algorithm 2 wrote before it do not move
     /// the commanded state: the GPU had not seen the decision.
     decided_at: u64,
+    /// The CPU's state write since the last upload ([`StateOverrides`]).
+    state_override: u8,
 }
 
 mod readback_ring;

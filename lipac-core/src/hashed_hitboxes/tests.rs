@@ -406,3 +406,109 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+    /// A consumer that keeps a copy of the bounds and rewrites only the
+    /// logged indices (as lipac-vk does once per frame, between frame
+    /// starts) always holds the bounds of every index; one that reads the
+    /// log less often either gets all it missed or `None` (re-read all).
+    #[test]
+    fn the_bounds_log_keeps_a_per_frame_mirror_exact(
+        ops in proptest::collection::vec(op(), 1..200),
+        skip in 0usize..4,
+    ) {
+        let mut h = tiny(2, 40, 32);
+        let bounds = |h: &HashedHitboxes, i: u32| h.xz_bounds(i);
+        let mut mirror: Vec<Option<(Vec2, Vec2)>> = Vec::new();
+        let mut seen = 0u64;
+        let mut sparse: Vec<Option<(Vec2, Vec2)>> = Vec::new();
+        let mut sparse_seen = 0u64;
+        let mut occupied: Vec<u32> = Vec::new();
+        let mut frame = 0u64;
+        let sync = |h: &HashedHitboxes, m: &mut Vec<Option<(Vec2, Vec2)>>, seen: &mut u64| -> bool {
+            m.resize(h.len() as usize, None);
+            let log = h.bounds_changes();
+            let full = match log.since(*seen) {
+                Some(changed) => {
+                    for &i in changed {
+                        m[i as usize] = bounds(h, i);
+                    }
+                    false
+                }
+                None => {
+                    for i in 0..h.len() {
+                        m[i as usize] = bounds(h, i);
+                    }
+                    true
+                }
+            };
+            *seen = log.total;
+            full
+        };
+        for op in ops {
+            match op {
+                Op::Occupy(x, z) => {
+                    if let Ok(i) = h.occupy(&in_cell(x, z)) {
+                        occupied.push(i);
+                    }
+                }
+                Op::Vacate(k) => {
+                    if !occupied.is_empty() {
+                        h.vacate(occupied.swap_remove(k % occupied.len()));
+                    }
+                }
+                Op::Frame(d) => {
+                    frame += d + 1;
+                    let mut ev = Vec::new();
+                    h.begin_frame(frame, &mut ev);
+                    // The per-frame consumer reads the log after every frame start.
+                    prop_assert!(!sync(&h, &mut mirror, &mut seen), "a per-frame reader never loses changes");
+                    for i in 0..h.len() {
+                        prop_assert_eq!(mirror[i as usize], bounds(&h, i), "index {}", i);
+                    }
+                    if frame % (skip as u64 + 1) == 0 {
+                        sync(&h, &mut sparse, &mut sparse_seen);
+                        for i in 0..h.len() {
+                            prop_assert_eq!(sparse[i as usize], bounds(&h, i));
+                        }
+                    }
+                }
+            }
+        }
+        // Changes since the last frame start are in the log as well.
+        prop_assert!(!sync(&h, &mut mirror, &mut seen));
+        for i in 0..h.len() {
+            prop_assert_eq!(mirror[i as usize], bounds(&h, i));
+        }
+    }
+}
+
+#[test]
+fn the_grid_reports_no_bounds_changes_and_a_foreign_count_rereads() {
+    let grid = HitboxGrid::new(GridConfig {
+        min: [0.0, 0.0],
+        max: [4.0, 4.0],
+        cell_size: 1.0,
+    })
+    .unwrap();
+    assert_eq!(grid.bounds_changes().total, 0);
+    assert_eq!(grid.bounds_changes().since(0), Some(&[][..]));
+    let mut h = tiny(4, 16, 32);
+    let a = h.occupy(&in_cell(0, 0)).unwrap();
+    let b = h.occupy(&in_cell(3, 1)).unwrap();
+    let log = h.bounds_changes();
+    assert_eq!((log.total, log.since(0)), (2, Some(&[a, b][..])));
+    assert_eq!(log.since(3), None, "ahead of the log: re-read all");
+    // Eviction logs the index too; two frame starts later the old entries go.
+    h.vacate(a);
+    let mut ev = Vec::new();
+    h.begin_frame(2, &mut ev);
+    assert_eq!(ev, vec![a]);
+    assert_eq!(h.bounds_changes().since(2), Some(&[a][..]));
+    h.begin_frame(3, &mut ev);
+    h.begin_frame(4, &mut ev);
+    let log = h.bounds_changes();
+    assert_eq!((log.total, log.recent.len()), (3, 0));
+    assert_eq!(log.since(0), None, "the first changes were dropped");
+}

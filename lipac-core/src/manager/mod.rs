@@ -65,11 +65,11 @@ use glam::{Affine3A, Vec3};
 
 use crate::allocator::{AllocError, AllocHandle, TlsfAllocator};
 use crate::assembly::AssemblyStats;
-use crate::blas_ids::{BuildId, InstanceKey, Lod};
+use crate::blas_ids::{InstanceKey, Lod};
 use crate::build_plan::{
     BlasGeometry, BuildBudgets, BuildScheduler, FramePlan, InstanceBlasRequest, SchedulerConfig,
 };
-use crate::command::IngestSummary;
+use crate::command::{Command, IngestSummary};
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::culling::{
     BlasAction, CommandEvent, Culling, CullingConfig, LatencyOutcome, ProcessStats, Readback,
@@ -82,6 +82,7 @@ use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::Frustum;
 use crate::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
 use crate::math::Aabb;
+use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
 use crate::thresholds::Thresholds;
 
@@ -233,11 +234,12 @@ pub struct InstanceView {
     pub scheduled: bool,
 }
 
-/// The manager's state of one GPU slot (one table, indexed by slot).
+/// The Manager's column of the slot table ([`crate::slot_table`]): its
+/// state of one GPU slot.
 #[derive(Clone, Copy, Debug, Default)]
-struct SlotEntry {
-    /// The live instance, if any.
-    instance: Option<Slot>,
+pub(crate) struct ManagedSlot {
+    /// The live instance's state, if any.
+    instance: Option<Managed>,
     /// The hits of the last frame whose feedback was seen.
     last_hits: u32,
     /// Listed in `data_dirty`: the geometry-data range changed since the
@@ -245,7 +247,21 @@ struct SlotEntry {
     data_dirty: bool,
 }
 
-/// A live instance's manager state.
+/// What the Manager alone knows of a live instance (its handle and mesh
+/// are the registry's column, its BLAS the scheduler's).
+#[derive(Clone, Copy, Debug)]
+struct Managed {
+    /// The variant of its own static BLAS ([`geometry_of`]).
+    own_variant: u32,
+    requested_lod: u8,
+    traced_lod: u8,
+    range: AllocHandle,
+}
+
+/// A live instance's manager state as one value, assembled by
+/// [`Manager::instance_at`] from its row of the slot table (handle, mesh,
+/// [`Managed`]), its flags and the scheduler (a copy: nothing here is
+/// stored twice).
 #[derive(Clone, Copy, Debug)]
 struct Slot {
     handle: InstanceHandle,
@@ -265,8 +281,6 @@ pub struct Manager<H: HitboxIndex = HitboxGrid> {
     data: TlsfAllocator,
     data_config: DataConfig,
     catalog: MeshCatalog,
-    /// Per GPU slot: the manager's state.
-    slots: Vec<SlotEntry>,
     /// Slots whose geometry-data range changed since the last plan.
     data_dirty: Vec<u32>,
     /// The buffer capacity the backend was last told about.
@@ -375,7 +389,6 @@ impl<H: HitboxIndex> Manager<H> {
             data,
             data_config: config.data,
             catalog,
-            slots: Vec::new(),
             data_dirty: Vec::new(),
             frame: None,
             planned: None,
@@ -394,10 +407,57 @@ impl<H: HitboxIndex> Manager<H> {
 
     // ---- read access ------------------------------------------------------
 
-    /// Low-level, read-only: the command loop (registry, hitboxes, hit
-    /// counters, queue), for inspection.
-    pub fn culling(&self) -> &Culling<H> {
+    /// The command loop, for lipac-core's own tests; callers outside use the
+    /// Manager's queries ([`Manager::memory_usage`],
+    /// [`Manager::pending_command`], [`Manager::thresholds`],
+    /// [`Manager::culling_config`], [`Manager::hitboxes`]).
+    #[cfg(test)]
+    pub(crate) fn culling(&self) -> &Culling<H> {
         &self.culling
+    }
+
+    /// CPU bytes held by the command loop's containers (registry, the slot
+    /// table, hit counters, hitboxes, command buffer and queue, overrides),
+    /// from their capacities ([`Culling::memory_usage`],
+    /// [`crate::memory`]). The scheduler's and the geometry-data
+    /// allocator's share is in [`Manager::stats`].
+    pub fn memory_usage(&self) -> MemoryUsage {
+        self.culling.memory_usage()
+    }
+
+    /// Read-only: the command waiting for processing in GPU slot `slot`, if
+    /// any (the newest ingested one per live slot, or one the Manager
+    /// queued itself: an unpin, a BLAS that arrived for an inactive
+    /// instance). [`Manager::plan`] takes them, highest priority first, up
+    /// to [`FrameBudgets::commands`]; [`ManagerStats::commands_pending`]
+    /// counts them.
+    pub fn pending_command(&self, slot: u32) -> Option<Command> {
+        self.culling.pending_command(slot)
+    }
+
+    /// The adaptive hitboxes' quadtree ([`crate::hitbox_tree`]), when
+    /// [`CullingConfig::adaptive_hitboxes`] is on.
+    pub fn hitbox_tree(&self) -> Option<&crate::hitbox_tree::HitboxTree> {
+        self.culling.hitbox_tree()
+    }
+
+    /// The leaf counting boxes (hitbox index, unit-cube transform) that the
+    /// merged counting box of tree node `node` stands for, appended to `out`:
+    /// what a CPU tracer counts a hit on a merged box as. Returns `false`
+    /// (and appends nothing) when adaptive hitboxes are off; an unknown node
+    /// appends nothing.
+    pub fn merged_leaf_boxes(&self, node: u32, out: &mut Vec<(u32, [f32; 12])>) -> bool {
+        let Some(tree) = self.culling.hitbox_tree() else {
+            return false;
+        };
+        tree.leaf_boxes(
+            node,
+            self.culling.hitboxes(),
+            self.culling.registry().hitbox_index(),
+            &self.culling.config().assembly,
+            out,
+        );
+        true
     }
 
     /// Low-level, read-only: the instance registry (records, slots, dirty
@@ -493,13 +553,11 @@ impl<H: HitboxIndex> Manager<H> {
     }
 
     /// Reserves room for at least `additional` more instances in the
-    /// command loop ([`Culling::reserve`]) and in the manager's per-slot
-    /// state, so that registering a scene of known size allocates each
-    /// container once.
+    /// command loop ([`Culling::reserve`], the slot table with it) and in
+    /// the manager's list of changed data ranges, so that registering a
+    /// scene of known size allocates each container once.
     pub fn reserve(&mut self, additional: usize) {
         let slots = self.culling.reserve_slots(additional);
-        let more = slots.saturating_sub(self.slots.len());
-        self.slots.reserve_exact(more);
         self.data_dirty.reserve(additional.min(slots));
     }
 
@@ -523,21 +581,15 @@ impl<H: HitboxIndex> Manager<H> {
             }
         };
         let slot = self.culling.registry().slot(handle)?;
-        let i = slot as usize;
-        if self.slots.len() <= i {
-            self.slots.resize(i + 1, SlotEntry::default());
-        }
-        let entry = &mut self.slots[i];
-        entry.instance = Some(Slot {
-            handle,
-            mesh: desc.mesh,
-            geometry: geometry_of(desc.mesh, desc.flags, self.next_own_variant),
+        // (`data_dirty` stays: the slot may still be listed.)
+        let row = &mut self.culling.table_mut()[slot as usize].managed;
+        row.instance = Some(Managed {
+            own_variant: self.next_own_variant,
             requested_lod: lod,
             traced_lod: lod,
             range,
-            scheduled: false,
         });
-        entry.last_hits = 0;
+        row.last_hits = 0;
         if desc
             .flags
             .contains(InstanceFlags::UNIQUE_BLAS | InstanceFlags::STATIC)
@@ -599,7 +651,7 @@ impl<H: HitboxIndex> Manager<H> {
             // requested unless it is scheduled already.
             let (slot, s) = self.slot_of(handle)?;
             if !s.scheduled {
-                let hits = self.slots[slot as usize].last_hits;
+                let hits = self.last_hits(slot);
                 self.activate(slot, hits, self.visible(slot))?;
             }
         }
@@ -666,8 +718,8 @@ impl<H: HitboxIndex> Manager<H> {
             self.scheduler
                 .request_lod(InstanceKey(slot), Lod(lod8), estimate)?;
         }
-        if let Some(s) = self.slots[slot as usize].instance.as_mut() {
-            s.requested_lod = lod8;
+        if let Some(m) = self.managed_mut(slot) {
+            m.requested_lod = lod8;
         }
         self.sync_addresses()?;
         self.sync_lod(slot)?;
@@ -683,9 +735,9 @@ impl<H: HitboxIndex> Manager<H> {
     pub fn remove(&mut self, handle: InstanceHandle) -> Result<RemovedInstance, ManagerError> {
         let (slot, s) = self.slot_of(handle)?;
         let removal = self.culling.remove(handle)?;
-        let entry = &mut self.slots[slot as usize];
-        entry.instance = None;
-        entry.last_hits = 0;
+        let row = &mut self.culling.table_mut()[slot as usize].managed;
+        row.instance = None;
+        row.last_hits = 0;
         if s.scheduled {
             self.scheduler.deactivate(InstanceKey(slot))?;
         }
@@ -739,7 +791,7 @@ impl<H: HitboxIndex> Manager<H> {
     ) -> Result<LatencyOutcome, ManagerError> {
         let out = self.culling.mitigate_latency(camera, frustum)?;
         for r in &out.requests {
-            let hits = self.slots.get(r.slot as usize).map_or(0, |e| e.last_hits);
+            let hits = self.last_hits(r.slot);
             self.activate(r.slot, hits, true)?;
         }
         self.sync_addresses()?;
@@ -783,8 +835,8 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// The build priorities: `hits` per slot (a frame's hit counters).
     fn set_last_hits(&mut self, hits: &[u32]) {
-        for (e, &h) in self.slots.iter_mut().zip(hits) {
-            e.last_hits = h;
+        for (row, &h) in self.culling.table_mut().iter_mut().zip(hits) {
+            row.managed.last_hits = h;
         }
     }
 
@@ -842,16 +894,13 @@ impl<H: HitboxIndex> Manager<H> {
         let waiting: Vec<InstanceKey> = self.scheduler.waiting_instances().collect();
         for key in waiting {
             let slot = key.0;
-            let Some(entry) = self.slots.get(slot as usize).copied() else {
-                continue;
-            };
-            let Some(s) = entry.instance else {
+            let Some(row) = self.culling.table().get(slot as usize).map(|r| r.managed) else {
                 continue;
             };
             // (waiting_instances lists exactly those with a pending LOD.)
-            if s.scheduled {
+            if row.instance.is_some() && self.scheduler.is_active(key) {
                 let visible = self.visible(slot);
-                self.scheduler.set_feedback(key, entry.last_hits, visible)?;
+                self.scheduler.set_feedback(key, row.last_hits, visible)?;
             }
         }
 
@@ -866,9 +915,10 @@ impl<H: HitboxIndex> Manager<H> {
         let mut data_uploads = Vec::with_capacity(self.data_dirty.len());
         self.data_dirty.sort_unstable();
         for &slot in &self.data_dirty {
-            let entry = &mut self.slots[slot as usize];
-            entry.data_dirty = false;
-            let Some(s) = entry.instance else {
+            if let Some(row) = self.culling.table_mut().get_mut(slot as usize) {
+                row.managed.data_dirty = false;
+            }
+            let Some(s) = self.instance_at(slot) else {
                 continue;
             };
             let a = self.data.get(s.range)?;
@@ -899,53 +949,13 @@ impl<H: HitboxIndex> Manager<H> {
         })
     }
 
-    /// Takes one acknowledgement from the backend: the instances waiting for
-    /// a built or compacted BLAS get its address in their records before
-    /// this returns. An acknowledgement the manager never planned (or one
-    /// acknowledged twice) is an error and changes nothing.
+    /// Takes one acknowledgement from the backend
+    /// ([`BuildScheduler::handle_ack`]): the instances waiting for a built or
+    /// compacted BLAS get its address in their records before this returns.
+    /// An acknowledgement the manager never planned (or one acknowledged
+    /// twice) is an error and changes nothing.
     pub fn handle_ack(&mut self, ack: Ack) -> Result<(), ManagerError> {
-        match ack {
-            Ack::Built {
-                build,
-                result_bytes,
-                address,
-            } => self.ack_built(build, result_bytes, address),
-            Ack::CompactedSize {
-                build,
-                compacted_bytes,
-            } => self.ack_compacted_size(build, compacted_bytes),
-            Ack::Compacted { op, address } => self.ack_compacted(op, address),
-        }
-    }
-
-    /// Acknowledges build `build` ([`BuildScheduler::ack_built`]); the
-    /// instances waiting for it get its address in their records now.
-    fn ack_built(
-        &mut self,
-        build: BuildId,
-        result_bytes: u64,
-        address: u64,
-    ) -> Result<(), ManagerError> {
-        self.scheduler.ack_built(build, result_bytes, address)?;
-        self.sync_addresses()
-    }
-
-    /// Acknowledges the compacted-size query after build `build`
-    /// ([`BuildScheduler::ack_compacted_size`]); a compaction follows in a
-    /// later plan.
-    fn ack_compacted_size(
-        &mut self,
-        build: BuildId,
-        compacted_bytes: u64,
-    ) -> Result<(), ManagerError> {
-        self.scheduler.ack_compacted_size(build, compacted_bytes)?;
-        self.sync_addresses()
-    }
-
-    /// Acknowledges compaction `op` ([`BuildScheduler::ack_compacted`]); the
-    /// instances using that BLAS get the compacted address now.
-    fn ack_compacted(&mut self, op: BuildId, address: u64) -> Result<(), ManagerError> {
-        self.scheduler.ack_compacted(op, address)?;
+        self.scheduler.handle_ack(ack)?;
         self.sync_addresses()
     }
 
@@ -968,7 +978,9 @@ impl<H: HitboxIndex> Manager<H> {
             self.culling.instance_hits(),
             self.culling.hitboxes(),
         );
-        let stats = self.culling.process_feedback()?;
+        let stats = self.culling.process_feedback();
+        self.record(|r| r.settle_hits(stats.is_ok())); // a refused call records no hits
+        let stats = stats?;
         // Only once Algorithm 2 ran: a refused call changes nothing.
         self.observe_escape(escape);
         let frame = self.culling.frame();
@@ -1019,12 +1031,7 @@ impl<H: HitboxIndex> Manager<H> {
             }
             inst.with_blas += usize::from(r.blas != 0);
             inst.awaiting_blas += usize::from(self.culling.awaiting_blas(handle).unwrap_or(false));
-            inst.scheduled += usize::from(
-                self.slots
-                    .get(slot as usize)
-                    .and_then(|e| e.instance.as_ref())
-                    .is_some_and(|s| s.scheduled),
-            );
+            inst.scheduled += usize::from(self.scheduler.is_active(InstanceKey(slot)));
         }
         ManagerStats {
             memory: MemoryStats {
@@ -1074,13 +1081,49 @@ impl<H: HitboxIndex> Manager<H> {
             .is_some_and(|lm| lm.was_visible(slot))
     }
 
-    /// The live instance in `slot`, if any.
+    /// The live instance in `slot`, if any, assembled from the slot table
+    /// (see [`Slot`]).
     fn instance_at(&self, slot: u32) -> Option<Slot> {
-        self.slots.get(slot as usize).and_then(|e| e.instance)
+        let registry = self.culling.registry();
+        let row = registry.table().get(slot as usize)?;
+        let m = row.managed.instance?;
+        let handle = registry.handle_at(slot)?;
+        let mesh = row.occupant.mesh();
+        let flags = registry.flags(handle).ok()?;
+        Some(Slot {
+            handle,
+            mesh,
+            geometry: geometry_of(mesh, flags, m.own_variant),
+            requested_lod: m.requested_lod,
+            traced_lod: m.traced_lod,
+            range: m.range,
+            scheduled: self.scheduler.is_active(InstanceKey(slot)),
+        })
+    }
+
+    /// The Manager's state of the live instance in `slot`, for writing.
+    fn managed_mut(&mut self, slot: u32) -> Option<&mut Managed> {
+        self.culling
+            .table_mut()
+            .get_mut(slot as usize)?
+            .managed
+            .instance
+            .as_mut()
+    }
+
+    /// The hits of `slot` in the last frame whose feedback was seen.
+    fn last_hits(&self, slot: u32) -> u32 {
+        self.culling
+            .table()
+            .get(slot as usize)
+            .map_or(0, |r| r.managed.last_hits)
     }
 
     fn mark_data(&mut self, slot: u32) {
-        if !std::mem::replace(&mut self.slots[slot as usize].data_dirty, true) {
+        if !std::mem::replace(
+            &mut self.culling.table_mut()[slot as usize].managed.data_dirty,
+            true,
+        ) {
             self.data_dirty.push(slot);
         }
     }
@@ -1098,7 +1141,7 @@ impl<H: HitboxIndex> Manager<H> {
         for e in events {
             let r = match e.action {
                 BlasAction::Acquire => {
-                    let last = self.slots.get(e.slot as usize).map_or(0, |s| s.last_hits);
+                    let last = self.last_hits(e.slot);
                     let hits = last.max(hits_from_priority(e.priority));
                     let visible = self.visible(e.slot);
                     self.activate(e.slot, hits, visible).map(|()| {
@@ -1155,9 +1198,6 @@ impl<H: HitboxIndex> Manager<H> {
                     in_frustum,
                 },
             )?;
-            if let Some(s) = self.slots[slot as usize].instance.as_mut() {
-                s.scheduled = true;
-            }
         }
         if let Some(address) = self.scheduler.blas_address(key) {
             self.culling.set_blas(s.handle, address)?;
@@ -1168,15 +1208,12 @@ impl<H: HitboxIndex> Manager<H> {
     /// Takes `slot` out of the scheduler (its record's BLAS was cleared or
     /// its build is no longer wanted).
     fn deactivate(&mut self, slot: u32) -> Result<(), ManagerError> {
-        let Some(s) = self
-            .slots
-            .get_mut(slot as usize)
-            .and_then(|e| e.instance.as_mut())
-        else {
+        if self.managed_mut(slot).is_none() {
             return Ok(());
-        };
-        if std::mem::take(&mut s.scheduled) {
-            self.scheduler.deactivate(InstanceKey(slot))?;
+        }
+        let key = InstanceKey(slot);
+        if self.scheduler.is_active(key) {
+            self.scheduler.deactivate(key)?;
         }
         self.sync_lod(slot)
     }
@@ -1228,9 +1265,9 @@ impl<H: HitboxIndex> Manager<H> {
             ..self.culling.registry().desc(s.handle)?
         };
         self.culling.update(s.handle, desc)?;
-        if let Some(s) = self.slots[slot as usize].instance.as_mut() {
-            s.traced_lod = traced;
-            s.range = range;
+        if let Some(m) = self.managed_mut(slot) {
+            m.traced_lod = traced;
+            m.range = range;
         }
         self.mark_data(slot);
         Ok(())

@@ -55,11 +55,22 @@
 //! (its inactive instances, and those in an inactive hitbox, which are not
 //! traced: `crate::assembly`) are split evenly over those of them without
 //! hits of their own, so that a hits-only replay feeds Algorithm 2 the same
-//! hitbox totals. Instances without hits are not listed. Instances
-//! registered after the frame's plan belong to the next frame and get no
-//! hits in this one. The hits are consistent by construction, so the
-//! writer checks only their count, not each id (the cost of recording 100k
-//! hit counts a frame: `docs/BENCHMARKS.md`).
+//! hitbox totals. Instances registered after the frame's plan belong to
+//! the next frame and get no hits in this one.
+//!
+//! The trace is format version 2: every `add` carries the instance's GPU
+//! slot ([`AddInstance::slot`]) and a frame's hits are written by slot
+//! ([`SlotHits`]: a copy of the per-slot hit counters, plus the counting
+//! boxes of the inactive hitboxes by hitbox index), so recording costs no
+//! pass over the instance records; readers split each box's hits over its
+//! instances by the same rule and give back per-instance hits
+//! ([`Frame::hits`]). That needs the trace's world to be the manager's
+//! [`HitboxGrid`]; with a hashed index (or another
+//! [`RecorderOptions::world`]) the recorder splits the boxes itself and
+//! lists the hits by id, as in version 1. The recorder's ids and slots are
+//! consistent by construction, so the writer does not track live
+//! instances (values, meshes, LODs and limits are still checked). Cost at
+//! 100k instances: `docs/BENCHMARKS.md`.
 //!
 //! # Header
 //!
@@ -98,9 +109,9 @@ use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
 use crate::math::{affine_to_rows, Aabb};
 use crate::registry::InstanceHandle;
 use crate::trace::{
-    AddInstance, Camera, Frame, InstanceEvent, InstanceHits, JsonlWriter, LodGeometry, LodInfo,
-    MeshInfo, Pose, TraceError, TraceErrorKind, TraceHeader, TraceLimits, TraceWriter,
-    UpdateInstance, WorldInfo,
+    AddInstance, BoxHits, Camera, Frame, InstanceEvent, InstanceHits, JsonlWriter, LodGeometry,
+    LodInfo, MeshInfo, Pose, SlotHits, TraceError, TraceErrorKind, TraceHeader, TraceLimits,
+    TraceWriter, UpdateInstance, WorldInfo,
 };
 
 /// Settings of a [`TraceRecorder`].
@@ -112,7 +123,9 @@ pub struct RecorderOptions {
     /// Default `true`.
     pub record_hits: bool,
     /// The header's world; `None` (default) takes the manager's
-    /// [`HitboxGrid`] (required for another hitbox structure).
+    /// [`HitboxGrid`] (required for another hitbox structure). A world
+    /// other than the manager's grid has no hitbox indices for counting
+    /// boxes: the hits are then split here and listed by id.
     pub world: Option<WorldInfo>,
     /// The limits the writer checks against. Default [`TraceLimits::default`].
     pub limits: TraceLimits,
@@ -229,10 +242,17 @@ impl<W: Write + Send + Sync + 'static> Sink for WriterSink<W> {
         let SinkState::Pending(w) = std::mem::replace(&mut self.state, SinkState::Gone) else {
             return Err(gone());
         };
+        // Ids and slots come from the recorder's own table: consistent by
+        // construction, so the writer does not track them (values, meshes,
+        // LODs, limits are still checked).
         self.state = if self.jsonl {
-            SinkState::Jsonl(JsonlWriter::with_limits(w, header, limits)?)
+            let mut w = JsonlWriter::with_limits(w, header, limits)?;
+            w.trust_instance_ids();
+            SinkState::Jsonl(w)
         } else {
-            SinkState::Binary(TraceWriter::with_limits(w, header, limits)?)
+            let mut w = TraceWriter::with_limits(w, header, limits)?;
+            w.trust_instance_ids();
+            SinkState::Binary(w)
         };
         Ok(())
     }
@@ -270,6 +290,13 @@ pub struct TraceRecorder {
     header_meshes: Option<usize>,
     /// Trace id per GPU slot ([`NO_ID`]: none).
     ids: Vec<u64>,
+    /// Per GPU slot: `u32::MAX` if its trace instance is live in the open
+    /// frame, else 0 (none, removed, or added after the plan): the mask of
+    /// the slot hits, one AND per slot.
+    live_mask: Vec<u32>,
+    /// Slots registered after the open frame's plan (live from the next
+    /// frame on).
+    post_plan: Vec<u32>,
     next_id: u64,
     /// `next_id` at the open frame's plan: ids from it on were added after
     /// the plan (in the next frame's events), so not live in this frame.
@@ -280,9 +307,18 @@ pub struct TraceRecorder {
     events: Vec<InstanceEvent>,
     split: Option<usize>,
     camera: Camera,
-    hits: Option<Vec<InstanceHits>>,
+    hits: Option<HitsOut>,
+    /// Hits of a [`Manager::process_feedback`] that has not returned yet:
+    /// they become `hits` only if it succeeds ([`TraceRecorder::settle_hits`]).
+    pending: Option<HitsOut>,
     /// The hits list's allocation between frames.
     hits_buf: Vec<InstanceHits>,
+    /// The slot hits' allocations between frames.
+    slots_buf: SlotHits,
+    /// The trace's world is the manager's [`HitboxGrid`]: counting-box hits
+    /// are written by hitbox index ([`SlotHits::boxes`]); otherwise (a
+    /// hashed index, or another world given) they are split here.
+    boxes_by_grid: bool,
     /// Per hitbox: its culled instances' shares (scratch).
     per_hitbox: Vec<BoxShare>,
     /// Slots whose hits are their counting box's share, in slot order
@@ -341,6 +377,8 @@ impl TraceRecorder {
             world: None,
             header_meshes: None,
             ids: Vec::new(),
+            live_mask: Vec::new(),
+            post_plan: Vec::new(),
             next_id: 0,
             split_id: u64::MAX,
             open: None,
@@ -348,7 +386,10 @@ impl TraceRecorder {
             split: None,
             camera: DEFAULT_CAMERA,
             hits: None,
+            pending: None,
             hits_buf: Vec::new(),
+            slots_buf: SlotHits::default(),
+            boxes_by_grid: false,
             per_hitbox: Vec::new(),
             culled: Vec::new(),
             frame: Frame {
@@ -356,6 +397,7 @@ impl TraceRecorder {
                 camera: DEFAULT_CAMERA,
                 events: Vec::new(),
                 hits: None,
+                slot_hits: None,
             },
             frames: 0,
             written_events: 0,
@@ -451,8 +493,16 @@ impl TraceRecorder {
         let i = slot as usize;
         if self.ids.len() <= i {
             self.ids.resize(i + 1, NO_ID);
+            self.live_mask.resize(i + 1, 0);
         }
         self.ids[i] = id;
+        // Registered after the plan: in the next frame's events.
+        self.live_mask[i] = if self.split.is_some() {
+            self.post_plan.push(slot);
+            0
+        } else {
+            u32::MAX
+        };
         self.push(InstanceEvent::Add(AddInstance {
             id,
             mesh: desc.mesh,
@@ -460,6 +510,7 @@ impl TraceRecorder {
             flags: desc.flags,
             mask: (desc.mask != 0xFF).then_some(desc.mask),
             pose: pose(desc),
+            slot: Some(slot),
         }));
     }
 
@@ -503,6 +554,9 @@ impl TraceRecorder {
     }
 
     pub(super) fn on_remove(&mut self, slot: u32) {
+        if let Some(m) = self.live_mask.get_mut(slot as usize) {
+            *m = 0;
+        }
         if let Some(id) = self.ids.get_mut(slot as usize) {
             let id = std::mem::replace(id, NO_ID);
             if id != NO_ID {
@@ -521,9 +575,58 @@ impl TraceRecorder {
     pub(super) fn on_begin_frame(&mut self, frame: u64, catalog: &MeshCatalog) {
         self.close_frame(catalog);
         self.open = Some(frame);
-        if let Some(v) = self.hits.take() {
-            self.hits_buf = v;
+        if let Some(h) = self.hits.take() {
+            self.recycle(h);
         }
+        for slot in self.post_plan.drain(..) {
+            let i = slot as usize;
+            if self.ids.get(i).is_some_and(|&id| id != NO_ID) {
+                self.live_mask[i] = u32::MAX;
+            }
+        }
+    }
+
+    /// Keeps the allocations of hits no longer needed.
+    fn recycle(&mut self, h: HitsOut) {
+        match h {
+            HitsOut::List(v) => self.hits_buf = v,
+            HitsOut::Slots(v) => self.slots_buf = v,
+        }
+    }
+
+    /// Hits of the open frame, by slot (format version 2, [`SlotHits`]):
+    /// each slot's own hits as they are (one copy; 0 for slots whose
+    /// instance is not live in the open frame: not recorded, removed, or
+    /// added after the plan), and with `boxes` the counting-box hits of
+    /// every inactive hitbox that has some (an active hitbox has no
+    /// counting box). A reader splits those over the box's instances as
+    /// [`TraceRecorder::on_hits`] would (see [`SlotHits`]). No pass over
+    /// the instance records: the cost is a copy of the hit counters and a
+    /// pass over the hitboxes.
+    fn slot_hits(&mut self, hits: &[u32], boxes: &[HitboxRecord]) -> SlotHits {
+        let mut out = std::mem::take(&mut self.slots_buf);
+        let n = hits.len().min(self.live_mask.len());
+        out.slots.clear();
+        // One AND per slot (vectorised): slots whose instance is not live
+        // in the open frame get 0.
+        out.slots.extend(
+            hits[..n]
+                .iter()
+                .zip(&self.live_mask[..n])
+                .map(|(&h, &m)| h & m),
+        );
+        out.boxes.clear();
+        out.boxes.extend(
+            boxes
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| !b.is_active() && b.hits() > 0)
+                .map(|(i, b)| BoxHits {
+                    hitbox: i as u32,
+                    hits: b.hits(),
+                }),
+        );
+        out
     }
 
     /// Hits of the open frame: per slot its own hits, or, for an instance
@@ -547,9 +650,31 @@ impl TraceRecorder {
         if !self.options.record_hits || self.error.is_some() || self.open.is_none() {
             return;
         }
-        let mut out = match self.hits.take() {
-            Some(v) => v,
-            None => std::mem::take(&mut self.hits_buf),
+        match records {
+            // Read-back hits ([`Manager::record_hits`]): nothing can refuse them.
+            None => {
+                let sh = self.slot_hits(hits, &[]);
+                self.replace_hits(HitsOut::Slots(sh));
+                return;
+            }
+            Some((_, boxes)) if self.boxes_by_grid => {
+                if let Some(p) = self.pending.take() {
+                    self.recycle(p);
+                }
+                let sh = self.slot_hits(hits, boxes);
+                self.pending = Some(HitsOut::Slots(sh));
+                return;
+            }
+            Some(_) => {}
+        }
+        let mut out = match self.pending.take() {
+            Some(HitsOut::List(v)) => v,
+            other => {
+                if let Some(o) = other {
+                    self.recycle(o);
+                }
+                std::mem::take(&mut self.hits_buf)
+            }
         };
         out.clear();
         // Ids from `limit` on are not live in the open frame.
@@ -619,7 +744,28 @@ impl TraceRecorder {
             }
             from = to + 1;
         }
-        self.hits = Some(out);
+        self.pending = Some(HitsOut::List(out));
+    }
+
+    /// Makes `hits` the open frame's hit counts (its earlier ones, if any,
+    /// are replaced and their buffers kept).
+    fn replace_hits(&mut self, hits: HitsOut) {
+        if let Some(old) = self.hits.replace(hits) {
+            self.recycle(old);
+        }
+    }
+
+    /// After [`Manager::process_feedback`]: its hits (taken before
+    /// Algorithm 2 changed the states) count only if it `succeeded`; a
+    /// refused call (call order) leaves the frame's hits as they were.
+    pub(super) fn settle_hits(&mut self, succeeded: bool) {
+        if let Some(p) = self.pending.take() {
+            if succeeded && self.error.is_none() {
+                self.replace_hits(p);
+            } else {
+                self.recycle(p);
+            }
+        }
     }
 
     /// Writes the open frame (and the header before the first one).
@@ -645,19 +791,27 @@ impl TraceRecorder {
                 camera: DEFAULT_CAMERA,
                 events: Vec::new(),
                 hits: None,
+                slot_hits: None,
             },
         );
         frame.number = number;
         frame.camera = self.camera;
         frame.events.clear();
         frame.events.extend(self.events.drain(..split));
-        frame.hits = self.hits.take();
+        match self.hits.take() {
+            Some(HitsOut::List(v)) => frame.hits = Some(v),
+            Some(HitsOut::Slots(v)) => frame.slot_hits = Some(v),
+            None => {}
+        }
         let sink = self.sink.as_mut().ok_or(RecorderError::Write(gone()))?;
         let r = sink.write_frame(&frame);
         self.frames += u64::from(r.is_ok());
         self.written_events += frame.events.len() as u64;
         if let Some(v) = frame.hits.take() {
             self.hits_buf = v;
+        }
+        if let Some(v) = frame.slot_hits.take() {
+            self.slots_buf = v;
         }
         self.frame = frame;
         r.map_err(RecorderError::Write)
@@ -754,6 +908,7 @@ impl TraceRecorder {
         self.error = Some(e);
         self.events = Vec::new();
         self.hits = None;
+        self.pending = None;
         self.split = None;
     }
 
@@ -783,6 +938,14 @@ impl TraceRecorder {
 
 /// No trace id (a slot without a recorded instance).
 const NO_ID: u64 = u64::MAX;
+
+/// A frame's recorded hits: listed by id with the box shares split here
+/// (worlds other than the manager's grid), or by slot.
+#[derive(Debug)]
+enum HitsOut {
+    List(Vec<InstanceHits>),
+    Slots(SlotHits),
+}
 
 /// A counting box's hits split over its `k` culled instances: each gets
 /// `share`, the first `plus_one` (by slot) one more.
@@ -835,6 +998,14 @@ impl<H: HitboxIndex + 'static> Manager<H> {
             .ok_or_else(|| RecorderError::Header {
                 what: "no world: not a HitboxGrid manager and RecorderOptions::world unset".into(),
             })?;
+        recorder.boxes_by_grid = grid.is_some_and(|g| {
+            world
+                == WorldInfo {
+                    min: g.min(),
+                    max: g.max(),
+                    cell_size: g.cell_size(),
+                }
+        });
         recorder.world = Some(world);
         if let Some(frame) = self.frame {
             recorder.open = Some(frame);

@@ -398,16 +398,19 @@ fn reserve_covers_a_scene_of_known_size() {
     let mut rig = Rig::new(DataConfig::default());
     let m = &mut rig.m;
     m.reserve(64);
-    let loop_bytes = m.culling().memory_usage();
-    let caps = (m.slots.capacity(), m.data_dirty.capacity());
+    let loop_bytes = m.memory_usage();
+    let caps = (m.culling().table().capacity(), m.data_dirty.capacity());
     assert!(caps.0 >= 64 && caps.1 >= 64);
     for i in 0..64 {
         m.register(desc(1.0 + (i % 60) as f32, 5.0, 1 + i % 2))
             .unwrap();
     }
     // Nothing the registrations fill grew.
-    assert_eq!(m.culling().memory_usage(), loop_bytes);
-    assert_eq!((m.slots.capacity(), m.data_dirty.capacity()), caps);
+    assert_eq!(m.memory_usage(), loop_bytes);
+    assert_eq!(
+        (m.culling().table().capacity(), m.data_dirty.capacity()),
+        caps
+    );
 }
 
 #[test]
@@ -707,4 +710,80 @@ fn engine_selected_traces_exactly_the_pinned_set() {
     assert_eq!(plan.blas.builds().count(), 0);
     assert_eq!(traced, vec![sa, sb]);
     assert!(m.set_pinned(b, true).unwrap());
+}
+
+/// The slot table's columns agree with each other and with the parts that
+/// do not live in it (the registry's handle map, the scheduler) through
+/// registration, removal, slot reuse after the quarantine, LOD changes and
+/// BLAS builds.
+#[test]
+fn the_slot_table_rows_agree_with_the_registry_and_the_scheduler() {
+    use lipac_test_support::{Rng64, SplitMix64};
+    // One row per slot stays small (occupant 24, view 16, managed 28 bytes).
+    assert!(std::mem::size_of::<crate::slot_table::SlotRow>() <= 72);
+    let mut r = Rig::new(DataConfig::default());
+    let mut rng = SplitMix64::new(11);
+    let mut live: Vec<(InstanceHandle, MeshId)> = Vec::new();
+    let mut built = 0u64;
+    for _ in 0..40 {
+        let plan = r.frame_with(|m| {
+            for _ in 0..6 {
+                if live.len() > 4 && rng.below(3) == 0 {
+                    let (h, _) = live.swap_remove(rng.below(live.len() as u64) as usize);
+                    m.remove(h).unwrap();
+                } else {
+                    let mesh = 1 + rng.below(2) as u32;
+                    let (x, z) = (rng.below(60) as f32 + 2.0, rng.below(60) as f32 + 2.0);
+                    live.push((m.register(desc(x, z, mesh)).unwrap(), MeshId(mesh)));
+                }
+            }
+            if let Some(&(h, MeshId(1))) = live.first() {
+                m.set_lod(h, rng.below(3) as u32).unwrap();
+            }
+        });
+        for b in plan.blas.builds() {
+            built += 1;
+            r.m.handle_ack(Ack::Built {
+                build: b.id,
+                result_bytes: b.result_bytes,
+                address: 0x1_0000 * built,
+            })
+            .unwrap();
+        }
+        let m = &r.m;
+        let table = m.culling().table();
+        assert_eq!(table.len(), m.slot_count() as usize);
+        for (slot, row) in table.iter().enumerate() {
+            let slot = slot as u32;
+            let handle = m.registry().handle_at(slot);
+            assert_eq!(
+                handle.is_some(),
+                row.managed.instance.is_some(),
+                "slot {slot}"
+            );
+            let key = InstanceKey(slot);
+            let Some(h) = handle else {
+                assert!(!m.scheduler().is_active(key), "dead slot {slot} scheduled");
+                continue;
+            };
+            let &(_, mesh) = live.iter().find(|(l, _)| *l == h).expect("a live handle");
+            assert_eq!(row.occupant.mesh(), mesh);
+            assert_eq!(m.registry().desc(h).unwrap().mesh, mesh);
+            let v = m.instance(h).unwrap();
+            assert_eq!(v.slot, slot);
+            assert_eq!(v.scheduled, m.scheduler().is_active(key));
+            assert_eq!(v.awaiting_blas, m.culling().awaiting_blas(h).unwrap());
+            let managed = row.managed.instance.unwrap();
+            assert_eq!(v.traced_lod, u32::from(managed.traced_lod));
+            assert_eq!(v.requested_lod, u32::from(managed.requested_lod));
+            if v.scheduled {
+                assert_eq!(m.scheduler().blas_address(key).unwrap_or(0), v.blas);
+            } else {
+                assert_eq!(v.blas, 0);
+            }
+        }
+        assert_eq!(live.len(), m.registry().len());
+    }
+    assert!(built > 0, "the scene built BLASes");
+    assert!(r.m.stats().instances.scheduled > 0);
 }

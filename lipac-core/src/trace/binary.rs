@@ -4,11 +4,12 @@
 use super::error::{TraceError, TraceErrorKind, TraceLocation};
 use super::model::{
     check_aabb, check_event_count, check_flags, check_geometry, check_header, check_hit_count,
-    check_lod_count, check_mesh_count, check_scene_name, check_triangles, check_vertex_count,
-    check_world, AddInstance, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo,
-    MeshInfo, MeshTable, Pose, TraceHeader, TraceLimits, UpdateInstance, WorldInfo,
+    check_lod_count, check_mesh_count, check_scene_name, check_slot_count, check_triangles,
+    check_vertex_count, check_world, AddInstance, BoxHits, Camera, Frame, InstanceEvent,
+    InstanceHits, LodGeometry, LodInfo, MeshInfo, MeshTable, Pose, SlotHits, TraceHeader,
+    TraceLimits, UpdateInstance, WorldInfo,
 };
-use super::validate::{FrameFault, TraceValidator};
+use super::validate::{check_version, FrameFault, TraceValidator};
 use super::{TRACE_MAGIC, TRACE_VERSION};
 use crate::instance::MeshId;
 use crate::math::Aabb;
@@ -23,6 +24,13 @@ pub(crate) const TAG_UPDATE: u8 = 2;
 pub(crate) const TAG_REMOVE: u8 = 3;
 
 const ADD_HAS_MASK: u8 = 1;
+/// Version 2: a `u32` slot follows the mask.
+const ADD_HAS_SLOT: u8 = 2;
+/// Hits flag values: none, by id (both versions), by slot (version 2).
+const HITS_NONE: u8 = 0;
+const HITS_BY_ID: u8 = 1;
+const HITS_BY_SLOT: u8 = 2;
+const BOX_BYTES: u64 = 4 + 4;
 const UPDATE_POSE: u8 = 1;
 const UPDATE_LOD: u8 = 2;
 const UPDATE_FLAGS: u8 = 4;
@@ -65,10 +73,29 @@ fn put_aabb(b: &mut Vec<u8>, a: &Aabb) {
     put_vec3(b, a.max);
 }
 fn put_pose(b: &mut Vec<u8>, p: &Pose) {
-    for x in p.transform {
-        put_f32(b, x);
+    // One append of the 18 floats (a recorded frame holds ~1k poses).
+    let mut e = [0u8; POSE_BYTES];
+    let (lo, hi) = (p.aabb.min.to_array(), p.aabb.max.to_array());
+    let floats = p.transform.iter().chain(&lo).chain(&hi);
+    for (d, x) in e.chunks_exact_mut(4).zip(floats) {
+        d.copy_from_slice(&x.to_le_bytes());
     }
-    put_aabb(b, &p.aabb);
+    b.extend_from_slice(&e);
+}
+
+/// Appends `v` as little-endian `u32`s through a small stack buffer: no
+/// zero-filled growth and no single huge copy (a recorded frame holds a
+/// count per slot, 100k and more).
+fn put_u32s(b: &mut Vec<u8>, v: &[u32]) {
+    const CHUNK: usize = 256;
+    b.reserve(4 * v.len());
+    let mut e = [0u8; 4 * CHUNK];
+    for c in v.chunks(CHUNK) {
+        for (d, x) in e.chunks_exact_mut(4).zip(c) {
+            d.copy_from_slice(&x.to_le_bytes());
+        }
+        b.extend_from_slice(&e[..4 * c.len()]);
+    }
 }
 
 /// Appends the header payload (without the preamble).
@@ -124,9 +151,14 @@ pub(crate) fn encode_frame(f: &Frame, b: &mut Vec<u8>) {
                 put_u32(b, a.mesh.0);
                 put_u32(b, a.lod);
                 put_u32(b, a.flags.bits());
-                match a.mask {
-                    None => b.push(0),
-                    Some(m) => b.extend_from_slice(&[ADD_HAS_MASK, m]),
+                let opts = (a.mask.is_some() as u8 * ADD_HAS_MASK)
+                    | (a.slot.is_some() as u8 * ADD_HAS_SLOT);
+                b.push(opts);
+                if let Some(m) = a.mask {
+                    b.push(m);
+                }
+                if let Some(slot) = a.slot {
+                    put_u32(b, slot);
                 }
                 put_pose(b, &a.pose);
             }
@@ -157,10 +189,22 @@ pub(crate) fn encode_frame(f: &Frame, b: &mut Vec<u8>) {
             }
         }
     }
+    if let Some(sh) = &f.slot_hits {
+        b.push(HITS_BY_SLOT);
+        put_u32(b, sh.slots.len() as u32);
+        put_u32s(b, &sh.slots);
+        put_u32(b, sh.boxes.len() as u32);
+        b.reserve(BOX_BYTES as usize * sh.boxes.len());
+        for x in &sh.boxes {
+            put_u32(b, x.hitbox);
+            put_u32(b, x.hits);
+        }
+        return;
+    }
     match &f.hits {
-        None => b.push(0),
+        None => b.push(HITS_NONE),
         Some(hits) => {
-            b.push(1);
+            b.push(HITS_BY_ID);
             put_u32(b, hits.len() as u32);
             // Reserved once, 12 bytes per store: a recorded frame may list
             // 100k hit counts.
@@ -208,15 +252,19 @@ fn io_err(at: u64, e: &io::Error) -> TraceError {
 /// };
 /// let add = AddInstance {
 ///     id: 42, mesh: MeshId(1), lod: 0, flags: InstanceFlags::STATIC, mask: None, pose,
+///     slot: None,
 /// };
 ///
 /// let mut w = TraceWriter::new(Vec::new(), &header)?;
-/// w.write_frame(&Frame { number: 0, camera, events: vec![InstanceEvent::Add(add)], hits: None })?;
+/// w.write_frame(&Frame {
+///     number: 0, camera, events: vec![InstanceEvent::Add(add)], hits: None, slot_hits: None,
+/// })?;
 /// w.write_frame(&Frame {
 ///     number: 1,
 ///     camera,
 ///     events: vec![InstanceEvent::Remove { id: 42 }],
 ///     hits: Some(vec![]),
+///     slot_hits: None,
 /// })?;
 /// let bytes: Vec<u8> = w.finish()?;
 ///
@@ -229,7 +277,9 @@ fn io_err(at: u64, e: &io::Error) -> TraceError {
 ///
 /// // Removing an instance twice is caught, naming frame, event and byte offset.
 /// let mut w = TraceWriter::new(Vec::new(), &header)?;
-/// let bad = Frame { number: 0, camera, events: vec![InstanceEvent::Remove { id: 7 }], hits: None };
+/// let bad = Frame {
+///     number: 0, camera, events: vec![InstanceEvent::Remove { id: 7 }], hits: None, slot_hits: None,
+/// };
 /// let err = w.write_frame(&bad).unwrap_err();
 /// assert_eq!(err.kind, TraceErrorKind::UnknownInstance { op: "remove", id: 7 });
 /// assert_eq!((err.frame_number, err.event), (Some(0), Some(0)));
@@ -253,10 +303,23 @@ impl<W: Write> TraceWriter<W> {
 
     /// As [`TraceWriter::new`] with explicit limits.
     pub fn with_limits(
-        mut w: W,
+        w: W,
         header: &TraceHeader,
         limits: TraceLimits,
     ) -> Result<Self, TraceError> {
+        Self::with_version(w, header, limits, TRACE_VERSION)
+    }
+
+    /// As [`TraceWriter::with_limits`], writing format `version` (1 or 2;
+    /// [`TRACE_VERSION`] by default): a version-1 trace refuses frames with
+    /// slots or [`SlotHits`] ([`TraceErrorKind::NotInVersion`]).
+    pub fn with_version(
+        mut w: W,
+        header: &TraceHeader,
+        limits: TraceLimits,
+        version: u16,
+    ) -> Result<Self, TraceError> {
+        check_version(version).map_err(|k| TraceError::at(TraceLocation::Byte(8), k))?;
         let here = |kind| TraceError::at(TraceLocation::Byte(PREAMBLE_BYTES), kind);
         let meshes: MeshTable = check_header(header, &limits).map_err(here)?;
         let mut buf = Vec::new();
@@ -270,7 +333,7 @@ impl<W: Write> TraceWriter<W> {
         }
         let mut pre = Vec::with_capacity(PREAMBLE_BYTES as usize);
         pre.extend_from_slice(&TRACE_MAGIC);
-        pre.extend_from_slice(&TRACE_VERSION.to_le_bytes());
+        pre.extend_from_slice(&version.to_le_bytes());
         pre.extend_from_slice(&0u16.to_le_bytes());
         put_u64(&mut pre, buf.len() as u64);
         w.write_all(&pre).map_err(|e| io_err(0, &e))?;
@@ -281,9 +344,17 @@ impl<W: Write> TraceWriter<W> {
             w,
             offset,
             buf,
-            validator: TraceValidator::with_meshes(meshes, limits),
+            validator: TraceValidator::with_meshes(meshes, limits, &header.world, version),
             limits,
         })
+    }
+
+    /// For the Manager's recorder, whose instance events are consistent by
+    /// construction (ids from its own table): from now on the live
+    /// instances are not tracked ([`TraceValidator::stop_tracking_live`]),
+    /// every value, reference and limit is still checked.
+    pub(crate) fn trust_instance_ids(&mut self) {
+        self.validator.stop_tracking_live();
     }
 
     /// Checks `frame` (see [`TraceValidator`]) and appends it.
@@ -586,6 +657,7 @@ fn decode_frame(
 ) -> Result<(), Fault> {
     offsets.payload = c.at();
     offsets.in_event = None;
+    let v2 = validator.version() >= 2;
     frame.number = c.u64("frame number")?;
     offsets.camera = c.at();
     let position = c.vec3("camera position")?;
@@ -628,18 +700,30 @@ fn decode_frame(
                 let bits = c.u32("flags")?;
                 let flags = c.check(flags_at, check_flags(bits))?;
                 let opts_at = c.at();
-                let mask = match c.u8("add options")? {
-                    0 => None,
-                    ADD_HAS_MASK => Some(c.u8("mask")?),
-                    v => {
-                        return Err((
-                            opts_at,
-                            TraceErrorKind::InvalidTag {
-                                what: "add options",
-                                value: v.into(),
-                            },
-                        ))
-                    }
+                let opts = c.u8("add options")?;
+                let known = if v2 {
+                    ADD_HAS_MASK | ADD_HAS_SLOT
+                } else {
+                    ADD_HAS_MASK
+                };
+                if opts & !known != 0 {
+                    return Err((
+                        opts_at,
+                        TraceErrorKind::InvalidTag {
+                            what: "add options",
+                            value: opts.into(),
+                        },
+                    ));
+                }
+                let mask = if opts & ADD_HAS_MASK != 0 {
+                    Some(c.u8("mask")?)
+                } else {
+                    None
+                };
+                let slot = if opts & ADD_HAS_SLOT != 0 {
+                    Some(c.u32("slot")?)
+                } else {
+                    None
                 };
                 let pose = c.pose()?;
                 InstanceEvent::Add(AddInstance {
@@ -649,6 +733,7 @@ fn decode_frame(
                     flags,
                     mask,
                     pose,
+                    slot,
                 })
             }
             TAG_UPDATE => {
@@ -714,9 +799,31 @@ fn decode_frame(
     }
     offsets.in_event = None;
     offsets.hits = c.at();
+    frame.slot_hits = None;
     match c.u8("hits flag")? {
-        0 => frame.hits = None,
-        1 => {
+        HITS_NONE => frame.hits = None,
+        HITS_BY_SLOT if v2 => {
+            let sh = frame.slot_hits.get_or_insert_with(SlotHits::default);
+            let n = c.count("slot hit count", 4, |n| check_slot_count(n, limits))?;
+            let bytes = c.bytes(4 * n, "slot hits")?;
+            sh.slots.clear();
+            sh.slots.extend(
+                bytes
+                    .chunks_exact(4)
+                    .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            );
+            let n = c.count("counting-box hit count", BOX_BYTES, |n| {
+                check_hit_count(n, limits)
+            })?;
+            sh.boxes.clear();
+            for _ in 0..n {
+                sh.boxes.push(BoxHits {
+                    hitbox: c.u32("counting-box hitbox")?,
+                    hits: c.u32("counting-box hits")?,
+                });
+            }
+        }
+        HITS_BY_ID => {
             let n = c.count("hit count", HIT_BYTES, |n| check_hit_count(n, limits))?;
             let hits = frame.hits.get_or_insert_with(Vec::new);
             hits.clear();
@@ -738,7 +845,15 @@ fn decode_frame(
         }
     }
     c.finish("frame")?;
-    if let Some(hits) = &frame.hits {
+    if let Some(sh) = &frame.slot_hits {
+        validator
+            .check_slot_hits(sh)
+            .map_err(|f| (offsets.hits, f.kind))?;
+        let hits = frame.hits.get_or_insert_with(Vec::new);
+        if !validator.derive_hits(sh, hits) {
+            frame.hits = None;
+        }
+    } else if let Some(hits) = &frame.hits {
         validator
             .check_hits(hits)
             .map_err(|f| (offsets.hits, f.kind))?;
@@ -838,15 +953,7 @@ impl<R: Read> TraceReader<R> {
             ));
         }
         let version = u16::from_le_bytes([pre[8], pre[9]]);
-        if version != TRACE_VERSION {
-            return Err(byte(
-                8,
-                TraceErrorKind::UnsupportedVersion {
-                    found: version.into(),
-                    supported: TRACE_VERSION,
-                },
-            ));
-        }
+        check_version(version).map_err(|k| byte(8, k))?;
         let reserved = u16::from_le_bytes([pre[10], pre[11]]);
         if reserved != 0 {
             return Err(byte(
@@ -889,13 +996,14 @@ impl<R: Read> TraceReader<R> {
             base: PREAMBLE_BYTES,
         };
         let (header, meshes) = decode_header(&mut c, &limits).map_err(|(at, k)| byte(at, k))?;
+        let validator = TraceValidator::with_meshes(meshes, limits, &header.world, version);
         buf.clear();
         buf.shrink_to(READ_CHUNK);
         Ok(Self {
             r,
             limits,
             header,
-            validator: TraceValidator::with_meshes(meshes, limits),
+            validator,
             offset: PREAMBLE_BYTES + header_len,
             record_at: PREAMBLE_BYTES + header_len,
             buf,
@@ -907,6 +1015,11 @@ impl<R: Read> TraceReader<R> {
     /// The trace header.
     pub fn header(&self) -> &TraceHeader {
         &self.header
+    }
+
+    /// The trace's format version (1 or 2).
+    pub fn version(&self) -> u16 {
+        self.validator.version()
     }
 
     /// The limits in force.
@@ -958,6 +1071,7 @@ impl<R: Read> TraceReader<R> {
             },
             events: Vec::new(),
             hits: None,
+            slot_hits: None,
         };
         Ok(self.next_frame_into(&mut frame)?.then_some(frame))
     }

@@ -107,7 +107,7 @@ pub fn binary_to_jsonl<R: Read, W: Write>(
     limits: TraceLimits,
 ) -> Result<W, TraceError> {
     let mut r = TraceReader::with_limits(input, limits)?;
-    let mut w = JsonlWriter::with_limits(output, r.header(), limits)?;
+    let mut w = JsonlWriter::with_version(output, r.header(), limits, r.version())?;
     while let Some(frame) = r.next_frame()? {
         w.write_frame(&frame)?;
     }
@@ -140,7 +140,7 @@ pub fn jsonl_to_binary<R: Read, W: Write>(
     limits: TraceLimits,
 ) -> Result<W, TraceError> {
     let mut r = JsonlReader::with_limits(input, limits)?;
-    let mut w = TraceWriter::with_limits(output, r.header(), limits)?;
+    let mut w = TraceWriter::with_version(output, r.header(), limits, r.version())?;
     while let Some(frame) = r.next_frame()? {
         w.write_frame(&frame)?;
     }

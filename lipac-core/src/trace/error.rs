@@ -237,6 +237,28 @@ pub enum TraceErrorKind {
         /// This frame's number.
         given: u64,
     },
+    /// An `add` (version 2) with a slot another live instance holds.
+    SlotInUse {
+        /// The slot.
+        slot: u32,
+        /// The live instance that holds it.
+        id: u64,
+    },
+    /// Hits (version 2, [`super::SlotHits`]) for a slot that no live
+    /// instance holds.
+    UnknownSlot {
+        /// The slot.
+        slot: u32,
+        /// Its hit count.
+        hits: u32,
+    },
+    /// A field of a later format version in a trace of an earlier one.
+    NotInVersion {
+        /// The field, e.g. `"add slot"`.
+        what: &'static str,
+        /// The trace's version.
+        version: u16,
+    },
     /// More live instances than [`super::TraceLimits::max_live_instances`].
     TooManyLiveInstances {
         /// The limit.
@@ -281,7 +303,8 @@ impl fmt::Display for TraceErrorKind {
             ),
             Self::UnsupportedVersion { found, supported } => write!(
                 f,
-                "unsupported trace format version {found} (this reader supports version {supported})"
+                "unsupported trace format version {found} (this reader supports versions {} to {supported})",
+                super::OLDEST_TRACE_VERSION
             ),
             Self::LimitExceeded { what, value, limit } => {
                 write!(f, "{what} = {value} exceeds the limit {limit}")
@@ -332,6 +355,17 @@ impl fmt::Display for TraceErrorKind {
             Self::FrameOrder { previous, given } => write!(
                 f,
                 "frame number {given} does not follow {previous}; frame numbers must increase"
+            ),
+            Self::SlotInUse { slot, id } => {
+                write!(f, "add in slot {slot}, which live instance {id} holds")
+            }
+            Self::UnknownSlot { slot, hits } => write!(
+                f,
+                "{hits} hits for slot {slot}, which no live instance holds"
+            ),
+            Self::NotInVersion { what, version } => write!(
+                f,
+                "{what} is not part of trace format version {version} (it needs version 2)"
             ),
             Self::TooManyLiveInstances { limit } => {
                 write!(f, "more than {limit} live instances")

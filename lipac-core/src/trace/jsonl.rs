@@ -8,10 +8,11 @@
 
 use super::error::{TraceError, TraceErrorKind, TraceLocation};
 use super::model::{
-    check_header, AddInstance, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo,
-    MeshInfo, MeshTable, Pose, TraceHeader, TraceLimits, UpdateInstance, WorldInfo,
+    check_header, AddInstance, BoxHits, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry,
+    LodInfo, MeshInfo, MeshTable, Pose, SlotHits, TraceHeader, TraceLimits, UpdateInstance,
+    WorldInfo,
 };
-use super::validate::{FrameFault, TraceValidator};
+use super::validate::{check_version, FrameFault, TraceValidator};
 use super::TRACE_VERSION;
 use crate::instance::{InstanceFlags, MeshId};
 use crate::math::Aabb;
@@ -96,7 +97,16 @@ struct LineDto {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     hits: Option<Vec<HitDto>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    slot_hits: Option<SlotHitsDto>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     end: Option<EndDto>,
+}
+
+/// Version 2's hits by slot: `{"slots":[h0,h1,...],"boxes":[[hitbox,hits],...]}`.
+#[derive(Serialize)]
+struct SlotHitsDto {
+    slots: Vec<u32>,
+    boxes: Vec<[u32; 2]>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -168,6 +178,9 @@ struct AddDto {
     flags: Vec<FlagName>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     mask: Option<u8>,
+    /// Version 2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    slot: Option<u32>,
     transform: [f32; 12],
     aabb: AabbDto,
 }
@@ -212,10 +225,10 @@ fn aabb_of(a: &AabbDto) -> Aabb {
     Aabb::new(Vec3::from_array(a.min), Vec3::from_array(a.max))
 }
 
-fn header_dto(h: &TraceHeader) -> HeaderDto {
+fn header_dto(h: &TraceHeader, version: u16) -> HeaderDto {
     HeaderDto {
         format: JSONL_FORMAT_NAME.into(),
-        version: TRACE_VERSION.into(),
+        version: version.into(),
         scene: h.scene_name.clone(),
         world: WorldDto {
             min: h.world.is_bounded().then_some(h.world.min),
@@ -294,6 +307,7 @@ fn frame_dto(f: &Frame) -> LineDto {
                         lod: a.lod,
                         flags: flags_to_names(a.flags),
                         mask: a.mask,
+                        slot: a.slot,
                         transform: a.pose.transform,
                         aabb: aabb_dto(&a.pose.aabb),
                     }),
@@ -309,13 +323,17 @@ fn frame_dto(f: &Frame) -> LineDto {
                 })
                 .collect(),
         ),
-        hits: f.hits.as_ref().map(|hs| {
+        hits: f.hits.as_ref().filter(|_| f.slot_hits.is_none()).map(|hs| {
             hs.iter()
                 .map(|h| HitDto {
                     id: h.id,
                     hits: h.hits,
                 })
                 .collect()
+        }),
+        slot_hits: f.slot_hits.as_ref().map(|sh| SlotHitsDto {
+            slots: sh.slots.clone(),
+            boxes: sh.boxes.iter().map(|b| [b.hitbox, b.hits]).collect(),
         }),
         end: None,
     }
@@ -334,6 +352,7 @@ fn event_of(i: u32, e: EventDto) -> Result<InstanceEvent, FrameFault> {
                 transform: a.transform,
                 aabb: aabb_of(&a.aabb),
             },
+            slot: a.slot,
         }),
         EventDto::Update(u) => {
             let pose = match (u.transform, u.aabb) {
@@ -375,6 +394,7 @@ enum LineKey {
     Camera,
     Events,
     Hits,
+    SlotHits,
     End,
 }
 
@@ -385,6 +405,7 @@ struct LineParts {
     camera: Option<CameraDto>,
     has_events: bool,
     hits: Option<Vec<InstanceHits>>,
+    slot_hits: Option<SlotHits>,
     end: Option<EndDto>,
 }
 
@@ -416,6 +437,7 @@ impl<'de> serde::de::Visitor<'de> for LineSeed<'_> {
         let mut parts = LineParts::default();
         let (mut seen_frame, mut seen_camera, mut seen_hits, mut seen_end) =
             (false, false, false, false);
+        let mut seen_slot_hits = false;
         let once = |seen: &mut bool, name: &'static str| {
             if std::mem::replace(seen, true) {
                 Err(A::Error::duplicate_field(name))
@@ -447,6 +469,13 @@ impl<'de> serde::de::Visitor<'de> for LineSeed<'_> {
                         limit: self.limits.max_hits_per_frame,
                         stop: &mut *self.stop,
                     })?;
+                }
+                LineKey::SlotHits => {
+                    once(&mut seen_slot_hits, "slot_hits")?;
+                    parts.slot_hits = Some(m.next_value_seed(SlotHitsSeed {
+                        limits: self.limits,
+                        stop: &mut *self.stop,
+                    })?);
                 }
                 LineKey::End => {
                     once(&mut seen_end, "end")?;
@@ -564,6 +593,116 @@ impl<'de> serde::de::Visitor<'de> for HitsSeed<'_> {
     }
 }
 
+/// `"slot_hits"`: an object with `"slots"` (hit counts, at most
+/// [`TraceLimits::max_live_instances`] and [`TraceLimits::max_hits_per_frame`])
+/// and `"boxes"` (`[hitbox, hits]` pairs, at most `max_hits_per_frame`),
+/// both required; parsing stops at the first element past its limit.
+struct SlotHitsSeed<'a> {
+    limits: &'a TraceLimits,
+    stop: &'a mut Option<FrameFault>,
+}
+
+#[derive(Deserialize)]
+#[serde(field_identifier, rename_all = "snake_case")]
+enum SlotHitsKey {
+    Slots,
+    Boxes,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for SlotHitsSeed<'_> {
+    type Value = SlotHits;
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<SlotHits, D::Error> {
+        d.deserialize_map(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for SlotHitsSeed<'_> {
+    type Value = SlotHits;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(r#"{"slots": [...], "boxes": [[hitbox, hits], ...]}"#)
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut m: A) -> Result<SlotHits, A::Error> {
+        use serde::de::Error;
+        let mut out = SlotHits::default();
+        let (mut slots, mut boxes) = (false, false);
+        let slot_limit = self
+            .limits
+            .max_live_instances
+            .min(self.limits.max_hits_per_frame);
+        while let Some(key) = m.next_key::<SlotHitsKey>()? {
+            match key {
+                SlotHitsKey::Slots => {
+                    if std::mem::replace(&mut slots, true) {
+                        return Err(A::Error::duplicate_field("slots"));
+                    }
+                    m.next_value_seed(LimitedSeq {
+                        limit: slot_limit,
+                        what: "slot hit counts in frame",
+                        out: &mut out.slots,
+                        stop: &mut *self.stop,
+                    })?;
+                }
+                SlotHitsKey::Boxes => {
+                    if std::mem::replace(&mut boxes, true) {
+                        return Err(A::Error::duplicate_field("boxes"));
+                    }
+                    let mut pairs: Vec<[u32; 2]> = Vec::new();
+                    m.next_value_seed(LimitedSeq {
+                        limit: self.limits.max_hits_per_frame,
+                        what: "counting-box hit counts in frame",
+                        out: &mut pairs,
+                        stop: &mut *self.stop,
+                    })?;
+                    out.boxes = pairs
+                        .into_iter()
+                        .map(|[hitbox, hits]| BoxHits { hitbox, hits })
+                        .collect();
+                }
+            }
+        }
+        if !slots {
+            return Err(A::Error::missing_field("slots"));
+        }
+        if !boxes {
+            return Err(A::Error::missing_field("boxes"));
+        }
+        Ok(out)
+    }
+}
+
+/// A JSON array into `out`, stopping at the first element past `limit`.
+struct LimitedSeq<'a, T> {
+    limit: u32,
+    what: &'static str,
+    out: &'a mut Vec<T>,
+    stop: &'a mut Option<FrameFault>,
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::DeserializeSeed<'de> for LimitedSeq<'_, T> {
+    type Value = ();
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_seq(self)
+    }
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::Visitor<'de> for LimitedSeq<'_, T> {
+    type Value = ();
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("an array")
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        use serde::de::Error;
+        while let Some(x) = seq.next_element::<T>()? {
+            if self.out.len() as u64 >= u64::from(self.limit) {
+                *self.stop = Some(over_limit(self.what, self.limit));
+                return Err(A::Error::custom("stopped: too many elements"));
+            }
+            self.out.push(x);
+        }
+        Ok(())
+    }
+}
+
 // ---------------------------------------------------------------------------
 // Float formatting
 
@@ -620,7 +759,7 @@ fn to_line<T: Serialize>(v: &T, out: &mut Vec<u8>) -> io::Result<()> {
 /// };
 /// let camera = Camera::look_to(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y, 1.0, 1.5);
 /// let mut w = JsonlWriter::new(Vec::new(), &header)?;
-/// w.write_frame(&Frame { number: 3, camera, events: vec![], hits: None })?;
+/// w.write_frame(&Frame { number: 3, camera, events: vec![], hits: None, slot_hits: None })?;
 /// let text = String::from_utf8(w.finish()?).unwrap();
 /// assert_eq!(text.lines().count(), 3); // header, frame, end
 /// assert!(text.lines().last().unwrap() == r#"{"end":{"frames":1}}"#);
@@ -652,14 +791,26 @@ impl<W: Write> JsonlWriter<W> {
 
     /// As [`JsonlWriter::new`] with explicit limits.
     pub fn with_limits(
-        mut w: W,
+        w: W,
         header: &TraceHeader,
         limits: TraceLimits,
     ) -> Result<Self, TraceError> {
+        Self::with_version(w, header, limits, TRACE_VERSION)
+    }
+
+    /// As [`JsonlWriter::with_limits`], writing format `version` (1 or 2),
+    /// as [`TraceWriter::with_version`](super::TraceWriter::with_version).
+    pub fn with_version(
+        mut w: W,
+        header: &TraceHeader,
+        limits: TraceLimits,
+        version: u16,
+    ) -> Result<Self, TraceError> {
         let here = |kind| TraceError::at(TraceLocation::Line(1), kind);
+        check_version(version).map_err(here)?;
         let meshes: MeshTable = check_header(header, &limits).map_err(here)?;
         let mut buf = Vec::new();
-        to_line(&header_dto(header), &mut buf).map_err(|e| line_err(1, &e))?;
+        to_line(&header_dto(header, version), &mut buf).map_err(|e| line_err(1, &e))?;
         if buf.len() as u64 > limits.max_header_bytes {
             return Err(here(TraceErrorKind::LimitExceeded {
                 what: "header line bytes",
@@ -673,9 +824,15 @@ impl<W: Write> JsonlWriter<W> {
             w,
             line: 1,
             buf,
-            validator: TraceValidator::with_meshes(meshes, limits),
+            validator: TraceValidator::with_meshes(meshes, limits, &header.world, version),
             limits,
         })
+    }
+
+    /// As [`TraceWriter`](super::TraceWriter)'s: the recorder's ids are
+    /// consistent by construction, live instances are not tracked.
+    pub(crate) fn trust_instance_ids(&mut self) {
+        self.validator.stop_tracking_live();
     }
 
     /// Checks `frame` (see [`TraceValidator`]) and appends its line.
@@ -840,25 +997,26 @@ impl<R: Read> JsonlReader<R> {
                 found: buf.iter().take(8).copied().collect(),
             }));
         }
-        match probe.version {
-            Some(v) if v == u64::from(TRACE_VERSION) => {}
-            v => {
+        let version = match probe.version.and_then(|v| u16::try_from(v).ok()) {
+            Some(v) if check_version(v).is_ok() => v,
+            _ => {
                 return Err(here(TraceErrorKind::UnsupportedVersion {
-                    found: v.unwrap_or(0),
+                    found: probe.version.unwrap_or(0),
                     supported: TRACE_VERSION,
                 }))
             }
-        }
+        };
         let dto: HeaderDto = serde_json::from_slice(&buf).map_err(|e| here(json_err(&e)))?;
         let header = header_of(dto);
         let meshes = check_header(&header, &limits).map_err(here)?;
+        let validator = TraceValidator::with_meshes(meshes, limits, &header.world, version);
         buf.clear();
         buf.shrink_to(64 * 1024);
         Ok(Self {
             r,
             limits,
             header,
-            validator: TraceValidator::with_meshes(meshes, limits),
+            validator,
             line: 1,
             buf,
             state: ReadState::Frames,
@@ -868,6 +1026,11 @@ impl<R: Read> JsonlReader<R> {
     /// The trace header.
     pub fn header(&self) -> &TraceHeader {
         &self.header
+    }
+
+    /// The trace's format version (1 or 2).
+    pub fn version(&self) -> u16 {
+        self.validator.version()
     }
 
     /// The limits in force.
@@ -999,6 +1162,7 @@ impl<R: Read> JsonlReader<R> {
                 camera: None,
                 has_events: false,
                 hits: None,
+                slot_hits: None,
             } => {
                 let e = |kind| TraceError::at(TraceLocation::Line(line), kind);
                 if end.frames != index {
@@ -1027,10 +1191,17 @@ impl<R: Read> JsonlReader<R> {
                 frame: Some(number),
                 camera: Some(camera),
                 hits,
+                slot_hits,
                 end: None,
                 ..
             } => {
-                let frame = Frame {
+                if hits.is_some() && slot_hits.is_some() {
+                    return Err(shape_err(
+                        Some(number),
+                        "a frame line holds \"hits\" or \"slot_hits\", not both",
+                    ));
+                }
+                let mut frame = Frame {
                     number,
                     camera: Camera {
                         position: Vec3::from_array(camera.position),
@@ -1040,10 +1211,16 @@ impl<R: Read> JsonlReader<R> {
                     },
                     events,
                     hits,
+                    slot_hits,
                 };
                 self.validator
                     .check_frame(&frame)
                     .map_err(|FrameFault { event, kind }| err(Some(number), event, kind))?;
+                if let Some(sh) = &frame.slot_hits {
+                    let mut hits = Vec::new();
+                    self.validator.derive_hits(sh, &mut hits);
+                    frame.hits = Some(hits);
+                }
                 Ok(Some(frame))
             }
             LineParts { frame, .. } => Err(shape_err(

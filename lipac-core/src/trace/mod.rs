@@ -49,14 +49,19 @@ pub use error::{TraceError, TraceErrorKind, TraceLocation};
 pub use jsonl::{JsonlReader, JsonlWriter, JSONL_FORMAT_NAME};
 pub(crate) use model::{check_aabb, check_camera};
 pub use model::{
-    AddInstance, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo, MeshInfo, Pose,
-    TraceHeader, TraceLimits, UpdateInstance, WorldInfo,
+    AddInstance, BoxHits, Camera, Frame, InstanceEvent, InstanceHits, LodGeometry, LodInfo,
+    MeshInfo, Pose, SlotHits, TraceHeader, TraceLimits, UpdateInstance, WorldInfo,
 };
 pub use validate::{FrameFault, TraceValidator};
 
 /// The first 8 bytes of every binary trace.
 pub const TRACE_MAGIC: [u8; 8] = *b"LIPACTRC";
 
-/// The format version this crate writes and reads (binary `u16` after the
-/// magic; `"version"` of the JSON-lines header).
-pub const TRACE_VERSION: u16 = 1;
+/// The format version this crate writes by default and the newest it reads
+/// (binary `u16` after the magic; `"version"` of the JSON-lines header).
+/// Version 2 adds instance slots and the compact [`SlotHits`].
+pub const TRACE_VERSION: u16 = 2;
+
+/// The oldest format version this crate reads (and can write, for content
+/// without later features: [`TraceWriter::with_version`]).
+pub const OLDEST_TRACE_VERSION: u16 = 1;

@@ -189,7 +189,45 @@ pub struct Frame {
     /// The engine's own hit counts per instance this frame (after the
     /// events), for replay through the state machine only; `None` when the
     /// engine did not record them.
+    ///
+    /// With [`Frame::slot_hits`] (version 2) this is what readers derive
+    /// from it (own hits by slot, counting-box hits split over their
+    /// instances, `docs/trace-format.md`); writers then encode `slot_hits`
+    /// and ignore this field.
     pub hits: Option<Vec<InstanceHits>>,
+    /// Version 2: the hit counts in the compact form the Manager's
+    /// recorder writes (per slot, plus counting boxes per hitbox); `None`
+    /// for traces that list [`Frame::hits`] by id (or have none).
+    pub slot_hits: Option<SlotHits>,
+}
+
+/// A frame's hit counts by slot (trace format version 2): what a
+/// renderer's hit buffers hold, written without a per-instance pass.
+///
+/// Instances are named by the slot of their `add` ([`AddInstance::slot`]).
+/// `slots[s]` is the hits of the instance in slot `s` (0 past the end); a
+/// non-zero entry needs a live instance in that slot. `boxes` are the hits
+/// of counting boxes of the header's world grid (bounded worlds only), in
+/// increasing hitbox order, each hitbox at most once: a reader splits a
+/// box's hits evenly over the live instances in that hitbox (AABB centre)
+/// that are not pinned and have no hits of their own, in slot order, the
+/// first `hits % k` of the `k` taking one more.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SlotHits {
+    /// Hits per slot (index = slot).
+    pub slots: Vec<u32>,
+    /// Counting-box hits per hitbox, by increasing hitbox index.
+    pub boxes: Vec<BoxHits>,
+}
+
+/// The hits of one hitbox's counting box ([`SlotHits::boxes`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BoxHits {
+    /// Hitbox index in the header's world grid (`cx + cz * columns`,
+    /// [`HitboxGrid::index`]).
+    pub hitbox: u32,
+    /// Hits of its counting box.
+    pub hits: u32,
 }
 
 /// A pinhole camera. It looks along its local `-Z` with `+Y` up
@@ -289,6 +327,11 @@ pub struct AddInstance {
     pub mask: Option<u8>,
     /// Transform and bounds.
     pub pose: Pose,
+    /// Version 2: the instance's slot (the index of its hits in
+    /// [`SlotHits::slots`]), below [`TraceLimits::max_live_instances`] and
+    /// not held by another live instance; `None`: the instance has no slot
+    /// (its hits can only be listed by id).
+    pub slot: Option<u32>,
 }
 
 impl AddInstance {
@@ -382,6 +425,18 @@ pub(crate) fn check_aabb(
 }
 
 pub(crate) fn check_pose(pose: &Pose, limits: &TraceLimits) -> Result<(), TraceErrorKind> {
+    // Fast path (every recorded move): all finite, box not inverted and
+    // within the extent limit; the element-wise checks below name a fault.
+    let (lo, hi) = (pose.aabb.min, pose.aabb.max);
+    let extent = hi - lo;
+    if pose.transform.iter().all(|v| v.is_finite())
+        && lo.is_finite()
+        && hi.is_finite()
+        && lo.cmple(hi).all()
+        && extent.cmple(Vec3::splat(limits.max_aabb_extent)).all()
+    {
+        return Ok(());
+    }
     for (i, v) in pose.transform.iter().enumerate() {
         check_finite(
             || format!("transform element {i} (row {}, column {})", i / 4, i % 4),
@@ -492,6 +547,13 @@ pub(crate) fn check_hit_count(n: u64, limits: &TraceLimits) -> Result<(), TraceE
     limit("hit counts in frame", n, limits.max_hits_per_frame)
 }
 
+/// The length of [`SlotHits::slots`]: at most one entry per possible slot
+/// and at most [`TraceLimits::max_hits_per_frame`].
+pub(crate) fn check_slot_count(n: u64, limits: &TraceLimits) -> Result<(), TraceErrorKind> {
+    limit("slot hit counts in frame", n, limits.max_live_instances)?;
+    limit("slot hit counts in frame", n, limits.max_hits_per_frame)
+}
+
 /// Checks one LOD's geometry against its triangle count.
 pub(crate) fn check_geometry(triangles: u32, g: &LodGeometry) -> Result<(), TraceErrorKind> {
     if g.indices.len() as u64 != 3 * u64::from(triangles) {
@@ -595,6 +657,15 @@ pub(crate) fn check_event(
     match e {
         InstanceEvent::Add(a) => {
             meshes.check_lod(a.mesh, a.lod)?;
+            if let Some(slot) = a.slot {
+                if slot >= limits.max_live_instances {
+                    return Err(TraceErrorKind::LimitExceeded {
+                        what: "instance slot",
+                        value: slot.into(),
+                        limit: u64::from(limits.max_live_instances).saturating_sub(1),
+                    });
+                }
+            }
             check_pose(&a.pose, limits)
         }
         InstanceEvent::Update(u) => match &u.pose {

@@ -100,6 +100,14 @@ struct Common {
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// LiPaC's adaptive hitboxes: merge levels of cold hitboxes into one
+    /// counting box (0 = off, one box per inactive hitbox; up to 4:
+    /// 16 x 16 hitboxes per box). docs/ADAPTIVE_HITBOXES.md.
+    #[arg(long, default_value_t = 0)]
+    adaptive_levels: u8,
+    /// LiPaC's hitbox cell size in metres (default 32; the paper's 16).
+    #[arg(long)]
+    cell_size: Option<f64>,
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
@@ -436,6 +444,8 @@ fn main() -> ExitCode {
         strategies,
         share_ground_truth: true,
         threads: common.threads,
+        adaptive_levels: common.adaptive_levels,
+        lipac_cell_size: common.cell_size,
     };
     // Hidden when stderr is not a terminal (CI, pipes): indicatif's default.
     let bar = ProgressBar::new(0);

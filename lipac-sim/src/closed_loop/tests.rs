@@ -133,6 +133,8 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),
@@ -182,6 +184,7 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
+        ..CompareConfig::default()
     };
     let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
     let j = CameraPath::city_jump(&scene, 32.0 / 18.0);

@@ -416,6 +416,7 @@ pub fn to_trace(
                     flags: fl,
                     mask: None,
                     pose,
+                    slot: None,
                 }));
             } else if p.flags.animated || lod != p.lod {
                 events.push(InstanceEvent::Update(UpdateInstance {
@@ -433,6 +434,7 @@ pub fn to_trace(
             camera,
             events,
             hits: None,
+            slot_hits: None,
         });
     }
     Ok(Imported {

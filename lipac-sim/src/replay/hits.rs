@@ -729,8 +729,7 @@ impl LipacReplay {
             let reg = r.custom_index();
             // A counting box's custom index is a hitbox's (or its omitted
             // instance's) index, not a traced slot, even where it equals one.
-            let is_box = r.sbt_offset() == counting.instance_box_sbt
-                || r.sbt_offset() == counting.hitbox_box_sbt;
+            let is_box = counting.is_box(r.sbt_offset());
             if !is_box && geometry.contains(reg) {
                 if let Some(&s) = self.dense.get(reg as usize) {
                     if s != u32::MAX {

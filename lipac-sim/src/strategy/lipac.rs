@@ -22,10 +22,13 @@
 
 use lipac_core::build_plan::{BuildBudgets, PriorityConfig};
 use lipac_core::controller::{ControlTarget, ControllerConfig};
+use lipac_core::grid::HitboxGrid;
 use lipac_core::hitbox_index::HitboxIndex;
+use lipac_core::hitbox_tree::AdaptiveHitboxes;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
+use lipac_core::manager::Manager;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 
@@ -35,7 +38,7 @@ use crate::error::SimError;
 use crate::memory::{blas_bytes, decayed_rate_bytes, lipac_overhead_bytes};
 use crate::scene::Scene;
 use crate::scene_blas::instance_mask;
-use crate::tlas::CountingBoxes;
+use crate::tlas::{CountingBoxes, MergedBoxes};
 use crate::tlas_map::HitboxCell;
 use crate::traversal::Counters;
 
@@ -65,6 +68,9 @@ pub struct LipacConfig {
     pub target: Option<ControlTarget>,
     /// The controller's settings (with a `target`).
     pub controller: ControllerConfig,
+    /// Adaptive hitboxes (merged counting boxes for cold regions,
+    /// [`lipac_core::hitbox_tree`]); off by default.
+    pub adaptive_hitboxes: AdaptiveHitboxes,
 }
 
 impl LipacConfig {
@@ -127,7 +133,13 @@ impl LipacConfig {
                 tlas_record_bytes: crate::memory::TLAS_BYTES_PER_INSTANCE,
                 ..ControllerConfig::default()
             },
+            adaptive_hitboxes: AdaptiveHitboxes::OFF,
         })
+    }
+    /// The same with adaptive hitboxes of `levels` merge levels (0: off).
+    pub fn with_adaptive_hitboxes(mut self, levels: u8) -> Self {
+        self.adaptive_hitboxes = AdaptiveHitboxes::with_levels(levels);
+        self
     }
     /// Build priorities by waiting time alone: the comparison's measured
     /// configuration (docs/EVALUATION.md). [`PriorityConfig::default`] also
@@ -191,6 +203,9 @@ pub struct Lipac {
     /// The LOD requested for each slot.
     lods: Vec<u8>,
     units: Vec<u32>,
+    /// Whether each slot is registered pinned (followed from the scene:
+    /// a replayed trace's flag updates).
+    pinned: Vec<bool>,
     stats: LipacFrameStats,
 }
 
@@ -237,6 +252,7 @@ impl Lipac {
             lods: vec![0; handles.len()],
             handles,
             units,
+            pinned: scene.instances().iter().map(|i| i.is_pinned()).collect(),
             stats: LipacFrameStats::default(),
         })
     }
@@ -282,9 +298,26 @@ impl Lipac {
     }
 }
 
+/// This frame's merged boxes of a [`Lipac`] with adaptive hitboxes: the
+/// leaf boxes from its Manager's hitbox records.
+struct LipacMergedBoxes<'a> {
+    manager: &'a Manager<HitboxGrid>,
+}
+
+impl MergedBoxes for LipacMergedBoxes<'_> {
+    fn leaf_boxes(&self, node: u32, out: &mut Vec<(u32, [f32; 12])>) {
+        self.manager.merged_leaf_boxes(node, out);
+    }
+}
+
 impl Strategy for Lipac {
     fn name(&self) -> &str {
         self.name
+    }
+    fn merged_boxes(&self) -> Option<Box<dyn MergedBoxes + '_>> {
+        let manager = self.backend.manager();
+        manager.hitbox_tree()?;
+        Some(Box::new(LipacMergedBoxes { manager }))
     }
     fn hitboxes(&self) -> usize {
         self.backend.hitboxes().len()
@@ -337,6 +370,18 @@ impl Strategy for Lipac {
             self.backend
                 .set_transform(self.handles[slot as usize], inst.transform, inst.aabb)?;
         }
+        for ((inst, was), &h) in ctx
+            .scene
+            .instances()
+            .iter()
+            .zip(&mut self.pinned)
+            .zip(&self.handles)
+        {
+            if inst.is_pinned() != *was {
+                *was = inst.is_pinned();
+                self.backend.set_pinned(h, *was)?;
+            }
+        }
         for (slot, (&lod, last)) in ctx.lods.iter().zip(&mut self.lods).enumerate() {
             if lod != *last {
                 *last = lod;
@@ -354,7 +399,7 @@ impl Strategy for Lipac {
         let counting = CountingBoxes::default();
         for r in out.iter_mut() {
             let sbt = r.sbt_offset();
-            if sbt != counting.instance_box_sbt && sbt != counting.hitbox_box_sbt {
+            if !counting.is_box(sbt) {
                 let full = ctx
                     .full_records
                     .get(r.custom_index() as usize)

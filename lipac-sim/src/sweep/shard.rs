@@ -253,6 +253,8 @@ pub fn run_shard(
         strategies: Vec::new(),
         share_ground_truth: true,
         threads: config.threads,
+        adaptive_levels: 0,
+        lipac_cell_size: None,
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();
