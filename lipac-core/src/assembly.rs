@@ -2,8 +2,11 @@
 //! reference.
 //!
 //! Runs once per frame before the TLAS build, over exactly the buffers a GPU
-//! backend holds: the instance records (one per slot), the hitbox records and
-//! the output array of [`TlasInstance`]s. The GPU version appends with an
+//! backend holds: the instance arrays ([`InstanceArrays`]: hot, heights and
+//! cold, one of each per slot), the hitbox records and the output array of
+//! [`TlasInstance`]s. Every slot's hot part is read; an inactive slot's
+//! heights; the cold part only of a slot that emits a record (its transform,
+//! BLAS and SBT offset when active, its AABB when omitted). The GPU version appends with an
 //! atomic counter, so its output order is arbitrary; compare with
 //! [`sort_canonical`] applied to both sides.
 //!
@@ -33,7 +36,7 @@ use glam::Vec3;
 use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::HitboxTree;
 use crate::layout::{
-    hitbox_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance, MAX_SLOTS,
+    hitbox_bits, HitboxRecord, InstanceArrays, InstanceState, TlasInstance, MAX_SLOTS,
     VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
 };
 
@@ -258,7 +261,7 @@ pub fn unit_cube_transform(min: Vec3, max: Vec3, min_extent: f32) -> Option<[f32
 /// use glam::{Vec2, Vec3};
 /// use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 /// use lipac_core::hitbox_index::HitboxIndex;
-/// use lipac_core::layout::{instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+/// use lipac_core::layout::{instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState};
 ///
 /// struct OneCell;
 /// impl HitboxIndex for OneCell {
@@ -275,13 +278,14 @@ pub fn unit_cube_transform(min: Vec3, max: Vec3, min_extent: f32) -> Option<[f32
 /// inst.set_state(InstanceState::Inactive);
 /// let mut hitboxes = [HitboxRecord::default()];
 /// let mut out = Vec::new();
-/// let stats = assemble_tlas(&[inst], &mut hitboxes, &OneCell, &AssemblyConfig::new(7), &mut out).unwrap();
+/// let instances = InstanceArrays::from_records(&[inst]);
+/// let stats = assemble_tlas(&instances, &mut hitboxes, &OneCell, &AssemblyConfig::new(7), &mut out).unwrap();
 /// assert_eq!((stats.inactive, stats.hitbox_boxes, out.len()), (1, 1, 1));
 /// assert_eq!((hitboxes[0].min_y, hitboxes[0].max_y), (0.0, 5.0));
 /// assert_eq!(out[0].acceleration_structure_reference, 7);
 /// ```
 pub fn assemble_tlas(
-    instances: &[InstanceRecord],
+    instances: &InstanceArrays,
     hitboxes: &mut [HitboxRecord],
     index: &impl HitboxIndex,
     cfg: &AssemblyConfig,
@@ -295,7 +299,7 @@ pub fn assemble_tlas(
 /// instead of one per hitbox ([`crate::hitbox_tree`]); with `None` it is
 /// [`assemble_tlas`] exactly.
 pub fn assemble_tlas_adaptive(
-    instances: &[InstanceRecord],
+    instances: &InstanceArrays,
     hitboxes: &mut [HitboxRecord],
     index: &impl HitboxIndex,
     cfg: &AssemblyConfig,
@@ -323,12 +327,16 @@ pub fn assemble_tlas_adaptive(
     begin_frame(hitboxes);
     let mut stats = AssemblyStats::default();
 
-    // Pass 1: one GPU thread per slot.
-    for (slot, m) in instances.iter().enumerate() {
+    // Pass 1: one GPU thread per slot, over the hot array. The arrays have
+    // equal lengths (InstanceArrays); cut to it, indexing needs no check.
+    let hot = instances.hot();
+    let n = hot.len();
+    let (heights, cold) = (&instances.heights()[..n], &instances.cold()[..n]);
+    for slot in 0..n {
+        let m = hot[slot];
         if !m.is_alive() {
             continue;
         }
-        let slot = slot as u32;
         // A pinned instance is active whatever its state bits and hitbox say.
         let pinned = m.is_pinned();
         let mut state = if pinned {
@@ -349,24 +357,26 @@ pub fn assemble_tlas_adaptive(
         }
         match state {
             InstanceState::Active => {
-                if m.blas == 0 {
+                if !m.has_blas() {
                     stats.active_without_blas += 1;
                     continue;
                 }
+                let c = &cold[slot];
                 out.push(TlasInstance::new(
-                    m.transform,
-                    slot,
+                    c.transform,
+                    slot as u32,
                     m.mask(),
-                    m.sbt_offset,
+                    c.sbt_offset,
                     m.vk_flags(),
-                    m.blas,
+                    c.blas,
                 ));
                 stats.active += 1;
             }
             InstanceState::Omitted => {
+                let c = &cold[slot];
                 let Some(transform) = unit_cube_transform(
-                    Vec3::from_array(m.aabb_min),
-                    Vec3::from_array(m.aabb_max),
+                    Vec3::from_array(c.aabb_min),
+                    Vec3::from_array(c.aabb_max),
                     cfg.min_box_extent,
                 ) else {
                     stats.invalid_instances += 1;
@@ -374,7 +384,7 @@ pub fn assemble_tlas_adaptive(
                 };
                 out.push(TlasInstance::new(
                     transform,
-                    slot,
+                    slot as u32,
                     cfg.counting_mask,
                     cfg.omitted_box_sbt_offset,
                     COUNTING_BOX_FLAGS,
@@ -387,9 +397,10 @@ pub fn assemble_tlas_adaptive(
                     stats.invalid_instances += 1;
                     continue;
                 };
+                let y = &heights[slot];
                 // atomicMin / atomicMax on the GPU (f32 as ordered ints).
-                h.min_y = h.min_y.min(m.aabb_min[1]);
-                h.max_y = h.max_y.max(m.aabb_max[1]);
+                h.min_y = h.min_y.min(y.min_y);
+                h.max_y = h.max_y.max(y.max_y);
                 // atomicAdd on the GPU: what activating the hitbox brings in.
                 h.cost = h.cost.wrapping_add(if m.needs_unique_blas() {
                     hitbox_bits::COST_UNIQUE

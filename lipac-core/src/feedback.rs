@@ -1,7 +1,9 @@
 //! Algorithm 2 (thesis Algorithm 5): process hit feedback, CPU reference.
 //!
 //! Runs once per frame after path tracing, over the buffers a GPU backend
-//! holds: instance records, the per-instance hit counters (one `u32` per slot,
+//! holds: the hot instance array ([`InstanceHot`], 8 bytes per slot: hitbox
+//! and packed bits; the cold part is never read, the BLAS test is
+//! [`instance_bits::HAS_BLAS`]), the per-instance hit counters (one `u32` per slot,
 //! the paper's 4 bytes), the hitbox records and the bounded command buffer.
 //! Line numbers below are those of the paper's Algorithm 2 / thesis
 //! Algorithm 5.
@@ -32,7 +34,7 @@ use std::fmt;
 
 use crate::command::{priority_from_hits, Command, CommandBuffer, CommandKind};
 use crate::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, MAX_SLOTS,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceHot, InstanceState, MAX_SLOTS,
 };
 use crate::thresholds::{decay_rate, DecayedRule, DecisionRule, ThresholdError, Thresholds};
 
@@ -60,6 +62,12 @@ pub struct FeedbackStats {
     pub overflowed: u32,
     /// Live instances skipped because their hitbox index is out of range.
     pub invalid_instances: u32,
+    /// This frame's hits on counting boxes, summed as lines 1–6 read them:
+    /// the hitboxes' counts before line 4 adds instance hits, plus the hits
+    /// of live omitted instances (their boxes).
+    pub box_hits: u64,
+    /// This frame's hits on traced instances: live instances not omitted.
+    pub traced_hits: u64,
 }
 
 /// Inputs of [`process_feedback`] that do not fit together.
@@ -185,24 +193,25 @@ fn hitbox_step_decayed(h: &mut HitboxRecord, r: &DecayedRule) -> i8 {
 /// ```
 /// use lipac_core::command::{Command, CommandBuffer, CommandKind};
 /// use lipac_core::feedback::process_feedback;
-/// use lipac_core::layout::{instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+/// use lipac_core::layout::{instance_bits, HitboxRecord, InstanceHot, InstanceState};
 /// use lipac_core::thresholds::Thresholds;
 ///
 /// // One inactive instance in an inactive hitbox whose counting box was hit
 /// // by 2500 rays (> 2·θa): the hitbox activates and the instance with it.
-/// let mut instances = [InstanceRecord { packed: instance_bits::ALIVE, ..Default::default() }];
+/// let mut instances = [InstanceHot { packed: instance_bits::ALIVE, ..Default::default() }];
 /// let mut hitboxes = [HitboxRecord::default()];
 /// hitboxes[0].add_hits(2500);
 /// let mut commands = CommandBuffer::new(16);
 /// let stats = process_feedback(&mut instances, &[0], &mut hitboxes, &Thresholds::paper(), &mut commands)
 ///     .unwrap();
 /// assert_eq!((stats.hitboxes_activated, stats.inactive_to_active), (1, 1));
+/// assert_eq!((stats.box_hits, stats.traced_hits), (2500, 0));
 /// assert_eq!(instances[0].state(), InstanceState::Active);
 /// let cmd = Command::decode(commands.words()[0], 1).unwrap();
 /// assert_eq!((cmd.slot, cmd.kind), (0, CommandKind::Add));
 /// ```
 pub fn process_feedback(
-    instances: &mut [InstanceRecord],
+    instances: &mut [InstanceHot],
     instance_hits: &[u32],
     hitboxes: &mut [HitboxRecord],
     th: &Thresholds,
@@ -224,7 +233,7 @@ pub fn process_feedback(
 /// holds the decayed hit rates of unique-BLAS instances under
 /// [`DecisionRule::Decayed`]; under the paper's rule it is left alone.
 pub fn process_feedback_with_rates(
-    instances: &mut [InstanceRecord],
+    instances: &mut [InstanceHot],
     instance_hits: &[u32],
     instance_rates: &mut [u32],
     hitboxes: &mut [HitboxRecord],
@@ -248,7 +257,7 @@ pub fn process_feedback_with_rates(
 }
 
 fn process(
-    instances: &mut [InstanceRecord],
+    instances: &mut [InstanceHot],
     instance_hits: &[u32],
     rates: Option<&mut [u32]>,
     hitboxes: &mut [HitboxRecord],
@@ -270,8 +279,18 @@ fn process(
     // Lines 1–6: one thread per slot.
     const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
     const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced_hits: u64 = 0;
     for (m, &hits) in instances.iter().zip(instance_hits) {
+        if hits == 0 {
+            continue; // adds nothing, to the hitbox or the sums
+        }
         let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+        if key == LIVE_OMITTED {
+            box_hits += u64::from(hits);
+        } else if key & instance_bits::ALIVE != 0 {
+            traced_hits += u64::from(hits);
+        }
         // Pinned instances are not the hitbox's to decide on: their hits stay out.
         if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
             if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
@@ -279,6 +298,8 @@ fn process(
             }
         }
     }
+    stats.box_hits = box_hits;
+    stats.traced_hits = traced_hits;
 
     // Lines 7–13: one thread per hitbox.
     let mut decayed = match (&th.rule, rates) {
@@ -298,40 +319,41 @@ fn process(
         stats.hitboxes_deactivated += u32::from(change < 0);
     }
 
-    // Lines 14–38: one thread per slot.
-    for (slot, (m, &hits)) in instances.iter_mut().zip(instance_hits).enumerate() {
+    // Lines 14–38: one thread per slot. The slices are cut to the slot
+    // count (checked equal above) so that indexing by slot needs no check.
+    let n = instances.len();
+    let instance_hits = &instance_hits[..n];
+    for slot in 0..n {
+        let packed = instances[slot].packed;
         // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
         // rate of either is 0 (a dead slot is reused only after quarantine).
-        if m.packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
+        if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
             if let Some((_, rates)) = decayed.as_mut() {
                 rates[slot] = 0;
             }
             continue;
         }
-        let Some(h) = hitboxes.get(m.hitbox as usize) else {
+        let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
             stats.invalid_instances += 1;
             continue;
         };
-        let old = m.state();
-        let h_active = h.is_active();
-        let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
-        // Fast path: nothing in lines 16–37 can fire (and the rate of an
-        // inactive or shared-BLAS instance is 0).
-        match (old, h_active) {
-            (InstanceState::Inactive, false) => {
-                if let Some((_, rates)) = decayed.as_mut() {
-                    rates[slot] = 0;
-                }
-                continue;
+        let h_active = h.packed & hitbox_bits::ACTIVE != 0;
+        let unique = packed & instance_bits::UNIQUE_BLAS != 0;
+        // Fast path, on the bits alone: nothing in lines 16–37 can fire for
+        // an inactive instance (state bits 0, or the unused 3) in an
+        // inactive hitbox, nor for a shared-BLAS active or omitted one in an
+        // active hitbox (and the rate of either is 0).
+        let bits = packed & instance_bits::STATE_MASK;
+        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
+        if h_active != inactive && (inactive || !unique) {
+            if let Some((_, rates)) = decayed.as_mut() {
+                rates[slot] = 0;
             }
-            (InstanceState::Active, true) | (InstanceState::Omitted, true) if !unique => {
-                if let Some((_, rates)) = decayed.as_mut() {
-                    rates[slot] = 0;
-                }
-                continue;
-            }
-            _ => {}
+            continue;
         }
+        let m = &mut instances[slot];
+        let hits = instance_hits[slot];
+        let old = m.state();
         let slot = slot as u32;
         let command = |kind, hits| Command {
             slot,
@@ -381,7 +403,7 @@ fn process(
                 let rate = match state {
                     InstanceState::Inactive => 0,
                     // Not in the TLAS until its BLAS exists: no evidence, held.
-                    InstanceState::Active if m.blas == 0 => rates[slot],
+                    InstanceState::Active if !m.has_blas() => rates[slot],
                     _ => decay_rate(rates[slot], hits, r.shift),
                 };
                 rates[slot] = rate;
@@ -394,7 +416,7 @@ fn process(
                             overflow = true;
                         }
                     } else if state == InstanceState::Active
-                        && m.blas != 0
+                        && m.has_blas()
                         && rate < r.instance_omit
                     {
                         if commands.push(command(CommandKind::Remove, hits)) {
@@ -416,7 +438,7 @@ fn process(
                 } else {
                     overflow = true;
                 }
-            } else if state == InstanceState::Active && m.blas != 0 && hits < th.sigma_o {
+            } else if state == InstanceState::Active && m.has_blas() && hits < th.sigma_o {
                 // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
                 if commands.push(command(CommandKind::Remove, hits)) {
                     state = InstanceState::Omitted;

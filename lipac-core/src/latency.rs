@@ -300,7 +300,7 @@ impl LatencyMitigation {
             registry,
             camera,
             frustum,
-            |slot| records[slot as usize].state() == InstanceState::Active,
+            |slot| records.hot()[slot as usize].state() == InstanceState::Active,
             activate,
         )
     }
@@ -327,7 +327,7 @@ impl LatencyMitigation {
         let records = registry.records();
         self.visible.resize(records.len().div_ceil(64), 0);
         let mut summary = LatencySummary::default();
-        for (slot, record) in (0u32..).zip(records) {
+        for (slot, record) in (0u32..).zip(records.cold()) {
             let (word, bit) = ((slot / 64) as usize, 1u64 << (slot % 64));
             let was = self.visible[word] & bit != 0;
             self.visible[word] &= !bit;

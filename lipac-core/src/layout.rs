@@ -9,10 +9,18 @@
 //! | record | bytes | what |
 //! | --- | --- | --- |
 //! | [`TlasInstance`] | 64 | `VkAccelerationStructureInstanceKHR` |
-//! | [`InstanceRecord`] | 96 | per-instance state, indexed by GPU slot |
+//! | [`InstanceRecord`] | 96 | per-instance state, one slot's view (and the upload staging format) |
+//! | [`InstanceHot`] | 8 | per slot: hitbox and packed bits, read by Algorithms 1 and 2 every frame |
+//! | [`InstanceHeights`] | 8 | per slot: AABB y range, read by Algorithm 1 for inactive slots |
+//! | [`InstanceCold`] | 88 | per slot: transform, AABB, BLAS, SBT offset, LOD, read only where a record is emitted |
 //! | [`HitboxRecord`] | 20 | per-hitbox state (the paper's 12 bytes, a decayed hit rate and a cost word) |
 //! | hit counter | 4 | one `u32` per instance slot (the paper's 4 bytes) |
 //! | instance rate | 4 | one `u32` per slot: decayed hit rate (16.16) of a unique-BLAS instance |
+//!
+//! The instance buffer is held as three arrays indexed by slot
+//! ([`InstanceArrays`]: hot, heights, cold), so that the per-frame decisions
+//! touch 8–16 bytes per slot instead of 96; an [`InstanceRecord`] is the
+//! joined view of one slot. Bytes per pass: `docs/HOT_COLD.md`.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -148,6 +156,10 @@ pub mod instance_bits {
     /// large occluders, emitters); never culled, never a counting box, and
     /// skipped by Algorithm 2's decisions.
     pub const PINNED: u32 = 1 << 6;
+    /// Bit 7: the instance has a BLAS (its [`super::InstanceCold::blas`] is
+    /// nonzero). Kept by [`super::InstanceArrays`] from the BLAS address, so
+    /// that Algorithms 1 and 2 decide without reading the cold record.
+    pub const HAS_BLAS: u32 = 1 << 7;
     /// Bits 8..16: the engine's TLAS visibility mask for this instance.
     pub const MASK_SHIFT: u32 = 8;
     /// Bits 16..24: `VkGeometryInstanceFlagsKHR` for this instance.
@@ -208,7 +220,60 @@ impl InstanceRecord {
     pub fn vk_flags(&self) -> u8 {
         (self.packed >> instance_bits::VK_FLAGS_SHIFT) as u8
     }
+    /// The slot's hot part, with [`instance_bits::HAS_BLAS`] set exactly
+    /// when [`InstanceRecord::blas`] is nonzero (whatever `packed` says).
+    pub fn hot(&self) -> InstanceHot {
+        let has = if self.blas != 0 {
+            instance_bits::HAS_BLAS
+        } else {
+            0
+        };
+        InstanceHot {
+            hitbox: self.hitbox,
+            packed: (self.packed & !instance_bits::HAS_BLAS) | has,
+        }
+    }
+    /// The slot's AABB y range.
+    pub fn heights(&self) -> InstanceHeights {
+        InstanceHeights {
+            min_y: self.aabb_min[1],
+            max_y: self.aabb_max[1],
+        }
+    }
+    /// The slot's cold part.
+    pub fn cold(&self) -> InstanceCold {
+        InstanceCold {
+            transform: self.transform,
+            blas: self.blas,
+            sbt_offset: self.sbt_offset,
+            lod: self.lod,
+            aabb_min: self.aabb_min,
+            aabb_max: self.aabb_max,
+        }
+    }
+    /// Joins a slot's hot and cold parts (the heights are the cold AABB's).
+    pub fn from_parts(hot: &InstanceHot, cold: &InstanceCold) -> Self {
+        Self {
+            transform: cold.transform,
+            aabb_min: cold.aabb_min,
+            hitbox: hot.hitbox,
+            aabb_max: cold.aabb_max,
+            packed: hot.packed,
+            blas: cold.blas,
+            sbt_offset: cold.sbt_offset,
+            lod: cold.lod,
+        }
+    }
 }
+
+mod instance_arrays;
+
+/// Bytes of the instance arrays per slot on the GPU: [`InstanceHot`] +
+/// [`InstanceHeights`] + [`InstanceCold`] (8 + 8 + 88).
+pub const INSTANCE_SLOT_BYTES: u64 = (std::mem::size_of::<InstanceHot>()
+    + std::mem::size_of::<InstanceHeights>()
+    + std::mem::size_of::<InstanceCold>()) as u64;
+pub use instance_arrays::{InstanceArrays, InstanceCold, InstanceHeights, InstanceHot, Records};
 
 /// Bits of [`HitboxRecord::packed`].
 pub mod hitbox_bits {
@@ -303,6 +368,9 @@ impl HitboxRecord {
 const _: () = assert!(std::mem::size_of::<TlasInstance>() == 64);
 const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 96);
 const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 20);
+const _: () = assert!(std::mem::size_of::<InstanceHot>() == 8);
+const _: () = assert!(std::mem::size_of::<InstanceHeights>() == 8);
+const _: () = assert!(std::mem::size_of::<InstanceCold>() == 88);
 
 #[cfg(test)]
 mod tests;

@@ -10,7 +10,8 @@
 //! handle of another registry or [`crate::manager::Manager`] is refused
 //! rather than taken for one of this registry's instances); the GPU
 //! addresses them by *slot*, a dense `u32` index
-//! into the instance buffer ([`InstanceRecord`] per slot) and the hit
+//! into the instance buffer ([`InstanceArrays`]: hot, heights and cold parts
+//! per slot, [`InstanceRecord`] the joined view of one) and the hit
 //! feedback buffer. A slot is stable while its instance lives.
 //!
 //! # Slot reuse and quarantine
@@ -40,7 +41,7 @@ use crate::error::CoreError;
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
-use crate::layout::{instance_bits, InstanceRecord, InstanceState, MAX_SLOTS};
+use crate::layout::{instance_bits, InstanceArrays, InstanceRecord, InstanceState, MAX_SLOTS};
 use crate::math::{affine_to_rows, rows_to_affine, Aabb};
 use crate::slot_table::SlotTable;
 use glam::{Affine3A, Vec3};
@@ -211,7 +212,7 @@ pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
     /// Stamped into every handle this registry issues.
     id: u32,
     instances: SlotMap<EntryKey, Entry>,
-    records: Vec<InstanceRecord>,
+    records: InstanceArrays,
     /// The one per-slot table ([`crate::slot_table`]), as long as
     /// `records`; the registry writes its occupant column.
     table: SlotTable,
@@ -349,7 +350,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             index,
             id: next_registry_id(),
             instances: SlotMap::with_key(),
-            records: Vec::new(),
+            records: InstanceArrays::new(),
             table: SlotTable::default(),
             free: BinaryHeap::new(),
             quarantine: VecDeque::new(),
@@ -381,14 +382,12 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         slots.sort_unstable();
         let mut hitboxes = Vec::with_capacity(slots.len());
         for slot in slots {
-            let r = &self.records[slot as usize];
+            let r = &self.records.cold()[slot as usize];
             let aabb = Aabb::new(Vec3::from_array(r.aabb_min), Vec3::from_array(r.aabb_max));
             hitboxes.push((slot, index.occupy(&aabb)?));
         }
         for (slot, hitbox) in hitboxes {
-            let record = &mut self.records[slot as usize];
-            if record.hitbox != hitbox {
-                record.hitbox = hitbox;
+            if self.records.set_hitbox(slot as usize, hitbox) != Some(hitbox) {
                 self.dirty.mark(slot);
             }
         }
@@ -433,7 +432,11 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// Live instances the registry can hold now without reallocating its
     /// handle map or slot buffers (quarantined slots not counted).
     pub fn capacity(&self) -> usize {
-        let unused = self.records.capacity().min(self.table.capacity()) - self.records.len();
+        let unused = self
+            .records
+            .capacity()
+            .min(self.table.capacity())
+            .saturating_sub(self.records.len());
         let slots =
             (self.instances.len() + self.free.len() + unused).min(self.config.max_slots as usize);
         self.instances.capacity().min(slots)
@@ -482,7 +485,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         if self.free.peek().is_some() {
             self.free.pop();
         } else {
-            self.records.push(InstanceRecord::default());
+            self.records.push(&InstanceRecord::default());
             self.table.push_slot();
         }
         let key = self.instances.insert(Entry { slot });
@@ -492,7 +495,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         } else {
             InstanceState::Inactive
         };
-        self.records[slot as usize] = build_record(&desc, rows, hitbox, state, 0);
+        self.records
+            .set(slot as usize, &build_record(&desc, rows, hitbox, state, 0));
         self.table[slot as usize].occupant = SlotOccupant {
             handle: Some(key),
             serial: self.registrations,
@@ -517,17 +521,19 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     ) -> Result<InstanceDesc, CoreError> {
         let entry = self.entry(handle)?;
         let rows = self.check(&desc)?;
+        let slot = entry.slot as usize;
+        let record = self.records.get(slot).ok_or_else(|| stale(handle))?;
         let hitbox = self.index.occupy(&desc.aabb)?;
-        let record = &mut self.records[entry.slot as usize];
         self.index.vacate(record.hitbox);
         let occupant = &mut self.table[entry.slot as usize].occupant;
-        let old = desc_from_record(record, occupant.mesh);
+        let old = desc_from_record(&record, occupant.mesh);
         let state = if desc.flags.contains(InstanceFlags::PINNED) {
             InstanceState::Active
         } else {
             record.state()
         };
-        *record = build_record(&desc, rows, hitbox, state, record.blas);
+        self.records
+            .set(slot, &build_record(&desc, rows, hitbox, state, record.blas));
         occupant.mesh = desc.mesh;
         self.dirty.mark(entry.slot);
         Ok(old)
@@ -578,7 +584,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let key = self.key(handle)?;
         let entry = self.instances.remove(key).ok_or_else(|| stale(handle))?;
         let slot = entry.slot;
-        let record = std::mem::take(&mut self.records[slot as usize]);
+        let record = self.records.take(slot as usize).unwrap_or_default();
         self.index.vacate(record.hitbox);
         let mesh = self.table[slot as usize].occupant.mesh;
         self.table[slot as usize].occupant.handle = None;
@@ -710,27 +716,30 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             .map(|k| self.handle(k))
     }
 
-    /// The GPU record of an instance.
-    pub fn record(&self, handle: InstanceHandle) -> Result<&InstanceRecord, CoreError> {
-        Ok(&self.records[self.slot(handle)? as usize])
+    /// The GPU record of an instance (joined from the instance arrays, by
+    /// value).
+    pub fn record(&self, handle: InstanceHandle) -> Result<InstanceRecord, CoreError> {
+        let slot = self.slot(handle)?;
+        self.records.get(slot as usize).ok_or_else(|| stale(handle))
     }
 
     /// The record in `slot`, dead or alive, or `None` past
     /// [`InstanceRegistry::slot_count`].
-    pub fn record_at(&self, slot: u32) -> Option<&InstanceRecord> {
+    pub fn record_at(&self, slot: u32) -> Option<InstanceRecord> {
         self.records.get(slot as usize)
     }
 
-    /// The CPU mirror of the GPU instance buffer, one record per slot.
-    pub fn records(&self) -> &[InstanceRecord] {
+    /// The CPU mirror of the GPU instance buffer: hot, heights and cold
+    /// arrays, one entry of each per slot.
+    pub fn records(&self) -> &InstanceArrays {
         &self.records
     }
 
-    /// The records for Algorithm 2 ([`crate::culling`]), which writes their
+    /// The hot array for Algorithm 2 ([`crate::culling`]), which writes its
     /// state bits. Not marked dirty: the state bits are GPU-owned, so those
     /// writes are never uploaded.
-    pub(crate) fn records_mut(&mut self) -> &mut [InstanceRecord] {
-        &mut self.records
+    pub(crate) fn records_hot_mut(&mut self) -> &mut [crate::layout::InstanceHot] {
+        self.records.hot_mut()
     }
 
     /// An instance's description, as last registered or updated. It is
@@ -739,10 +748,8 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     pub fn desc(&self, handle: InstanceHandle) -> Result<InstanceDesc, CoreError> {
         let e = self.entry(handle)?;
         let slot = e.slot as usize;
-        Ok(desc_from_record(
-            &self.records[slot],
-            self.table[slot].occupant.mesh,
-        ))
+        let record = self.records.get(slot).ok_or_else(|| stale(handle))?;
+        Ok(desc_from_record(&record, self.table[slot].occupant.mesh))
     }
 
     /// An instance's mesh.
@@ -764,7 +771,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
 
     /// An instance's state (as the CPU mirror knows it).
     pub fn state(&self, handle: InstanceHandle) -> Result<InstanceState, CoreError> {
-        self.record(handle).map(InstanceRecord::state)
+        self.record(handle).map(|r| r.state())
     }
 
     /// Sets the BLAS address of an instance (0 = none) and returns the
@@ -790,10 +797,11 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         state: InstanceState,
     ) -> Result<InstanceState, CoreError> {
         self.live_slot(slot)?;
-        let record = &mut self.records[slot as usize];
-        let old = record.state();
+        let old = self
+            .records
+            .set_state(slot as usize, state)
+            .ok_or(CoreError::NoInstanceAtSlot { slot })?;
         if old != state {
-            record.set_state(state);
             self.dirty.mark(slot);
         }
         Ok(old)
@@ -816,11 +824,11 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         }
     }
 
+    /// The one place a BLAS address is written: [`InstanceArrays::set_blas`]
+    /// keeps [`instance_bits::HAS_BLAS`] with it.
     fn write_blas(&mut self, slot: u32, address: u64) -> u64 {
-        let record = &mut self.records[slot as usize];
-        let old = record.blas;
+        let old = self.records.set_blas(slot as usize, address).unwrap_or(0);
         if old != address {
-            record.blas = address;
             self.dirty.mark(slot);
         }
         old
@@ -832,7 +840,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     }
 
     /// Takes the slot ranges changed since the last call (sorted, disjoint,
-    /// adjacent ranges coalesced): upload `records()[range]` for each.
+    /// adjacent ranges coalesced): upload those slots of `records()` for each.
     pub fn take_dirty(&mut self) -> Vec<Range<u32>> {
         self.dirty.take()
     }
@@ -868,7 +876,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         let align = std::mem::align_of::<Entry>();
         let slot = (std::mem::size_of::<Entry>() + 4).div_ceil(align) * align;
         (
-            vec_bytes::<InstanceRecord>(self.records.capacity()),
+            self.records.heap_bytes(),
             (self.instances.capacity() * slot) as u64,
             self.table.heap_bytes(),
             vec_bytes::<u32>(self.free.capacity())

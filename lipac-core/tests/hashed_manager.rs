@@ -135,7 +135,7 @@ impl<H: HitboxIndex> Rig<H> {
                     t.transform.map(f32::to_bits),
                 ));
             } else {
-                let r = self.m.records()[i as usize];
+                let r = self.m.records().get(i as usize).unwrap();
                 let x = f64::from(r.aabb_min[0] + r.aabb_max[0]) / 2.0;
                 self.m.instance_hits_mut()[i as usize] += heat(frame, x);
                 recs.push(Rec::Instance(i, t.acceleration_structure_reference));
@@ -302,7 +302,7 @@ fn with_eviction_emptied_cells_are_dropped_and_indices_reused() {
     // and the occupant counts add up to the live instances.
     let mut total = 0;
     for (handle, slot) in m.registry().iter() {
-        let r = m.records()[slot as usize];
+        let r = m.records().get(slot as usize).unwrap();
         let aabb = Aabb::new(Vec3::from_array(r.aabb_min), Vec3::from_array(r.aabb_max));
         assert_eq!(index.hitbox_of(&aabb), Some(r.hitbox), "{handle:?}");
         total += 1;

@@ -23,8 +23,8 @@ use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::{ActivationHeuristic, Frustum};
 use lipac_core::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
-    VK_INSTANCE_CULL_DISABLE,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState,
+    TlasInstance, VK_INSTANCE_CULL_DISABLE,
 };
 use lipac_core::math::{affine_to_rows, Aabb};
 use lipac_core::registry::{InstanceRegistry, RegistryConfig};
@@ -222,7 +222,14 @@ fn omitted_boxes_contain_the_instance_aabb_in_every_regime() {
             cfg.min_box_extent = [0.0, 1e-3, 0.5][rng.below_u32(3) as usize];
             let rec = live(InstanceState::Omitted, 0, min, max);
             let mut hitboxes = [active_hitbox()];
-            let stats = assemble_tlas(&[rec], &mut hitboxes, &index, &cfg, &mut out).unwrap();
+            let stats = assemble_tlas(
+                &InstanceArrays::from_records(&[rec]),
+                &mut hitboxes,
+                &index,
+                &cfg,
+                &mut out,
+            )
+            .unwrap();
             assert_eq!(stats.omitted_boxes, 1);
             let m = out[0].transform;
             let what = format!("omitted {min} {max} pad {}", cfg.min_box_extent);
@@ -261,7 +268,14 @@ fn zero_extent_boxes_get_a_box_at_least_one_step_thick() {
             cfg.min_box_extent = pad;
             let mut out = Vec::new();
             let rec = live(InstanceState::Omitted, 0, pt, pt);
-            assemble_tlas(&[rec], &mut [active_hitbox()], &index, &cfg, &mut out).unwrap();
+            assemble_tlas(
+                &InstanceArrays::from_records(&[rec]),
+                &mut [active_hitbox()],
+                &index,
+                &cfg,
+                &mut out,
+            )
+            .unwrap();
             let m = out[0].transform;
             assert_box_contains(&m, [f64::from(p); 3], [f64::from(p); 3], "point");
             for eval in EVALS {
@@ -325,7 +339,14 @@ fn hitbox_boxes_contain_cell_and_height_range_in_every_regime() {
                 ));
             }
             let mut hitboxes = vec![HitboxRecord::default(); n as usize];
-            let stats = assemble_tlas(&records, &mut hitboxes, &g, &cfg, &mut out).unwrap();
+            let stats = assemble_tlas(
+                &InstanceArrays::from_records(&records),
+                &mut hitboxes,
+                &g,
+                &cfg,
+                &mut out,
+            )
+            .unwrap();
             assert_eq!((stats.hitbox_boxes, out.len()), (1, 1));
             assert_eq!(out[0].custom_index(), hitbox);
             assert_eq!(
@@ -363,7 +384,14 @@ fn neighbouring_hitbox_boxes_leave_no_gap() {
             .collect();
         let mut hitboxes = vec![HitboxRecord::default(); n];
         let mut out = Vec::new();
-        let stats = assemble_tlas(&records, &mut hitboxes, &g, &cfg, &mut out).unwrap();
+        let stats = assemble_tlas(
+            &InstanceArrays::from_records(&records),
+            &mut hitboxes,
+            &g,
+            &cfg,
+            &mut out,
+        )
+        .unwrap();
         assert_eq!(stats.flat_hitbox_boxes, g.len());
         let mut boxes = vec![([0.0f32; 3], [0.0f32; 3]); n];
         for r in &out {
@@ -404,7 +432,14 @@ fn flat_hitbox_keeps_a_box_that_contains_its_height() {
             ];
             let mut hb = vec![HitboxRecord::default(); 16];
             let mut out = Vec::new();
-            let stats = assemble_tlas(&recs, &mut hb, &g, &cfg, &mut out).unwrap();
+            let stats = assemble_tlas(
+                &InstanceArrays::from_records(&recs),
+                &mut hb,
+                &g,
+                &cfg,
+                &mut out,
+            )
+            .unwrap();
             assert_eq!((stats.hitbox_boxes, stats.flat_hitbox_boxes), (1, 1));
             let (lo, hi) = g.bounds_f64(0).unwrap();
             let y = f64::from(y);
@@ -602,7 +637,7 @@ fn registry_extent_limit_and_huge_boxes() {
     let mut hb = vec![active_hitbox(); 16];
     let mut out = Vec::new();
     let stats = assemble_tlas(
-        &records,
+        &InstanceArrays::from_records(&records),
         &mut hb,
         reg.hitbox_index(),
         &AssemblyConfig::new(CUBE),
@@ -690,7 +725,7 @@ fn tiny_and_huge_scales_and_rotations_round_trip_and_stay_enclosed() {
             };
             accepted += 1;
             let slot = reg.slot(h).unwrap();
-            let rec = *reg.record(h).unwrap();
+            let rec = reg.record(h).unwrap();
             // The record carries the engine's matrix bit for bit.
             assert_eq!(
                 rec.transform.map(f32::to_bits),
@@ -705,7 +740,7 @@ fn tiny_and_huge_scales_and_rotations_round_trip_and_stay_enclosed() {
             let mut hb = vec![active_hitbox(); reg.hitbox_index().len() as usize];
             let mut out: Vec<TlasInstance> = Vec::new();
             assemble_tlas(
-                &[active, omitted],
+                &InstanceArrays::from_records(&[active, omitted]),
                 &mut hb,
                 reg.hitbox_index(),
                 &AssemblyConfig::new(CUBE),

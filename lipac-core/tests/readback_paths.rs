@@ -328,7 +328,7 @@ fn run(capacity: u32, frames: &[FrameOps]) -> Result<Totals, TestCaseError> {
             if hitbox_box {
                 a.hitboxes_mut()[i as usize].add_hits(if hot(i) { 2500 } else { 0 });
             } else {
-                let hitbox = a.records()[i as usize].hitbox;
+                let hitbox = a.records().get(i as usize).unwrap().hitbox;
                 a.instance_hits_mut()[i as usize] = if hot(hitbox) { 1500 } else { 0 };
             }
         }

@@ -268,7 +268,6 @@ impl<H: HitboxIndex> CpuBackend<H> {
         self.manager
             .records()
             .get(slot as usize)
-            .copied()
             .ok_or(SimError::UnknownInstance(slot))
     }
 

@@ -58,6 +58,7 @@ fn merged_boxes_count_what_leaf_boxes_count() {
         m.set_state(InstanceState::Inactive);
         instances.push(m);
     }
+    let instances = lipac_core::layout::InstanceArrays::from_records(&instances);
     for levels in 1..=3u8 {
         let tree = HitboxTree::new(nx, nz, AdaptiveHitboxes::with_levels(levels)).unwrap();
         // A few active cells (near a "camera"), the rest cold.

@@ -10,6 +10,9 @@
 // An active or omitted instance whose hitbox is inactive counts as inactive
 // (its remove command may still be waiting for room in the command buffer).
 // A pinned instance counts as active whatever its state bits and hitbox.
+// Every slot's hot record is read; an inactive slot's heights; the cold
+// record only of a slot that emits a TLAS record (LIPAC_INSTANCE_HAS_BLAS
+// decides "active without a BLAS" without it).
 // Pass 1 never writes the hitbox's packed word, so reading it here is safe.
 // Dead slots, hitbox indices out of range and non-finite omitted AABBs are
 // skipped, as on the CPU.
@@ -18,7 +21,7 @@
 
 void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
-        LipacInstanceRecord m = instances[slot];
+        LipacInstanceHot m = instanceHot[slot];
         if ((m.packed & LIPAC_INSTANCE_ALIVE) == 0u) {
             continue;
         }
@@ -30,28 +33,29 @@ void main() {
             state = LIPAC_STATE_INACTIVE;
         }
         if (state == LIPAC_STATE_ACTIVE) {
-            if (m.blas == uvec2(0u)) {
+            if ((m.packed & LIPAC_INSTANCE_HAS_BLAS) == 0u) {
                 continue;  // not built yet
             }
             uint at = atomicAdd(tlasCounter, 1u);
             if (at < pc.tlasCapacity) {
                 LipacTlasInstance r;
-                r.transform = m.transform;
+                r.transform = instanceCold[slot].transform;
                 r.customIndexAndMask = (slot & 0xFFFFFFu) | (((m.packed >> LIPAC_INSTANCE_MASK_SHIFT) & 0xFFu) << 24);
-                r.sbtOffsetAndFlags = (m.sbtOffset & 0xFFFFFFu) | (((m.packed >> LIPAC_INSTANCE_VK_FLAGS_SHIFT) & 0xFFu) << 24);
-                r.reference = m.blas;
+                r.sbtOffsetAndFlags = (instanceCold[slot].sbtOffset & 0xFFFFFFu) | (((m.packed >> LIPAC_INSTANCE_VK_FLAGS_SHIFT) & 0xFFu) << 24);
+                r.reference = instanceCold[slot].blas;
                 tlasOut[at] = r;
             }
         } else if (state == LIPAC_STATE_OMITTED) {
-            lipacAppendCountingBox(vec3(m.aabbMin[0], m.aabbMin[1], m.aabbMin[2]),
-                                   vec3(m.aabbMax[0], m.aabbMax[1], m.aabbMax[2]),
+            float mn[3] = instanceCold[slot].aabbMin;
+            float mx[3] = instanceCold[slot].aabbMax;
+            lipacAppendCountingBox(vec3(mn[0], mn[1], mn[2]), vec3(mx[0], mx[1], mx[2]),
                                    slot, pc.omittedSbt);
         } else {
             if (m.hitbox >= pc.hitboxCount) {
                 continue;
             }
-            uint lo = floatBitsToUint(m.aabbMin[1]);
-            uint hi = floatBitsToUint(m.aabbMax[1]);
+            uint lo = floatBitsToUint(instanceHeights[slot].minY);
+            uint hi = floatBitsToUint(instanceHeights[slot].maxY);
             if (!lipacIsNanBits(lo)) {
                 atomicMin(hitboxes[m.hitbox].minY, lipacOrderedKey(lo));
             }

@@ -11,7 +11,8 @@
 
 layout(local_size_x = 64) in;
 
-layout(std430, set = 0, binding = 0) readonly buffer Instances { LipacInstanceRecord instances[]; };
+// The hot instance array (8 B per slot): the state bits are all it needs.
+layout(std430, set = 0, binding = 0) readonly buffer InstancesHot { LipacInstanceHot instanceHot[]; };
 layout(std430, set = 0, binding = 1) readonly buffer InstanceHits { uint instanceHits[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
 // [box hits low, high, traced hits low, high], zeroed before the pass.
@@ -43,9 +44,12 @@ void main() {
     uint items = pc.instanceCount + pc.hitboxCount;
     for (uint i = gl_GlobalInvocationID.x; i < items; i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) {
         if (i < pc.instanceCount) {
-            uint packed = instances[i].packed;
             uint n = instanceHits[i];
-            if ((packed & LIPAC_INSTANCE_ALIVE) == 0u || n == 0u) {
+            if (n == 0u) {
+                continue;  // adds nothing: the hot record is not read
+            }
+            uint packed = instanceHot[i].packed;
+            if ((packed & LIPAC_INSTANCE_ALIVE) == 0u) {
                 continue;
             }
             if (lipacInstanceState(packed) == LIPAC_STATE_OMITTED) {

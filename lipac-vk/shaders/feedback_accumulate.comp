@@ -8,16 +8,20 @@
 
 void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
-        uint packed = instances[slot].packed;
+        uint n = instanceHits[slot];
+        if (n == 0u) {
+            continue;  // adds nothing: the hot record is not read
+        }
+        LipacInstanceHot m = instanceHot[slot];
+        uint packed = m.packed;
         uint key = packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_STATE_MASK);
         if (key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_OMITTED) &&
             key != (LIPAC_INSTANCE_ALIVE | LIPAC_STATE_ACTIVE) ||
             (packed & LIPAC_INSTANCE_PINNED) != 0u) {
             continue;
         }
-        uint h = instances[slot].hitbox;
-        uint n = instanceHits[slot];
-        if (h < pc.hitboxCount && n != 0u) {
+        uint h = m.hitbox;
+        if (h < pc.hitboxCount) {
             LIPAC_HITBOX_ADD_HITS(hitboxes[h].packed, n);
         }
     }

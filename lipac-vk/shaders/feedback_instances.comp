@@ -7,12 +7,13 @@
 // Under the decayed rule lines 29-37 decide on the instance's decayed rate
 // (instanceRates[slot]): updated from its hits while omitted or active with
 // a BLAS, held while active without one, 0 while inactive, dead or shared.
+// Reads the hot instance array only: the BLAS test is LIPAC_INSTANCE_HAS_BLAS.
 #extension GL_GOOGLE_include_directive : require
 #include "lipac_feedback.glsl"
 
 void main() {
     LIPAC_FOR_EACH(slot, pc.instanceCount) {
-        uint packed = instances[slot].packed;
+        uint packed = instanceHot[slot].packed;
         bool decayed = pc.rule == LIPAC_RULE_DECAYED;
         // Dead, or pinned (never moved by Algorithm 2); the rate of either is 0.
         if ((packed & (LIPAC_INSTANCE_ALIVE | LIPAC_INSTANCE_PINNED)) != LIPAC_INSTANCE_ALIVE) {
@@ -21,7 +22,7 @@ void main() {
             }
             continue;
         }
-        uint hb = instances[slot].hitbox;
+        uint hb = instanceHot[slot].hitbox;
         if (hb >= pc.hitboxCount) {
             continue;
         }
@@ -59,7 +60,7 @@ void main() {
             uint rate = 0u;
             if (unique) {
                 uint hits = instanceHits[slot];
-                bool built = instances[slot].blas != uvec2(0u);
+                bool built = (packed & LIPAC_INSTANCE_HAS_BLAS) != 0u;
                 if (state == LIPAC_STATE_OMITTED || (state == LIPAC_STATE_ACTIVE && built)) {
                     rate = lipacDecayRate(instanceRates[slot], hits, pc.decayShift);
                 } else if (state == LIPAC_STATE_ACTIVE) {
@@ -88,7 +89,7 @@ void main() {
                 if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_ADD, hits))) {
                     state = LIPAC_STATE_ACTIVE;
                 }
-            } else if (state == LIPAC_STATE_ACTIVE && instances[slot].blas != uvec2(0u) &&
+            } else if (state == LIPAC_STATE_ACTIVE && (packed & LIPAC_INSTANCE_HAS_BLAS) != 0u &&
                        hits < pc.sigmaO) {
                 // Lines 34/35, only once the BLAS exists.
                 if (lipacPushCommand(lipacCommandWord(slot, LIPAC_COMMAND_REMOVE, hits))) {
@@ -98,7 +99,7 @@ void main() {
         }
 
         if (state != old) {
-            instances[slot].packed = (packed & ~LIPAC_INSTANCE_STATE_MASK) | state;
+            instanceHot[slot].packed = (packed & ~LIPAC_INSTANCE_STATE_MASK) | state;
         }
     }
 }

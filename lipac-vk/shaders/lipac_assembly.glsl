@@ -9,12 +9,16 @@
 
 layout(local_size_x = 64) in;
 
-layout(std430, set = 0, binding = 0) readonly buffer Instances { LipacInstanceRecord instances[]; };
+layout(std430, set = 0, binding = 0) readonly buffer InstancesHot { LipacInstanceHot instanceHot[]; };
 layout(std430, set = 0, binding = 1) buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
 // Per hitbox: its cell's x/z bounds (lo.x, lo.z, hi.x, hi.z); NaN = no bounds.
 layout(std430, set = 0, binding = 2) readonly buffer HitboxBounds { vec4 hitboxBounds[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer TlasOut { LipacTlasInstance tlasOut[]; };
 layout(std430, set = 0, binding = 4) buffer TlasCounter { uint tlasCounter; };
+// Read by assemble_instances.comp only: heights of inactive slots, cold
+// records of the slots that emit one.
+layout(std430, set = 0, binding = 5) readonly buffer InstancesHeights { LipacInstanceHeights instanceHeights[]; };
+layout(std430, set = 0, binding = 6) readonly buffer InstancesCold { LipacInstanceCold instanceCold[]; };
 
 layout(push_constant) uniform AssemblyPush {
     uvec2 unitCube;          // device address of the unit-cube BLAS

@@ -9,7 +9,9 @@
 
 layout(local_size_x = 64) in;
 
-layout(std430, set = 0, binding = 0) buffer Instances { LipacInstanceRecord instances[]; };
+// The hot instance array only (8 B per slot): Algorithm 2 never reads the
+// cold records (LIPAC_INSTANCE_HAS_BLAS stands for `blas != 0`).
+layout(std430, set = 0, binding = 0) buffer InstancesHot { LipacInstanceHot instanceHot[]; };
 layout(std430, set = 0, binding = 1) readonly buffer InstanceHits { uint instanceHits[]; };
 layout(std430, set = 0, binding = 2) buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Commands { uint commands[]; };

@@ -15,7 +15,35 @@ struct LipacTlasInstance {
     uvec2 reference;            // 56: BLAS address; 0 = inactive record
 };
 
-// lipac_core::layout::InstanceRecord (96 B), one per GPU slot.
+// The instance buffer is three arrays indexed by slot (docs/HOT_COLD.md):
+// LipacInstanceHot (every slot, every frame: Algorithms 1 and 2),
+// LipacInstanceHeights (Algorithm 1, inactive slots) and LipacInstanceCold
+// (Algorithm 1, only slots that emit a TLAS record).
+
+// lipac_core::layout::InstanceHot (8 B).
+struct LipacInstanceHot {
+    uint hitbox;                // 0
+    uint packed;                // 4: see LIPAC_INSTANCE_*
+};
+
+// lipac_core::layout::InstanceHeights (8 B): the AABB's y range.
+struct LipacInstanceHeights {
+    float minY;                 // 0
+    float maxY;                 // 4
+};
+
+// lipac_core::layout::InstanceCold (88 B; std430 stride 88, alignment 8).
+struct LipacInstanceCold {
+    float transform[12];        //  0: row-major 3x4
+    uvec2 blas;                 // 48: 0 = no BLAS yet (LIPAC_INSTANCE_HAS_BLAS clear)
+    uint sbtOffset;             // 56
+    uint lod;                   // 60
+    float aabbMin[3];           // 64
+    float aabbMax[3];           // 76
+};
+
+// lipac_core::layout::InstanceRecord (96 B): one slot joined, the staging
+// format of upload_records.comp.
 struct LipacInstanceRecord {
     float transform[12];        //  0
     float aabbMin[3];           // 48
@@ -45,6 +73,7 @@ struct LipacHitboxRecord {
 #define LIPAC_INSTANCE_ALIVE 4u
 #define LIPAC_INSTANCE_UNIQUE_BLAS 8u
 #define LIPAC_INSTANCE_PINNED 64u
+#define LIPAC_INSTANCE_HAS_BLAS 128u
 #define LIPAC_INSTANCE_MASK_SHIFT 8u
 #define LIPAC_INSTANCE_VK_FLAGS_SHIFT 16u
 

@@ -1,13 +1,15 @@
 #version 460
 // upload_records.comp -- the GPU version of lipac_core::culling::apply_uploads:
-// scatters CPU-written instance records into the GPU instance buffer WITHOUT
-// overwriting the state bits of the GPU copy (Algorithm 2 owns them), then
-// applies the CPU's explicit state overrides and hitbox active overrides.
+// scatters CPU-written instance records (staged joined, 96 B each) into the
+// GPU's three instance arrays (hot, heights, cold) WITHOUT overwriting the
+// state bits of the GPU's hot record (Algorithm 2 owns them), then applies
+// the CPU's explicit state overrides and hitbox active overrides.
 // lipac_vk::RecordUploader records it twice:
-//   pass 0: one thread per staged record (copy all 24 words, keep the
-//           destination's LIPAC_INSTANCE_STATE_MASK bits of `packed`), then one
-//           per hitbox override (active bit set, streak zeroed, hits and
-//           heights kept);
+//   pass 0: one thread per staged record (hot: hitbox, packed with the
+//           destination's LIPAC_INSTANCE_STATE_MASK bits kept; heights:
+//           the AABB's y words; cold: the other 22 words), then one per
+//           hitbox override (active bit set, streak zeroed, hits and heights
+//           kept);
 //   pass 1 (after a barrier): one thread per state override.
 // The host removes duplicate slots/indices (the last override wins, as on the
 // CPU), so no two threads of a pass write the same word.
@@ -16,16 +18,22 @@
 
 layout(local_size_x = 64) in;
 
-// InstanceRecord as 24 raw words (bit-exact copies, no float loads).
-#define RECORD_WORDS 24u
-#define PACKED_WORD 19u  // offsetof(InstanceRecord, packed) / 4
+// The arrays as raw words (bit-exact copies, no float loads).
+#define RECORD_WORDS 24u  // InstanceRecord: transform 0..12, aabbMin 12..15, hitbox 15,
+                          // aabbMax 16..19, packed 19, blas 20..22, sbtOffset 22, lod 23
+#define HOT_WORDS 2u      // InstanceHot: hitbox 0, packed 1
+#define HEIGHTS_WORDS 2u  // InstanceHeights: minY 0, maxY 1
+#define COLD_WORDS 22u    // InstanceCold: transform 0..12, blas 12..14, sbtOffset 14,
+                          // lod 15, aabbMin 16..19, aabbMax 19..22
 
-layout(std430, set = 0, binding = 0) buffer Instances { uint instanceWords[]; };
+layout(std430, set = 0, binding = 0) buffer InstancesHot { uint hotWords[]; };
 layout(std430, set = 0, binding = 1) buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
 layout(std430, set = 0, binding = 2) readonly buffer StagedRecords { uint stagedWords[]; };
 layout(std430, set = 0, binding = 3) readonly buffer StagedSlots { uint stagedSlots[]; };
 layout(std430, set = 0, binding = 4) readonly buffer StateOverrides { uvec2 stateOverrides[]; };
 layout(std430, set = 0, binding = 5) readonly buffer HitboxOverrides { uvec2 hitboxOverrides[]; };
+layout(std430, set = 0, binding = 6) writeonly buffer InstancesHeights { uint heightsWords[]; };
+layout(std430, set = 0, binding = 7) writeonly buffer InstancesCold { uint coldWords[]; };
 
 layout(push_constant) uniform UploadPush {
     uint pass;
@@ -45,16 +53,25 @@ void main() {
                 if (slot >= pc.slotCapacity) {
                     continue;
                 }
-                uint dst = slot * RECORD_WORDS;
                 uint src = i * RECORD_WORDS;
-                for (uint w = 0u; w < RECORD_WORDS; ++w) {
-                    if (w == PACKED_WORD) {
-                        uint state = instanceWords[dst + w] & LIPAC_INSTANCE_STATE_MASK;
-                        instanceWords[dst + w] =
-                            (stagedWords[src + w] & ~LIPAC_INSTANCE_STATE_MASK) | state;
-                    } else {
-                        instanceWords[dst + w] = stagedWords[src + w];
-                    }
+                uint hot = slot * HOT_WORDS;
+                uint state = hotWords[hot + 1u] & LIPAC_INSTANCE_STATE_MASK;
+                hotWords[hot] = stagedWords[src + 15u];
+                hotWords[hot + 1u] = (stagedWords[src + 19u] & ~LIPAC_INSTANCE_STATE_MASK) | state;
+                uint heights = slot * HEIGHTS_WORDS;
+                heightsWords[heights] = stagedWords[src + 13u];
+                heightsWords[heights + 1u] = stagedWords[src + 17u];
+                uint cold = slot * COLD_WORDS;
+                for (uint w = 0u; w < 12u; ++w) {
+                    coldWords[cold + w] = stagedWords[src + w];  // transform
+                }
+                coldWords[cold + 12u] = stagedWords[src + 20u];  // blas (low)
+                coldWords[cold + 13u] = stagedWords[src + 21u];  // blas (high)
+                coldWords[cold + 14u] = stagedWords[src + 22u];  // sbtOffset
+                coldWords[cold + 15u] = stagedWords[src + 23u];  // lod
+                for (uint w = 0u; w < 3u; ++w) {
+                    coldWords[cold + 16u + w] = stagedWords[src + 12u + w];  // aabbMin
+                    coldWords[cold + 19u + w] = stagedWords[src + 16u + w];  // aabbMax
                 }
             } else {
                 uvec2 o = hitboxOverrides[i - pc.recordCount];
@@ -71,8 +88,8 @@ void main() {
             if (o.x >= pc.slotCapacity) {
                 continue;
             }
-            uint at = o.x * RECORD_WORDS + PACKED_WORD;
-            instanceWords[at] = (instanceWords[at] & ~LIPAC_INSTANCE_STATE_MASK) | (o.y & LIPAC_INSTANCE_STATE_MASK);
+            uint at = o.x * HOT_WORDS + 1u;
+            hotWords[at] = (hotWords[at] & ~LIPAC_INSTANCE_STATE_MASK) | (o.y & LIPAC_INSTANCE_STATE_MASK);
         }
     }
 }

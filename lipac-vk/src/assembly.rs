@@ -9,7 +9,9 @@
 //!    `hitbox_reset.comp` = [`lipac_core::assembly::begin_frame`];
 //! 2. `assemble_instances.comp`: one thread per slot (active → own record,
 //!    omitted → counting box, inactive → `atomicMin`/`atomicMax` of its y
-//!    range into its hitbox on order-preserving keys);
+//!    range into its hitbox on order-preserving keys), reading every slot's
+//!    hot record, an inactive slot's heights and the cold record only of a
+//!    slot that emits one ([`InstanceBuffers`]);
 //! 3. `assemble_hitboxes.comp`: one thread per hitbox (keys back to f32, a
 //!    counting box for each inactive hitbox with an inactive instance);
 //! 4. with adaptive hitboxes only ([`AssemblyPipeline::record_adaptive`],
@@ -37,13 +39,15 @@ use bytemuck::{Pod, Zeroable};
 use lipac_core::assembly::AssemblyConfig;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::hitbox_tree::HitboxTree;
-use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance, MAX_SLOTS};
+use lipac_core::layout::{
+    HitboxRecord, InstanceCold, InstanceHeights, InstanceHot, TlasInstance, MAX_SLOTS,
+};
 
 const RESET: usize = 0;
 const INSTANCES: usize = 1;
 const HITBOXES: usize = 2;
 const MERGED: usize = 3;
-const BINDINGS: u32 = 5;
+const BINDINGS: u32 = 7;
 
 /// Push constants of the assembly passes (`lipac_assembly.glsl`).
 #[repr(C)]
@@ -95,11 +99,47 @@ pub fn hitbox_bounds(index: &impl HitboxIndex) -> Vec<HitboxBounds> {
         .collect()
 }
 
+/// The GPU instance buffer as three arrays indexed by slot (the hot/cold
+/// split of [`lipac_core::layout::InstanceArrays`], `docs/HOT_COLD.md`), all
+/// with `STORAGE_BUFFER` usage.
+#[derive(Clone, Copy, Debug)]
+pub struct InstanceBuffers<'a> {
+    /// [`InstanceHot`]s (8 bytes per slot): read by Algorithms 1 and 2,
+    /// whose state bits Algorithm 2 writes.
+    pub hot: &'a Buffer,
+    /// [`InstanceHeights`]s (8 bytes per slot): read by Algorithm 1 for
+    /// inactive slots.
+    pub heights: &'a Buffer,
+    /// [`InstanceCold`]s (88 bytes per slot): read by Algorithm 1 for slots
+    /// that emit a TLAS record.
+    pub cold: &'a Buffer,
+}
+
+impl InstanceBuffers<'_> {
+    /// Slots all three arrays hold (the fewest of the three).
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] when they hold more than 2^24 slots.
+    pub fn slot_capacity(&self) -> Result<u32> {
+        let n = (self.hot.size() / std::mem::size_of::<InstanceHot>() as u64)
+            .min(self.heights.size() / std::mem::size_of::<InstanceHeights>() as u64)
+            .min(self.cold.size() / std::mem::size_of::<InstanceCold>() as u64);
+        u32::try_from(n)
+            .ok()
+            .filter(|&n| n <= MAX_SLOTS)
+            .ok_or_else(|| {
+                VkError::InvalidArgument(format!("instance arrays: {n} slots exceed 2^24"))
+            })
+    }
+}
+
 /// Buffers Algorithm 1 reads and writes (all need `STORAGE_BUFFER` usage).
 #[derive(Clone, Copy, Debug)]
 pub struct AssemblyBuffers<'a> {
-    /// [`InstanceRecord`]s, one per slot (read).
-    pub instances: &'a Buffer,
+    /// The instance arrays (read: every hot record, the heights of inactive
+    /// slots, the cold records of emitted ones).
+    pub instances: InstanceBuffers<'a>,
     /// [`HitboxRecord`]s (height range rebuilt, hits zeroed, state kept).
     pub hitboxes: &'a Buffer,
     /// [`HitboxBounds`], at least one per hitbox record (read).
@@ -210,7 +250,7 @@ impl AssemblyPipeline {
                 ));
             }
         }
-        let slots = count_of::<InstanceRecord>(buffers.instances, "instance buffer")?;
+        let slots = buffers.instances.slot_capacity()?;
         let hitboxes = count_of::<HitboxRecord>(buffers.hitboxes, "hitbox buffer")?;
         let bounds = buffers.hitbox_bounds.size() / std::mem::size_of::<HitboxBounds>() as u64;
         if bounds < u64::from(hitboxes) {
@@ -229,11 +269,13 @@ impl AssemblyPipeline {
         }
         let set = self.kernels.bind(
             &[
-                buffers.instances,
+                buffers.instances.hot,
                 buffers.hitboxes,
                 buffers.hitbox_bounds,
                 buffers.tlas_instances,
                 buffers.tlas_counter,
+                buffers.instances.heights,
+                buffers.instances.cold,
             ],
             "STORAGE_BUFFER on an assembly buffer",
         )?;

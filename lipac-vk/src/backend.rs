@@ -1,7 +1,7 @@
 //! The engine-facing object, [`LipacVk`] (its docs describe the frame).
 
 use crate::as_pool::AccelerationStructurePool;
-use crate::assembly::{AssemblyBindings, AssemblyBuffers, AssemblyPipeline};
+use crate::assembly::{AssemblyBindings, AssemblyBuffers, AssemblyPipeline, InstanceBuffers};
 use crate::blas::{BlasBatch, GpuBlas};
 use crate::commands::{OneShot, Recorder};
 use crate::context::DeviceContext;
@@ -20,11 +20,13 @@ use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
 use lipac_core::controller::EscapeSample;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance};
+use lipac_core::layout::{HitboxRecord, InstanceCold, InstanceHeights, InstanceHot, TlasInstance};
 use lipac_core::manager::{Ack, DataUpload, Manager, ManagerPlan};
 use lipac_core::thresholds::Thresholds;
 
-const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
+const HOT_BYTES: u64 = std::mem::size_of::<InstanceHot>() as u64;
+const HEIGHTS_BYTES: u64 = std::mem::size_of::<InstanceHeights>() as u64;
+const COLD_BYTES: u64 = std::mem::size_of::<InstanceCold>() as u64;
 const HITBOX_BYTES: u64 = std::mem::size_of::<HitboxRecord>() as u64;
 const TLAS_RECORD_BYTES: u64 = std::mem::size_of::<TlasInstance>() as u64;
 /// Words of a read-back slot's counters before the hit counters: the TLAS
@@ -264,7 +266,11 @@ struct UploadSet {
 #[derive(Debug)]
 struct SlotTables {
     capacity: u32,
-    instances: Buffer,
+    /// The instance arrays ([`lipac_core::layout::InstanceArrays`] on the
+    /// GPU): hot, heights, cold.
+    hot: Buffer,
+    heights: Buffer,
+    cold: Buffer,
     instance_hits: Buffer,
     /// The decayed rule's per-slot hit rates (kept across frames and growth).
     instance_rates: Buffer,
@@ -274,6 +280,16 @@ struct SlotTables {
     feedback: FeedbackBindings,
     escape: EscapeBindings,
     uploads: Vec<UploadSet>,
+}
+
+impl SlotTables {
+    fn instance_buffers(&self) -> InstanceBuffers<'_> {
+        InstanceBuffers {
+            hot: &self.hot,
+            heights: &self.heights,
+            cold: &self.cold,
+        }
+    }
 }
 
 /// The extra host-visible copies of one read-back ring slot.
@@ -578,7 +594,9 @@ impl LipacVk {
             + self.command_counter.size()
             + self.tlas_counter.size();
         if let Some(t) = &self.tables {
-            table_bytes += t.instances.size()
+            table_bytes += t.hot.size()
+                + t.heights.size()
+                + t.cold.size()
                 + t.instance_hits.size()
                 + t.instance_rates.size()
                 + t.data_offsets.size()
@@ -757,7 +775,9 @@ impl LipacVk {
                 .max(self.config.initial_slot_capacity)
                 .max(old_capacity.saturating_mul(2));
             let tables = self.make_tables(capacity)?;
-            fill_zero(rec, &tables.instances);
+            fill_zero(rec, &tables.hot);
+            fill_zero(rec, &tables.heights);
+            fill_zero(rec, &tables.cold);
             fill_zero(rec, &tables.data_offsets);
             fill_zero(rec, &tables.instance_rates);
             if let Some(old) = self.tables.take() {
@@ -768,12 +788,18 @@ impl LipacVk {
                     vk::AccessFlags2::TRANSFER_READ | vk::AccessFlags2::TRANSFER_WRITE,
                 );
                 let bytes = u64::from(old.capacity);
-                copy(
-                    rec,
-                    &old.instances,
-                    &tables.instances,
-                    &[vk::BufferCopy::default().size(bytes * RECORD_BYTES)],
-                );
+                for (from, to, per_slot) in [
+                    (&old.hot, &tables.hot, HOT_BYTES),
+                    (&old.heights, &tables.heights, HEIGHTS_BYTES),
+                    (&old.cold, &tables.cold, COLD_BYTES),
+                ] {
+                    copy(
+                        rec,
+                        from,
+                        to,
+                        &[vk::BufferCopy::default().size(bytes * per_slot)],
+                    );
+                }
                 copy(
                     rec,
                     &old.data_offsets,
@@ -815,7 +841,7 @@ impl LipacVk {
             Some(i) => i,
             None => {
                 let bindings = self.uploader.bind(&UploadTargets {
-                    instances: &tables.instances,
+                    instances: tables.instance_buffers(),
                     hitboxes: self.hitbox.records(),
                 })?;
                 tables.uploads.push(UploadSet {
@@ -1001,16 +1027,25 @@ impl LipacVk {
     fn make_tables(&self, capacity: u32) -> Result<SlotTables> {
         let ctx = &self.ctx;
         let n = u64::from(capacity);
-        let instances = buffer(ctx, n * RECORD_BYTES, STORAGE | TRANSFER)?;
+        let hot = buffer(ctx, n * HOT_BYTES, STORAGE | TRANSFER)?;
+        let heights = buffer(ctx, n * HEIGHTS_BYTES, STORAGE | TRANSFER)?;
+        let cold = buffer(ctx, n * COLD_BYTES, STORAGE | TRANSFER)?;
+        let instances = InstanceBuffers {
+            hot: &hot,
+            heights: &heights,
+            cold: &cold,
+        };
         let instance_hits = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let instance_rates = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let data_offsets = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let tlas_instances = self.tlas_instances(capacity)?;
         let (assembly, feedback, escape) =
-            self.bind_tables(&instances, &instance_hits, &instance_rates, &tlas_instances)?;
+            self.bind_tables(instances, &instance_hits, &instance_rates, &tlas_instances)?;
         Ok(SlotTables {
             capacity,
-            instances,
+            hot,
+            heights,
+            cold,
             instance_hits,
             instance_rates,
             data_offsets,
@@ -1038,7 +1073,7 @@ impl LipacVk {
     /// passes over these per-slot buffers and the current hitbox tables.
     fn bind_tables(
         &self,
-        instances: &Buffer,
+        instances: InstanceBuffers<'_>,
         instance_hits: &Buffer,
         instance_rates: &Buffer,
         tlas_instances: &Buffer,
@@ -1051,7 +1086,7 @@ impl LipacVk {
             tlas_counter: &self.tlas_counter,
         })?;
         let feedback = self.feedback.bind(&FeedbackBuffers {
-            instances,
+            instance_hot: instances.hot,
             instance_hits,
             hitboxes: self.hitbox.records(),
             commands: &self.commands,
@@ -1059,7 +1094,7 @@ impl LipacVk {
             instance_rates,
         })?;
         let escape = self.escape.bind(
-            instances,
+            instances.hot,
             instance_hits,
             self.hitbox.records(),
             &self.escape_sums,
@@ -1078,7 +1113,7 @@ impl LipacVk {
         };
         let tlas_instances = self.tlas_instances(t.capacity)?;
         let (assembly, feedback, escape) = self.bind_tables(
-            &t.instances,
+            t.instance_buffers(),
             &t.instance_hits,
             &t.instance_rates,
             &tlas_instances,

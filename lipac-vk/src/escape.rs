@@ -73,7 +73,7 @@ impl EscapeSums {
     /// Binds the buffers (all `STORAGE_BUFFER`; `sums` at least 16 bytes).
     pub(crate) fn bind(
         &self,
-        instances: &Buffer,
+        instance_hot: &Buffer,
         instance_hits: &Buffer,
         hitboxes: &Buffer,
         sums: &Buffer,
@@ -84,11 +84,11 @@ impl EscapeSums {
                 sums.size()
             )));
         }
-        let record = std::mem::size_of::<lipac_core::layout::InstanceRecord>() as u64;
+        let record = std::mem::size_of::<lipac_core::layout::InstanceHot>() as u64;
         let hitbox = std::mem::size_of::<lipac_core::layout::HitboxRecord>() as u64;
-        let slots = (instances.size() / record).min(instance_hits.size() / 4);
+        let slots = (instance_hot.size() / record).min(instance_hits.size() / 4);
         let set = self.kernels.bind(
-            &[instances, instance_hits, hitboxes, sums],
+            &[instance_hot, instance_hits, hitboxes, sums],
             "STORAGE_BUFFER on an escape-sums buffer",
         )?;
         Ok(EscapeBindings {

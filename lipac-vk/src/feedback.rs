@@ -33,7 +33,7 @@ use crate::memory::Buffer;
 use crate::shaders::{FEEDBACK_ACCUMULATE_SPV, FEEDBACK_HITBOXES_SPV, FEEDBACK_INSTANCES_SPV};
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
-use lipac_core::layout::{HitboxRecord, InstanceRecord, MAX_SLOTS};
+use lipac_core::layout::{HitboxRecord, InstanceHot, MAX_SLOTS};
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds};
 
 const ACCUMULATE: usize = 0;
@@ -67,8 +67,10 @@ struct FeedbackPush {
 /// Buffers Algorithm 2 reads and writes (all need `STORAGE_BUFFER` usage).
 #[derive(Clone, Copy, Debug)]
 pub struct FeedbackBuffers<'a> {
-    /// [`InstanceRecord`]s, one per slot (state bits updated).
-    pub instances: &'a Buffer,
+    /// The hot instance array: [`InstanceHot`]s, one per slot (state bits
+    /// updated). Algorithm 2 reads nothing else of an instance
+    /// (`docs/HOT_COLD.md`).
+    pub instance_hot: &'a Buffer,
     /// `u32` hit counters, one per slot (read; see
     /// [`FeedbackPipeline::record_clear_instance_hits`]; also needs
     /// `TRANSFER_DST` for that).
@@ -182,7 +184,7 @@ impl FeedbackPipeline {
         {
             return Err(VkError::MissingUsage("TRANSFER_DST on the command counter"));
         }
-        let slots = buffers.instances.size() / std::mem::size_of::<InstanceRecord>() as u64;
+        let slots = buffers.instance_hot.size() / std::mem::size_of::<InstanceHot>() as u64;
         let hits = buffers.instance_hits.size() / 4;
         let hitboxes = buffers.hitboxes.size() / std::mem::size_of::<HitboxRecord>() as u64;
         if slots > u64::from(MAX_SLOTS) || hitboxes > u64::from(MAX_SLOTS) {
@@ -209,7 +211,7 @@ impl FeedbackPipeline {
         let capacity = u32::try_from(buffers.commands.size() / 4).unwrap_or(u32::MAX);
         let set = self.kernels.bind(
             &[
-                buffers.instances,
+                buffers.instance_hot,
                 buffers.instance_hits,
                 buffers.hitboxes,
                 buffers.commands,

@@ -88,6 +88,7 @@ pub use as_pool::{
 };
 pub use assembly::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, HitboxBounds,
+    InstanceBuffers,
 };
 pub use backend::{
     FrameDiagnostics, FrameReadback, FrameSignal, InstanceDataSource, LipacVk, LipacVkConfig,

@@ -1,10 +1,12 @@
 //! The record upload scatter: [`RecordUploader`] is the GPU version of
-//! [`lipac_core::culling::apply_uploads`]. It copies the CPU's changed
-//! instance records into the GPU instance buffer **keeping the state bits**
-//! of the GPU copy (Algorithm 2 owns them), then applies the CPU's explicit
-//! state overrides and hitbox active overrides.
+//! [`lipac_core::culling::apply_uploads`]. It stages the CPU's changed
+//! instance records (joined, 96 bytes each) and scatters them into the GPU's
+//! three instance arrays ([`InstanceBuffers`]: hot, heights, cold) **keeping
+//! the state bits** of the GPU's hot records (Algorithm 2 owns them), then
+//! applies the CPU's explicit state overrides and hitbox active overrides.
 
 use crate::accel::same_context;
+use crate::assembly::InstanceBuffers;
 use crate::commands::Recorder;
 use crate::compute::{compute_to_compute, compute_to_everything, ComputeKernels, StorageSet};
 use crate::context::DeviceContext;
@@ -14,9 +16,9 @@ use crate::shaders::UPLOAD_RECORDS_SPV;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 use lipac_core::culling::Uploads;
-use lipac_core::layout::{HitboxRecord, InstanceRecord, MAX_SLOTS};
+use lipac_core::layout::{HitboxRecord, InstanceArrays, InstanceRecord};
 
-const BINDINGS: u32 = 6;
+const BINDINGS: u32 = 8;
 const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
 
 /// Push constants of `upload_records.comp`.
@@ -31,12 +33,12 @@ struct UploadPush {
     hitbox_capacity: u32,
 }
 
-/// The GPU buffers an upload writes (both need `STORAGE_BUFFER` usage; any
+/// The GPU buffers an upload writes (all need `STORAGE_BUFFER` usage; any
 /// memory location, `GpuOnly` included).
 #[derive(Clone, Copy, Debug)]
 pub struct UploadTargets<'a> {
-    /// The GPU's [`InstanceRecord`]s, one per slot.
-    pub instances: &'a Buffer,
+    /// The GPU's instance arrays, one entry of each per slot.
+    pub instances: InstanceBuffers<'a>,
     /// The GPU's [`HitboxRecord`]s.
     pub hitboxes: &'a Buffer,
 }
@@ -136,18 +138,20 @@ impl RecordUploader {
     /// [`VkError::NoMemoryType`].
     pub fn bind(&self, targets: &UploadTargets<'_>) -> Result<UploadBindings> {
         let ctx = self.kernels.context();
-        same_context(ctx, targets.instances.context())?;
-        same_context(ctx, targets.hitboxes.context())?;
-        let slots = targets.instances.size() / RECORD_BYTES;
+        let i = &targets.instances;
+        for b in [i.hot, i.heights, i.cold, targets.hitboxes] {
+            same_context(ctx, b.context())?;
+        }
+        let slots = u64::from(i.slot_capacity()?);
         let hitboxes = targets.hitboxes.size() / std::mem::size_of::<HitboxRecord>() as u64;
         if slots == 0 || hitboxes == 0 {
             return Err(VkError::InvalidArgument(format!(
-                "upload targets hold {slots} instance records and {hitboxes} hitbox records"
+                "upload targets hold {slots} instance slots and {hitboxes} hitbox records"
             )));
         }
-        if slots > u64::from(MAX_SLOTS) || hitboxes > u64::from(MAX_SLOTS) {
+        if hitboxes > u64::from(lipac_core::layout::MAX_SLOTS) {
             return Err(VkError::InvalidArgument(format!(
-                "{slots} slots / {hitboxes} hitboxes exceed 2^24"
+                "{hitboxes} hitboxes exceed 2^24"
             )));
         }
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
@@ -158,12 +162,14 @@ impl RecordUploader {
         let hitbox_overrides = staging(hitboxes * 8)?;
         let set = self.kernels.bind(
             &[
-                targets.instances,
+                i.hot,
                 targets.hitboxes,
                 &records,
                 &slot_list,
                 &state_overrides,
                 &hitbox_overrides,
+                i.heights,
+                i.cold,
             ],
             "STORAGE_BUFFER on an upload target",
         )?;
@@ -194,7 +200,7 @@ impl RecordUploader {
         rec: &mut Recorder<'_>,
         bindings: &mut UploadBindings,
         uploads: &Uploads,
-        records: &[InstanceRecord],
+        records: &InstanceArrays,
     ) -> Result<UploadStats> {
         same_context(rec.context(), self.kernels.context())?;
         let (slots, staged) = stage_records(uploads, records, bindings.slot_capacity)?;
@@ -261,7 +267,7 @@ impl RecordUploader {
 /// `apply_uploads` does), ascending, and their records.
 fn stage_records(
     uploads: &Uploads,
-    records: &[InstanceRecord],
+    records: &InstanceArrays,
     capacity: u32,
 ) -> Result<(Vec<u32>, Vec<InstanceRecord>)> {
     let len = u32::try_from(records.len()).unwrap_or(u32::MAX);
@@ -282,7 +288,11 @@ fn stage_records(
         slots.sort_unstable();
         slots.dedup();
     }
-    let staged = slots.iter().map(|&s| records[s as usize]).collect();
+    // Every staged slot is below `records.len()` (clamped above).
+    let staged = slots
+        .iter()
+        .filter_map(|&s| records.get(s as usize))
+        .collect();
     Ok((slots, staged))
 }
 

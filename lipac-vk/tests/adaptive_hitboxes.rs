@@ -161,13 +161,20 @@ fn merged_assembly_matches_cpu_reference() {
         tlas_out
             .write(0, &vec![0xA5A5_A5A5u32; tlas_capacity * 16])
             .unwrap();
-        let instance_buf = Buffer::with_data(ctx, STORAGE, host, &instances).unwrap();
+        let instances = lipac_core::layout::InstanceArrays::from_records(&instances);
+        let hot = Buffer::with_data(ctx, STORAGE, host, instances.hot()).unwrap();
+        let heights = Buffer::with_data(ctx, STORAGE, host, instances.heights()).unwrap();
+        let cold = Buffer::with_data(ctx, STORAGE, host, instances.cold()).unwrap();
         let hitbox_buf = Buffer::with_data(ctx, STORAGE, host, &hitboxes).unwrap();
         let bounds = Buffer::with_data(ctx, STORAGE, host, &hitbox_bounds(&grid)).unwrap();
         let counter = Buffer::with_data(ctx, STORAGE | xfer, host, &[7u32]).unwrap();
         let bindings = pipeline
             .bind(&AssemblyBuffers {
-                instances: &instance_buf,
+                instances: lipac_vk::InstanceBuffers {
+                    hot: &hot,
+                    heights: &heights,
+                    cold: &cold,
+                },
                 hitboxes: &hitbox_buf,
                 hitbox_bounds: &bounds,
                 tlas_instances: &tlas_out,

@@ -7,6 +7,10 @@
 //! `process_feedback` when every command fits. Under overflow, which
 //! requests get a slot depends on GPU thread order, so the test checks the
 //! invariants that make it safe instead (see `feedback_overflow_invariants`).
+//!
+//! The GPU holds the instance arrays split (hot, heights, cold); the CPU runs
+//! on `InstanceArrays` built from the same records, and the GPU's arrays are
+//! compared with the CPU's word for word.
 
 mod common;
 
@@ -15,17 +19,18 @@ use common::*;
 use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, sort_canonical, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
-use lipac_core::feedback::{process_feedback, process_feedback_with_rates};
+use lipac_core::feedback::{FeedbackError, FeedbackStats};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights,
+    InstanceHot, InstanceRecord, InstanceState, TlasInstance,
 };
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
 use lipac_vk::{
     hitbox_bounds, AssemblyBindings, AssemblyBuffers, AssemblyPipeline, Buffer,
     CommandReadbackRing, DeviceContext, FeedbackBindings, FeedbackBuffers, FeedbackPipeline,
-    FrameSubmitter, MemoryLocation, OneShot, TimelineSemaphore, VkError,
+    FrameSubmitter, InstanceBuffers, MemoryLocation, OneShot, TimelineSemaphore, VkError,
 };
 use std::collections::{BTreeSet, HashMap};
 
@@ -115,7 +120,58 @@ fn random_aabb(rng: &mut Rng) -> ([f32; 3], [f32; 3]) {
     (min, max)
 }
 
+/// The split arrays of `records` (the CPU reference's input).
+fn arrays(records: &[InstanceRecord]) -> InstanceArrays {
+    InstanceArrays::from_records(records)
+}
+
+/// `record` as the instance arrays hold it (`HAS_BLAS` from its BLAS).
+fn normalized(record: &InstanceRecord) -> InstanceRecord {
+    InstanceRecord::from_parts(&record.hot(), &record.cold())
+}
+
+/// The CPU's Algorithm 2 on the hot parts of `records`, writing the packed
+/// words back (so `records` are normalized, see [`normalized`]).
+fn cpu_feedback_with_rates(
+    records: &mut [InstanceRecord],
+    hits: &[u32],
+    rates: &mut [u32],
+    hitboxes: &mut [HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+) -> Result<FeedbackStats, FeedbackError> {
+    let mut hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
+    let stats = lipac_core::feedback::process_feedback_with_rates(
+        &mut hot, hits, rates, hitboxes, th, commands,
+    );
+    for (r, h) in records.iter_mut().zip(&hot) {
+        r.packed = h.packed;
+    }
+    stats
+}
+
+/// [`cpu_feedback_with_rates`] under the paper's rule, without rates.
+fn cpu_feedback(
+    records: &mut [InstanceRecord],
+    hits: &[u32],
+    hitboxes: &mut [HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+) -> Result<FeedbackStats, FeedbackError> {
+    let mut hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
+    let stats = lipac_core::feedback::process_feedback(&mut hot, hits, hitboxes, th, commands);
+    for (r, h) in records.iter_mut().zip(&hot) {
+        r.packed = h.packed;
+    }
+    stats
+}
+
+/// A random record, normalized ([`normalized`]).
 fn random_instance(rng: &mut Rng, hitboxes: u32) -> InstanceRecord {
+    normalized(&random_record(rng, hitboxes))
+}
+
+fn random_record(rng: &mut Rng, hitboxes: u32) -> InstanceRecord {
     let (aabb_min, aabb_max) = random_aabb(rng);
     let mut transform = [0.0f32; 12];
     for v in &mut transform {
@@ -205,7 +261,7 @@ fn random_hits(rng: &mut Rng, th: &Thresholds) -> u32 {
 /// The feedback buffers of `scene`.
 fn scene_buffers(scene: &Scene) -> FeedbackBuffers<'_> {
     FeedbackBuffers {
-        instances: &scene.instances,
+        instance_hot: &scene.hot,
         instance_hits: &scene.instance_hits,
         hitboxes: &scene.hitboxes,
         commands: &scene.commands,
@@ -216,7 +272,9 @@ fn scene_buffers(scene: &Scene) -> FeedbackBuffers<'_> {
 
 /// GPU-side buffers of one test scene.
 struct Scene {
-    instances: Buffer,
+    hot: Buffer,
+    heights: Buffer,
+    cold: Buffer,
     instance_hits: Buffer,
     hitboxes: Buffer,
     bounds: Buffer,
@@ -250,8 +308,11 @@ impl Scene {
         tlas_out
             .write(0, &vec![0xA5A5_A5A5u32; tlas_capacity * 16])
             .unwrap();
+        let split = arrays(instances);
         Self {
-            instances: Buffer::with_data(ctx, STORAGE, host, instances).unwrap(),
+            hot: Buffer::with_data(ctx, STORAGE, host, split.hot()).unwrap(),
+            heights: Buffer::with_data(ctx, STORAGE, host, split.heights()).unwrap(),
+            cold: Buffer::with_data(ctx, STORAGE, host, split.cold()).unwrap(),
             instance_hits: Buffer::with_data(ctx, STORAGE | xfer, host, hits).unwrap(),
             hitboxes: Buffer::with_data(ctx, STORAGE, host, hitboxes).unwrap(),
             bounds: Buffer::with_data(ctx, STORAGE, host, &hitbox_bounds(index)).unwrap(),
@@ -265,9 +326,17 @@ impl Scene {
         }
     }
 
+    fn instance_buffers(&self) -> InstanceBuffers<'_> {
+        InstanceBuffers {
+            hot: &self.hot,
+            heights: &self.heights,
+            cold: &self.cold,
+        }
+    }
+
     fn assembly_bindings(&self, p: &AssemblyPipeline) -> AssemblyBindings {
         p.bind(&AssemblyBuffers {
-            instances: &self.instances,
+            instances: self.instance_buffers(),
             hitboxes: &self.hitboxes,
             hitbox_bounds: &self.bounds,
             tlas_instances: &self.tlas_out,
@@ -278,7 +347,7 @@ impl Scene {
 
     fn feedback_bindings(&self, p: &FeedbackPipeline) -> FeedbackBindings {
         p.bind(&FeedbackBuffers {
-            instances: &self.instances,
+            instance_hot: &self.hot,
             instance_hits: &self.instance_hits,
             hitboxes: &self.hitboxes,
             commands: &self.commands,
@@ -288,8 +357,23 @@ impl Scene {
         .unwrap()
     }
 
+    /// The GPU's instance arrays joined per slot; asserts that the heights
+    /// array holds the cold AABB's y words.
     fn read_instances(&self, n: usize) -> Vec<InstanceRecord> {
-        self.instances.read(0, n).unwrap()
+        let hot: Vec<InstanceHot> = self.hot.read(0, n).unwrap();
+        let heights: Vec<InstanceHeights> = self.heights.read(0, n).unwrap();
+        let cold: Vec<InstanceCold> = self.cold.read(0, n).unwrap();
+        for (slot, (y, c)) in heights.iter().zip(&cold).enumerate() {
+            assert_eq!(
+                (y.min_y.to_bits(), y.max_y.to_bits()),
+                (c.aabb_min[1].to_bits(), c.aabb_max[1].to_bits()),
+                "slot {slot}: heights"
+            );
+        }
+        hot.iter()
+            .zip(&cold)
+            .map(|(h, c)| InstanceRecord::from_parts(h, c))
+            .collect()
     }
     fn read_hitboxes(&self, n: usize) -> Vec<HitboxRecord> {
         self.hitboxes.read(0, n).unwrap()
@@ -343,7 +427,9 @@ fn assert_hitboxes_equal(gpu: &[HitboxRecord], cpu: &[HitboxRecord], what: &str)
 }
 
 fn assert_instances_equal(gpu: &[InstanceRecord], cpu: &[InstanceRecord], what: &str) {
+    assert_eq!(gpu.len(), cpu.len(), "{what}: slots");
     for (slot, (g, c)) in gpu.iter().zip(cpu).enumerate() {
+        let c = &normalized(c);
         assert!(
             bytemuck::bytes_of(g) == bytemuck::bytes_of(c),
             "{what}: slot {slot}: GPU packed {:#x}, CPU packed {:#x}",
@@ -421,7 +507,14 @@ fn assembly_matches_cpu_reference() {
         );
 
         let mut cpu_out = Vec::new();
-        let stats = assemble_tlas(&instances, &mut hitboxes, &index, &cfg, &mut cpu_out).unwrap();
+        let stats = assemble_tlas(
+            &arrays(&instances),
+            &mut hitboxes,
+            &index,
+            &cfg,
+            &mut cpu_out,
+        )
+        .unwrap();
         // The random scene exercises every branch.
         assert!(stats.active > 100 && stats.omitted_boxes > 100 && stats.inactive > 100);
         assert!(
@@ -479,7 +572,14 @@ fn assembly_slot_count_and_small_tlas_buffer() {
     let scene = Scene::new(ctx, &instances, &[0; 500], &hitboxes, &index, 1);
     // Processing only the first 200 slots equals the CPU on those 200.
     let mut cpu_out = Vec::new();
-    assemble_tlas(&instances[..200], &mut hitboxes, &index, &cfg, &mut cpu_out).unwrap();
+    assemble_tlas(
+        &arrays(&instances[..200]),
+        &mut hitboxes,
+        &index,
+        &cfg,
+        &mut cpu_out,
+    )
+    .unwrap();
     let small = Buffer::new(
         ctx,
         64 * 10,
@@ -489,7 +589,7 @@ fn assembly_slot_count_and_small_tlas_buffer() {
     .unwrap();
     let bindings = pipeline
         .bind(&AssemblyBuffers {
-            instances: &scene.instances,
+            instances: scene.instance_buffers(),
             hitboxes: &scene.hitboxes,
             hitbox_bounds: &scene.bounds,
             tlas_instances: &small,
@@ -498,9 +598,9 @@ fn assembly_slot_count_and_small_tlas_buffer() {
         .unwrap();
     assert!(pipeline
         .bind(&AssemblyBuffers {
-            tlas_instances: &scene.instances, // no TRANSFER_DST
+            tlas_instances: &scene.hot, // no TRANSFER_DST
             ..AssemblyBuffers {
-                instances: &scene.instances,
+                instances: scene.instance_buffers(),
                 hitboxes: &scene.hitboxes,
                 hitbox_bounds: &scene.bounds,
                 tlas_instances: &small,
@@ -605,7 +705,14 @@ fn frames_match_cpu_reference_without_overflow() {
             let what = format!("seed {seed} frame {frame}");
             // Algorithm 1 (also the frame reset of the hitboxes).
             let mut cpu_out = Vec::new();
-            assemble_tlas(&instances, &mut hitboxes, &index, &cfg, &mut cpu_out).unwrap();
+            assemble_tlas(
+                &arrays(&instances),
+                &mut hitboxes,
+                &index,
+                &cfg,
+                &mut cpu_out,
+            )
+            .unwrap();
             one_shot
                 .run(|rec| assembly.record(rec, &ab, &cfg, n as u32))
                 .unwrap();
@@ -625,7 +732,7 @@ fn frames_match_cpu_reference_without_overflow() {
             // Algorithm 2.
             let before = instances.clone();
             let mut buf = CommandBuffer::new(capacity);
-            let stats = process_feedback_with_rates(
+            let stats = cpu_feedback_with_rates(
                 &mut instances,
                 &hits,
                 &mut rates,
@@ -706,10 +813,10 @@ fn feedback_overflow_invariants() {
         // CPU with room for everything, and with room for nothing.
         let (mut unlimited, mut hb_unlimited) = (instances.clone(), hitboxes.clone());
         let mut all = CommandBuffer::new(n as u32);
-        process_feedback(&mut unlimited, &hits, &mut hb_unlimited, &th, &mut all).unwrap();
+        cpu_feedback(&mut unlimited, &hits, &mut hb_unlimited, &th, &mut all).unwrap();
         let (mut none_fit, mut hb_none) = (instances.clone(), hitboxes.clone());
         let mut zero = CommandBuffer::new(0);
-        process_feedback(&mut none_fit, &hits, &mut hb_none, &th, &mut zero).unwrap();
+        cpu_feedback(&mut none_fit, &hits, &mut hb_none, &th, &mut zero).unwrap();
         assert_eq!(zero.requested(), all.requested());
         assert!(all.requested() > capacity, "{what}: the case must overflow");
 
@@ -830,7 +937,7 @@ fn feedback_rejects_bad_arguments() {
     assert!(matches!(
         feedback.bind(&FeedbackBuffers {
             instance_hits: &short,
-            instances: &scene.instances,
+            instance_hot: &scene.hot,
             hitboxes: &scene.hitboxes,
             commands: &scene.commands,
             command_counter: &scene.command_counter,
@@ -984,8 +1091,7 @@ fn feedback_once_exact(
     let (mut cpu_inst, mut cpu_hb) = (instances.to_vec(), hitboxes.to_vec());
     let mut buf = CommandBuffer::new(capacity);
     let mut rates = vec![0u32; instances.len()];
-    process_feedback_with_rates(&mut cpu_inst, hits, &mut rates, &mut cpu_hb, th, &mut buf)
-        .unwrap();
+    cpu_feedback_with_rates(&mut cpu_inst, hits, &mut rates, &mut cpu_hb, th, &mut buf).unwrap();
     OneShot::new(ctx)
         .unwrap()
         .run(|rec| feedback.record(rec, &fb, th, instances.len() as u32))

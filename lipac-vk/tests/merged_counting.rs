@@ -14,7 +14,8 @@ use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
 use lipac_core::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState, TlasInstance,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState,
+    TlasInstance,
 };
 use lipac_core::math::Aabb;
 use lipac_test_support::{Rng64, SplitMix64};
@@ -80,7 +81,7 @@ fn merged_boxes_count_on_the_gpu_what_leaf_boxes_count() {
     .unwrap();
     let tree = HitboxTree::new(nx, nz, AdaptiveHitboxes::with_levels(2)).unwrap();
     let mut rng = SplitMix64::new(0x6E7);
-    let instances: Vec<InstanceRecord> = (0..500)
+    let instances: InstanceArrays = (0..500)
         .map(|_| {
             let (x, z) = (rng.range_f32(-79.0, 79.0), rng.range_f32(-63.0, 63.0));
             let w = rng.range_f32(0.3, 2.5);

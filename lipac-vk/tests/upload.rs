@@ -7,9 +7,14 @@ mod common;
 use ash::vk;
 use common::*;
 use lipac_core::culling::{apply_uploads, Uploads};
-use lipac_core::layout::{instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+use lipac_core::layout::{
+    instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights, InstanceHot,
+    InstanceRecord, InstanceState,
+};
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
-use lipac_vk::{Buffer, MemoryLocation, OneShot, RecordUploader, UploadStats, UploadTargets};
+use lipac_vk::{
+    Buffer, InstanceBuffers, MemoryLocation, OneShot, RecordUploader, UploadStats, UploadTargets,
+};
 
 /// Records of random bits: every state value incl. 3, NaN/inf floats, any
 /// BLAS address.
@@ -68,15 +73,28 @@ fn gpu_upload_equals_apply_uploads() {
     let uploader = RecordUploader::new(ctx).unwrap();
     let mut rng = Rng::new(0x5EED);
     for (slots, hitboxes) in [(1u32, 1u32), (37, 5), (3000, 257)] {
-        let mut gpu_copy: Vec<InstanceRecord> = random_records(&mut rng, slots as usize);
+        // The GPU arrays start as independent random bits.
+        let n = slots as usize;
+        let mut gpu_copy = InstanceArrays::from_parts(
+            random_records(&mut rng, n),
+            random_records(&mut rng, n),
+            random_records(&mut rng, n),
+        )
+        .unwrap();
         let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);
-        let instances =
-            Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &gpu_copy).unwrap();
-        let hitbox_buf =
-            Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &gpu_hitboxes).unwrap();
+        let host =
+            |data: &[u8]| Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, data).unwrap();
+        let hot = host(bytemuck::cast_slice(gpu_copy.hot()));
+        let heights = host(bytemuck::cast_slice(gpu_copy.heights()));
+        let cold = host(bytemuck::cast_slice(gpu_copy.cold()));
+        let hitbox_buf = host(bytemuck::cast_slice(&gpu_hitboxes));
         let mut bindings = uploader
             .bind(&UploadTargets {
-                instances: &instances,
+                instances: InstanceBuffers {
+                    hot: &hot,
+                    heights: &heights,
+                    cold: &cold,
+                },
                 hitboxes: &hitbox_buf,
             })
             .unwrap();
@@ -85,7 +103,10 @@ fn gpu_upload_equals_apply_uploads() {
             (slots, hitboxes)
         );
         for round in 0..4 {
-            let cpu_records: Vec<InstanceRecord> = random_records(&mut rng, slots as usize);
+            let cpu_records = InstanceArrays::from_records(&random_records::<InstanceRecord>(
+                &mut rng,
+                slots as usize,
+            ));
             let uploads = if round == 3 {
                 Uploads::default()
             } else {
@@ -96,14 +117,29 @@ fn gpu_upload_equals_apply_uploads() {
             let stats = one_shot
                 .run(|rec| uploader.record(rec, &mut bindings, &uploads, &cpu_records))
                 .unwrap();
-            let got: Vec<InstanceRecord> = instances.read(0, slots as usize).unwrap();
+            let got = InstanceArrays::from_parts(
+                hot.read::<InstanceHot>(0, n).unwrap(),
+                heights.read::<InstanceHeights>(0, n).unwrap(),
+                cold.read::<InstanceCold>(0, n).unwrap(),
+            )
+            .unwrap();
             let got_hitboxes: Vec<HitboxRecord> = hitbox_buf.read(0, hitboxes as usize).unwrap();
             let what = format!("{slots} slots, {hitboxes} hitboxes, round {round}");
-            for (i, (g, w)) in got.iter().zip(&gpu_copy).enumerate() {
+            for (i, (g, w)) in got.hot().iter().zip(gpu_copy.hot()).enumerate() {
+                assert_eq!(g, w, "{what}: hot {i}");
+            }
+            for (i, (g, w)) in got.heights().iter().zip(gpu_copy.heights()).enumerate() {
                 assert_eq!(
                     bytemuck::bytes_of(g),
                     bytemuck::bytes_of(w),
-                    "{what}: record {i}: {g:?} vs {w:?}"
+                    "{what}: heights {i}"
+                );
+            }
+            for (i, (g, w)) in got.cold().iter().zip(gpu_copy.cold()).enumerate() {
+                assert_eq!(
+                    bytemuck::bytes_of(g),
+                    bytemuck::bytes_of(w),
+                    "{what}: cold {i}: {g:?} vs {w:?}"
                 );
             }
             for (i, (g, w)) in got_hitboxes.iter().zip(&gpu_hitboxes).enumerate() {
@@ -120,7 +156,7 @@ fn gpu_upload_equals_apply_uploads() {
                 let overridden: std::collections::HashSet<u32> =
                     uploads.state_overrides.iter().map(|o| o.0).collect();
                 let mut kept = 0;
-                for (s, (g, b)) in got.iter().zip(&before).enumerate() {
+                for (s, (g, b)) in got.hot().iter().zip(before.hot()).enumerate() {
                     if !overridden.contains(&(s as u32)) {
                         assert_eq!(
                             g.packed & instance_bits::STATE_MASK,
@@ -149,10 +185,16 @@ fn upload_targets_are_checked() {
     let uploader = RecordUploader::new(ctx).unwrap();
     let small = Buffer::new(ctx, 64, storage, MemoryLocation::GpuOnly).unwrap();
     let hitboxes = Buffer::new(ctx, 120, storage, MemoryLocation::GpuOnly).unwrap();
-    // 64 bytes hold no 96-byte record.
+    let slots10 = |b| Buffer::new(ctx, b, storage, MemoryLocation::GpuOnly).unwrap();
+    let (hot, heights, cold) = (slots10(80), slots10(80), slots10(880));
+    // 64 bytes hold no 88-byte cold record.
     assert!(uploader
         .bind(&UploadTargets {
-            instances: &small,
+            instances: InstanceBuffers {
+                hot: &hot,
+                heights: &heights,
+                cold: &small,
+            },
             hitboxes: &hitboxes,
         })
         .is_err());
@@ -165,20 +207,28 @@ fn upload_targets_are_checked() {
     .unwrap();
     assert!(matches!(
         uploader.bind(&UploadTargets {
-            instances: &no_storage,
+            instances: InstanceBuffers {
+                hot: &hot,
+                heights: &no_storage,
+                cold: &cold,
+            },
             hitboxes: &hitboxes,
         }),
         Err(lipac_vk::VkError::MissingUsage(_))
     ));
     // A range inside the CPU records but past the GPU buffer is refused.
-    let instances = Buffer::new(ctx, 960, storage, MemoryLocation::GpuOnly).unwrap();
     let mut bindings = uploader
         .bind(&UploadTargets {
-            instances: &instances,
+            instances: InstanceBuffers {
+                hot: &hot,
+                heights: &heights,
+                cold: &cold,
+            },
             hitboxes: &hitboxes,
         })
         .unwrap();
-    let records = vec![InstanceRecord::default(); 20];
+    assert_eq!(bindings.slot_capacity(), 10);
+    let records = InstanceArrays::from_records(&[InstanceRecord::default(); 20]);
     let uploads = Uploads {
         records: vec![5..15, 15..15],
         ..Uploads::default()
@@ -189,6 +239,6 @@ fn upload_targets_are_checked() {
         refused,
         Err(lipac_vk::VkError::InvalidArgument(_))
     ));
-    drop((bindings, instances));
+    drop((bindings, hot, heights, cold));
     assert_no_validation_errors(&h);
 }

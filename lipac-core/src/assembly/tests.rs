@@ -1,5 +1,5 @@
 use super::*;
-use crate::layout::{hitbox_bits, instance_bits};
+use crate::layout::{hitbox_bits, instance_bits, InstanceRecord};
 use glam::Vec2;
 use lipac_test_support::{Rng64, XorShift64};
 
@@ -81,7 +81,8 @@ fn run(
         origin: 0.0,
     };
     let mut out = vec![TlasInstance::default(); 3]; // stale content must be cleared
-    let stats = assemble_tlas(instances, hitboxes, &index, &cfg(), &mut out).unwrap();
+    let instances = InstanceArrays::from_records(instances);
+    let stats = assemble_tlas(&instances, hitboxes, &index, &cfg(), &mut out).unwrap();
     (stats, out)
 }
 
@@ -327,7 +328,7 @@ fn bad_inputs_are_errors_or_counted() {
     };
     let mut out = Vec::new();
     assert!(matches!(
-        assemble_tlas(&[], &mut hb, &index, &cfg(), &mut out),
+        assemble_tlas(&InstanceArrays::new(), &mut hb, &index, &cfg(), &mut out),
         Err(AssemblyError::HitboxCountMismatch {
             index: 2,
             records: 1
@@ -409,4 +410,219 @@ fn canonical_sort_makes_order_irrelevant() {
     sort_canonical(&mut out);
     sort_canonical(&mut shuffled);
     assert_eq!(shuffled, out);
+}
+
+/// Pass 1 of Algorithm 1 as it was before the hot/cold split, over whole
+/// 96-byte records (`blas != 0` instead of `HAS_BLAS`); pass 2 is shared.
+/// The split version must give the same output, hitboxes and counts.
+fn reference_assemble_records(
+    instances: &[InstanceRecord],
+    hitboxes: &mut [HitboxRecord],
+    index: &impl HitboxIndex,
+    cfg: &AssemblyConfig,
+) -> (AssemblyStats, Vec<TlasInstance>) {
+    let mut out = Vec::new();
+    let mut stats = AssemblyStats::default();
+    begin_frame(hitboxes);
+    for (slot, m) in instances.iter().enumerate() {
+        if !m.is_alive() {
+            continue;
+        }
+        let slot = slot as u32;
+        let pinned = m.is_pinned();
+        let mut state = if pinned {
+            InstanceState::Active
+        } else {
+            m.state()
+        };
+        if !pinned
+            && state != InstanceState::Inactive
+            && hitboxes
+                .get(m.hitbox as usize)
+                .is_some_and(|h| !h.is_active())
+        {
+            stats.in_inactive_hitbox += 1;
+            state = InstanceState::Inactive;
+        }
+        match state {
+            InstanceState::Active => {
+                if m.blas == 0 {
+                    stats.active_without_blas += 1;
+                    continue;
+                }
+                out.push(TlasInstance::new(
+                    m.transform,
+                    slot,
+                    m.mask(),
+                    m.sbt_offset,
+                    m.vk_flags(),
+                    m.blas,
+                ));
+                stats.active += 1;
+            }
+            InstanceState::Omitted => {
+                let Some(transform) = unit_cube_transform(
+                    Vec3::from_array(m.aabb_min),
+                    Vec3::from_array(m.aabb_max),
+                    cfg.min_box_extent,
+                ) else {
+                    stats.invalid_instances += 1;
+                    continue;
+                };
+                out.push(TlasInstance::new(
+                    transform,
+                    slot,
+                    cfg.counting_mask,
+                    cfg.omitted_box_sbt_offset,
+                    COUNTING_BOX_FLAGS,
+                    cfg.unit_cube_blas,
+                ));
+                stats.omitted_boxes += 1;
+            }
+            InstanceState::Inactive => {
+                let Some(h) = hitboxes.get_mut(m.hitbox as usize) else {
+                    stats.invalid_instances += 1;
+                    continue;
+                };
+                h.min_y = h.min_y.min(m.aabb_min[1]);
+                h.max_y = h.max_y.max(m.aabb_max[1]);
+                h.cost = h.cost.wrapping_add(if m.needs_unique_blas() {
+                    hitbox_bits::COST_UNIQUE
+                } else {
+                    hitbox_bits::COST_SHARED
+                });
+                stats.inactive += 1;
+            }
+        }
+    }
+    // Pass 2 as before (unchanged by the split).
+    let kept: Vec<HitboxRecord> = hitboxes.to_vec();
+    let mut boxes = Vec::new();
+    let mut stats2 = AssemblyStats::default();
+    for (i, h) in kept.iter().enumerate() {
+        if h.is_active() || h.min_y > h.max_y {
+            continue;
+        }
+        let i = i as u32;
+        let Some((lo, hi)) = index.xz_bounds(i) else {
+            stats2.invalid_hitboxes += 1;
+            continue;
+        };
+        let min = Vec3::new(lo.x, h.min_y, lo.y);
+        let max = Vec3::new(hi.x, h.max_y, hi.y);
+        let Some(transform) = unit_cube_transform(min, max, cfg.min_box_extent) else {
+            stats2.invalid_hitboxes += 1;
+            continue;
+        };
+        boxes.push(TlasInstance::new(
+            transform,
+            i,
+            cfg.counting_mask,
+            cfg.hitbox_sbt_offset,
+            COUNTING_BOX_FLAGS,
+            cfg.unit_cube_blas,
+        ));
+        stats2.hitbox_boxes += 1;
+        stats2.flat_hitbox_boxes += u32::from(h.min_y == h.max_y);
+    }
+    stats.hitbox_boxes = stats2.hitbox_boxes;
+    stats.flat_hitbox_boxes = stats2.flat_hitbox_boxes;
+    stats.invalid_hitboxes = stats2.invalid_hitboxes;
+    out.extend(boxes);
+    (stats, out)
+}
+
+/// A random record: every state value (3 included), dead slots, pinned,
+/// unique, hitboxes out of range, odd AABBs (NaN, inf, swapped y), BLAS or
+/// none, and a `HAS_BLAS` bit that may contradict the BLAS address (the
+/// arrays derive it from the address).
+fn random_record(rng: &mut XorShift64, hitboxes: u32) -> InstanceRecord {
+    let f = |rng: &mut XorShift64| (rng.next_u32() % 20_000) as f32 / 100.0 - 100.0;
+    let mut min = [f(rng), f(rng), f(rng)];
+    let mut max = [min[0] + 2.0, min[1] + f(rng).abs(), min[2] + 2.0];
+    match rng.below_u32(40) {
+        0 => min[1] = f32::NAN,
+        1 => max[0] = f32::INFINITY,
+        2 => std::mem::swap(&mut min[1], &mut max[1]),
+        _ => {}
+    }
+    let mut transform = [0.0f32; 12];
+    for v in &mut transform {
+        *v = f(rng);
+    }
+    let mut packed = rng.below_u32(4) | (rng.next_u32() & 0xFFFF_FFB0);
+    for (p, bit) in [
+        (90, instance_bits::ALIVE),
+        (30, instance_bits::UNIQUE_BLAS),
+        (10, instance_bits::PINNED),
+    ] {
+        if rng.below_u32(100) < p {
+            packed |= bit;
+        } else {
+            packed &= !bit;
+        }
+    }
+    InstanceRecord {
+        transform,
+        aabb_min: min,
+        hitbox: if rng.below_u32(50) == 0 {
+            hitboxes + rng.below_u32(3)
+        } else {
+            rng.below_u32(hitboxes)
+        },
+        aabb_max: max,
+        packed,
+        blas: if rng.below_u32(5) == 0 {
+            0
+        } else {
+            rng.next_u64() | 1
+        },
+        sbt_offset: rng.next_u32() & 0xFF_FFFF,
+        lod: rng.below_u32(4),
+    }
+}
+
+#[test]
+fn split_arrays_give_the_records_output_bit_for_bit() {
+    let mut rng = XorShift64::new(0x15_407C);
+    let index = Row {
+        n: 24,
+        size: 16.0,
+        origin: -100.0,
+    };
+    for round in 0..20 {
+        let records: Vec<InstanceRecord> = (0..1500)
+            .map(|_| random_record(&mut rng, index.n))
+            .collect();
+        let hitboxes: Vec<HitboxRecord> = (0..index.n)
+            .map(|_| HitboxRecord {
+                packed: rng.next_u32() & 0xFF,
+                rate: rng.next_u32(),
+                ..Default::default()
+            })
+            .collect();
+        let (mut ref_hb, mut new_hb) = (hitboxes.clone(), hitboxes);
+        let (ref_stats, ref_out) =
+            reference_assemble_records(&records, &mut ref_hb, &index, &cfg());
+        let mut new_out = Vec::new();
+        let new_stats = assemble_tlas(
+            &InstanceArrays::from_records(&records),
+            &mut new_hb,
+            &index,
+            &cfg(),
+            &mut new_out,
+        )
+        .unwrap();
+        assert_eq!(new_stats, ref_stats, "round {round}");
+        // Same order too (slot order, then hitbox order), bit for bit.
+        let bits = |v: &[TlasInstance]| v.iter().map(TlasInstance::to_bits).collect::<Vec<_>>();
+        assert_eq!(bits(&new_out), bits(&ref_out), "round {round}");
+        assert_eq!(
+            bytemuck::cast_slice::<_, u32>(&new_hb),
+            bytemuck::cast_slice::<_, u32>(&ref_hb),
+            "round {round}"
+        );
+        assert!(ref_stats.active > 50 && ref_stats.omitted_boxes > 50 && ref_stats.inactive > 50);
+        assert!(ref_stats.active_without_blas > 0 && ref_stats.hitbox_boxes > 0);
+    }
 }

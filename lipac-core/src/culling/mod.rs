@@ -677,7 +677,7 @@ impl<H: HitboxIndex> Culling<H> {
         // The registry wrote the state (register / update of a pinned desc).
         self.state_overrides
             .insert(self.registry.table_mut(), slot, InstanceState::Active);
-        let blas = self.registry.records()[slot as usize].blas;
+        let blas = self.registry.records().cold()[slot as usize].blas;
         let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
             view.commanded_active = true;
@@ -850,7 +850,7 @@ impl<H: HitboxIndex> Culling<H> {
             let view = &mut self.registry.table_mut()[slot as usize].view;
             view.commanded_active = true;
             view.decided_at = frame;
-            let record = self.registry.records()[slot as usize];
+            let record = self.registry.record_at(slot).unwrap_or_default();
             if let Some(h) = self.hitboxes.get_mut(record.hitbox as usize) {
                 // Whether or not the hitbox is active: only a CPU backend's
                 // records carry Algorithm 2's hitbox bits (a GPU backend's
@@ -958,7 +958,7 @@ impl<H: HitboxIndex> Culling<H> {
                 continue;
             };
             let slot = c.slot as usize;
-            let record = self.registry.records()[slot];
+            let record = self.registry.record_at(c.slot).unwrap_or_default();
             let Ok(mesh) = self.registry.mesh(handle) else {
                 st.dead += 1;
                 continue;
@@ -1065,7 +1065,7 @@ impl<H: HitboxIndex> Culling<H> {
             return Ok(FeedbackStats::default());
         }
         let stats = process_feedback_with_rates(
-            self.registry.records_mut(),
+            self.registry.records_hot_mut(),
             &self.instance_hits,
             &mut self.instance_rates,
             &mut self.hitboxes,

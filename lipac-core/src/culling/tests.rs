@@ -532,7 +532,7 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     let mut c = Culling::new(grid(), cfg).unwrap();
     let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
     let b = c.register(desc(40.0, 40.0, 1, false)).unwrap();
-    let mut gpu = Vec::new();
+    let mut gpu = crate::layout::InstanceArrays::new();
     let mut gpu_hitboxes = c.hitboxes().to_vec();
     apply_uploads(
         &c.take_uploads(),
@@ -540,10 +540,10 @@ fn uploads_scatter_keeps_gpu_state_bits() {
         &mut gpu,
         &mut gpu_hitboxes,
     );
-    assert_eq!(gpu, c.registry().records());
+    assert_eq!(&gpu, c.registry().records());
     // The GPU's Algorithm 2 turns b omitted (pretend); the CPU moves b, and
     // latency mitigation activates both (first update: all newly visible).
-    gpu[1].set_state(InstanceState::Omitted);
+    gpu.set_state(1, InstanceState::Omitted);
     c.begin_frame(1).unwrap();
     let moved = |y: f32| Aabb::new(Vec3::new(y, 0.0, 39.0), Vec3::new(41.0, 2.0, 41.0));
     c.set_transform(b, Affine3A::IDENTITY, moved(39.0)).unwrap();
@@ -553,16 +553,16 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     let up = c.take_uploads();
     assert_eq!(up.records, vec![0..2]);
     apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
-    assert_eq!(gpu, c.registry().records());
-    assert_eq!(gpu[1].state(), InstanceState::Active); // override applied
+    assert_eq!(&gpu, c.registry().records());
+    assert_eq!(gpu.hot()[1].state(), InstanceState::Active); // override applied
     let hb_a = c.registry().record(a).unwrap().hitbox as usize;
     assert!(gpu_hitboxes[hb_a].is_active());
     // A record upload without an override keeps the GPU's state.
-    gpu[1].set_state(InstanceState::Omitted);
+    gpu.set_state(1, InstanceState::Omitted);
     c.set_transform(b, Affine3A::IDENTITY, moved(38.0)).unwrap();
     let up = c.take_uploads();
     assert!(up.state_overrides.is_empty() && up.hitbox_overrides.is_empty());
     apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
-    assert_eq!(gpu[1].state(), InstanceState::Omitted);
-    assert_eq!(gpu[1].aabb_min, [38.0, 0.0, 39.0]);
+    assert_eq!(gpu.hot()[1].state(), InstanceState::Omitted);
+    assert_eq!(gpu.cold()[1].aabb_min, [38.0, 0.0, 39.0]);
 }

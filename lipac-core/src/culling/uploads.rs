@@ -3,15 +3,16 @@
 //! the specification of the scatter shader).
 //!
 //! The rule: the state bits of an instance record belong to Algorithm 2 (the
-//! GPU). Upload [`Uploads::records`] *keeping* the state bits of the GPU copy
-//! (bits [`instance_bits::STATE_MASK`]), then apply
+//! GPU). Upload [`Uploads::records`] (all three arrays of
+//! [`InstanceArrays`]: hot, heights, cold) *keeping* the state bits of the
+//! GPU copy's hot record (bits [`instance_bits::STATE_MASK`]), then apply
 //! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
 //! exactly the CPU's writes since the last take. Why: `docs/ARCHITECTURE.md`,
 //! "Who owns the state bits".
 
 use std::ops::Range;
 
-use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceRecord, InstanceState};
+use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceState};
 
 #[cfg(doc)]
 use super::Culling;
@@ -20,9 +21,9 @@ use super::Culling;
 /// [`Culling::take_uploads`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Uploads {
-    /// Slot ranges whose records changed (sorted, disjoint): upload
-    /// `registry().records()[range]`, **keeping the state bits** of the GPU
-    /// copy (see [`apply_uploads`]).
+    /// Slot ranges whose records changed (sorted, disjoint): upload those
+    /// slots of `registry().records()` (hot, heights and cold), **keeping the
+    /// state bits** of the GPU copy (see [`apply_uploads`]).
     pub records: Vec<Range<u32>>,
     /// The CPU's writes of state bits since the last take, by ascending slot
     /// (registration → inactive, latency mitigation → active); apply after
@@ -34,38 +35,37 @@ pub struct Uploads {
     pub hitbox_overrides: Vec<(u32, bool)>,
 }
 
-/// Writes `uploads` into a GPU-side copy of the instance and hitbox buffers
-/// the way a GPU backend must: record ranges without their state bits, then
-/// the overrides. `records` is the CPU's instance buffer; `gpu_instances` is
-/// grown to its length. Used by tests and as the specification of the scatter
-/// shader.
+/// Writes `uploads` into a GPU-side copy of the instance arrays and hitbox
+/// buffer the way a GPU backend must: the slots of the record ranges (hot,
+/// heights, cold) without their state bits, then the overrides. `records` is
+/// the CPU's instance buffer; `gpu_instances` is grown to its length. Used by
+/// tests and as the specification of the scatter shader.
 pub fn apply_uploads(
     uploads: &Uploads,
-    records: &[InstanceRecord],
-    gpu_instances: &mut Vec<InstanceRecord>,
+    records: &InstanceArrays,
+    gpu_instances: &mut InstanceArrays,
     gpu_hitboxes: &mut [HitboxRecord],
 ) {
     if gpu_instances.len() < records.len() {
-        gpu_instances.resize(records.len(), InstanceRecord::default());
+        gpu_instances.resize(records.len());
     }
     for range in &uploads.records {
         let (lo, hi) = (
             range.start as usize,
             (range.end as usize).min(records.len()),
         );
-        for (dst, src) in gpu_instances[lo.min(hi)..hi]
-            .iter_mut()
-            .zip(&records[lo.min(hi)..hi])
-        {
+        for slot in lo.min(hi)..hi {
+            let (Some(mut src), Some(dst)) = (records.get(slot), gpu_instances.hot().get(slot))
+            else {
+                continue;
+            };
             let state = dst.packed & instance_bits::STATE_MASK;
-            *dst = *src;
-            dst.packed = (dst.packed & !instance_bits::STATE_MASK) | state;
+            src.packed = (src.packed & !instance_bits::STATE_MASK) | state;
+            gpu_instances.set(slot, &src);
         }
     }
     for &(slot, state) in &uploads.state_overrides {
-        if let Some(r) = gpu_instances.get_mut(slot as usize) {
-            r.set_state(state);
-        }
+        gpu_instances.set_state(slot as usize, state);
     }
     for &(index, active) in &uploads.hitbox_overrides {
         if let Some(h) = gpu_hitboxes.get_mut(index as usize) {

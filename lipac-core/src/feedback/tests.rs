@@ -1,9 +1,10 @@
 use super::*;
 use crate::command::CommandQueue;
+use crate::layout::InstanceRecord;
 
 const TH: Thresholds = Thresholds::paper();
 
-fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceHot {
     let mut r = InstanceRecord {
         hitbox,
         packed: instance_bits::ALIVE
@@ -16,7 +17,7 @@ fn inst(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
         ..Default::default()
     };
     r.set_state(state);
-    r
+    r.hot()
 }
 
 fn hitbox(active: bool) -> HitboxRecord {
@@ -29,13 +30,13 @@ fn hitbox(active: bool) -> HitboxRecord {
 /// One frame: reset hitbox hits, add this frame's counting-box hits,
 /// run Algorithm 2 with a fresh command buffer of `capacity`.
 struct Frame {
-    instances: Vec<InstanceRecord>,
+    instances: Vec<InstanceHot>,
     hits: Vec<u32>,
     hitboxes: Vec<HitboxRecord>,
 }
 
 impl Frame {
-    fn new(instances: Vec<InstanceRecord>, hitboxes: Vec<HitboxRecord>) -> Self {
+    fn new(instances: Vec<InstanceHot>, hitboxes: Vec<HitboxRecord>) -> Self {
         Self {
             hits: vec![0; instances.len()],
             instances,
@@ -241,7 +242,7 @@ fn lines_31_32_omitted_above_sigma_a_is_added() {
 #[test]
 fn lines_34_35_active_unique_below_sigma_o_is_omitted() {
     let mut no_blas = inst(InstanceState::Active, 0, true);
-    no_blas.blas = 0;
+    no_blas.packed &= !instance_bits::HAS_BLAS;
     let mut f = Frame::new(
         vec![
             inst(InstanceState::Active, 0, true),
@@ -260,7 +261,7 @@ fn lines_34_35_active_unique_below_sigma_o_is_omitted() {
     assert_eq!(cmds, vec![remove(0, TH.sigma_o - 1)]);
 }
 
-fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceRecord {
+fn pinned(state: InstanceState, hitbox: u32, unique: bool) -> InstanceHot {
     let mut r = inst(state, hitbox, unique);
     r.packed |= instance_bits::PINNED;
     r
@@ -430,6 +431,339 @@ fn mismatched_inputs_are_errors() {
 
 /// Algorithm 2 under the decayed rule ([`DecisionRule::Decayed`]): rates,
 /// hysteresis, cost-aware activation, the per-slot rates.
+/// Algorithm 2 as it was before the hot/cold split, over whole 96-byte
+/// records (`blas != 0` instead of `HAS_BLAS`), copied verbatim: the split
+/// version must make the same transitions, commands, hitboxes and rates.
+#[allow(clippy::too_many_lines)]
+fn reference_process_records(
+    instances: &mut [InstanceRecord],
+    instance_hits: &[u32],
+    rates: Option<&mut [u32]>,
+    hitboxes: &mut [HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+) -> Result<FeedbackStats, FeedbackError> {
+    if instance_hits.len() != instances.len() {
+        return Err(FeedbackError::HitCountMismatch {
+            hits: instance_hits.len(),
+            instances: instances.len(),
+        });
+    }
+    if instances.len() > MAX_SLOTS as usize {
+        return Err(FeedbackError::TooManySlots(instances.len()));
+    }
+    th.validate().map_err(FeedbackError::Thresholds)?;
+    let mut stats = FeedbackStats::default();
+
+    // Lines 1–6: one thread per slot.
+    const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+    const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+    for (m, &hits) in instances.iter().zip(instance_hits) {
+        let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+        // Pinned instances are not the hitbox's to decide on: their hits stay out.
+        if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
+            if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
+                h.add_hits(hits); // line 4
+            }
+        }
+    }
+
+    // Lines 7–13: one thread per hitbox.
+    let mut decayed = match (&th.rule, rates) {
+        (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
+        _ => None,
+    };
+    for h in hitboxes.iter_mut() {
+        let change = match &decayed {
+            Some((r, _)) => hitbox_step_decayed(h, r),
+            None => {
+                let (packed, change) = hitbox_step(h.packed, th);
+                h.packed = packed;
+                change
+            }
+        };
+        stats.hitboxes_activated += u32::from(change > 0);
+        stats.hitboxes_deactivated += u32::from(change < 0);
+    }
+
+    // Lines 14–38: one thread per slot.
+    for (slot, (m, &hits)) in instances.iter_mut().zip(instance_hits).enumerate() {
+        // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
+        // rate of either is 0 (a dead slot is reused only after quarantine).
+        if m.packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
+            if let Some((_, rates)) = decayed.as_mut() {
+                rates[slot] = 0;
+            }
+            continue;
+        }
+        let Some(h) = hitboxes.get(m.hitbox as usize) else {
+            stats.invalid_instances += 1;
+            continue;
+        };
+        let old = m.state();
+        let h_active = h.is_active();
+        let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
+        // Fast path: nothing in lines 16–37 can fire (and the rate of an
+        // inactive or shared-BLAS instance is 0).
+        match (old, h_active) {
+            (InstanceState::Inactive, false) => {
+                if let Some((_, rates)) = decayed.as_mut() {
+                    rates[slot] = 0;
+                }
+                continue;
+            }
+            (InstanceState::Active, true) | (InstanceState::Omitted, true) if !unique => {
+                if let Some((_, rates)) = decayed.as_mut() {
+                    rates[slot] = 0;
+                }
+                continue;
+            }
+            _ => {}
+        }
+        let slot = slot as u32;
+        let command = |kind, hits| Command {
+            slot,
+            kind,
+            priority: priority_from_hits(hits),
+        };
+        let mut state = old;
+        let mut overflow = false;
+
+        match (state, h_active) {
+            (InstanceState::Active, false) => {
+                // Lines 17/18.
+                if commands.push(command(CommandKind::Remove, h.hits())) {
+                    state = InstanceState::Inactive;
+                    stats.active_to_inactive += 1;
+                } else {
+                    overflow = true;
+                }
+            }
+            (InstanceState::Omitted, false) => {
+                // Lines 19/20.
+                state = InstanceState::Inactive;
+                stats.omitted_to_inactive += 1;
+            }
+            (InstanceState::Inactive, true) => {
+                if unique {
+                    // Line 23.
+                    state = InstanceState::Omitted;
+                    stats.inactive_to_omitted += 1;
+                } else if commands.push(command(CommandKind::Add, h.hits())) {
+                    // Lines 25/26.
+                    state = InstanceState::Active;
+                    stats.inactive_to_active += 1;
+                } else {
+                    overflow = true;
+                }
+            }
+            _ => {}
+        }
+
+        // Lines 29–37 under the decayed rule: this frame's rate decides.
+        if let Some((r, rates)) = decayed.as_mut() {
+            let slot = slot as usize;
+            if !unique {
+                rates[slot] = 0;
+            } else {
+                let rate = match state {
+                    InstanceState::Inactive => 0,
+                    // Not in the TLAS until its BLAS exists: no evidence, held.
+                    InstanceState::Active if m.blas == 0 => rates[slot],
+                    _ => decay_rate(rates[slot], hits, r.shift),
+                };
+                rates[slot] = rate;
+                if !overflow {
+                    if state == InstanceState::Omitted && rate > r.instance_activate {
+                        if commands.push(command(CommandKind::Add, hits)) {
+                            state = InstanceState::Active;
+                            stats.omitted_to_active += 1;
+                        } else {
+                            overflow = true;
+                        }
+                    } else if state == InstanceState::Active
+                        && m.blas != 0
+                        && rate < r.instance_omit
+                    {
+                        if commands.push(command(CommandKind::Remove, hits)) {
+                            state = InstanceState::Omitted;
+                            stats.active_to_omitted += 1;
+                        } else {
+                            overflow = true;
+                        }
+                    }
+                }
+            }
+        } else if unique && !overflow {
+            // Lines 29–37 (M needs a unique BLAS).
+            if state == InstanceState::Omitted && hits > th.sigma_a {
+                // Lines 31/32.
+                if commands.push(command(CommandKind::Add, hits)) {
+                    state = InstanceState::Active;
+                    stats.omitted_to_active += 1;
+                } else {
+                    overflow = true;
+                }
+            } else if state == InstanceState::Active && m.blas != 0 && hits < th.sigma_o {
+                // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
+                if commands.push(command(CommandKind::Remove, hits)) {
+                    state = InstanceState::Omitted;
+                    stats.active_to_omitted += 1;
+                } else {
+                    overflow = true;
+                }
+            }
+        }
+
+        stats.overflowed += u32::from(overflow);
+        if state != old {
+            m.set_state(state);
+        }
+    }
+    Ok(stats)
+}
+
+/// The escape sample as the Manager took it before Algorithm 2 summed it
+/// (a second walk over the records and hit counters).
+fn reference_escape(
+    records: &[InstanceRecord],
+    hits: &[u32],
+    hitboxes: &[HitboxRecord],
+) -> (u64, u64) {
+    let mut boxes: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced = 0u64;
+    for (r, &h) in records.iter().zip(hits) {
+        if !r.is_alive() {
+            continue;
+        }
+        match r.state() {
+            InstanceState::Omitted => boxes += u64::from(h),
+            _ => traced += u64::from(h),
+        }
+    }
+    (boxes, traced)
+}
+
+#[test]
+fn split_hot_array_gives_the_records_outcome_and_the_escape_sums() {
+    use crate::thresholds::{DecayedRule, RATE_ONE};
+    use lipac_test_support::{Rng64, XorShift64};
+    let decayed = Thresholds::paper().with_rule(DecisionRule::Decayed(DecayedRule {
+        shift: 2,
+        activate: 4 * RATE_ONE,
+        deactivate: RATE_ONE,
+        instance_activate: 3 * RATE_ONE,
+        instance_omit: RATE_ONE / 2,
+        per_shared: RATE_ONE / 2,
+        per_unique: 2 * RATE_ONE,
+    }));
+    let mut rng = XorShift64::new(0x15_F33D);
+    let n_hitboxes = 30;
+    let mut moved = 0;
+    for round in 0..24 {
+        let th = if round % 2 == 0 { TH } else { decayed };
+        let records: Vec<InstanceRecord> = (0..2000)
+            .map(|_| {
+                let mut packed = rng.below_u32(4) | (rng.next_u32() & 0xFFFF_FF30);
+                for (p, bit) in [
+                    (90, instance_bits::ALIVE),
+                    (40, instance_bits::UNIQUE_BLAS),
+                    (10, instance_bits::PINNED),
+                    (50, instance_bits::HAS_BLAS), // contradicts `blas` at times
+                ] {
+                    if rng.below_u32(100) < p {
+                        packed |= bit;
+                    }
+                }
+                InstanceRecord {
+                    hitbox: rng.below_u32(n_hitboxes + 2), // some out of range
+                    packed,
+                    blas: if rng.below_u32(4) == 0 {
+                        0
+                    } else {
+                        rng.next_u64() | 1
+                    },
+                    ..Default::default()
+                }
+            })
+            .collect();
+        let hits: Vec<u32> = (0..records.len())
+            .map(|_| match rng.below_u32(4) {
+                0 => 0,
+                1 => rng.below_u32(2 * TH.sigma_a),
+                2 => rng.next_u32(),
+                _ => rng.below_u32(20),
+            })
+            .collect();
+        let hitboxes: Vec<HitboxRecord> = (0..n_hitboxes)
+            .map(|_| {
+                let mut h = HitboxRecord {
+                    packed: rng.next_u32() & 0xFF,
+                    rate: rng.below_u32(8 * RATE_ONE),
+                    cost: rng.next_u32(),
+                    ..Default::default()
+                };
+                h.add_hits(rng.below_u32(3 * TH.theta_a));
+                h
+            })
+            .collect();
+        let rates: Vec<u32> = (0..records.len())
+            .map(|_| rng.below_u32(6 * RATE_ONE))
+            .collect();
+        let capacity = [5, 100, 2000][round % 3];
+
+        let (mut ref_records, mut ref_hb, mut ref_rates) =
+            (records.clone(), hitboxes.clone(), rates.clone());
+        let mut ref_cmds = CommandBuffer::new(capacity);
+        let want = reference_process_records(
+            &mut ref_records,
+            &hits,
+            Some(&mut ref_rates),
+            &mut ref_hb,
+            &th,
+            &mut ref_cmds,
+        )
+        .unwrap();
+        let escape = reference_escape(&records, &hits, &hitboxes);
+
+        let arrays = crate::layout::InstanceArrays::from_records(&records);
+        let mut hot = arrays.hot().to_vec();
+        let (mut hb, mut new_rates) = (hitboxes.clone(), rates.clone());
+        let mut cmds = CommandBuffer::new(capacity);
+        let got =
+            process_feedback_with_rates(&mut hot, &hits, &mut new_rates, &mut hb, &th, &mut cmds)
+                .unwrap();
+        let what = format!("round {round}");
+        assert_eq!((got.box_hits, got.traced_hits), escape, "{what}");
+        assert_eq!(
+            FeedbackStats {
+                box_hits: 0,
+                traced_hits: 0,
+                ..got
+            },
+            want,
+            "{what}"
+        );
+        let ref_hot: Vec<InstanceHot> = ref_records.iter().map(InstanceRecord::hot).collect();
+        assert_eq!(hot, ref_hot, "{what}");
+        assert_eq!(cmds.words(), ref_cmds.words(), "{what}");
+        assert_eq!(cmds.requested(), ref_cmds.requested(), "{what}");
+        assert_eq!(new_rates, ref_rates, "{what}");
+        assert_eq!(
+            bytemuck::cast_slice::<_, u32>(&hb),
+            bytemuck::cast_slice::<_, u32>(&ref_hb),
+            "{what}"
+        );
+        moved += records
+            .iter()
+            .zip(&ref_records)
+            .filter(|(a, b)| a.state() != b.state())
+            .count();
+        assert!(want.overflowed > 0 || capacity == 2000, "{what}");
+    }
+    assert!(moved > 1000, "{moved} transitions");
+}
+
 mod decayed {
     use super::*;
     use crate::layout::InstanceState;
@@ -449,7 +783,7 @@ mod decayed {
         Thresholds::paper().with_rule(DecisionRule::Decayed(RULE))
     }
 
-    fn inst(state: InstanceState, unique: bool, blas: u64) -> InstanceRecord {
+    fn inst(state: InstanceState, unique: bool, blas: u64) -> InstanceHot {
         let mut r = InstanceRecord {
             packed: instance_bits::ALIVE
                 | if unique {
@@ -461,13 +795,13 @@ mod decayed {
             ..Default::default()
         };
         r.set_state(state);
-        r
+        r.hot()
     }
 
     /// One frame: the hitbox gets `box_hits` (counting box) with `cost`
     /// inactive instances, then Algorithm 2.
     fn frame(
-        instances: &mut [InstanceRecord],
+        instances: &mut [InstanceHot],
         hits: &[u32],
         rates: &mut [u32],
         hitbox: &mut HitboxRecord,
@@ -584,7 +918,7 @@ mod decayed {
         assert_eq!(i[0].state(), InstanceState::Active);
         // The BLAS arrives and the instance is no longer hit: back to omitted
         // once the rate is below 0.5.
-        i[0].blas = 0xB1A5;
+        i[0].packed |= instance_bits::HAS_BLAS;
         let mut frames = 0;
         while i[0].state() == InstanceState::Active {
             frame(&mut i, &[0], &mut rates, &mut h, 1000, 0);
@@ -608,7 +942,7 @@ mod decayed {
         };
         let mut i = [
             inst(InstanceState::Active, false, 1),
-            InstanceRecord::default(), // dead
+            InstanceHot::default(), // dead
             inst(InstanceState::Omitted, true, 0),
         ];
         let mut rates = [7, 8, 9];

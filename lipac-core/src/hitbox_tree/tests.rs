@@ -339,6 +339,7 @@ fn assemble_with_the_tree_changes_only_the_hitbox_boxes() {
     for h in hb.iter_mut().step_by(7) {
         h.packed |= hitbox_bits::ACTIVE;
     }
+    let instances = crate::layout::InstanceArrays::from_records(&instances);
     let (mut a, mut b) = (Vec::new(), Vec::new());
     let mut ha = hb.clone();
     let mut hbb = hb.clone();

@@ -64,3 +64,84 @@ fn instance_state_bits() {
     r.set_state(InstanceState::Active);
     assert_eq!(r.state(), InstanceState::Active);
 }
+
+#[test]
+fn instance_arrays_split_join_and_keep_has_blas_with_the_address() {
+    let rec = InstanceRecord {
+        transform: [1.5; 12],
+        aabb_min: [1.0, -2.0, 3.0],
+        hitbox: 7,
+        aabb_max: [4.0, 5.0, 6.0],
+        // A stale HAS_BLAS bit: the arrays take it from the address.
+        packed: instance_bits::ALIVE | instance_bits::HAS_BLAS | (0xAB << 8) | 2,
+        blas: 0,
+        sbt_offset: 9,
+        lod: 2,
+    };
+    let mut a = InstanceArrays::from_records(&[InstanceRecord::default(), rec]);
+    assert_eq!(a.len(), 2);
+    assert!(!a.hot()[1].has_blas());
+    assert_eq!(a.hot()[1].hitbox, 7);
+    assert_eq!(a.hot()[1].mask(), 0xAB);
+    assert_eq!(a.hot()[1].state(), InstanceState::Active);
+    assert_eq!((a.heights()[1].min_y, a.heights()[1].max_y), (-2.0, 5.0));
+    assert_eq!(a.cold()[1].aabb_min, rec.aabb_min);
+    let joined = a.get(1).unwrap();
+    assert_eq!(joined.packed, rec.packed & !instance_bits::HAS_BLAS);
+    assert_eq!(
+        (joined.transform, joined.sbt_offset, joined.lod),
+        (rec.transform, 9, 2)
+    );
+    assert_eq!(a.set_blas(1, 0x1000), Some(0));
+    assert!(a.hot()[1].has_blas() && a.get(1).unwrap().blas == 0x1000);
+    assert_eq!(
+        a.set_state(1, InstanceState::Omitted),
+        Some(InstanceState::Active)
+    );
+    assert_eq!(a.set_hitbox(1, 3), Some(7));
+    assert_eq!(a.iter().len(), 2);
+    assert_eq!(a.to_vec()[1], a.get(1).unwrap());
+    assert_eq!(a.take(1).unwrap().blas, 0x1000);
+    assert_eq!(a.get(1), Some(InstanceRecord::default()));
+    // Past the end: nothing changes, nothing panics.
+    assert_eq!(a.get(2), None);
+    assert!(!a.set(2, &rec));
+    assert_eq!(
+        (a.set_blas(5, 1), a.set_state(5, InstanceState::Active)),
+        (None, None)
+    );
+    a.resize(4);
+    assert_eq!(a.len(), 4);
+    assert!(a.capacity() >= 4 && a.heap_bytes() >= 4 * INSTANCE_SLOT_BYTES);
+    assert_eq!(
+        InstanceArrays::from_parts(vec![InstanceHot::default()], vec![], vec![]),
+        None
+    );
+    let collected: InstanceArrays = a.iter().collect();
+    assert_eq!(collected, a);
+}
+
+#[test]
+fn instance_cold_has_the_glsl_offsets() {
+    // lipac_layout.glsl's LipacInstanceCold (std430 stride 88).
+    let c = InstanceCold {
+        transform: [0.0; 12],
+        blas: 0x0102_0304_0506_0708,
+        sbt_offset: 0xAAAA,
+        lod: 0xBBBB,
+        aabb_min: [1.0, 2.0, 3.0],
+        aabb_max: [4.0, 5.0, 6.0],
+    };
+    let w: &[u32] = bytemuck::cast_slice(bytemuck::bytes_of(&c));
+    assert_eq!(w.len(), 22);
+    assert_eq!((w[12], w[13]), (0x0506_0708, 0x0102_0304));
+    assert_eq!((w[14], w[15]), (0xAAAA, 0xBBBB));
+    assert_eq!(f32::from_bits(w[16]), 1.0);
+    assert_eq!(f32::from_bits(w[21]), 6.0);
+    let h = InstanceHot {
+        hitbox: 5,
+        packed: 6,
+    };
+    assert_eq!(bytemuck::cast::<_, [u32; 2]>(h), [5, 6]);
+    assert_eq!(INSTANCE_SLOT_BYTES, 104);
+}

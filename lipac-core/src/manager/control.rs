@@ -3,8 +3,8 @@
 //! Algorithm 2.
 //!
 //! * [`Manager::process_feedback`] (CPU backends) takes an
-//!   [`EscapeSample`] from the hit counters before Algorithm 2 adds the
-//!   instance hits to the hitboxes; a GPU backend that reads back its
+//!   [`EscapeSample`] from the hit sums Algorithm 2 made while reading the
+//!   hit counters, before it added the instance hits to the hitboxes; a GPU backend that reads back its
 //!   counting-box hits hands one in with [`Manager::observe_escape`].
 //! * [`Manager::plan`] feeds the controller once per frame, after the
 //!   scheduler planned, with the memory and the newest escape sample, and
@@ -18,8 +18,9 @@
 //!   ([`ControllerConfig::evict_cached_over_budget`]).
 
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
+use crate::feedback::FeedbackStats;
 use crate::hitbox_index::HitboxIndex;
-use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
+use crate::layout::HitboxRecord;
 use crate::thresholds::{DecisionRule, Thresholds};
 
 use super::{Manager, ManagerError};
@@ -47,26 +48,12 @@ pub(super) fn controller_of(
 
 /// This frame's counted hits: counting boxes (the hitboxes' counts before
 /// Algorithm 2 adds instance hits, and omitted instances' counts) and
-/// traced instances.
-pub(super) fn escape_sample(
-    records: &[InstanceRecord],
-    instance_hits: &[u32],
-    hitboxes: &[HitboxRecord],
-) -> EscapeSample {
-    let mut boxes: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
-    let mut traced = 0u64;
-    for (r, &h) in records.iter().zip(instance_hits) {
-        if !r.is_alive() {
-            continue;
-        }
-        match r.state() {
-            InstanceState::Omitted => boxes += u64::from(h),
-            _ => traced += u64::from(h),
-        }
-    }
+/// traced instances, as Algorithm 2 summed them while reading each state
+/// ([`FeedbackStats::box_hits`], [`FeedbackStats::traced_hits`]).
+pub(super) fn escape_sample(stats: &FeedbackStats) -> EscapeSample {
     EscapeSample {
-        box_hits: boxes,
-        total_hits: boxes + traced,
+        box_hits: stats.box_hits,
+        total_hits: stats.box_hits + stats.traced_hits,
     }
 }
 

@@ -80,7 +80,7 @@ use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::Frustum;
-use crate::layout::{HitboxRecord, InstanceRecord, InstanceState, TlasInstance};
+use crate::layout::{HitboxRecord, InstanceArrays, InstanceState, TlasInstance};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RemovedInstance};
@@ -490,7 +490,7 @@ impl<H: HitboxIndex> Manager<H> {
 
     /// The instance records, indexed by GPU slot: what a GPU backend uploads
     /// the [`ManagerPlan::uploads`] ranges from.
-    pub fn records(&self) -> &[InstanceRecord] {
+    pub fn records(&self) -> &InstanceArrays {
         self.culling.registry().records()
     }
 
@@ -973,16 +973,11 @@ impl<H: HitboxIndex> Manager<H> {
     /// ingested ([`Manager::ingest_readback`]), then prioritise builds.
     pub fn process_feedback(&mut self) -> Result<FeedbackStats, ManagerError> {
         self.record_frame_hits(None); // before Algorithm 2 changes states
-        let escape = control::escape_sample(
-            self.culling.registry().records(),
-            self.culling.instance_hits(),
-            self.culling.hitboxes(),
-        );
         let stats = self.culling.process_feedback();
         self.record(|r| r.settle_hits(stats.is_ok())); // a refused call records no hits
         let stats = stats?;
         // Only once Algorithm 2 ran: a refused call changes nothing.
-        self.observe_escape(escape);
+        self.observe_escape(control::escape_sample(&stats));
         let frame = self.culling.frame();
         let mut held = if self.held_hits.len() >= HELD_HITS_MAX {
             self.held_hits.pop_front().map(|(_, v)| v)
@@ -1048,7 +1043,7 @@ impl<H: HitboxIndex> Manager<H> {
                 hitbox_bytes: self.culling.hitboxes().len() as u64
                     * std::mem::size_of::<HitboxRecord>() as u64,
                 feedback_bytes: slot_count * 4,
-                instance_record_bytes: slot_count * std::mem::size_of::<InstanceRecord>() as u64,
+                instance_record_bytes: slot_count * crate::layout::INSTANCE_SLOT_BYTES,
             },
             instances: inst,
             commands_pending: self.culling.pending_commands(),

@@ -105,7 +105,7 @@ use super::{Manager, MeshCatalog};
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, MeshId};
-use crate::layout::{HitboxRecord, InstanceRecord, InstanceState};
+use crate::layout::{HitboxRecord, InstanceHot, InstanceState};
 use crate::math::{affine_to_rows, Aabb};
 use crate::registry::InstanceHandle;
 use crate::trace::{
@@ -645,7 +645,7 @@ impl TraceRecorder {
     pub(super) fn on_hits(
         &mut self,
         hits: &[u32],
-        records: Option<(&[InstanceRecord], &[HitboxRecord])>,
+        records: Option<(&[InstanceHot], &[HitboxRecord])>,
     ) {
         if !self.options.record_hits || self.error.is_some() || self.open.is_none() {
             return;
@@ -1104,7 +1104,7 @@ impl<H: HitboxIndex> Manager<H> {
                     let reg = self.culling.registry();
                     r.on_hits(
                         self.culling.instance_hits(),
-                        Some((reg.records(), self.culling.hitboxes())),
+                        Some((reg.records().hot(), self.culling.hitboxes())),
                     );
                 }
             }

@@ -30,7 +30,8 @@ pub struct MemoryStats {
     pub hitbox_bytes: u64,
     /// Per-slot hit feedback counters (4 bytes per slot).
     pub feedback_bytes: u64,
-    /// Instance records (96 bytes per slot).
+    /// Instance arrays: hot, heights and cold, 104 bytes per slot
+    /// ([`crate::layout::INSTANCE_SLOT_BYTES`]).
     pub instance_record_bytes: u64,
 }
 

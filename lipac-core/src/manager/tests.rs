@@ -169,7 +169,7 @@ fn lod_switch_keeps_the_old_blas_until_the_new_one_is_acknowledged() {
     }
     let b = build.expect("the LOD 2 build is planned");
     assert_eq!(b.owner.lod(), Lod(2));
-    assert_eq!(r.m.registry().records()[slot as usize].lod, 0);
+    assert_eq!(r.m.registry().records().get(slot as usize).unwrap().lod, 0);
     r.m.handle_ack(Ack::Built {
         build: b.id,
         result_bytes: b.result_bytes,
@@ -179,7 +179,7 @@ fn lod_switch_keeps_the_old_blas_until_the_new_one_is_acknowledged() {
     let v = r.m.instance(h).unwrap();
     assert_eq!((v.traced_lod, v.blas), (2, 0xA100));
     assert_eq!(v.data.end - v.data.start, 16);
-    assert_eq!(r.m.registry().records()[slot as usize].lod, 2);
+    assert_eq!(r.m.registry().records().get(slot as usize).unwrap().lod, 2);
     let p = r.frame();
     assert_eq!(r.traced(slot), Some(0xA100));
     // The data change is reported (shrunk in place: same offset).
@@ -578,7 +578,7 @@ fn pinned_is_never_culled_through_hitbox_deactivation_or_zero_hits() {
         ack_builds(&mut r.m, &p);
     }
     assert!(r.traced(os).is_some() && r.traced(ps) == Some(address));
-    let hitbox = r.m.records()[ps as usize].hitbox as usize;
+    let hitbox = r.m.records().get(ps as usize).unwrap().hitbox as usize;
     assert!(r.m.hitboxes()[hitbox].is_active());
     // ... then the camera is far away: no hits for 1000 frames. The hitbox
     // deactivates and the other instance goes; the pinned one stays.

@@ -54,7 +54,7 @@ fn new_instances_are_inactive_alive_and_match_their_description() {
         ..desc_at(9, 40.0, 20.0)
     };
     let h = r.register(d).unwrap();
-    let rec = *r.record(h).unwrap();
+    let rec = r.record(h).unwrap();
     assert!(rec.is_alive());
     assert_eq!(rec.state(), InstanceState::Inactive);
     assert_eq!(rec.blas, 0);
@@ -358,7 +358,7 @@ fn dirty_ranges_cover_exactly_the_changed_slots() {
     r.set_flags(hs[2], InstanceFlags::STATIC).unwrap();
     assert_eq!(r.take_dirty_merged(3), vec![2..7]);
     // The removed slot is a zeroed, dead record.
-    assert_eq!(r.records()[4], InstanceRecord::default());
+    assert_eq!(r.records().get(4).unwrap(), InstanceRecord::default());
 }
 
 #[test]
@@ -370,7 +370,7 @@ fn updates_keep_slot_state_and_blas_and_report_the_old_values() {
     let moved = desc_at(2, 100.0, 120.0);
     let old = r.update(h, moved).unwrap();
     assert_eq!(old, desc_at(1, 8.0, 8.0));
-    let rec = *r.record(h).unwrap();
+    let rec = r.record(h).unwrap();
     assert_eq!(rec.blas, 0xAB);
     assert_eq!(rec.state(), InstanceState::Active);
     assert_eq!(rec.hitbox, 6 + 7 * 8);
@@ -708,7 +708,7 @@ proptest! {
                 prop_assert_eq!(r.handle_at(slot), Some(h));
                 prop_assert_eq!(r.slot(h).unwrap(), slot);
                 let e = &expected[&h];
-                let rec = r.records()[slot as usize];
+                let rec = r.records().get(slot as usize).unwrap();
                 let want = build_record(
                     &e.desc,
                     affine_to_rows(&e.desc.transform),
@@ -716,14 +716,14 @@ proptest! {
                     e.state,
                     e.blas,
                 );
-                prop_assert_eq!(rec, want);
+                prop_assert_eq!(rec, InstanceRecord::from_parts(&want.hot(), &want.cold()));
                 prop_assert_eq!(r.desc(h).unwrap(), e.desc);
             }
             prop_assert_eq!(seen.len(), live.len());
             for s in 0..r.slot_count() {
                 if !seen.contains(&s) {
                     prop_assert_eq!(r.handle_at(s), None);
-                    prop_assert_eq!(r.records()[s as usize], InstanceRecord::default());
+                    prop_assert_eq!(r.records().get(s as usize).unwrap(), InstanceRecord::default());
                 }
                 // A slot is never both live and free/quarantined.
                 let parked = free.contains(&s) || quarantined.iter().any(|q| q.1 == s);

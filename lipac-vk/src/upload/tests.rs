@@ -12,7 +12,7 @@ fn last_wins_keeps_the_last_override_per_key() {
 
 #[test]
 fn staged_slots_are_distinct_and_clamped() {
-    let records = vec![InstanceRecord::default(); 10];
+    let records = InstanceArrays::from_records(&[InstanceRecord::default(); 10]);
     #[allow(clippy::reversed_empty_ranges)] // apply_uploads treats it as empty
     let reversed = 8..7;
     let uploads = Uploads {

@@ -1,0 +1,331 @@
+//! The instance buffer as three per-slot arrays (the hot/cold split,
+//! `docs/HOT_COLD.md`): [`InstanceHot`] (what Algorithms 1 and 2 decide on,
+//! every slot, every frame), [`InstanceHeights`] (what Algorithm 1 reduces
+//! into an inactive slot's hitbox) and [`InstanceCold`] (read only where
+//! Algorithm 1 emits a record). [`InstanceArrays`] holds them with equal
+//! lengths and keeps [`instance_bits::HAS_BLAS`] equal to `blas != 0`;
+//! [`InstanceRecord`] is the joined view of one slot.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::{instance_bits, InstanceRecord, InstanceState};
+
+/// The hot part of a slot (8 bytes): its hitbox and its packed bits
+/// ([`instance_bits`]). Algorithm 2 reads only these (and the hit counter),
+/// and writes only the state bits.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct InstanceHot {
+    /// Index of the hitbox that holds the AABB centre.
+    pub hitbox: u32,
+    /// State, flags, mask and instance flags; see [`instance_bits`].
+    pub packed: u32,
+}
+
+impl InstanceHot {
+    /// The instance's current state.
+    pub fn state(&self) -> InstanceState {
+        InstanceState::from_bits(self.packed)
+    }
+    /// Replaces the state bits.
+    pub fn set_state(&mut self, state: InstanceState) {
+        self.packed = (self.packed & !instance_bits::STATE_MASK) | state as u32;
+    }
+    /// Whether the slot holds a live instance.
+    pub fn is_alive(&self) -> bool {
+        self.packed & instance_bits::ALIVE != 0
+    }
+    /// Whether the instance needs a unique BLAS.
+    pub fn needs_unique_blas(&self) -> bool {
+        self.packed & instance_bits::UNIQUE_BLAS != 0
+    }
+    /// Whether the instance is pinned ([`instance_bits::PINNED`]).
+    pub fn is_pinned(&self) -> bool {
+        self.packed & instance_bits::PINNED != 0
+    }
+    /// Whether the instance has a BLAS ([`instance_bits::HAS_BLAS`]).
+    pub fn has_blas(&self) -> bool {
+        self.packed & instance_bits::HAS_BLAS != 0
+    }
+    /// The engine's visibility mask.
+    pub fn mask(&self) -> u8 {
+        (self.packed >> instance_bits::MASK_SHIFT) as u8
+    }
+    /// The instance's `VkGeometryInstanceFlagsKHR`.
+    pub fn vk_flags(&self) -> u8 {
+        (self.packed >> instance_bits::VK_FLAGS_SHIFT) as u8
+    }
+}
+
+/// The AABB y range of a slot (8 bytes): copies of
+/// [`InstanceCold::aabb_min`]`[1]` and [`InstanceCold::aabb_max`]`[1]`, which
+/// Algorithm 1 reduces into an inactive instance's hitbox.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct InstanceHeights {
+    /// World-space AABB minimum height.
+    pub min_y: f32,
+    /// World-space AABB maximum height.
+    pub max_y: f32,
+}
+
+/// The cold part of a slot (88 bytes, 8-byte aligned): read by Algorithm 1
+/// only for a slot that emits a TLAS record (the first 64 bytes for an
+/// active instance, the AABB for an omitted one).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct InstanceCold {
+    /// Row-major 3x4 object-to-world matrix.
+    pub transform: [f32; 12],
+    /// Device address of the instance's BLAS (shared or unique); 0 = none yet.
+    pub blas: u64,
+    /// SBT record offset (hit group) of the instance, 24 bits.
+    pub sbt_offset: u32,
+    /// Mesh LOD currently selected (informational for backends).
+    pub lod: u32,
+    /// World-space AABB minimum.
+    pub aabb_min: [f32; 3],
+    /// World-space AABB maximum.
+    pub aabb_max: [f32; 3],
+}
+
+/// The CPU instance buffer: one [`InstanceHot`], [`InstanceHeights`] and
+/// [`InstanceCold`] per slot, always of equal lengths, with
+/// [`instance_bits::HAS_BLAS`] set exactly where the BLAS address is nonzero
+/// (every write goes through [`InstanceRecord::hot`] or
+/// [`InstanceArrays::set_blas`]; [`InstanceArrays::hot_mut`] is for the
+/// state bits).
+///
+/// ```
+/// use lipac_core::layout::{instance_bits, InstanceArrays, InstanceRecord, InstanceState};
+///
+/// let rec = InstanceRecord { packed: instance_bits::ALIVE, blas: 0x100, ..Default::default() };
+/// let mut arrays = InstanceArrays::from_records(&[InstanceRecord::default(), rec]);
+/// assert_eq!(arrays.len(), 2);
+/// assert!(arrays.hot()[1].has_blas() && !arrays.hot()[0].has_blas());
+/// arrays.set_state(1, InstanceState::Active);
+/// assert_eq!(arrays.get(1).unwrap().state(), InstanceState::Active);
+/// assert_eq!(arrays.set_blas(1, 0), Some(0x100));
+/// assert!(!arrays.hot()[1].has_blas());
+/// ```
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct InstanceArrays {
+    hot: Vec<InstanceHot>,
+    heights: Vec<InstanceHeights>,
+    cold: Vec<InstanceCold>,
+}
+
+impl InstanceArrays {
+    /// No slots.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The arrays holding `records`, slot for slot
+    /// ([`instance_bits::HAS_BLAS`] derived from each BLAS address).
+    pub fn from_records(records: &[InstanceRecord]) -> Self {
+        let mut a = Self::new();
+        a.reserve_exact(records.len());
+        for r in records {
+            a.push(r);
+        }
+        a
+    }
+
+    /// The arrays from their parts as a GPU buffer holds them (e.g. read
+    /// back), or `None` when the lengths differ. Taken as they are: neither
+    /// the heights nor [`instance_bits::HAS_BLAS`] are checked against the
+    /// cold records.
+    pub fn from_parts(
+        hot: Vec<InstanceHot>,
+        heights: Vec<InstanceHeights>,
+        cold: Vec<InstanceCold>,
+    ) -> Option<Self> {
+        (hot.len() == heights.len() && hot.len() == cold.len()).then_some(Self {
+            hot,
+            heights,
+            cold,
+        })
+    }
+
+    /// Number of slots.
+    pub fn len(&self) -> usize {
+        self.hot.len()
+    }
+
+    /// Whether there are no slots.
+    pub fn is_empty(&self) -> bool {
+        self.hot.is_empty()
+    }
+
+    /// The hot array, one per slot.
+    pub fn hot(&self) -> &[InstanceHot] {
+        &self.hot
+    }
+
+    /// The hot array for Algorithm 2, which writes the state bits. Other
+    /// bits written here are not checked: keep [`instance_bits::HAS_BLAS`]
+    /// as [`InstanceArrays::set_blas`] leaves it.
+    pub fn hot_mut(&mut self) -> &mut [InstanceHot] {
+        &mut self.hot
+    }
+
+    /// The heights array, one per slot.
+    pub fn heights(&self) -> &[InstanceHeights] {
+        &self.heights
+    }
+
+    /// The cold array, one per slot.
+    pub fn cold(&self) -> &[InstanceCold] {
+        &self.cold
+    }
+
+    /// The joined record of `slot`, or `None` past the end.
+    pub fn get(&self, slot: usize) -> Option<InstanceRecord> {
+        Some(InstanceRecord::from_parts(
+            self.hot.get(slot)?,
+            self.cold.get(slot)?,
+        ))
+    }
+
+    /// Replaces the record of `slot` (its [`instance_bits::HAS_BLAS`]
+    /// derived from its BLAS address); `false` (nothing changed) past the
+    /// end.
+    pub fn set(&mut self, slot: usize, record: &InstanceRecord) -> bool {
+        if slot >= self.len() {
+            return false;
+        }
+        self.hot[slot] = record.hot();
+        self.heights[slot] = record.heights();
+        self.cold[slot] = record.cold();
+        true
+    }
+
+    /// Appends a slot holding `record`.
+    pub fn push(&mut self, record: &InstanceRecord) {
+        self.hot.push(record.hot());
+        self.heights.push(record.heights());
+        self.cold.push(record.cold());
+    }
+
+    /// Grows (with dead, zeroed slots) or shrinks the arrays to `len` slots.
+    pub fn resize(&mut self, len: usize) {
+        self.hot.resize(len, InstanceHot::default());
+        self.heights.resize(len, InstanceHeights::default());
+        self.cold.resize(len, InstanceCold::default());
+    }
+
+    /// Replaces `slot` by a dead (zeroed) record and returns the old one;
+    /// `None` past the end.
+    pub fn take(&mut self, slot: usize) -> Option<InstanceRecord> {
+        let old = self.get(slot)?;
+        self.set(slot, &InstanceRecord::default());
+        Some(old)
+    }
+
+    /// Replaces the state bits of `slot` and returns the old state; `None`
+    /// past the end.
+    pub fn set_state(&mut self, slot: usize, state: InstanceState) -> Option<InstanceState> {
+        let h = self.hot.get_mut(slot)?;
+        let old = h.state();
+        h.set_state(state);
+        Some(old)
+    }
+
+    /// Sets the hitbox of `slot` and returns the old one; `None` past the
+    /// end.
+    pub fn set_hitbox(&mut self, slot: usize, hitbox: u32) -> Option<u32> {
+        let h = self.hot.get_mut(slot)?;
+        Some(std::mem::replace(&mut h.hitbox, hitbox))
+    }
+
+    /// Sets the BLAS address of `slot` (and [`instance_bits::HAS_BLAS`]
+    /// with it) and returns the old address; `None` past the end.
+    pub fn set_blas(&mut self, slot: usize, blas: u64) -> Option<u64> {
+        let c = self.cold.get_mut(slot)?;
+        let old = std::mem::replace(&mut c.blas, blas);
+        let h = &mut self.hot[slot];
+        h.packed &= !instance_bits::HAS_BLAS;
+        if blas != 0 {
+            h.packed |= instance_bits::HAS_BLAS;
+        }
+        Some(old)
+    }
+
+    /// The joined records, slot by slot (by value).
+    pub fn iter(&self) -> Records<'_> {
+        Records {
+            arrays: self,
+            next: 0,
+        }
+    }
+
+    /// The joined records as a `Vec` (for inspection and tests; not on a
+    /// per-frame path).
+    pub fn to_vec(&self) -> Vec<InstanceRecord> {
+        self.iter().collect()
+    }
+
+    /// Reserves room for `additional` more slots in each array.
+    pub fn reserve_exact(&mut self, additional: usize) {
+        self.hot.reserve_exact(additional);
+        self.heights.reserve_exact(additional);
+        self.cold.reserve_exact(additional);
+    }
+
+    /// Slots the arrays hold without reallocating.
+    pub fn capacity(&self) -> usize {
+        self.hot
+            .capacity()
+            .min(self.heights.capacity())
+            .min(self.cold.capacity())
+    }
+
+    /// Heap bytes of the three arrays, from their capacities.
+    pub fn heap_bytes(&self) -> u64 {
+        (self.hot.capacity() * std::mem::size_of::<InstanceHot>()
+            + self.heights.capacity() * std::mem::size_of::<InstanceHeights>()
+            + self.cold.capacity() * std::mem::size_of::<InstanceCold>()) as u64
+    }
+}
+
+/// Iterator over the joined records of [`InstanceArrays`], from
+/// [`InstanceArrays::iter`].
+#[derive(Clone, Debug)]
+pub struct Records<'a> {
+    arrays: &'a InstanceArrays,
+    next: usize,
+}
+
+impl Iterator for Records<'_> {
+    type Item = InstanceRecord;
+    fn next(&mut self) -> Option<InstanceRecord> {
+        let r = self.arrays.get(self.next)?;
+        self.next += 1;
+        Some(r)
+    }
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.arrays.len().saturating_sub(self.next);
+        (n, Some(n))
+    }
+}
+
+impl ExactSizeIterator for Records<'_> {}
+
+impl<'a> IntoIterator for &'a InstanceArrays {
+    type Item = InstanceRecord;
+    type IntoIter = Records<'a>;
+    fn into_iter(self) -> Records<'a> {
+        self.iter()
+    }
+}
+
+impl FromIterator<InstanceRecord> for InstanceArrays {
+    fn from_iter<I: IntoIterator<Item = InstanceRecord>>(iter: I) -> Self {
+        let mut a = Self::new();
+        for r in iter {
+            a.push(&r);
+        }
+        a
+    }
+}
