@@ -176,7 +176,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let _ = writeln!(
         s,
         "\nMemory is modelled on lavapipe's acceleration-structure sizes (104 B per BLAS triangle, \
-         176 B per TLAS instance; LiPaC adds 20 B per hitbox and 4 B per instance): see \
+         176 B per TLAS instance; LiPaC adds 20 B per hitbox and 4 B per instance slot, 8 B under the decayed rule): see \
          docs/MEMORY_MODEL.md. TLAS instances count counting boxes. Error: relative RMSE of the \
          indirect light against the ground truth (every instance traced, same random numbers). \
          Latency: frames from the first frame the ground-truth paths hit an instance to the first \

@@ -95,7 +95,7 @@ fn tiny_sweep_writes_well_formed_outputs() {
     assert!(rows.iter().all(|l| l.split(',').count() == columns));
     let lipac4 = rows
         .iter()
-        .find(|l| l.starts_with("city,lipac ×4,thresholds,lipac,4,32,4,1,4,1,4,15,"))
+        .find(|l| l.starts_with("city,lipac ×4,thresholds,lipac,4,64,4,1,4,1,4,15,"))
         .copied();
     assert!(lipac4.is_some(), "{csv}");
 
@@ -148,7 +148,7 @@ fn tiny_sweep_writes_well_formed_outputs() {
     for file in &SWEEP_FILES[2..] {
         assert!(md.contains(&format!("]({file})")), "{file}");
     }
-    assert!(md.contains("| lipac ×4 | 4 1 4 1 4 15 | 32 |"));
+    assert!(md.contains("| lipac ×4 | 4 1 4 1 4 15 | 64 |"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

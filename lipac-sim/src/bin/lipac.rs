@@ -209,8 +209,8 @@ struct SweepArgs {
     #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,4")]
     factors: Vec<f64>,
     /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
-    /// lipac-sim's default, 32 m); empty for none.
-    #[arg(long, value_delimiter = ',', default_value = "16,64")]
+    /// lipac-sim's default, 64 m); empty for none.
+    #[arg(long, value_delimiter = ',', default_value = "32,128")]
     cells: Vec<String>,
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]

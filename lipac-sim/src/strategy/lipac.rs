@@ -74,16 +74,18 @@ pub struct LipacConfig {
 }
 
 impl LipacConfig {
-    /// Default hitbox cell size, metres: 32, not the paper's 16. At the
+    /// Default hitbox cell size, metres: 64, not the paper's 16. At the
     /// comparison's ray counts (9,216 camera rays per frame against the
-    /// paper's 2 M) a 16 m cell collects too few hits to rise above noise,
-    /// and the 2 km city's ~12.6k 16 m counting boxes cost ~2.2 MiB of TLAS.
-    /// `lipac sweep` on the 270-frame fly-through (docs/EVALUATION.md, "Run
-    /// time against error"): 32 m cells gave error 0.144 at 9.24 MiB against
-    /// 0.217 at 10.11 MiB for 16 m (city; the mirror city alike), the
-    /// lowest memory of 16–128 m; coarser cells trade a little memory for
-    /// less error.
-    pub const DEFAULT_CELL_SIZE: f64 = 32.0;
+    /// paper's 2 M) a small cell collects too few hits to rise above its
+    /// threshold soon, and every inactive cell costs a counting box's TLAS
+    /// record. With the decayed rule and pinned terrain, 64 m cells against
+    /// 32 m over the 270-frame fly-through (docs/EVALUATION.md, "Where
+    /// LiPaC's memory goes"): city 12.22 MiB / error 0.0495 / latency 5.1
+    /// frames against 12.34 / 0.0652 / 6.0, the mirror city 11.58 / 0.0468
+    /// / 5.6 against 11.69 / 0.0613 / 6.6; 96 m lowers the error further
+    /// (city 0.0438) for more memory (12.43 MiB). (With the paper's rule and
+    /// terrain culled, 32 m had been the best of 16–128 m.)
+    pub const DEFAULT_CELL_SIZE: f64 = 64.0;
 
     /// The default decision rule's settings (hits per frame at 1080p, 1 spp,
     /// scaled to the rays like the paper's θa = 1000): see

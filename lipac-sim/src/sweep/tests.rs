@@ -66,7 +66,7 @@ fn variants_follow_the_config_and_drop_duplicates() {
         .filter(|x| x.family == Family::CellSize)
         .map(|x| x.lipac.as_ref().unwrap().cell_size)
         .collect();
-    assert_eq!(cells, [16.0, 64.0]);
+    assert_eq!(cells, [32.0, 128.0]);
     let bad = SweepConfig {
         factors: vec![0.0],
         ..SweepConfig::default()

@@ -87,7 +87,7 @@ impl Default for SweepConfig {
     /// City and mirror scenes, the whole fly-through at 128 x 72; full,
     /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
     /// mitigation with the default heuristic and a wider one (100 m, 0.05);
-    /// 16 m (the paper's) and 64 m cells besides the default 32 m;
+    /// 32 m and 128 m cells besides the default 64 m;
     /// `(n_a, n_d)` = (1, 15) and (4, 30).
     fn default() -> Self {
         Self {
@@ -110,7 +110,7 @@ impl Default for SweepConfig {
                     min_projected_size: 0.05,
                 },
             ],
-            cell_sizes: vec![16.0, 64.0],
+            cell_sizes: vec![32.0, 128.0],
             streaks: vec![(1, 15), (4, 30)],
             threads: 0,
         }
