@@ -457,6 +457,7 @@ fn busy_mask(chunk: &[InstanceHot], hitboxes: &[HitboxRecord]) -> u32 {
 /// Lines 14–38 for one slot (the rate of a dead, pinned or fast-path slot
 /// set to 0 under the decayed rule).
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn slot_step(
     slot: usize,
     instances: &mut [InstanceHot],
