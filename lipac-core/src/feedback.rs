@@ -319,8 +319,8 @@ fn process(
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
     // active hitbox) is decided for eight slots at once on the bits alone
-    // ([`busy_mask`]); a chunk with any other slot runs [`slot_step`]
-    // slot by slot, in slot order, so that commands keep their order.
+    // ([`busy_mask`]); only the other slots run [`slot_step`], in slot
+    // order, so that commands keep their order.
     let n = instances.len();
     if decayed.is_some() {
         // The decayed rule writes every slot's rate: slot by slot.
