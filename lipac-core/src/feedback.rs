@@ -276,27 +276,24 @@ fn process(
     th.validate().map_err(FeedbackError::Thresholds)?;
     let mut stats = FeedbackStats::default();
 
-    // Lines 1–6: one thread per slot.
-    const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
-    const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+    // Lines 1–6: one thread per slot. Most slots have no hits (inactive
+    // ones are never hit): eight counters are tested at once and a chunk
+    // without hits is skipped whole.
     let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
     let mut traced_hits: u64 = 0;
-    for (m, &hits) in instances.iter().zip(instance_hits) {
-        if hits == 0 {
-            continue; // adds nothing, to the hitbox or the sums
+    let hot_chunks = instances.chunks_exact(CHUNK);
+    let hit_chunks = instance_hits.chunks_exact(CHUNK);
+    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
+    for (ms, hs) in hot_chunks.zip(hit_chunks) {
+        if hs.iter().fold(0, |a, &h| a | h) == 0 {
+            continue;
         }
-        let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-        if key == LIVE_OMITTED {
-            box_hits += u64::from(hits);
-        } else if key & instance_bits::ALIVE != 0 {
-            traced_hits += u64::from(hits);
+        for (m, &hits) in ms.iter().zip(hs) {
+            add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
         }
-        // Pinned instances are not the hitbox's to decide on: their hits stay out.
-        if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
-            if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
-                h.add_hits(hits); // line 4
-            }
-        }
+    }
+    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
+        add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
     }
     stats.box_hits = box_hits;
     stats.traced_hits = traced_hits;
@@ -319,142 +316,284 @@ fn process(
         stats.hitboxes_deactivated += u32::from(change < 0);
     }
 
-    // Lines 14–38: one thread per slot. The slices are cut to the slot
-    // count (checked equal above) so that indexing by slot needs no check.
+    // Lines 14–38: one thread per slot. The common case (dead or pinned;
+    // inactive in an inactive hitbox; shared-BLAS active or omitted in an
+    // active hitbox) is decided for eight slots at once on the bits alone
+    // ([`busy_mask`]); only the other slots run [`slot_step`], in slot
+    // order, so that commands keep their order.
     let n = instances.len();
-    let instance_hits = &instance_hits[..n];
-    for slot in 0..n {
-        let packed = instances[slot].packed;
-        // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
-        // rate of either is 0 (a dead slot is reused only after quarantine).
-        if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
-            if let Some((_, rates)) = decayed.as_mut() {
-                rates[slot] = 0;
-            }
-            continue;
+    if decayed.is_some() {
+        // The decayed rule writes every slot's rate: slot by slot.
+        for slot in 0..n {
+            slot_step(
+                slot,
+                instances,
+                instance_hits,
+                &mut decayed,
+                hitboxes,
+                th,
+                commands,
+                &mut stats,
+            );
         }
-        let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
-            stats.invalid_instances += 1;
-            continue;
-        };
-        let h_active = h.packed & hitbox_bits::ACTIVE != 0;
-        let unique = packed & instance_bits::UNIQUE_BLAS != 0;
-        // Fast path, on the bits alone: nothing in lines 16–37 can fire for
-        // an inactive instance (state bits 0, or the unused 3) in an
-        // inactive hitbox, nor for a shared-BLAS active or omitted one in an
-        // active hitbox (and the rate of either is 0).
-        let bits = packed & instance_bits::STATE_MASK;
-        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
-        if h_active != inactive && (inactive || !unique) {
-            if let Some((_, rates)) = decayed.as_mut() {
-                rates[slot] = 0;
-            }
-            continue;
+        return Ok(stats);
+    }
+    let mut base = 0;
+    while base + CHUNK <= n {
+        let end = base + CHUNK;
+        let mut busy = busy_mask(&instances[base..end], hitboxes);
+        while busy != 0 {
+            let slot = base + busy.trailing_zeros() as usize;
+            busy &= busy - 1;
+            slot_step(
+                slot,
+                instances,
+                instance_hits,
+                &mut decayed,
+                hitboxes,
+                th,
+                commands,
+                &mut stats,
+            );
         }
-        let m = &mut instances[slot];
-        let hits = instance_hits[slot];
-        let old = m.state();
-        let slot = slot as u32;
-        let command = |kind, hits| Command {
+        base = end;
+    }
+    for slot in base..n {
+        slot_step(
             slot,
-            kind,
-            priority: priority_from_hits(hits),
-        };
-        let mut state = old;
-        let mut overflow = false;
+            instances,
+            instance_hits,
+            &mut decayed,
+            hitboxes,
+            th,
+            commands,
+            &mut stats,
+        );
+    }
+    Ok(stats)
+}
 
-        match (state, h_active) {
-            (InstanceState::Active, false) => {
-                // Lines 17/18.
-                if commands.push(command(CommandKind::Remove, h.hits())) {
-                    state = InstanceState::Inactive;
-                    stats.active_to_inactive += 1;
-                } else {
-                    overflow = true;
-                }
-            }
-            (InstanceState::Omitted, false) => {
-                // Lines 19/20.
-                state = InstanceState::Inactive;
-                stats.omitted_to_inactive += 1;
-            }
-            (InstanceState::Inactive, true) => {
-                if unique {
-                    // Line 23.
-                    state = InstanceState::Omitted;
-                    stats.inactive_to_omitted += 1;
-                } else if commands.push(command(CommandKind::Add, h.hits())) {
-                    // Lines 25/26.
-                    state = InstanceState::Active;
-                    stats.inactive_to_active += 1;
-                } else {
-                    overflow = true;
-                }
-            }
-            _ => {}
+/// Slots decided together by the fast paths of lines 1–6 and 14–38.
+const CHUNK: usize = 8;
+
+/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
+/// live omitted or active instance that is not pinned, to its hitbox.
+#[inline(always)]
+fn add_instance_hits(
+    m: &InstanceHot,
+    hits: u32,
+    hitboxes: &mut [HitboxRecord],
+    box_hits: &mut u64,
+    traced_hits: &mut u64,
+) {
+    const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+    const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+    if hits == 0 {
+        return; // adds nothing, to the hitbox or the sums
+    }
+    let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+    if key == LIVE_OMITTED {
+        *box_hits += u64::from(hits);
+    } else if key & instance_bits::ALIVE != 0 {
+        *traced_hits += u64::from(hits);
+    }
+    // Pinned instances are not the hitbox's to decide on: their hits stay out.
+    if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
+        if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
+            h.add_hits(hits); // line 4
         }
+    }
+}
 
-        // Lines 29–37 under the decayed rule: this frame's rate decides.
-        if let Some((r, rates)) = decayed.as_mut() {
-            let slot = slot as usize;
-            if !unique {
-                rates[slot] = 0;
+/// The bits of an instance's `packed` word that [`slot_step`]'s early
+/// returns look at: state, [`instance_bits::ALIVE`],
+/// [`instance_bits::UNIQUE_BLAS`] and [`instance_bits::PINNED`].
+const BUSY_KEY_MASK: u32 = instance_bits::STATE_MASK
+    | instance_bits::ALIVE
+    | instance_bits::UNIQUE_BLAS
+    | instance_bits::PINNED;
+
+/// `BUSY[key | a << 7]`, for `key = packed & BUSY_KEY_MASK` and `a` the
+/// hitbox's active bit (2 for an index out of range): 1 where [`slot_step`]
+/// does more than return early (live, not pinned, and not on its fast path:
+/// inactive in an inactive hitbox, or active/omitted and not with a unique
+/// BLAS in an active one), else 0. Built from the same tests as
+/// `slot_step`'s early returns.
+const BUSY: [u8; 512] = {
+    let mut t = [0u8; 512];
+    let mut i = 0;
+    while i < 512 {
+        let p = (i & 0x7F) as u32;
+        let a = i >> 7;
+        let live = p & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
+        let bits = p & instance_bits::STATE_MASK;
+        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
+        let unique = p & instance_bits::UNIQUE_BLAS != 0;
+        let fast = a < 2 && ((a == 1) != inactive) && (inactive || !unique);
+        // Keys with bits outside BUSY_KEY_MASK, and a == 3, never occur.
+        t[i] = (live && !fast) as u8;
+        i += 1;
+    }
+    t
+};
+
+/// Bit `i` set for each slot `i` of `chunk` that lines 14–38 may touch
+/// ([`BUSY`]): one table look-up per slot, no branch but the hitbox bounds
+/// check. A clear bit is exactly a [`slot_step`] that returns early without
+/// a counter or command.
+#[inline(always)]
+fn busy_mask(chunk: &[InstanceHot], hitboxes: &[HitboxRecord]) -> u32 {
+    let mut busy = 0u32;
+    for (i, m) in chunk.iter().enumerate() {
+        let a = hitboxes
+            .get(m.hitbox as usize)
+            .map_or(2, |h| h.packed & hitbox_bits::ACTIVE);
+        let key = ((m.packed & BUSY_KEY_MASK) | (a << 7)) as usize;
+        busy |= u32::from(BUSY[key & 511]) << i;
+    }
+    busy
+}
+
+/// Lines 14–38 for one slot (the rate of a dead, pinned or fast-path slot
+/// set to 0 under the decayed rule).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn slot_step(
+    slot: usize,
+    instances: &mut [InstanceHot],
+    instance_hits: &[u32],
+    decayed: &mut Option<(DecayedRule, &mut [u32])>,
+    hitboxes: &[HitboxRecord],
+    th: &Thresholds,
+    commands: &mut CommandBuffer,
+    stats: &mut FeedbackStats,
+) {
+    let packed = instances[slot].packed;
+    // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
+    // rate of either is 0 (a dead slot is reused only after quarantine).
+    if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
+        if let Some((_, rates)) = decayed.as_mut() {
+            rates[slot] = 0;
+        }
+        return;
+    }
+    let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
+        stats.invalid_instances += 1;
+        return;
+    };
+    let h_active = h.packed & hitbox_bits::ACTIVE != 0;
+    let unique = packed & instance_bits::UNIQUE_BLAS != 0;
+    // Fast path, on the bits alone: nothing in lines 16–37 can fire for
+    // an inactive instance (state bits 0, or the unused 3) in an
+    // inactive hitbox, nor for a shared-BLAS active or omitted one in an
+    // active hitbox (and the rate of either is 0).
+    let bits = packed & instance_bits::STATE_MASK;
+    let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
+    if h_active != inactive && (inactive || !unique) {
+        if let Some((_, rates)) = decayed.as_mut() {
+            rates[slot] = 0;
+        }
+        return;
+    }
+    let m = &mut instances[slot];
+    let hits = instance_hits[slot];
+    let old = m.state();
+    let slot = slot as u32;
+    let command = |kind, hits| Command {
+        slot,
+        kind,
+        priority: priority_from_hits(hits),
+    };
+    let mut state = old;
+    let mut overflow = false;
+
+    match (state, h_active) {
+        (InstanceState::Active, false) => {
+            // Lines 17/18.
+            if commands.push(command(CommandKind::Remove, h.hits())) {
+                state = InstanceState::Inactive;
+                stats.active_to_inactive += 1;
             } else {
-                let rate = match state {
-                    InstanceState::Inactive => 0,
-                    // Not in the TLAS until its BLAS exists: no evidence, held.
-                    InstanceState::Active if !m.has_blas() => rates[slot],
-                    _ => decay_rate(rates[slot], hits, r.shift),
-                };
-                rates[slot] = rate;
-                if !overflow {
-                    if state == InstanceState::Omitted && rate > r.instance_activate {
-                        if commands.push(command(CommandKind::Add, hits)) {
-                            state = InstanceState::Active;
-                            stats.omitted_to_active += 1;
-                        } else {
-                            overflow = true;
-                        }
-                    } else if state == InstanceState::Active
-                        && m.has_blas()
-                        && rate < r.instance_omit
-                    {
-                        if commands.push(command(CommandKind::Remove, hits)) {
-                            state = InstanceState::Omitted;
-                            stats.active_to_omitted += 1;
-                        } else {
-                            overflow = true;
-                        }
+                overflow = true;
+            }
+        }
+        (InstanceState::Omitted, false) => {
+            // Lines 19/20.
+            state = InstanceState::Inactive;
+            stats.omitted_to_inactive += 1;
+        }
+        (InstanceState::Inactive, true) => {
+            if unique {
+                // Line 23.
+                state = InstanceState::Omitted;
+                stats.inactive_to_omitted += 1;
+            } else if commands.push(command(CommandKind::Add, h.hits())) {
+                // Lines 25/26.
+                state = InstanceState::Active;
+                stats.inactive_to_active += 1;
+            } else {
+                overflow = true;
+            }
+        }
+        _ => {}
+    }
+
+    // Lines 29–37 under the decayed rule: this frame's rate decides.
+    if let Some((r, rates)) = decayed.as_mut() {
+        let slot = slot as usize;
+        if !unique {
+            rates[slot] = 0;
+        } else {
+            let rate = match state {
+                InstanceState::Inactive => 0,
+                // Not in the TLAS until its BLAS exists: no evidence, held.
+                InstanceState::Active if !m.has_blas() => rates[slot],
+                _ => decay_rate(rates[slot], hits, r.shift),
+            };
+            rates[slot] = rate;
+            if !overflow {
+                if state == InstanceState::Omitted && rate > r.instance_activate {
+                    if commands.push(command(CommandKind::Add, hits)) {
+                        state = InstanceState::Active;
+                        stats.omitted_to_active += 1;
+                    } else {
+                        overflow = true;
+                    }
+                } else if state == InstanceState::Active && m.has_blas() && rate < r.instance_omit {
+                    if commands.push(command(CommandKind::Remove, hits)) {
+                        state = InstanceState::Omitted;
+                        stats.active_to_omitted += 1;
+                    } else {
+                        overflow = true;
                     }
                 }
             }
-        } else if unique && !overflow {
-            // Lines 29–37 (M needs a unique BLAS).
-            if state == InstanceState::Omitted && hits > th.sigma_a {
-                // Lines 31/32.
-                if commands.push(command(CommandKind::Add, hits)) {
-                    state = InstanceState::Active;
-                    stats.omitted_to_active += 1;
-                } else {
-                    overflow = true;
-                }
-            } else if state == InstanceState::Active && m.has_blas() && hits < th.sigma_o {
-                // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
-                if commands.push(command(CommandKind::Remove, hits)) {
-                    state = InstanceState::Omitted;
-                    stats.active_to_omitted += 1;
-                } else {
-                    overflow = true;
-                }
+        }
+    } else if unique && !overflow {
+        // Lines 29–37 (M needs a unique BLAS).
+        if state == InstanceState::Omitted && hits > th.sigma_a {
+            // Lines 31/32.
+            if commands.push(command(CommandKind::Add, hits)) {
+                state = InstanceState::Active;
+                stats.omitted_to_active += 1;
+            } else {
+                overflow = true;
+            }
+        } else if state == InstanceState::Active && m.has_blas() && hits < th.sigma_o {
+            // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
+            if commands.push(command(CommandKind::Remove, hits)) {
+                state = InstanceState::Omitted;
+                stats.active_to_omitted += 1;
+            } else {
+                overflow = true;
             }
         }
-
-        stats.overflowed += u32::from(overflow);
-        if state != old {
-            m.set_state(state);
-        }
     }
-    Ok(stats)
+
+    stats.overflowed += u32::from(overflow);
+    if state != old {
+        m.set_state(state);
+    }
 }
 
 #[cfg(test)]

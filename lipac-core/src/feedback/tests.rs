@@ -764,6 +764,116 @@ fn split_hot_array_gives_the_records_outcome_and_the_escape_sums() {
     assert!(moved > 1000, "{moved} transitions");
 }
 
+/// The chunked fast paths (8 slots at a time: a chunk without hits skipped
+/// in lines 1–6, a chunk's fast-path slots skipped in lines 14–38) on a
+/// coherent scene where they fire: runs of 16 slots per hitbox, mostly in
+/// agreement with it, zero hits on inactive slots, a few dead, pinned,
+/// out-of-range and contradicting slots, and a slot count that leaves a
+/// tail. Over frames, the state carried forward, against the verbatim
+/// pre-split reference.
+#[test]
+fn chunked_fast_paths_match_the_reference_on_a_coherent_scene() {
+    use lipac_test_support::{Rng64, XorShift64};
+    let mut rng = XorShift64::new(0xC0_4E5E);
+    let n_hitboxes = 70u32;
+    let n = 16 * n_hitboxes as usize + 13; // not a multiple of 8
+    let mut hitboxes: Vec<HitboxRecord> = (0..n_hitboxes)
+        .map(|_| hitbox(rng.below_u32(4) == 0))
+        .collect();
+    let mut records: Vec<InstanceRecord> = (0..n)
+        .map(|slot| {
+            let hb = if rng.below_u32(10) == 0 {
+                rng.below_u32(n_hitboxes + 1) // scattered, some out of range
+            } else {
+                (slot / 16) as u32 % n_hitboxes
+            };
+            let unique = rng.below_u32(7) == 0;
+            let active_hb = hitboxes.get(hb as usize).is_some_and(|h| h.is_active());
+            let agree = rng.below_u32(50) != 0;
+            let state = match (active_hb == agree, unique, rng.below_u32(2)) {
+                (true, true, 0) => InstanceState::Omitted,
+                (true, _, _) => InstanceState::Active,
+                (false, _, _) => InstanceState::Inactive,
+            };
+            let mut packed = instance_bits::ALIVE | instance_bits::HAS_BLAS;
+            if unique {
+                packed |= instance_bits::UNIQUE_BLAS;
+            }
+            match rng.below_u32(100) {
+                0 => packed &= !instance_bits::ALIVE,
+                1 => packed |= instance_bits::PINNED,
+                2 => packed |= instance_bits::STATE_MASK, // the unused value 3
+                _ => {}
+            }
+            let mut r = InstanceRecord {
+                hitbox: hb,
+                packed,
+                blas: 0xB1A5,
+                ..Default::default()
+            };
+            if packed & instance_bits::STATE_MASK != instance_bits::STATE_MASK {
+                r.set_state(state);
+            }
+            r
+        })
+        .collect();
+    let mut hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
+    let mut split_hb = hitboxes.clone();
+    let (mut quiet_chunks, mut moved) = (0, 0);
+    for frame in 0..12 {
+        let hits: Vec<u32> = records
+            .iter()
+            .map(|r| match r.state() {
+                InstanceState::Inactive => 0,
+                _ if rng.below_u32(20) == 0 => rng.below_u32(2000),
+                _ => rng.below_u32(2 * TH.sigma_o),
+            })
+            .collect();
+        quiet_chunks += hits
+            .chunks_exact(8)
+            .filter(|c| c.iter().all(|&h| h == 0))
+            .count();
+        crate::assembly::begin_frame(&mut hitboxes);
+        crate::assembly::begin_frame(&mut split_hb);
+        for (i, (a, b)) in hitboxes.iter_mut().zip(split_hb.iter_mut()).enumerate() {
+            let x = (i as u32 + frame).wrapping_mul(2_654_435_761) >> 22; // 0..1024
+            let box_hits = if x < 30 { 2500 } else { x };
+            a.add_hits(box_hits);
+            b.add_hits(box_hits);
+        }
+        let capacity = [1000, 7][frame as usize % 2];
+        let mut ref_cmds = CommandBuffer::new(capacity);
+        let want =
+            reference_process_records(&mut records, &hits, None, &mut hitboxes, &TH, &mut ref_cmds)
+                .unwrap();
+        let mut cmds = CommandBuffer::new(capacity);
+        let before: Vec<InstanceHot> = hot.clone();
+        let got = process_feedback(&mut hot, &hits, &mut split_hb, &TH, &mut cmds).unwrap();
+        let what = format!("frame {frame}");
+        assert_eq!(
+            FeedbackStats {
+                box_hits: 0,
+                traced_hits: 0,
+                ..got
+            },
+            want,
+            "{what}"
+        );
+        let ref_hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
+        assert_eq!(hot, ref_hot, "{what}");
+        assert_eq!(cmds.words(), ref_cmds.words(), "{what}");
+        assert_eq!(cmds.requested(), ref_cmds.requested(), "{what}");
+        assert_eq!(
+            bytemuck::cast_slice::<_, u32>(&split_hb),
+            bytemuck::cast_slice::<_, u32>(&hitboxes),
+            "{what}"
+        );
+        moved += before.iter().zip(&hot).filter(|(a, b)| a != b).count();
+    }
+    assert!(quiet_chunks > 100, "{quiet_chunks} chunks without hits");
+    assert!(moved > 50, "{moved} transitions");
+}
+
 mod decayed {
     use super::*;
     use crate::layout::InstanceState;
