@@ -71,29 +71,6 @@ fn one_add() -> Vec<u8> {
     )
 }
 
-fn err_of(bytes: &[u8], limits: TraceLimits) -> TraceError {
-    let mut r = match TraceReader::with_limits(bytes, limits) {
-        Ok(r) => r,
-        Err(e) => return e,
-    };
-    loop {
-        match r.next_frame() {
-            Ok(Some(_)) => {}
-            Ok(None) => panic!("trace parsed without error"),
-            Err(e) => return e,
-        }
-    }
-}
-
-fn err(bytes: &[u8]) -> TraceError {
-    err_of(bytes, TraceLimits::default())
-}
-
-fn patch(mut b: Vec<u8>, at: usize, with: &[u8]) -> Vec<u8> {
-    b[at..at + with.len()].copy_from_slice(with);
-    b
-}
-
 #[test]
 fn layout_offsets_used_here_match_the_writer() {
     let b = one_add();

@@ -72,29 +72,6 @@ const EVENT0: usize = PAYLOAD0 + 8 + 36 + 4;
 const ADD_SLOT_BYTES: usize = 1 + 8 + 4 + 4 + 4 + 1 + 4 + 72;
 const ADD_OPTIONS: usize = 1 + 8 + 4 + 4 + 4;
 
-fn err_of(bytes: &[u8], limits: TraceLimits) -> TraceError {
-    let mut r = match TraceReader::with_limits(bytes, limits) {
-        Ok(r) => r,
-        Err(e) => return e,
-    };
-    loop {
-        match r.next_frame() {
-            Ok(Some(_)) => {}
-            Ok(None) => panic!("trace parsed without error"),
-            Err(e) => return e,
-        }
-    }
-}
-
-fn err(bytes: &[u8]) -> TraceError {
-    err_of(bytes, TraceLimits::default())
-}
-
-fn patch(mut b: Vec<u8>, at: usize, with: &[u8]) -> Vec<u8> {
-    b[at..at + with.len()].copy_from_slice(with);
-    b
-}
-
 /// One frame: instance 1 in slot 0 at x = 1 (hitbox 36), instance 2 in
 /// slot 1; hits by slot `[5, 0, 0]` and counting boxes of hitboxes 36, 37.
 fn base() -> (Vec<u8>, usize) {

@@ -525,3 +525,30 @@ pub fn read_jsonl(bytes: &[u8]) -> Result<(TraceHeader, Vec<Frame>), TraceError>
     }
     Ok((r.header().clone(), frames))
 }
+
+/// The first error reading `bytes` under `limits` gives (header or
+/// frames); panics if the whole trace reads without one.
+pub fn err_of(bytes: &[u8], limits: TraceLimits) -> TraceError {
+    let mut r = match TraceReader::with_limits(bytes, limits) {
+        Ok(r) => r,
+        Err(e) => return e,
+    };
+    loop {
+        match r.next_frame() {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("trace parsed without error"),
+            Err(e) => return e,
+        }
+    }
+}
+
+/// [`err_of`] under the default limits.
+pub fn err(bytes: &[u8]) -> TraceError {
+    err_of(bytes, TraceLimits::default())
+}
+
+/// `b` with `with` written over it at byte `at`.
+pub fn patch(mut b: Vec<u8>, at: usize, with: &[u8]) -> Vec<u8> {
+    b[at..at + with.len()].copy_from_slice(with);
+    b
+}
