@@ -377,8 +377,9 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
                     data,
                     data_offsets: offsets,
                     image: &image,
+                    hitbox_bounds: lipac.hitbox_bounds(),
                 })?;
-                tracer.record(rec, &bindings, &view)?;
+                tracer.record(rec, &bindings, &view, &lipac.merged_boxes())?;
                 if let Some(staging) = &staging {
                     overwrite_hits(rec, staging, hits);
                 }
