@@ -9,7 +9,10 @@ use bytemuck::{Pod, Zeroable};
 use lipac_core::assembly::AssemblyConfig;
 use lipac_core::hitbox_tree::HitboxTree;
 
-/// The merged-box parameters of a frame (see the [module docs](self)).
+/// The merged-box parameters of a frame: the values of
+/// `lipac_counting.glsl`'s `LIPAC_GRID_NX`, `LIPAC_GRID_NZ`,
+/// `LIPAC_ADAPTIVE_LEVELS`, `LIPAC_SBT_MERGED_BOX` and
+/// `LIPAC_MIN_BOX_EXTENT`, pushable as is (five 32-bit words in this order).
 /// [`MergedBoxes::OFF`] (all zero, `levels == 0`): the TLAS has no merged
 /// boxes and the include takes its leaf-only path.
 #[repr(C)]

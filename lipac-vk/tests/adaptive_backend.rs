@@ -521,3 +521,61 @@ fn adaptive_frame_loop(h: &HeadlessContext, levels: u8) {
     drop((submitter, lipac, tracer, image));
     assert_no_validation_errors(h);
 }
+
+/// `CameraTracer::record` refuses merged boxes over a grid larger than the
+/// bound hitbox records or bounds (the shader would read past them).
+#[test]
+fn camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers() {
+    let Some(h) = headless("camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers") else {
+        return;
+    };
+    let ctx = h.context();
+    let tracer = CameraTracer::new(ctx, &lipac_vk::CountingBoxConfig::default()).unwrap();
+    // One zeroed record: BLAS 0, an inactive instance.
+    let (tlas, _inputs) = build_tlas(&h, &[bytemuck::Zeroable::zeroed()]);
+    let host = MemoryLocation::GpuToCpu;
+    let small = |n: usize| Buffer::new(ctx, 16 * n as u64, STORAGE, host).unwrap();
+    let (records, bounds, words) = (small(NX as usize * NZ as usize), small(6), small(4));
+    let image = Buffer::new(ctx, u64::from(WIDTH * HEIGHT) * 4, STORAGE, host).unwrap();
+    let bindings = tracer
+        .bind(&CameraTraceBuffers {
+            tlas: &tlas,
+            instance_hits: &words,
+            hitboxes: &records,
+            data: &words,
+            data_offsets: &words,
+            image: &image,
+            hitbox_bounds: &bounds,
+        })
+        .unwrap();
+    let mut view = random_view(&mut SplitMix64::new(1), 1);
+    view.shadows = false;
+    let merged = MergedBoxes {
+        grid_nx: 3,
+        grid_nz: 3,
+        levels: 1,
+        merged_sbt_offset: 3,
+        min_box_extent: 0.0,
+    };
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let e = one_shot.run(|rec| tracer.record(rec, &bindings, &view, &merged));
+    assert!(
+        matches!(e, Err(lipac_vk::VkError::InvalidArgument(_))),
+        "{e:?}"
+    );
+    // A grid of 6 hitboxes fits; the leaf-only setting reads none.
+    for ok in [
+        MergedBoxes {
+            grid_nx: 3,
+            grid_nz: 2,
+            ..merged
+        },
+        MergedBoxes::OFF,
+    ] {
+        one_shot
+            .run(|rec| tracer.record(rec, &bindings, &view, &ok))
+            .unwrap();
+    }
+    drop((bindings, tracer));
+    assert_no_validation_errors(&h);
+}
