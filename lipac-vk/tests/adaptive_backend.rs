@@ -20,11 +20,10 @@
 mod common;
 
 use std::collections::BTreeSet;
-use std::f32::consts::FRAC_PI_2;
 
 use ash::vk;
 use common::*;
-use glam::{Affine3A, Quat, Vec3};
+use glam::Vec3;
 use lipac_core::assembly::assemble_tlas_adaptive;
 use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
@@ -33,14 +32,13 @@ use lipac_core::hitbox_tree::AdaptiveHitboxes;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::layout::{tlas_multiset, HitboxRecord, TlasInstance};
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
-use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     hitbox_bounds, Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter, GpuBlas,
-    GpuTlas, HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, MergedBoxes, OneShot, Polled,
-    ScratchBuffer, TriangleGeometry,
+    HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, MergedBoxes, OneShot, Polled,
+    TriangleGeometry,
 };
 
 const FRAMES: u64 = 20;
@@ -51,21 +49,6 @@ const DATA_BYTES: u64 = 16;
 const WIDTH: u32 = 48;
 const HEIGHT: u32 = 32;
 const STORAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
-
-/// A horizontal 6 m tile (the test mesh, rotated into the x/z plane) at
-/// `(x, y, z)`.
-fn tile(x: f32, y: f32, z: f32) -> (Affine3A, Aabb) {
-    let at = Vec3::new(x, y, z);
-    let t = Affine3A::from_scale_rotation_translation(
-        Vec3::splat(3.0),
-        Quat::from_rotation_x(-FRAC_PI_2),
-        at,
-    );
-    (
-        t,
-        Aabb::new(at - Vec3::new(3.0, 0.5, 3.0), at + Vec3::new(3.0, 0.5, 3.0)),
-    )
-}
 
 /// One manager's side of the scene: the same script runs on both.
 struct Scene {
@@ -199,20 +182,6 @@ fn manager(cube: u64, align: u64, catalog: &MeshCatalog, commands: u32, levels: 
         ..SchedulerConfig::default()
     };
     Manager::new(grid(), mc, catalog.clone()).unwrap()
-}
-
-/// A TLAS over `records` (at least one record's room), built and waited for.
-fn build_tlas(h: &HeadlessContext, records: &[TlasInstance]) -> (GpuTlas, Buffer) {
-    let ctx = h.context();
-    let instances = Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, records).unwrap();
-    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    let mut tlas = GpuTlas::new(ctx, (records.len() as u32).max(1), fast).unwrap();
-    let mut scratch = ScratchBuffer::new(ctx);
-    let mut one_shot = OneShot::new(ctx).unwrap();
-    let _retired = one_shot
-        .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
-        .unwrap();
-    (tlas, instances)
 }
 
 /// What a trace left: hitbox records, per-slot counters, image.
