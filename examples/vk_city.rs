@@ -432,8 +432,9 @@ pub fn record_frame(
         data,
         data_offsets: offsets,
         image,
+        hitbox_bounds: lipac.hitbox_bounds(),
     })?;
-    tracer.record(rec, &bindings, view)?;
+    tracer.record(rec, &bindings, view, &lipac.merged_boxes())?;
     lipac.retire_after_frame(bindings); // destroyed once the GPU passed it
     lipac.record_feedback(rec)?;
     Ok(recorded)

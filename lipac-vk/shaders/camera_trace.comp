@@ -7,6 +7,10 @@
 // Hit counting as an engine ships it: instance boxes and committed real hits
 // into the per-slot u32 counters, hitbox boxes straight into the
 // HitboxRecord buffer (LIPAC_HITBOX_RECORDS) that Algorithm 2 reads.
+// Adaptive hitboxes: merged counting boxes are resolved to their leaf
+// hitboxes' boxes as in trace_merged.comp (LIPAC_SBT_MERGED_BOX and friends,
+// from push constants: lipac_vk::MergedBoxes, adaptiveLevels 0 = off, the
+// leaf-only path), reading the hitbox records and bounds (binding 6).
 // Shading reads the instance's geometry data (an RGBA albedo, 4 floats) at
 // dataOffsets[customIndex], the range lipac-vk's LipacVk keeps per slot.
 #extension GL_EXT_ray_query : require
@@ -26,6 +30,7 @@ layout(std430, set = 0, binding = 2) buffer Hitboxes { LipacHitboxRecord hitboxe
 layout(std430, set = 0, binding = 3) readonly buffer Data { uint dataWords[]; };
 layout(std430, set = 0, binding = 4) readonly buffer DataOffsets { uint dataOffsets[]; };
 layout(std430, set = 0, binding = 5) writeonly buffer Image { uint pixels[]; };
+layout(std430, set = 0, binding = 6) readonly buffer HitboxBounds { vec4 hitboxBounds[]; };
 
 layout(push_constant) uniform Push {
     vec4 originTMax;   // xyz eye, w tMax
@@ -37,6 +42,12 @@ layout(push_constant) uniform Push {
     uint height;
     uint seed;
     uint passes;       // bit 0: shadow rays, bit 1: diffuse bounce
+    // lipac_vk::MergedBoxes (adaptiveLevels 0: no merged boxes)
+    uint gridNx;
+    uint gridNz;
+    uint adaptiveLevels;
+    uint mergedSbt;
+    float minBoxExtent;
 } pc;
 
 #define LIPAC_SBT_OMITTED_BOX SBT_OMITTED_BOX
@@ -45,6 +56,12 @@ layout(push_constant) uniform Push {
 #define LIPAC_COUNT_INSTANCE(i) if ((i) < uint(instanceHits.length())) { atomicAdd(instanceHits[(i)], 1u); }
 #define LIPAC_HITBOX_RECORDS hitboxes
 #define LIPAC_COUNT_COMMITTED_HITS
+#define LIPAC_SBT_MERGED_BOX pc.mergedSbt
+#define LIPAC_HITBOX_BOUNDS hitboxBounds
+#define LIPAC_GRID_NX pc.gridNx
+#define LIPAC_GRID_NZ pc.gridNz
+#define LIPAC_ADAPTIVE_LEVELS pc.adaptiveLevels
+#define LIPAC_MIN_BOX_EXTENT pc.minBoxExtent
 #include "lipac_counting.glsl"
 
 uint hash(uint x) {

@@ -44,60 +44,6 @@ layout(push_constant) uniform AssemblyPush {
 #define LIPAC_FOR_EACH(i, count) \
     for (uint i = gl_GlobalInvocationID.x; i < (count); i += gl_NumWorkGroups.x * gl_WorkGroupSize.x)
 
-// f32::next_up for finite x (lipac_core::assembly::next_up), on bits so that
-// denormal flushing cannot change the comparison.
-float lipacNextUp(float x) {
-    uint b = floatBitsToUint(x);
-    if ((b & 0x7FFFFFFFu) == 0u) {
-        return uintBitsToFloat(1u);
-    }
-    return uintBitsToFloat((b & 0x80000000u) == 0u ? b + 1u : b - 1u);
-}
-
-// lipac_core::assembly::axis_map, the same f32 operations in the same order
-// (`precise`: no contraction into fma, no reassociation).
-bool lipacAxisMap(float loIn, float hiIn, float minExtent, out float t, out float s) {
-    t = 0.0;
-    s = 0.0;
-    precise float lo = loIn;
-    precise float hi = hiIn;
-    if (!lipacIsFiniteBits(floatBitsToUint(lo)) || !lipacIsFiniteBits(floatBitsToUint(hi))) {
-        return false;
-    }
-    if (hi < lo) {
-        precise float tmp = lo;
-        lo = hi;
-        hi = tmp;
-    }
-    precise float d = hi - lo;
-    if (d < minExtent) {
-        precise float pad = (minExtent - d) * 0.5;
-        lo = lo - pad;
-        hi = hi + pad;
-    }
-    float up = lipacNextUp(lo);
-    if (up > hi) {
-        hi = up;
-    }
-    if (!lipacIsFiniteBits(floatBitsToUint(lo)) || !lipacIsFiniteBits(floatBitsToUint(hi))) {
-        return false;
-    }
-    precise float ss = hi - lo;
-    for (int k = 0; k < 32; ++k) {
-        if (!lipacIsFiniteBits(floatBitsToUint(ss))) {
-            return false;
-        }
-        precise float far = lo + ss;
-        if (far >= hi) {
-            t = lo;
-            s = ss;
-            return true;
-        }
-        ss = lipacNextUp(ss);
-    }
-    return false;
-}
-
 // Appends a unit-cube counting box over [mn, mx] (unit_cube_transform);
 // nothing when a corner is not finite.
 void lipacAppendCountingBox(vec3 mn, vec3 mx, uint customIndex, uint sbt) {

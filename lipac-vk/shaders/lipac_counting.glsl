@@ -44,11 +44,20 @@
 //                           hitbox bounds buffer
 //   LIPAC_GRID_NX, LIPAC_GRID_NZ, LIPAC_ADAPTIVE_LEVELS  uint: the grid and
 //                           the merge levels; LIPAC_MIN_BOX_EXTENT float:
-//                           AssemblyConfig::min_box_extent
+//                           AssemblyConfig::min_box_extent, sanitised (finite
+//                           and >= 0, else 0). lipac_vk::MergedBoxes holds all
+//                           five per frame (LipacVk::merged_boxes); typically
+//                           push constants, so that one shader serves both:
+//                           LIPAC_ADAPTIVE_LEVELS == 0 at run time takes the
+//                           leaf-only path below (one query) and no SBT offset
+//                           is taken for a merged box.
 // A merged box is resolved to its leaf hitboxes' boxes: the ray counts the
 // nearest leaf box it enters (as hitbox LIPAC_SBT_HITBOX_BOX, index = the
 // leaf), or meets no box there and goes on, so the counts are those of one
-// box per hitbox. The trace then takes two queries: the boxes alone (every
+// box per hitbox. Each leaf box is the one Algorithm 1 would emit for it
+// (lipacAxisMap, [t, t + s]), tested with the same slab arithmetic as a leaf
+// box met in the TLAS, so a ray meets the same leaf at the same distance as
+// in the TLAS without merging. The trace then takes two queries: the boxes alone (every
 // box face a candidate, gl_RayFlagsNoOpaqueEXT), then the closest real hit
 // with boxes masked out; the nearest box counts if it starts before that
 // hit, its start being its entry (tMin for a ray starting inside it), as in
@@ -96,7 +105,7 @@
 // Whether an instance SBT record offset marks a counting box.
 bool lipacIsCountingBox(uint sbtOffset) {
 #ifdef LIPAC_SBT_MERGED_BOX
-    if (sbtOffset == uint(LIPAC_SBT_MERGED_BOX)) {
+    if (uint(LIPAC_ADAPTIVE_LEVELS) != 0u && sbtOffset == uint(LIPAC_SBT_MERGED_BOX)) {
         return true;
     }
 #endif
@@ -107,6 +116,7 @@ bool lipacIsCountingBox(uint sbtOffset) {
 #ifndef LIPAC_HITBOX_RECORDS
 #error "lipac_counting.glsl: LIPAC_SBT_MERGED_BOX needs LIPAC_HITBOX_RECORDS"
 #endif
+#include "lipac_layout.glsl"
 // Entry and exit of the ray into [lo, hi], clipped to [tMin, tMax].
 bool lipacSlab(vec3 lo, vec3 hi, vec3 o, vec3 invD, float tMin, float tMax,
                out float tNear, out float tFar) {
@@ -158,12 +168,19 @@ bool lipacMergedLeaf(uint id, vec3 o, vec3 d, float tMin, float tMax,
             if ((h.packed & 1u) != 0u || minY > maxY) {
                 continue;
             }
+            // The leaf's box as Algorithm 1 emits it (lipacAxisMap per axis,
+            // [t, t + s]): bit for bit what lipacBoxEntry tests for the
+            // leaf's own box in a TLAS without merging.
             vec4 b = LIPAC_HITBOX_BOUNDS[i];
-            vec3 lo = vec3(b.x, minY, b.y);
-            vec3 hi = vec3(b.z, maxY, b.w);
-            vec3 pad = max(vec3(ext) - (hi - lo), vec3(0.0)) * 0.5;
+            float tx, sx, ty, sy, tz, sz;
+            if (!lipacAxisMap(b.x, b.z, ext, tx, sx) || !lipacAxisMap(minY, maxY, ext, ty, sy) ||
+                !lipacAxisMap(b.y, b.w, ext, tz, sz)) {
+                continue;
+            }
+            precise vec3 lo = vec3(tx, ty, tz);
+            precise vec3 hi = lo + vec3(sx, sy, sz);
             float tn, tf;
-            if (lipacSlab(lo - pad, hi + pad, o, invD, tMin, tMax, tn, tf) &&
+            if (lipacSlab(lo, hi, o, invD, tMin, tMax, tn, tf) &&
                 (!found || tn < tLeaf)) {
                 found = true;
                 tLeaf = tn;
@@ -211,7 +228,9 @@ struct LipacHit {
 // ray within [tMin, tMax]: its entry, or tMin from inside; false on a miss.
 bool lipacBoxEntry(mat4x3 m, vec3 o, vec3 invD, float tMin, float tMax, out float tIn,
                    out float tOut) {
-    return lipacSlab(m[3], m[3] + vec3(m[0].x, m[1].y, m[2].z), o, invD, tMin, tMax, tIn, tOut);
+    precise vec3 lo = m[3];
+    precise vec3 hi = lo + vec3(m[0].x, m[1].y, m[2].z);
+    return lipacSlab(lo, hi, o, invD, tMin, tMax, tIn, tOut);
 }
 
 // lipacTraceCounting with merged boxes (see the header).
@@ -317,7 +336,10 @@ LipacHit lipacTraceCountingMerged(accelerationStructureEXT tlas, uint rayFlags, 
 LipacHit lipacTraceCounting(accelerationStructureEXT tlas, uint rayFlags, uint cullMask,
                             vec3 origin, float tMin, vec3 direction, float tMax) {
 #ifdef LIPAC_SBT_MERGED_BOX
-    return lipacTraceCountingMerged(tlas, rayFlags, cullMask, origin, tMin, direction, tMax);
+    if (uint(LIPAC_ADAPTIVE_LEVELS) != 0u) {
+        return lipacTraceCountingMerged(tlas, rayFlags, cullMask, origin, tMin, direction,
+                                        tMax);
+    }
 #endif
     LipacHit res;
     res.hit = false;

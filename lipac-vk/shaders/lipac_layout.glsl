@@ -146,4 +146,61 @@ bool lipacIsNanBits(uint bits) {
     return (bits & 0x7F800000u) == 0x7F800000u && (bits & 0x007FFFFFu) != 0u;
 }
 
+// f32::next_up for finite x (lipac_core::assembly::next_up), on bits so that
+// denormal flushing cannot change the comparison.
+float lipacNextUp(float x) {
+    uint b = floatBitsToUint(x);
+    if ((b & 0x7FFFFFFFu) == 0u) {
+        return uintBitsToFloat(1u);
+    }
+    return uintBitsToFloat((b & 0x80000000u) == 0u ? b + 1u : b - 1u);
+}
+
+// lipac_core::assembly::axis_map, the same f32 operations in the same order
+// (`precise`: no contraction into fma, no reassociation): a counting box's
+// unit-cube map along one axis, translation t and scale s, the box being
+// [t, t + s] as the hardware evaluates it. Algorithm 1 emits boxes with it;
+// lipac_counting.glsl resolves merged boxes to their leaves' boxes with it.
+bool lipacAxisMap(float loIn, float hiIn, float minExtent, out float t, out float s) {
+    t = 0.0;
+    s = 0.0;
+    precise float lo = loIn;
+    precise float hi = hiIn;
+    if (!lipacIsFiniteBits(floatBitsToUint(lo)) || !lipacIsFiniteBits(floatBitsToUint(hi))) {
+        return false;
+    }
+    if (hi < lo) {
+        precise float tmp = lo;
+        lo = hi;
+        hi = tmp;
+    }
+    precise float d = hi - lo;
+    if (d < minExtent) {
+        precise float pad = (minExtent - d) * 0.5;
+        lo = lo - pad;
+        hi = hi + pad;
+    }
+    float up = lipacNextUp(lo);
+    if (up > hi) {
+        hi = up;
+    }
+    if (!lipacIsFiniteBits(floatBitsToUint(lo)) || !lipacIsFiniteBits(floatBitsToUint(hi))) {
+        return false;
+    }
+    precise float ss = hi - lo;
+    for (int k = 0; k < 32; ++k) {
+        if (!lipacIsFiniteBits(floatBitsToUint(ss))) {
+            return false;
+        }
+        precise float far = lo + ss;
+        if (far >= hi) {
+            t = lo;
+            s = ss;
+            return true;
+        }
+        ss = lipacNextUp(ss);
+    }
+    return false;
+}
+
 #endif // LIPAC_LAYOUT_GLSL

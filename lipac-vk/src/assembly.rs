@@ -312,12 +312,14 @@ impl AssemblyPipeline {
     /// [`Self::record`] with adaptive hitboxes: with `tree`, the hitbox
     /// boxes are merged over cold quadtree nodes as
     /// [`lipac_core::assembly::assemble_tlas_adaptive`] does (one more
-    /// pass, `assemble_merged.comp`); `None` is [`Self::record`].
+    /// pass, `assemble_merged.comp`) over the first `nx · nz` hitbox records
+    /// (the tree's grid; records beyond it, spare capacity, are left alone);
+    /// `None` is [`Self::record`].
     ///
     /// # Errors
     ///
     /// As [`Self::record`]; [`VkError::InvalidArgument`] when the tree's
-    /// grid has another cell count than the hitbox buffer.
+    /// grid has more cells than the hitbox buffer has records.
     pub fn record_adaptive(
         &self,
         rec: &mut Recorder<'_>,
@@ -329,7 +331,7 @@ impl AssemblyPipeline {
         let (grid_nx, grid_nz, adaptive_levels, merged_sbt) = match tree {
             Some(t) => {
                 let (nx, nz) = t.leaf_dims();
-                if u64::from(nx) * u64::from(nz) != u64::from(bindings.hitboxes) {
+                if u64::from(nx) * u64::from(nz) > u64::from(bindings.hitboxes) {
                     return Err(VkError::InvalidArgument(format!(
                         "adaptive hitbox tree over {nx} x {nz} cells but {} hitbox records",
                         bindings.hitboxes
@@ -343,6 +345,12 @@ impl AssemblyPipeline {
                 )
             }
             None => (1, 1, 0, 0),
+        };
+        // The tree's grid (at most the buffer's records, checked above).
+        let hitbox_count = if tree.is_some() {
+            grid_nx * grid_nz
+        } else {
+            bindings.hitboxes
         };
         if slot_count > bindings.slots {
             return Err(VkError::InvalidArgument(format!(
@@ -367,7 +375,7 @@ impl AssemblyPipeline {
             hitbox_sbt: config.hitbox_sbt_offset,
             min_extent,
             instance_count: slot_count,
-            hitbox_count: bindings.hitboxes,
+            hitbox_count,
             tlas_capacity: bindings.tlas_capacity,
             adaptive_levels,
             grid_nx,
@@ -387,17 +395,17 @@ impl AssemblyPipeline {
         record_zero(rec, bindings.tlas_counter, 0, 4);
         let sets = &bindings.set;
         self.kernels
-            .dispatch(rec, sets, RESET, push, bindings.hitboxes)?;
+            .dispatch(rec, sets, RESET, push, hitbox_count)?;
         compute_to_compute(rec, true);
         self.kernels
             .dispatch(rec, sets, INSTANCES, push, slot_count)?;
         compute_to_compute(rec, false);
         self.kernels
-            .dispatch(rec, sets, HITBOXES, push, bindings.hitboxes)?;
+            .dispatch(rec, sets, HITBOXES, push, hitbox_count)?;
         if adaptive_levels > 0 {
             compute_to_compute(rec, false);
             self.kernels
-                .dispatch(rec, sets, MERGED, push, bindings.hitboxes)?;
+                .dispatch(rec, sets, MERGED, push, hitbox_count)?;
         }
         compute_to_everything(rec);
         Ok(())

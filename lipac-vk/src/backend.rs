@@ -13,6 +13,7 @@ use crate::feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 use crate::hitbox_tables::HitboxTables;
 use crate::lifetimes::{Retirement, TlasPair};
 use crate::memory::{Buffer, MemoryLocation, ScratchBuffer};
+use crate::merged_boxes::MergedBoxes;
 use crate::readback::{CommandReadback, CommandReadbackRing};
 use crate::timeline::TimelineSemaphore;
 use crate::tlas::GpuTlas;
@@ -333,6 +334,8 @@ struct FrameInProgress {
 ///     uploads, hit counters cleared, GPU Algorithm 1, TLAS build
 /// engine: its own ray-query passes with lipac_counting.glsl, reading
 ///     lipac.tlas(), counting into lipac.instance_hits() / hitbox_records()
+///     (with adaptive hitboxes also reading hitbox_bounds(), with the
+///     frame's merged_boxes() as push constants)
 /// signal = lipac.record_feedback(rec)
 ///     GPU Algorithm 2, read-back copies (commands, hit counters, TLAS count)
 /// engine: submit, signalling (lipac.timeline(), signal.value)
@@ -373,6 +376,8 @@ pub struct LipacVk {
     extras: Vec<Option<ReadbackExtra>>,
     in_progress: Option<FrameInProgress>,
     frames: u64,
+    /// The merged-box parameters of the last recorded frame.
+    merged: MergedBoxes,
 }
 
 fn buffer(ctx: &DeviceContext, bytes: u64, usage: vk::BufferUsageFlags) -> Result<Buffer> {
@@ -487,6 +492,7 @@ impl LipacVk {
             data: None,
             in_progress: None,
             frames: 0,
+            merged: MergedBoxes::OFF,
         })
     }
 
@@ -555,6 +561,25 @@ impl LipacVk {
     /// ([`RecordedFrame::hitbox_tables_grew`]): bind it per frame.
     pub fn hitbox_records(&self) -> &Buffer {
         self.hitbox.records()
+    }
+
+    /// The hitbox bounds (`LIPAC_HITBOX_BOUNDS` of the engine's shaders:
+    /// per hitbox its cell's x/z bounds as a `vec4`, lo.x, lo.z, hi.x,
+    /// hi.z), read to resolve merged boxes ([`LipacVk::merged_boxes`]).
+    /// Replaced together with [`LipacVk::hitbox_records`]: bind it per frame.
+    pub fn hitbox_bounds(&self) -> &Buffer {
+        self.hitbox.bounds()
+    }
+
+    /// The merged-box parameters of the TLAS of the last
+    /// [`LipacVk::record_frame`] (the values of `lipac_counting.glsl`'s
+    /// `LIPAC_GRID_NX`, `LIPAC_GRID_NZ`, `LIPAC_ADAPTIVE_LEVELS`,
+    /// `LIPAC_SBT_MERGED_BOX`, `LIPAC_MIN_BOX_EXTENT`): on when the
+    /// manager's [`lipac_core::culling::CullingConfig::adaptive_hitboxes`]
+    /// is, [`MergedBoxes::OFF`] otherwise and before the first frame. The
+    /// engine's tracer pushes them with the frame's trace.
+    pub fn merged_boxes(&self) -> MergedBoxes {
+        self.merged
     }
 
     /// Hitboxes the hitbox tables hold now (at least the manager's
@@ -691,7 +716,15 @@ impl LipacVk {
     /// [`LipacVk::record_feedback`] is missing, the manager's assembly
     /// configuration does not match this object's counting boxes or
     /// unit cube, its command capacity or a data offset exceeds what the
-    /// GPU tables address, or as [`PlanExecutor::record`]; Vulkan errors.
+    /// GPU tables address, adaptive hitboxes are on without a dense grid
+    /// (the hashed index stays leaf-only), or as [`PlanExecutor::record`];
+    /// Vulkan errors.
+    ///
+    /// With the manager's adaptive hitboxes on, Algorithm 1 merges cold
+    /// quadtree nodes into one box each
+    /// ([`AssemblyPipeline::record_adaptive`] with
+    /// [`Manager::hitbox_tree`]); the engine's tracer must then resolve them
+    /// ([`LipacVk::merged_boxes`], [`LipacVk::hitbox_bounds`]).
     pub fn record_frame<H: HitboxIndex>(
         &mut self,
         rec: &mut Recorder<'_>,
@@ -720,16 +753,26 @@ impl LipacVk {
                 self.unit_cube_address()
             )));
         }
-        if culling.adaptive_hitboxes.is_on() {
-            // AssemblyPipeline::record_adaptive assembles them, but the
-            // counting shaders do not resolve merged boxes yet.
+        // Adaptive hitboxes: the manager's quadtree over the dense grid.
+        let tree = manager.hitbox_tree();
+        if culling.adaptive_hitboxes.is_on() && tree.is_none() {
             return Err(VkError::InvalidArgument(
-                "adaptive hitboxes (CullingConfig::adaptive_hitboxes) are not supported by \
-                 lipac-vk's frame loop yet: set adaptive_hitboxes.levels = 0"
+                "adaptive hitboxes (CullingConfig::adaptive_hitboxes) need the dense grid \
+                 (HitboxGrid); the hashed index (HashedHitboxes) stays leaf-only: set \
+                 adaptive_hitboxes.levels = 0"
                     .into(),
             ));
         }
+        let merged = MergedBoxes::new(tree, a);
         let index = manager.registry().hitbox_index();
+        if merged.is_on() && merged.hitboxes_read() != u64::from(index.len()) {
+            return Err(VkError::InvalidArgument(format!(
+                "the adaptive hitbox tree covers {} x {} cells but the index has {} hitboxes",
+                merged.grid_nx,
+                merged.grid_nz,
+                index.len()
+            )));
+        }
         if manager.hitboxes().len() != index.len() as usize {
             return Err(VkError::InvalidArgument(format!(
                 "the manager has {} hitbox records for {} hitboxes",
@@ -861,7 +904,9 @@ impl LipacVk {
         // Algorithm 1 and the TLAS.
         self.feedback
             .record_clear_instance_hits(rec, &tables.feedback)?;
-        self.assembly.record(rec, &tables.assembly, a, slots)?;
+        self.assembly
+            .record_adaptive(rec, &tables.assembly, a, tree, slots)?;
+        self.merged = merged;
         let hitboxes = self.hitbox.count();
         let tlas_records = slots + hitboxes;
         self.tlas.record_build(

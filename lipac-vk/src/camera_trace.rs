@@ -6,6 +6,7 @@ use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
+use crate::merged_boxes::MergedBoxes;
 use crate::ray_query::RayQueryPipeline;
 use crate::shaders::CAMERA_TRACE_SPV;
 use crate::tlas::GpuTlas;
@@ -30,6 +31,9 @@ pub struct CameraTraceBuffers<'a> {
     pub data_offsets: &'a Buffer,
     /// `width × height` RGBA8 pixels (`u32`, row 0 at the top).
     pub image: &'a Buffer,
+    /// The hitbox bounds ([`crate::LipacVk::hitbox_bounds`]): read to
+    /// resolve merged boxes (adaptive hitboxes), bound always.
+    pub hitbox_bounds: &'a Buffer,
 }
 
 /// A descriptor set bound to one [`CameraTraceBuffers`]; keep it and the
@@ -39,6 +43,8 @@ pub struct CameraTraceBuffers<'a> {
 pub struct CameraTraceBindings {
     set: StorageSet,
     pixels: u64,
+    /// Hitboxes both the records and the bounds buffer hold.
+    hitboxes: u64,
 }
 
 /// One frame's camera for [`CameraTracer::record`].
@@ -80,6 +86,7 @@ struct Push {
     height: u32,
     seed: u32,
     passes: u32,
+    merged: MergedBoxes,
 }
 
 /// [`CameraTracer`]: a frame's rays generated and traced on the GPU
@@ -91,7 +98,10 @@ struct Push {
 /// [`crate::LipacVk::hitbox_records`]), shading from the instances'
 /// geometry data (4 `f32`: RGB albedo and one spare, at
 /// [`crate::LipacVk::instance_data_offsets`]). Writes one RGBA8 `u32` per
-/// pixel.
+/// pixel. With adaptive hitboxes ([`MergedBoxes`] on), a merged counting
+/// box is resolved to its leaf hitboxes' boxes (`lipac_counting.glsl`'s
+/// `LIPAC_SBT_MERGED_BOX` path, as `trace_merged.comp`): every ray counts the
+/// hitbox it would count with one box per hitbox.
 #[derive(Debug)]
 pub struct CameraTracer {
     pipeline: RayQueryPipeline,
@@ -113,7 +123,7 @@ impl CameraTracer {
                 ctx,
                 CAMERA_TRACE_SPV,
                 config,
-                5,
+                6,
                 std::mem::size_of::<Push>() as u32,
             )?,
         })
@@ -132,34 +142,49 @@ impl CameraTracer {
             buffers.data,
             buffers.data_offsets,
             buffers.image,
+            buffers.hitbox_bounds,
         ];
         let set = self.pipeline.bind(
             buffers.tlas,
             &storage,
             "STORAGE_BUFFER for a camera trace buffer",
         )?;
+        let hitboxes = (buffers.hitboxes.size()
+            / std::mem::size_of::<lipac_core::layout::HitboxRecord>() as u64)
+            .min(buffers.hitbox_bounds.size() / std::mem::size_of::<crate::HitboxBounds>() as u64);
         Ok(CameraTraceBindings {
             set,
             pixels: buffers.image.size() / 4,
+            hitboxes,
         })
     }
 
     /// Records the frame's trace, with a barrier before (the TLAS build and
     /// the cleared counters) and after (counters, hitbox records and image
-    /// visible to every later command and the host).
+    /// visible to every later command and the host). `merged` describes the
+    /// TLAS's merged boxes: [`crate::LipacVk::merged_boxes`] of the frame
+    /// ([`MergedBoxes::OFF`] for a TLAS without them).
     ///
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] when the image buffer is smaller than
-    /// `width × height` pixels or the dispatch is too large;
+    /// `width × height` pixels, the hitbox records or bounds hold fewer
+    /// hitboxes than `merged`'s grid, or the dispatch is too large;
     /// [`VkError::WrongContext`].
     pub fn record(
         &self,
         rec: &mut Recorder<'_>,
         bindings: &CameraTraceBindings,
         view: &CameraView,
+        merged: &MergedBoxes,
     ) -> Result<()> {
         self.pipeline.check_recorder(rec, &bindings.set)?;
+        if merged.hitboxes_read() > bindings.hitboxes {
+            return Err(VkError::InvalidArgument(format!(
+                "merged boxes over a {} x {} grid but the hitbox records and bounds hold {}",
+                merged.grid_nx, merged.grid_nz, bindings.hitboxes
+            )));
+        }
         let pixels = u64::from(view.width) * u64::from(view.height);
         let (gx, gy) = (view.width.div_ceil(TILE), view.height.div_ceil(TILE));
         if pixels == 0 || pixels > bindings.pixels || gx > 65_535 || gy > 65_535 {
@@ -178,6 +203,7 @@ impl CameraTracer {
             height: view.height,
             seed: view.seed,
             passes: u32::from(view.shadows) | (u32::from(view.bounce) << 1),
+            merged: *merged,
         };
         rec.memory_barrier(
             vk::PipelineStageFlags2::ALL_COMMANDS,

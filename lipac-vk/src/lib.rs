@@ -73,6 +73,7 @@ mod headless;
 mod hitbox_tables;
 mod lifetimes;
 mod memory;
+mod merged_boxes;
 mod merged_trace;
 mod ray_query;
 mod ray_query_test_pipeline;
@@ -118,6 +119,7 @@ pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
 pub use headless::{HeadlessContext, Validation};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
+pub use merged_boxes::MergedBoxes;
 pub use merged_trace::{MergedTraceBindings, MergedTraceBuffers, MergedTraceTestPipeline};
 pub use ray_query_test_pipeline::{
     GpuHit, GpuRay, HitboxCounting, RayQueryTestBindings, RayQueryTestBuffers, RayQueryTestPipeline,

@@ -11,6 +11,7 @@ use crate::context::DeviceContext;
 use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
+use crate::merged_boxes::MergedBoxes;
 use crate::ray_query::RayQueryPipeline;
 use crate::ray_query_test_pipeline::{GpuHit, GpuRay};
 use crate::shaders::TRACE_MERGED_SPV;
@@ -28,11 +29,7 @@ struct MergedPush {
     ray_count: u32,
     cull_mask: u32,
     ray_flags: u32,
-    grid_nx: u32,
-    grid_nz: u32,
-    levels: u32,
-    merged_sbt: u32,
-    min_box_extent: f32,
+    merged: MergedBoxes,
 }
 
 /// Buffers a [`MergedTraceTestPipeline`] trace reads and writes.
@@ -138,21 +135,11 @@ impl MergedTraceTestPipeline {
                 "{ray_count} rays in one dispatch"
             )));
         }
-        let (nx, nz) = tree.leaf_dims();
         let push = MergedPush {
             ray_count,
             cull_mask: u32::from(cull_mask),
             ray_flags,
-            grid_nx: nx,
-            grid_nz: nz,
-            levels: u32::from(tree.levels()),
-            merged_sbt: tree.config().merged_box_sbt_offset,
-            min_box_extent: if assembly.min_box_extent.is_finite() && assembly.min_box_extent > 0.0
-            {
-                assembly.min_box_extent
-            } else {
-                0.0
-            },
+            merged: MergedBoxes::new(Some(tree), assembly),
         };
         self.pipeline.dispatch(
             rec,

@@ -42,8 +42,8 @@ pub const FEEDBACK_INSTANCES_SPV: &[u8] = include_bytes!("../shaders/spv/feedbac
 pub const ESCAPE_SUMS_SPV: &[u8] = include_bytes!("../shaders/spv/escape_sums.spv");
 
 /// SPIR-V of `camera_trace.comp`: a frame's primary, shadow and bounce rays
-/// generated on the GPU through the counting include
-/// ([`crate::CameraTracer`]).
+/// generated on the GPU through the counting include, merged boxes of
+/// adaptive hitboxes resolved ([`crate::CameraTracer`]).
 pub const CAMERA_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/camera_trace.spv");
 
 /// GLSL source of `camera_trace.comp`: an engine-style ray-query pass with
@@ -70,9 +70,10 @@ pub const ALL_SPV: [(&str, &[u8]); 13] = [
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,
 /// `LipacHitboxRecord`, `LipacTlasInstance`) and bit constants as std430
-/// GLSL, and `LIPAC_HITBOX_ADD_HITS` (saturating hitbox hit count). Needed
-/// next to `lipac_counting.glsl` when an engine defines
-/// `LIPAC_HITBOX_RECORDS`.
+/// GLSL, `LIPAC_HITBOX_ADD_HITS` (saturating hitbox hit count) and
+/// `lipacAxisMap` (a counting box's unit-cube map). Needed next to
+/// `lipac_counting.glsl` when an engine defines `LIPAC_HITBOX_RECORDS` (and
+/// so for merged boxes, `LIPAC_SBT_MERGED_BOX`).
 pub const LIPAC_LAYOUT_GLSL: &str = include_str!("../shaders/lipac_layout.glsl");
 
 /// GLSL source of `trace_test.comp`.

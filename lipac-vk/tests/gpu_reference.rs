@@ -17,7 +17,7 @@ mod common;
 use ash::vk;
 use common::*;
 use glam::{Vec2, Vec3};
-use lipac_core::assembly::{assemble_tlas, sort_canonical, AssemblyConfig};
+use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
 use lipac_core::feedback::{FeedbackError, FeedbackStats};
 use lipac_core::hitbox_index::HitboxIndex;
@@ -398,18 +398,6 @@ impl Scene {
             .read(0, counter.min(capacity) as usize)
             .unwrap();
         (counter, words)
-    }
-}
-
-fn assert_tlas_equal(mut gpu: Vec<TlasInstance>, mut cpu: Vec<TlasInstance>, what: &str) {
-    assert_eq!(gpu.len(), cpu.len(), "{what}: record count");
-    sort_canonical(&mut gpu);
-    sort_canonical(&mut cpu);
-    for (i, (g, c)) in gpu.iter().zip(&cpu).enumerate() {
-        assert!(
-            bytemuck::bytes_of(g) == bytemuck::bytes_of(c),
-            "{what}: record {i} differs:\nGPU {g:?}\nCPU {c:?}"
-        );
     }
 }
 

@@ -14,11 +14,9 @@
 
 mod common;
 
-use std::f32::consts::FRAC_PI_2;
-
 use ash::vk;
 use common::*;
-use glam::{Affine3A, Quat, Vec3};
+use glam::Vec3;
 use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
@@ -26,7 +24,6 @@ use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::layout::tlas_multiset;
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
-use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, SplitMix64};
@@ -38,21 +35,6 @@ use lipac_vk::{
 const FRAMES: u64 = 22;
 const CELL: f32 = 16.0;
 const DATA_BYTES: u64 = 16;
-
-/// A horizontal 6 m tile (the test mesh, rotated into the x/z plane) at
-/// `(x, y, z)`.
-fn tile(x: f32, y: f32, z: f32) -> (Affine3A, Aabb) {
-    let at = Vec3::new(x, y, z);
-    let t = Affine3A::from_scale_rotation_translation(
-        Vec3::splat(3.0),
-        Quat::from_rotation_x(-FRAC_PI_2),
-        at,
-    );
-    (
-        t,
-        Aabb::new(at - Vec3::new(3.0, 0.5, 3.0), at + Vec3::new(3.0, 0.5, 3.0)),
-    )
-}
 
 /// A tile at a random spot of the cells `cx0..cx1` x `cz0..cz1`.
 fn random_desc(rng: &mut SplitMix64, cx: (u32, u32), cz: (u32, u32)) -> InstanceDesc {
@@ -377,8 +359,9 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
                     data,
                     data_offsets: offsets,
                     image: &image,
+                    hitbox_bounds: lipac.hitbox_bounds(),
                 })?;
-                tracer.record(rec, &bindings, &view)?;
+                tracer.record(rec, &bindings, &view, &lipac.merged_boxes())?;
                 if let Some(staging) = &staging {
                     overwrite_hits(rec, staging, hits);
                 }

@@ -379,3 +379,47 @@ pub fn compare_with_cpu(
     }
     (compared, hit_count)
 }
+
+/// Asserts that two TLAS record lists are the same multiset, bit for bit
+/// (both sorted canonically), naming the first differing record.
+pub fn assert_tlas_equal(mut gpu: Vec<TlasInstance>, mut cpu: Vec<TlasInstance>, what: &str) {
+    assert_eq!(gpu.len(), cpu.len(), "{what}: record count");
+    lipac_core::assembly::sort_canonical(&mut gpu);
+    lipac_core::assembly::sort_canonical(&mut cpu);
+    for (i, (g, c)) in gpu.iter().zip(&cpu).enumerate() {
+        assert!(
+            bytemuck::bytes_of(g) == bytemuck::bytes_of(c),
+            "{what}: record {i} differs:\nGPU {g:?}\nCPU {c:?}"
+        );
+    }
+}
+
+/// A fast-trace TLAS over `records` (room for at least one), built and
+/// waited for, with its instance buffer (keep it while tracing).
+pub fn build_tlas(h: &HeadlessContext, records: &[TlasInstance]) -> (GpuTlas, Buffer) {
+    let ctx = h.context();
+    let instances = Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, records).unwrap();
+    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
+    let mut tlas = GpuTlas::new(ctx, (records.len() as u32).max(1), fast).unwrap();
+    let mut scratch = ScratchBuffer::new(ctx);
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let _retired = one_shot
+        .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
+        .unwrap();
+    (tlas, instances)
+}
+
+/// A horizontal 6 m tile ([`Mesh::bumpy_grid`] scaled by 3, rotated into the
+/// x/z plane) at `(x, y, z)`, with its AABB (1 m high).
+pub fn tile(x: f32, y: f32, z: f32) -> (Affine3A, lipac_core::math::Aabb) {
+    let at = Vec3::new(x, y, z);
+    let t = Affine3A::from_scale_rotation_translation(
+        Vec3::splat(3.0),
+        glam::Quat::from_rotation_x(-std::f32::consts::FRAC_PI_2),
+        at,
+    );
+    (
+        t,
+        lipac_core::math::Aabb::new(at - Vec3::new(3.0, 0.5, 3.0), at + Vec3::new(3.0, 0.5, 3.0)),
+    )
+}
