@@ -253,7 +253,7 @@ pub fn unit_cube_transform(min: Vec3, max: Vec3, min_extent: f32) -> Option<[f32
     // one-step floor `next_up(lo) <= hi` holds, and its first iteration
     // returns `(lo, d)`: the same bits. `d` finite and positive also means
     // both corners are finite and `lo < hi`. Anything else takes `axis_map`.
-    let floor = if min_extent >= TINY && min_extent < f32::INFINITY {
+    let floor = if (TINY..f32::INFINITY).contains(&min_extent) {
         min_extent
     } else {
         TINY // d >= TINY is d > 0
