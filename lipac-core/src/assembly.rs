@@ -36,9 +36,12 @@ use glam::Vec3;
 use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::HitboxTree;
 use crate::layout::{
-    hitbox_bits, HitboxRecord, InstanceArrays, InstanceState, TlasInstance, MAX_SLOTS,
-    VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights,
+    InstanceHot, InstanceState, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE,
+    VK_INSTANCE_FORCE_OPAQUE,
 };
+
+mod height_keys;
 
 /// Instance flags of every counting box.
 pub const COUNTING_BOX_FLAGS: u8 = VK_INSTANCE_FORCE_OPAQUE | VK_INSTANCE_CULL_DISABLE;
@@ -242,7 +245,43 @@ fn axis_map(mut lo: f32, mut hi: f32, min_extent: f32) -> Option<(f32, f32)> {
 /// assert_eq!([m[0], m[5], m[10]], [1.0, 4.0, 0.5]); // scales (z padded to 0.5)
 /// assert_eq!([m[3], m[7], m[11]], [1.0, 2.0, 2.75]); // translations
 /// ```
+#[inline]
 pub fn unit_cube_transform(min: Vec3, max: Vec3, min_extent: f32) -> Option<[f32; 12]> {
+    // Common case, decided without a loop: on every axis `d = hi - lo` is
+    // finite, positive and at least the (sanitised) minimum extent, and
+    // `lo + d` reaches `hi`. Then `axis_map` neither swaps nor pads, the
+    // one-step floor `next_up(lo) <= hi` holds, and its first iteration
+    // returns `(lo, d)`: the same bits. `d` finite and positive also means
+    // both corners are finite and `lo < hi`. Anything else takes `axis_map`.
+    let floor = if (TINY..f32::INFINITY).contains(&min_extent) {
+        min_extent
+    } else {
+        TINY // d >= TINY is d > 0
+    };
+    let d = max - min;
+    let plain = |lo: f32, hi: f32, d: f32| d >= floor && d < f32::INFINITY && lo + d >= hi;
+    if plain(min.x, max.x, d.x) & plain(min.y, max.y, d.y) & plain(min.z, max.z, d.z) {
+        return Some([
+            d.x, 0.0, 0.0, min.x, //
+            0.0, d.y, 0.0, min.y, //
+            0.0, 0.0, d.z, min.z,
+        ]);
+    }
+    unit_cube_transform_general(min, max, min_extent)
+}
+
+/// Smallest positive f32 (a subnormal).
+const TINY: f32 = f32::from_bits(1);
+
+/// [`unit_cube_transform`] by `axis_map` on every axis, as the GLSL's
+/// `lipacAppendCountingBox` computes it; the fast path returns the same.
+#[cold]
+#[inline(never)]
+pub(crate) fn unit_cube_transform_general(
+    min: Vec3,
+    max: Vec3,
+    min_extent: f32,
+) -> Option<[f32; 12]> {
     let (tx, sx) = axis_map(min.x, max.x, min_extent)?;
     let (ty, sy) = axis_map(min.y, max.y, min_extent)?;
     let (tz, sz) = axis_map(min.z, max.z, min_extent)?;
@@ -324,104 +363,259 @@ pub fn assemble_tlas_adaptive(
         return Err(AssemblyError::TooManySlots(instances.len()));
     }
     out.clear();
-    begin_frame(hitboxes);
+    begin_frame_keys(hitboxes);
     let mut stats = AssemblyStats::default();
 
     // Pass 1: one GPU thread per slot, over the hot array. The arrays have
     // equal lengths (InstanceArrays); cut to it, indexing needs no check.
+    // The hitboxes' height fields hold reduction keys until pass 2.
+    //
+    // Per chunk of slots, first the reduction of the instances that count
+    // as inactive (three quarters of the slots on a typical frame), in a
+    // tight loop that only notes the slots that emit a record; then those
+    // slots' records, built in a chunk buffer and appended at once. The
+    // same records in the same order, the same bits as one loop.
     let hot = instances.hot();
     let n = hot.len();
     let (heights, cold) = (&instances.heights()[..n], &instances.cold()[..n]);
-    for slot in 0..n {
-        let m = hot[slot];
-        if !m.is_alive() {
-            continue;
-        }
-        // A pinned instance is active whatever its state bits and hitbox say.
-        let pinned = m.is_pinned();
-        let mut state = if pinned {
-            InstanceState::Active
-        } else {
-            m.state()
-        };
-        // An active or omitted instance whose hitbox is inactive counts as
-        // inactive here (see the module docs, "in an inactive hitbox").
-        if !pinned
-            && state != InstanceState::Inactive
-            && hitboxes
-                .get(m.hitbox as usize)
-                .is_some_and(|h| !h.is_active())
-        {
-            stats.in_inactive_hitbox += 1;
-            state = InstanceState::Inactive;
-        }
-        match state {
-            InstanceState::Active => {
-                if !m.has_blas() {
-                    stats.active_without_blas += 1;
-                    continue;
-                }
-                let c = &cold[slot];
-                out.push(TlasInstance::new(
-                    c.transform,
-                    slot as u32,
-                    m.mask(),
-                    c.sbt_offset,
-                    m.vk_flags(),
-                    c.blas,
-                ));
-                stats.active += 1;
-            }
-            InstanceState::Omitted => {
-                let c = &cold[slot];
-                let Some(transform) = unit_cube_transform(
-                    Vec3::from_array(c.aabb_min),
-                    Vec3::from_array(c.aabb_max),
-                    cfg.min_box_extent,
-                ) else {
-                    stats.invalid_instances += 1;
-                    continue;
-                };
-                out.push(TlasInstance::new(
-                    transform,
-                    slot as u32,
-                    cfg.counting_mask,
-                    cfg.omitted_box_sbt_offset,
-                    COUNTING_BOX_FLAGS,
-                    cfg.unit_cube_blas,
-                ));
-                stats.omitted_boxes += 1;
-            }
-            InstanceState::Inactive => {
-                let Some(h) = hitboxes.get_mut(m.hitbox as usize) else {
-                    stats.invalid_instances += 1;
-                    continue;
-                };
-                let y = &heights[slot];
-                // atomicMin / atomicMax on the GPU (f32 as ordered ints).
-                h.min_y = h.min_y.min(y.min_y);
-                h.max_y = h.max_y.max(y.max_y);
-                // atomicAdd on the GPU: what activating the hitbox brings in.
-                h.cost = h.cost.wrapping_add(if m.needs_unique_blas() {
-                    hitbox_bits::COST_UNIQUE
-                } else {
-                    hitbox_bits::COST_SHARED
-                });
-                stats.inactive += 1;
-            }
-        }
+    let mut counts = Pass1Counts::default();
+    let mut emit = [0u32; PASS1_CHUNK];
+    let mut records = [TlasInstance::default(); PASS1_CHUNK];
+    for start in (0..n).step_by(PASS1_CHUNK) {
+        let end = n.min(start + PASS1_CHUNK);
+        let emitting = reduce_chunk(
+            &hot[start..end],
+            &heights[start..end],
+            hitboxes,
+            &mut emit,
+            &mut counts,
+        );
+        let built = build_chunk(
+            hot,
+            cold,
+            start as u32,
+            &emit[..emitting],
+            cfg,
+            &mut records,
+            &mut counts,
+        );
+        out.extend_from_slice(&records[..built]);
     }
+    let Pass1Counts {
+        active,
+        without_blas,
+        omitted,
+        inactive,
+        in_inactive_hitbox,
+        invalid,
+    } = counts;
+    stats.active = active;
+    stats.active_without_blas = without_blas;
+    stats.omitted_boxes = omitted;
+    stats.inactive = inactive;
+    stats.in_inactive_hitbox = in_inactive_hitbox;
+    stats.invalid_instances = invalid;
 
-    // Pass 2: one GPU thread per hitbox (adaptive: see `crate::hitbox_tree`).
+    // Pass 2: one GPU thread per hitbox (adaptive: see `crate::hitbox_tree`),
+    // on the heights decoded from the keys (assemble_hitboxes.comp does too).
     match tree {
-        Some(tree) => tree.emit_boxes(hitboxes, index, cfg, out, &mut stats),
+        Some(tree) => {
+            hitboxes.iter_mut().for_each(decode_heights);
+            tree.emit_boxes(hitboxes, index, cfg, out, &mut stats);
+        }
         None => {
-            for (i, h) in hitboxes.iter().enumerate() {
+            for (i, h) in hitboxes.iter_mut().enumerate() {
+                decode_heights(h);
                 emit_leaf_box(i as u32, h, index, cfg, out, &mut stats);
             }
         }
     }
     Ok(stats)
+}
+
+/// Slots per chunk of pass 1 (the emitting slots' offsets and their records
+/// of one chunk are kept on the stack).
+const PASS1_CHUNK: usize = 256;
+
+/// Pass 1's counters, summed over the chunks.
+#[derive(Default)]
+struct Pass1Counts {
+    active: u32,
+    without_blas: u32,
+    omitted: u32,
+    inactive: u32,
+    in_inactive_hitbox: u32,
+    invalid: u32,
+}
+
+/// Pass 1, first half, for one chunk of at most [`PASS1_CHUNK`] slots:
+/// reduces every live instance that counts as inactive into its hitbox and
+/// notes the offsets (within the chunk) of the others, the slots that emit a
+/// record (or are left out: active without a BLAS, non-finite omitted
+/// AABB), in `emit`; returns how many. Dead slots are skipped.
+#[inline(never)]
+fn reduce_chunk(
+    hot: &[InstanceHot],
+    heights: &[InstanceHeights],
+    hitboxes: &mut [HitboxRecord],
+    emit: &mut [u32; PASS1_CHUNK],
+    counts: &mut Pass1Counts,
+) -> usize {
+    let len = hot.len().min(heights.len()).min(PASS1_CHUNK);
+    // The chunk's height keys, both halves of the shader's key computed in
+    // one vectorisable loop: (min_key, max_key) per slot.
+    let mut keys = [0u32; 2 * PASS1_CHUNK];
+    let bits: &[u32] = bytemuck::cast_slice(&heights[..len]);
+    for (k, b) in keys.chunks_exact_mut(2).zip(bits.chunks_exact(2)) {
+        k[0] = height_keys::min_key(b[0]);
+        k[1] = height_keys::max_key(b[1]);
+    }
+    let nh = hitboxes.len();
+    let (mut inactive, mut folded, mut invalid) = (0u32, 0u32, 0u32);
+    let mut emitting = 0;
+    let slots = hot[..len].iter().zip(keys.chunks_exact(2));
+    for (j, (m, k)) in (0u32..).zip(slots) {
+        let p = m.packed;
+        let hb = m.hitbox as usize;
+        let (lo, hi) = (k[0], k[1]);
+        let key = p & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
+        if key == instance_bits::ALIVE || key == instance_bits::ALIVE | 3 {
+            // Live, not pinned, state bits 0 or 3 (Inactive, see
+            // InstanceState::from_bits).
+            if hb < nh {
+                reduce_into_hitbox(&mut hitboxes[hb], lo, hi, p);
+                inactive += 1;
+            } else {
+                invalid += 1;
+            }
+        } else if p & instance_bits::ALIVE != 0 {
+            // Active or omitted (or pinned). An active or omitted instance
+            // whose hitbox is inactive counts as inactive (module docs, "in
+            // an inactive hitbox"); a pinned one is active whatever its state
+            // bits and hitbox say.
+            if p & instance_bits::PINNED == 0 && hb < nh && !hitboxes[hb].is_active() {
+                reduce_into_hitbox(&mut hitboxes[hb], lo, hi, p);
+                inactive += 1;
+                folded += 1;
+            } else {
+                // emitting < len <= PASS1_CHUNK: the mask only spares a check.
+                emit[emitting & (PASS1_CHUNK - 1)] = j;
+                emitting += 1;
+            }
+        }
+    }
+    counts.inactive += inactive;
+    counts.in_inactive_hitbox += folded;
+    counts.invalid += invalid;
+    emitting
+}
+
+/// Pass 1, second half: the records of the chunk's slots noted by
+/// [`reduce_chunk`] (offsets `emit` from slot `start`), in slot order, into
+/// `records`; returns how many. Active: its own record once its BLAS exists;
+/// omitted: a counting box over its AABB unless that is not finite.
+#[inline(never)]
+fn build_chunk(
+    hot: &[InstanceHot],
+    cold: &[InstanceCold],
+    start: u32,
+    emit: &[u32],
+    cfg: &AssemblyConfig,
+    records: &mut [TlasInstance; PASS1_CHUNK],
+    counts: &mut Pass1Counts,
+) -> usize {
+    let (mut active, mut without_blas, mut omitted, mut invalid) = (0u32, 0u32, 0u32, 0u32);
+    let mut built = 0;
+    for &offset in emit {
+        let slot = start + offset;
+        let s = slot as usize;
+        let m = hot[s];
+        let p = m.packed;
+        let record = if p & instance_bits::PINNED != 0
+            || p & instance_bits::STATE_MASK == InstanceState::Active as u32
+        {
+            if p & instance_bits::HAS_BLAS == 0 {
+                without_blas += 1;
+                continue;
+            }
+            let c = &cold[s];
+            active += 1;
+            TlasInstance::new(
+                c.transform,
+                slot,
+                m.mask(),
+                c.sbt_offset,
+                m.vk_flags(),
+                c.blas,
+            )
+        } else {
+            let c = &cold[s];
+            let Some(transform) = unit_cube_transform(
+                Vec3::from_array(c.aabb_min),
+                Vec3::from_array(c.aabb_max),
+                cfg.min_box_extent,
+            ) else {
+                invalid += 1;
+                continue;
+            };
+            omitted += 1;
+            TlasInstance::new(
+                transform,
+                slot,
+                cfg.counting_mask,
+                cfg.omitted_box_sbt_offset,
+                COUNTING_BOX_FLAGS,
+                cfg.unit_cube_blas,
+            )
+        };
+        // built < emit.len() <= PASS1_CHUNK: the mask only spares a check.
+        records[built & (PASS1_CHUNK - 1)] = record;
+        built += 1;
+    }
+    counts.active += active;
+    counts.without_blas += without_blas;
+    counts.omitted += omitted;
+    counts.invalid += invalid;
+    built
+}
+
+/// [`begin_frame`] with the height range as the empty reduction's keys
+/// ([`height_keys`]) instead of `(+∞, −∞)`, as `hitbox_reset.comp` writes it.
+fn begin_frame_keys(hitboxes: &mut [HitboxRecord]) {
+    const KEEP: u32 = (1 << hitbox_bits::HITS_SHIFT) - 1;
+    for h in hitboxes {
+        h.min_y = f32::from_bits(height_keys::MIN_KEY_EMPTY);
+        h.max_y = f32::from_bits(height_keys::MAX_KEY_EMPTY);
+        h.packed &= KEEP;
+        h.cost = 0;
+    }
+}
+
+/// Turns a hitbox's height keys back into f32 heights.
+#[inline(always)]
+fn decode_heights(h: &mut HitboxRecord) {
+    h.min_y = f32::from_bits(height_keys::from_min_key(h.min_y.to_bits()));
+    h.max_y = f32::from_bits(height_keys::from_max_key(h.max_y.to_bits()));
+}
+
+// The cost word's increment below reads the unique bit as bit 3.
+const _: () = assert!(instance_bits::UNIQUE_BLAS == 1 << 3);
+
+/// Reduces an inactive instance into its hitbox: `atomicMin` / `atomicMax`
+/// on the GPU, here `min`/`max` of the keys (NaN heights never win; −0 is
+/// below +0 as in the shader), and the cost word (`atomicAdd`: what
+/// activating the hitbox brings in, shared- or unique-BLAS).
+#[inline(always)]
+fn reduce_into_hitbox(h: &mut HitboxRecord, min_key: u32, max_key: u32, packed: u32) {
+    let lo = min_key.min(h.min_y.to_bits());
+    let hi = max_key.max(h.max_y.to_bits());
+    h.min_y = f32::from_bits(lo);
+    h.max_y = f32::from_bits(hi);
+    // UNIQUE_BLAS (bit 3): 1 + 0xFFFF = COST_UNIQUE, else COST_SHARED.
+    let unique = (packed >> 3) & 1;
+    h.cost = h.cost.wrapping_add(
+        hitbox_bits::COST_SHARED + unique * (hitbox_bits::COST_UNIQUE - hitbox_bits::COST_SHARED),
+    );
 }
 
 /// Pass 2 for one hitbox: a counting box for hitbox `i` if it is inactive

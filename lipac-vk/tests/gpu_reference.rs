@@ -537,6 +537,91 @@ fn assembly_matches_cpu_reference() {
     assert_no_validation_errors(&h);
 }
 
+/// Inactive instances whose heights are ±0, NaN (both signs), ±inf or
+/// subnormal: the shader's atomicMin/atomicMax on ordered keys and the CPU
+/// reference give the same hitbox heights bit for bit (−0 is the lower
+/// bound, NaN never wins) and the same counting boxes.
+#[test]
+fn assembly_signed_zero_and_nan_heights_match_cpu() {
+    let Some(h) = headless("assembly_signed_zero_and_nan_heights_match_cpu") else {
+        return;
+    };
+    let ctx = h.context();
+    let pipeline = AssemblyPipeline::new(ctx).unwrap();
+    let mut one_shot = OneShot::new(ctx).unwrap();
+    let odd: [u32; 10] = [
+        0x0000_0000,
+        0x8000_0000,
+        0x0000_0001,
+        0x8000_0001,
+        0x3F80_0000,
+        0xBF80_0000,
+        0x7F80_0000,
+        0xFF80_0000,
+        0x7FC0_0000,
+        0xFFC0_0000,
+    ];
+    let mut rng = Rng::new(0x5160_0000);
+    let index = Grid {
+        nx: 6,
+        nz: 5,
+        origin: Vec2::new(-8.0, -8.0),
+        size: 16.0,
+    };
+    let n_hitboxes = index.len();
+    let instances: Vec<InstanceRecord> = (0..2000)
+        .map(|i| {
+            let mut r = random_instance(&mut rng, n_hitboxes);
+            r.packed |= instance_bits::ALIVE;
+            r.packed &= !instance_bits::PINNED;
+            r.set_state(InstanceState::Inactive);
+            // Hitboxes 0..10 see only ±0 (and NaN); the others any pattern.
+            r.hitbox = (i as u32) % n_hitboxes;
+            let pick = |rng: &mut Rng, k: u32| {
+                if r.hitbox < 10 {
+                    [0x0000_0000, 0x8000_0000, 0x7FC0_0000][rng.below_scaled(3) as usize]
+                } else {
+                    odd[rng.below_scaled(k) as usize]
+                }
+            };
+            r.aabb_min[1] = f32::from_bits(pick(&mut rng, 10));
+            r.aabb_max[1] = f32::from_bits(pick(&mut rng, 10));
+            r
+        })
+        .collect();
+    let mut hitboxes = vec![HitboxRecord::default(); n_hitboxes as usize];
+    let cfg = AssemblyConfig::new(0xC0BE);
+    let hits = vec![0u32; instances.len()];
+    let scene = Scene::new(ctx, &instances, &hits, &hitboxes, &index, 1);
+    let bindings = scene.assembly_bindings(&pipeline);
+    let mut cpu_out = Vec::new();
+    let stats = assemble_tlas(
+        &arrays(&instances),
+        &mut hitboxes,
+        &index,
+        &cfg,
+        &mut cpu_out,
+    )
+    .unwrap();
+    assert_eq!(stats.inactive, 2000);
+    // Both zeros met in the ±0-only hitboxes: -0 below, +0 above.
+    assert!(hitboxes[..10]
+        .iter()
+        .any(|h| h.min_y.to_bits() == 0x8000_0000 && h.max_y.to_bits() == 0));
+    one_shot
+        .run(|rec| pipeline.record(rec, &bindings, &cfg, instances.len() as u32))
+        .unwrap();
+    let (counter, gpu_out) = scene.read_tlas(bindings.tlas_capacity() as usize);
+    assert_eq!(counter as usize, cpu_out.len(), "counter");
+    assert_tlas_equal(gpu_out, cpu_out, "signed zeros");
+    assert_hitboxes_equal(
+        &scene.read_hitboxes(hitboxes.len()),
+        &hitboxes,
+        "signed zeros",
+    );
+    assert_no_validation_errors(&h);
+}
+
 /// Some slots processed, a full TLAS buffer: only the first `capacity`
 /// appends are stored, the counter says how many were asked for.
 #[test]

@@ -626,3 +626,193 @@ fn split_arrays_give_the_records_output_bit_for_bit() {
         assert!(ref_stats.active_without_blas > 0 && ref_stats.hitbox_boxes > 0);
     }
 }
+
+/// Interesting f32 bit patterns for the fast paths: zeros of both signs,
+/// subnormals, the extremes, infinities and NaNs (quiet, signalling, negative).
+const ODD_BITS: [u32; 16] = [
+    0x0000_0000,
+    0x8000_0000,
+    0x0000_0001,
+    0x8000_0001,
+    0x007F_FFFF,
+    0x3F80_0000,
+    0xBF80_0000,
+    0x4B80_0000, // 2^24
+    0x7F7F_FFFF,
+    0xFF7F_FFFF,
+    0x7F80_0000,
+    0xFF80_0000,
+    0x7FC0_0000,
+    0xFFC0_0000,
+    0x7F80_0001,
+    0xFF80_0001,
+];
+
+#[test]
+fn unit_cube_transform_fast_path_gives_the_general_bits() {
+    let mut rng = XorShift64::new(0xA11_C0BE);
+    let extents = [
+        0.0,
+        1e-3,
+        0.5,
+        16.0,
+        1e30,
+        f32::from_bits(1),
+        -1.0,
+        f32::NAN,
+        f32::INFINITY,
+    ];
+    let value = |rng: &mut XorShift64| -> f32 {
+        match rng.below_u32(4) {
+            0 => f32::from_bits(ODD_BITS[rng.below_u32(16) as usize]),
+            1 => f32::from_bits(rng.next_u32()),
+            _ => (rng.next_u32() % 200_000) as f32 / 64.0 - 1000.0,
+        }
+    };
+    let mut fast = 0;
+    for i in 0..200_000 {
+        let lo = Vec3::new(value(&mut rng), value(&mut rng), value(&mut rng));
+        let mut hi = Vec3::new(value(&mut rng), value(&mut rng), value(&mut rng));
+        if i % 2 == 0 {
+            // Mostly ordered boxes, some of them near-flat or rounding-prone.
+            let d = Vec3::new(value(&mut rng), value(&mut rng), value(&mut rng)).abs() * 1e-3;
+            hi = lo + d;
+        }
+        let e = extents[i % extents.len()];
+        let got = unit_cube_transform(lo, hi, e).map(|m| m.map(f32::to_bits));
+        let want = unit_cube_transform_general(lo, hi, e).map(|m| m.map(f32::to_bits));
+        assert_eq!(got, want, "{lo:?} {hi:?} {e}");
+        fast += usize::from(got.is_some());
+    }
+    assert!(fast > 50_000, "the boxes should mostly be valid: {fast}");
+}
+
+/// Pass 1's height reduction as `assemble_instances.comp` does it:
+/// `atomicMin`/`atomicMax` on `lipacOrderedKey`, NaN heights skipped.
+fn shader_height_range(heights: &[(u32, u32)]) -> (u32, u32) {
+    let key = |b: u32| {
+        if b & 0x8000_0000 != 0 {
+            !b
+        } else {
+            b | 0x8000_0000
+        }
+    };
+    let from_key = |k: u32| {
+        if k & 0x8000_0000 != 0 {
+            k & 0x7FFF_FFFF
+        } else {
+            !k
+        }
+    };
+    let is_nan = |b: u32| f32::from_bits(b).is_nan();
+    let (mut lo, mut hi) = (key(0x7F80_0000), key(0xFF80_0000));
+    for &(a, b) in heights {
+        if !is_nan(a) {
+            lo = lo.min(key(a));
+        }
+        if !is_nan(b) {
+            hi = hi.max(key(b));
+        }
+    }
+    (from_key(lo), from_key(hi))
+}
+
+#[test]
+fn heights_reduce_with_the_shader_rule_for_signed_zeros_and_nan() {
+    let mut rng = XorShift64::new(0x0_5160);
+    let index = Row {
+        n: 7,
+        size: 16.0,
+        origin: 0.0,
+    };
+    for round in 0..200 {
+        // Up to 600 inactive instances (crossing pass 1's chunks), heights
+        // drawn mostly from the odd patterns; hitbox 6 gets none.
+        let count = 1 + rng.below_u32(600) as usize;
+        let mut records = Vec::new();
+        let mut per_hitbox: Vec<Vec<(u32, u32)>> = vec![Vec::new(); 7];
+        for _ in 0..count {
+            let mut pick = || {
+                if rng.below_u32(3) == 0 {
+                    rng.next_u32()
+                } else {
+                    ODD_BITS[rng.below_u32(16) as usize]
+                }
+            };
+            let (a, b) = (pick(), pick());
+            let hb = rng.below_u32(6);
+            let mut r = inst(
+                InstanceState::Inactive,
+                hb,
+                [1.0, f32::from_bits(a), 1.0],
+                [2.0, f32::from_bits(b), 2.0],
+            );
+            if round % 2 == 1 && rng.below_u32(4) == 0 {
+                // An omitted instance in an inactive hitbox reduces too.
+                r.set_state(InstanceState::Omitted);
+            }
+            records.push(r);
+            per_hitbox[hb as usize].push((a, b));
+        }
+        let mut hitboxes = vec![HitboxRecord::default(); 7];
+        let mut out = Vec::new();
+        let stats = assemble_tlas(
+            &InstanceArrays::from_records(&records),
+            &mut hitboxes,
+            &index,
+            &cfg(),
+            &mut out,
+        )
+        .unwrap();
+        assert_eq!(stats.inactive as usize, count, "round {round}");
+        for (i, h) in hitboxes.iter().enumerate() {
+            let want = shader_height_range(&per_hitbox[i]);
+            assert_eq!(
+                (h.min_y.to_bits(), h.max_y.to_bits()),
+                want,
+                "round {round} hitbox {i}"
+            );
+        }
+    }
+    // The case f32::min/max left open: -0 is the lower, +0 the upper bound.
+    let records = [
+        inst(
+            InstanceState::Inactive,
+            0,
+            [1.0, 0.0, 1.0],
+            [2.0, -0.0, 2.0],
+        ),
+        inst(
+            InstanceState::Inactive,
+            0,
+            [1.0, -0.0, 1.0],
+            [2.0, 0.0, 2.0],
+        ),
+        inst(
+            InstanceState::Inactive,
+            0,
+            [1.0, f32::NAN, 1.0],
+            [2.0, -f32::NAN, 2.0],
+        ),
+    ];
+    for order in [[0, 1, 2], [1, 0, 2], [2, 1, 0]] {
+        let recs: Vec<_> = order.iter().map(|&k| records[k]).collect();
+        let mut hitboxes = [HitboxRecord::default()];
+        let index = Row {
+            n: 1,
+            size: 16.0,
+            origin: 0.0,
+        };
+        let mut out = Vec::new();
+        assemble_tlas(
+            &InstanceArrays::from_records(&recs),
+            &mut hitboxes,
+            &index,
+            &cfg(),
+            &mut out,
+        )
+        .unwrap();
+        assert_eq!(hitboxes[0].min_y.to_bits(), (-0.0f32).to_bits());
+        assert_eq!(hitboxes[0].max_y.to_bits(), 0.0f32.to_bits());
+    }
+}
