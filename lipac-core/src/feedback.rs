@@ -276,33 +276,18 @@ fn process(
     th.validate().map_err(FeedbackError::Thresholds)?;
     let mut stats = FeedbackStats::default();
 
-    // Lines 1–6: one thread per slot. Most slots have no hits (inactive
-    // ones are never hit): eight counters are tested at once and a chunk
-    // without hits is skipped whole.
-    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
-    let mut traced_hits: u64 = 0;
-    let hot_chunks = instances.chunks_exact(CHUNK);
-    let hit_chunks = instance_hits.chunks_exact(CHUNK);
-    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
-    for (ms, hs) in hot_chunks.zip(hit_chunks) {
-        if hs.iter().fold(0, |a, &h| a | h) == 0 {
-            continue;
-        }
-        for (m, &hits) in ms.iter().zip(hs) {
-            add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
-        }
-    }
-    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
-        add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
-    }
+    // Lines 1–6: one thread per slot ([`accumulate_hits`]).
+    let (box_hits, traced_hits) = accumulate_hits(instances, instance_hits, hitboxes);
     stats.box_hits = box_hits;
     stats.traced_hits = traced_hits;
 
-    // Lines 7–13: one thread per hitbox.
+    // Lines 7–13: one thread per hitbox. Each hitbox's new active bit also
+    // goes into `codes` for the fast path of lines 14–38.
     let mut decayed = match (&th.rule, rates) {
         (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
         _ => None,
     };
+    let mut codes: Vec<u8> = Vec::with_capacity(hitboxes.len() + 1);
     for h in hitboxes.iter_mut() {
         let change = match &decayed {
             Some((r, _)) => hitbox_step_decayed(h, r),
@@ -314,34 +299,32 @@ fn process(
         };
         stats.hitboxes_activated += u32::from(change > 0);
         stats.hitboxes_deactivated += u32::from(change < 0);
+        codes.push(if h.packed & hitbox_bits::ACTIVE != 0 {
+            CODE_ACTIVE
+        } else {
+            CODE_INACTIVE
+        });
     }
+    codes.push(CODE_OUT_OF_RANGE);
 
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
-    // active hitbox) is decided for eight slots at once on the bits alone
+    // active hitbox) is decided for CHUNK slots at once on the bits alone
     // ([`busy_mask`]); only the other slots run [`slot_step`], in slot
-    // order, so that commands keep their order.
+    // order, so that commands keep their order. Under the decayed rule the
+    // skipped slots' rates are set to 0, as `slot_step` would.
     let n = instances.len();
-    if decayed.is_some() {
-        // The decayed rule writes every slot's rate: slot by slot.
-        for slot in 0..n {
-            slot_step(
-                slot,
-                instances,
-                instance_hits,
-                &mut decayed,
-                hitboxes,
-                th,
-                commands,
-                &mut stats,
-            );
-        }
-        return Ok(stats);
-    }
     let mut base = 0;
-    while base + CHUNK <= n {
-        let end = base + CHUNK;
-        let mut busy = busy_mask(&instances[base..end], hitboxes);
+    while base < n {
+        let end = (base + CHUNK).min(n);
+        let mut busy = busy_mask(&instances[base..end], &codes);
+        if let Some((_, rates)) = decayed.as_mut() {
+            for (i, rate) in rates[base..end].iter_mut().enumerate() {
+                if busy >> i & 1 == 0 {
+                    *rate = 0;
+                }
+            }
+        }
         while busy != 0 {
             let slot = base + busy.trailing_zeros() as usize;
             busy &= busy - 1;
@@ -358,52 +341,128 @@ fn process(
         }
         base = end;
     }
-    for slot in base..n {
-        slot_step(
-            slot,
-            instances,
-            instance_hits,
-            &mut decayed,
-            hitboxes,
-            th,
-            commands,
-            &mut stats,
-        );
-    }
     Ok(stats)
 }
 
-/// Slots decided together by the fast paths of lines 1–6 and 14–38.
-const CHUNK: usize = 8;
+/// Slots decided together by the fast path of lines 14–38 (the bits of a
+/// `u64` mask).
+const CHUNK: usize = 64;
+
+/// Hit counters tested together by the fast path of lines 1–6.
+const HIT_CHUNK: usize = 16;
+
+/// `packed & (ALIVE | PINNED | STATE_MASK)` of a live, active, unpinned
+/// instance: the common slot with hits.
+const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+/// The same for a live, omitted instance.
+const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+
+/// Lines 1–6 over every slot: adds each live omitted or active, unpinned
+/// instance's hits to its hitbox (line 4) and returns this frame's
+/// `(box_hits, traced_hits)` ([`FeedbackStats`]).
+///
+/// Most slots have no hits (inactive ones are never hit): [`HIT_CHUNK`]
+/// counters are OR-ed at once (the compiler vectorises it) and a chunk
+/// without hits is skipped whole. Consecutive adds to the same hitbox are
+/// summed first ([`HitRun`]), which gives the same count: adds saturate at
+/// [`hitbox_bits::HITS_MAX`] and never subtract.
+fn accumulate_hits(
+    instances: &[InstanceHot],
+    instance_hits: &[u32],
+    hitboxes: &mut [HitboxRecord],
+) -> (u64, u64) {
+    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced_hits: u64 = 0;
+    let mut run = HitRun { hitbox: 0, hits: 0 };
+    let hot_chunks = instances.chunks_exact(HIT_CHUNK);
+    let hit_chunks = instance_hits.chunks_exact(HIT_CHUNK);
+    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
+    for (ms, hs) in hot_chunks.zip(hit_chunks) {
+        if hs.iter().fold(0, |a, &h| a | h) == 0 {
+            continue;
+        }
+        for (m, &hits) in ms.iter().zip(hs) {
+            add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+        }
+    }
+    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
+        add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+    }
+    run.flush(hitboxes);
+    (box_hits, traced_hits)
+}
+
+/// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
+/// slots that add to the same hitbox.
+struct HitRun {
+    hitbox: u32,
+    hits: u64,
+}
+
+impl HitRun {
+    /// Adds `hits` to `hitbox`'s run, flushing the run of another hitbox.
+    #[inline(always)]
+    fn add(&mut self, hitbox: u32, hits: u32, hitboxes: &mut [HitboxRecord]) {
+        if hitbox != self.hitbox {
+            self.flush(hitboxes);
+            self.hitbox = hitbox;
+        }
+        self.hits += u64::from(hits);
+    }
+
+    /// Adds the run's hits to its hitbox (none if its index is out of
+    /// range), saturating as [`HitboxRecord::add_hits`] one by one would.
+    #[inline(always)]
+    fn flush(&mut self, hitboxes: &mut [HitboxRecord]) {
+        if let Some(h) = hitboxes.get_mut(self.hitbox as usize) {
+            let total = (u64::from(h.hits()) + self.hits).min(u64::from(hitbox_bits::HITS_MAX));
+            h.packed = (h.packed & ((1 << hitbox_bits::HITS_SHIFT) - 1))
+                | ((total as u32) << hitbox_bits::HITS_SHIFT);
+        }
+        self.hits = 0;
+    }
+}
 
 /// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
-/// live omitted or active instance that is not pinned, to its hitbox.
+/// live omitted or active instance that is not pinned, to its hitbox's run.
 #[inline(always)]
 fn add_instance_hits(
     m: &InstanceHot,
     hits: u32,
     hitboxes: &mut [HitboxRecord],
+    run: &mut HitRun,
     box_hits: &mut u64,
     traced_hits: &mut u64,
 ) {
-    const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
-    const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
     if hits == 0 {
         return; // adds nothing, to the hitbox or the sums
     }
-    let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-    if key == LIVE_OMITTED {
+    let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
+    if key == LIVE_ACTIVE {
+        *traced_hits += u64::from(hits);
+        run.add(m.hitbox, hits, hitboxes); // line 4
+        return;
+    }
+    let state = key & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+    if state == LIVE_OMITTED {
         *box_hits += u64::from(hits);
-    } else if key & instance_bits::ALIVE != 0 {
+    } else if state & instance_bits::ALIVE != 0 {
         *traced_hits += u64::from(hits);
     }
     // Pinned instances are not the hitbox's to decide on: their hits stay out.
-    if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
-        if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
-            h.add_hits(hits); // line 4
-        }
+    if key == LIVE_OMITTED {
+        run.add(m.hitbox, hits, hitboxes); // line 4
     }
 }
+
+/// `codes` entry of an inactive hitbox (after lines 7–13), in the bits of
+/// an instance's `packed` word that [`BUSY`] does not read
+/// ([`instance_bits::VEGETATION`], [`instance_bits::STATIC`]).
+const CODE_INACTIVE: u8 = 0;
+/// `codes` entry of an active hitbox.
+const CODE_ACTIVE: u8 = 1 << 4;
+/// The code of a hitbox index out of range.
+const CODE_OUT_OF_RANGE: u8 = 2 << 4;
 
 /// The bits of an instance's `packed` word that [`slot_step`]'s early
 /// returns look at: state, [`instance_bits::ALIVE`],
@@ -413,43 +472,47 @@ const BUSY_KEY_MASK: u32 = instance_bits::STATE_MASK
     | instance_bits::UNIQUE_BLAS
     | instance_bits::PINNED;
 
-/// `BUSY[key | a << 7]`, for `key = packed & BUSY_KEY_MASK` and `a` the
-/// hitbox's active bit (2 for an index out of range): 1 where [`slot_step`]
-/// does more than return early (live, not pinned, and not on its fast path:
-/// inactive in an inactive hitbox, or active/omitted and not with a unique
-/// BLAS in an active one), else 0. Built from the same tests as
-/// `slot_step`'s early returns.
-const BUSY: [u8; 512] = {
-    let mut t = [0u8; 512];
+/// `BUSY[(packed & BUSY_KEY_MASK) | code]`, for `code` the instance's
+/// hitbox code ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]):
+/// 1 where [`slot_step`] does more than return early (live, not pinned, and
+/// not on its fast path: inactive in an inactive hitbox, or active/omitted
+/// and not with a unique BLAS in an active one), else 0. Built from the
+/// same tests as `slot_step`'s early returns.
+const BUSY: [u8; 256] = {
+    let mut t = [0u8; 256];
     let mut i = 0;
-    while i < 512 {
-        let p = (i & 0x7F) as u32;
-        let a = i >> 7;
+    while i < 256 {
+        let p = i as u32 & BUSY_KEY_MASK;
+        let a = (i >> 4) & 3;
         let live = p & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
         let bits = p & instance_bits::STATE_MASK;
         let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
         let unique = p & instance_bits::UNIQUE_BLAS != 0;
         let fast = a < 2 && ((a == 1) != inactive) && (inactive || !unique);
-        // Keys with bits outside BUSY_KEY_MASK, and a == 3, never occur.
+        // Code 3 never occurs.
         t[i] = (live && !fast) as u8;
         i += 1;
     }
     t
 };
 
-/// Bit `i` set for each slot `i` of `chunk` that lines 14–38 may touch
-/// ([`BUSY`]): one table look-up per slot, no branch but the hitbox bounds
-/// check. A clear bit is exactly a [`slot_step`] that returns early without
-/// a counter or command.
-#[inline(always)]
-fn busy_mask(chunk: &[InstanceHot], hitboxes: &[HitboxRecord]) -> u32 {
-    let mut busy = 0u32;
-    for (i, m) in chunk.iter().enumerate() {
-        let a = hitboxes
-            .get(m.hitbox as usize)
-            .map_or(2, |h| h.packed & hitbox_bits::ACTIVE);
-        let key = ((m.packed & BUSY_KEY_MASK) | (a << 7)) as usize;
-        busy |= u32::from(BUSY[key & 511]) << i;
+/// Bit `i` set for each slot `i` of `chunk` (at most 64 slots) that lines
+/// 14–38 may touch ([`BUSY`]): per slot one look-up of the hitbox's code in
+/// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
+/// out of range is clamped to) and one of the table, no branch. A clear bit
+/// is exactly a [`slot_step`] that returns early without a counter or
+/// command. Not inlined: a small loop of its own keeps its values in
+/// registers.
+#[inline(never)]
+fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
+    let Some(last) = codes.len().checked_sub(1) else {
+        return 0; // never: `codes` ends with the sentinel
+    };
+    let mut busy = 0u64;
+    for m in chunk.iter().rev() {
+        let code = codes[(m.hitbox as usize).min(last)];
+        let key = (m.packed & BUSY_KEY_MASK) | u32::from(code);
+        busy = busy << 1 | u64::from(BUSY[key as usize]);
     }
     busy
 }
