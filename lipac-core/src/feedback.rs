@@ -287,25 +287,10 @@ fn process(
         (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
         _ => None,
     };
-    let mut codes: Vec<u8> = Vec::with_capacity(hitboxes.len() + 1);
-    for h in hitboxes.iter_mut() {
-        let change = match &decayed {
-            Some((r, _)) => hitbox_step_decayed(h, r),
-            None => {
-                let (packed, change) = hitbox_step(h.packed, th);
-                h.packed = packed;
-                change
-            }
-        };
-        stats.hitboxes_activated += u32::from(change > 0);
-        stats.hitboxes_deactivated += u32::from(change < 0);
-        codes.push(if h.packed & hitbox_bits::ACTIVE != 0 {
-            CODE_ACTIVE
-        } else {
-            CODE_INACTIVE
-        });
-    }
-    codes.push(CODE_OUT_OF_RANGE);
+    let (codes, activated, deactivated) =
+        step_hitboxes(hitboxes, decayed.as_ref().map(|(r, _)| r), th);
+    stats.hitboxes_activated = activated;
+    stats.hitboxes_deactivated = deactivated;
 
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
@@ -319,11 +304,7 @@ fn process(
         let end = (base + CHUNK).min(n);
         let mut busy = busy_mask(&instances[base..end], &codes);
         if let Some((_, rates)) = decayed.as_mut() {
-            for (i, rate) in rates[base..end].iter_mut().enumerate() {
-                if busy >> i & 1 == 0 {
-                    *rate = 0;
-                }
-            }
+            zero_rates_but(&mut rates[base..end], busy);
         }
         while busy != 0 {
             let slot = base + busy.trailing_zeros() as usize;
@@ -342,6 +323,38 @@ fn process(
         base = end;
     }
     Ok(stats)
+}
+
+/// Lines 7–13 over every hitbox, under the decayed rule if `decayed` is
+/// given, else the paper's: returns each hitbox's new code ([`CODE_ACTIVE`]
+/// or [`CODE_INACTIVE`]) followed by [`CODE_OUT_OF_RANGE`], and the counts
+/// of activations and deactivations. Not inlined: a small loop of its own.
+#[inline(never)]
+fn step_hitboxes(
+    hitboxes: &mut [HitboxRecord],
+    decayed: Option<&DecayedRule>,
+    th: &Thresholds,
+) -> (Vec<u8>, u32, u32) {
+    let mut codes = vec![CODE_OUT_OF_RANGE; hitboxes.len() + 1];
+    let (mut activated, mut deactivated) = (0, 0);
+    for (h, code) in hitboxes.iter_mut().zip(codes.iter_mut()) {
+        let change = match decayed {
+            Some(r) => hitbox_step_decayed(h, r),
+            None => {
+                let (packed, change) = hitbox_step(h.packed, th);
+                h.packed = packed;
+                change
+            }
+        };
+        activated += u32::from(change > 0);
+        deactivated += u32::from(change < 0);
+        *code = if h.packed & hitbox_bits::ACTIVE != 0 {
+            CODE_ACTIVE
+        } else {
+            CODE_INACTIVE
+        };
+    }
+    (codes, activated, deactivated)
 }
 
 /// Slots decided together by the fast path of lines 14–38 (the bits of a
@@ -365,7 +378,9 @@ const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
 /// counters are OR-ed at once (the compiler vectorises it) and a chunk
 /// without hits is skipped whole. Consecutive adds to the same hitbox are
 /// summed first ([`HitRun`]), which gives the same count: adds saturate at
-/// [`hitbox_bits::HITS_MAX`] and never subtract.
+/// [`hitbox_bits::HITS_MAX`] and never subtract. Not inlined: its loop
+/// keeps its values in registers.
+#[inline(never)]
 fn accumulate_hits(
     instances: &[InstanceHot],
     instance_hits: &[u32],
@@ -378,11 +393,18 @@ fn accumulate_hits(
     let hit_chunks = instance_hits.chunks_exact(HIT_CHUNK);
     let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
     for (ms, hs) in hot_chunks.zip(hit_chunks) {
-        if hs.iter().fold(0, |a, &h| a | h) == 0 {
-            continue;
-        }
-        for (m, &hits) in ms.iter().zip(hs) {
-            add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+        let mut nonzero = nonzero_mask(hs);
+        while nonzero != 0 {
+            let i = nonzero.trailing_zeros() as usize;
+            nonzero &= nonzero - 1;
+            add_instance_hits(
+                &ms[i],
+                hs[i],
+                hitboxes,
+                &mut run,
+                &mut box_hits,
+                &mut traced_hits,
+            );
         }
     }
     for (m, &hits) in hot_tail.iter().zip(hit_tail) {
@@ -390,6 +412,24 @@ fn accumulate_hits(
     }
     run.flush(hitboxes);
     (box_hits, traced_hits)
+}
+
+/// Bit `i` set where `hs[i] != 0`, for the first 16 counters of `hs`: an
+/// OR of per-lane bits, which the compiler vectorises (compare, and, OR).
+#[inline(always)]
+fn nonzero_mask(hs: &[u32]) -> u32 {
+    const BIT: [u32; HIT_CHUNK] = {
+        let mut t = [0; HIT_CHUNK];
+        let mut i = 0;
+        while i < HIT_CHUNK {
+            t[i] = 1 << i;
+            i += 1;
+        }
+        t
+    };
+    hs.iter()
+        .zip(&BIT)
+        .fold(0, |m, (&h, &bit)| m | if h != 0 { bit } else { 0 })
 }
 
 /// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
@@ -508,13 +548,53 @@ fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
     let Some(last) = codes.len().checked_sub(1) else {
         return 0; // never: `codes` ends with the sentinel
     };
-    let mut busy = 0u64;
-    for m in chunk.iter().rev() {
+    let busy = |m: &InstanceHot| {
         let code = codes[(m.hitbox as usize).min(last)];
-        let key = (m.packed & BUSY_KEY_MASK) | u32::from(code);
-        busy = busy << 1 | u64::from(BUSY[key as usize]);
+        u64::from(BUSY[((m.packed & BUSY_KEY_MASK) | u32::from(code)) as usize])
+    };
+    let eights = chunk.chunks_exact(8);
+    let tail = eights.remainder();
+    let mut mask = 0u64;
+    let mut shift = 0;
+    for e in eights {
+        // Pairs, then quads, then the eight: a shallow tree of adds.
+        let b01 = busy(&e[0]) + 2 * busy(&e[1]);
+        let b23 = busy(&e[2]) + 2 * busy(&e[3]);
+        let b45 = busy(&e[4]) + 2 * busy(&e[5]);
+        let b67 = busy(&e[6]) + 2 * busy(&e[7]);
+        mask |= (b01 + 4 * b23 + 16 * (b45 + 4 * b67)) << shift;
+        shift += 8;
     }
-    busy
+    for m in tail {
+        mask |= busy(m) << shift;
+        shift += 1;
+    }
+    mask
+}
+
+/// Sets `rates[i]` to 0 where bit `i` of `keep` is clear (at most 64
+/// rates): the busy slots' rates are put aside, the chunk zeroed whole
+/// (the compiler vectorises it) and they are put back.
+#[inline(always)]
+fn zero_rates_but(rates: &mut [u32], keep: u64) {
+    let mut kept = [0u32; CHUNK];
+    let mut bits = keep;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if let (Some(k), Some(&r)) = (kept.get_mut(i), rates.get(i)) {
+            *k = r;
+        }
+    }
+    rates.fill(0);
+    let mut bits = keep;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if let (Some(r), Some(&k)) = (rates.get_mut(i), kept.get(i)) {
+            *r = k;
+        }
+    }
 }
 
 /// Lines 14–38 for one slot (the rate of a dead, pinned or fast-path slot
