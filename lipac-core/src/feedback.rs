@@ -389,11 +389,14 @@ fn accumulate_hits(
     let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
     let mut traced_hits: u64 = 0;
     let mut run = HitRun { hitbox: 0, hits: 0 };
+    // Opaque to the optimiser: with the constants in sight it turns some
+    // lanes into scalar shifts instead of one vector AND per four lanes.
+    let bits = std::hint::black_box(&HIT_BITS);
     let hot_chunks = instances.chunks_exact(HIT_CHUNK);
     let hit_chunks = instance_hits.chunks_exact(HIT_CHUNK);
     let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
     for (ms, hs) in hot_chunks.zip(hit_chunks) {
-        let mut nonzero = nonzero_mask(hs);
+        let mut nonzero = nonzero_mask(hs, bits);
         while nonzero != 0 {
             let i = nonzero.trailing_zeros() as usize;
             nonzero &= nonzero - 1;
@@ -417,20 +420,22 @@ fn accumulate_hits(
 /// Bit `i` set where `hs[i] != 0`, for the first 16 counters of `hs`: an
 /// OR of per-lane bits, which the compiler vectorises (compare, and, OR).
 #[inline(always)]
-fn nonzero_mask(hs: &[u32]) -> u32 {
-    const BIT: [u32; HIT_CHUNK] = {
-        let mut t = [0; HIT_CHUNK];
-        let mut i = 0;
-        while i < HIT_CHUNK {
-            t[i] = 1 << i;
-            i += 1;
-        }
-        t
-    };
+fn nonzero_mask(hs: &[u32], bits: &[u32; HIT_CHUNK]) -> u32 {
     hs.iter()
-        .zip(&BIT)
+        .zip(bits)
         .fold(0, |m, (&h, &bit)| m | if h != 0 { bit } else { 0 })
 }
+
+/// `1 << i` for lane `i` of [`nonzero_mask`].
+const HIT_BITS: [u32; HIT_CHUNK] = {
+    let mut t = [0; HIT_CHUNK];
+    let mut i = 0;
+    while i < HIT_CHUNK {
+        t[i] = 1 << i;
+        i += 1;
+    }
+    t
+};
 
 /// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
 /// slots that add to the same hitbox.
@@ -474,9 +479,7 @@ fn add_instance_hits(
     box_hits: &mut u64,
     traced_hits: &mut u64,
 ) {
-    if hits == 0 {
-        return; // adds nothing, to the hitbox or the sums
-    }
+    // No test for zero hits: they add nothing, to the sums or to a run.
     let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
     if key == LIVE_ACTIVE {
         *traced_hits += u64::from(hits);
@@ -495,44 +498,49 @@ fn add_instance_hits(
     }
 }
 
-/// `codes` entry of an inactive hitbox (after lines 7–13), in the bits of
-/// an instance's `packed` word that [`BUSY`] does not read
-/// ([`instance_bits::VEGETATION`], [`instance_bits::STATIC`]).
+/// `codes` entry of an inactive hitbox (after lines 7–13): the row of
+/// [`BUSY`] its instances read.
 const CODE_INACTIVE: u8 = 0;
 /// `codes` entry of an active hitbox.
-const CODE_ACTIVE: u8 = 1 << 4;
+const CODE_ACTIVE: u8 = 1;
 /// The code of a hitbox index out of range.
-const CODE_OUT_OF_RANGE: u8 = 2 << 4;
+const CODE_OUT_OF_RANGE: u8 = 2;
 
-/// The bits of an instance's `packed` word that [`slot_step`]'s early
-/// returns look at: state, [`instance_bits::ALIVE`],
-/// [`instance_bits::UNIQUE_BLAS`] and [`instance_bits::PINNED`].
-const BUSY_KEY_MASK: u32 = instance_bits::STATE_MASK
-    | instance_bits::ALIVE
-    | instance_bits::UNIQUE_BLAS
-    | instance_bits::PINNED;
-
-/// `BUSY[(packed & BUSY_KEY_MASK) | code]`, for `code` the instance's
-/// hitbox code ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]):
-/// 1 where [`slot_step`] does more than return early (live, not pinned, and
-/// not on its fast path: inactive in an inactive hitbox, or active/omitted
-/// and not with a unique BLAS in an active one), else 0. Built from the
-/// same tests as `slot_step`'s early returns.
-const BUSY: [u8; 256] = {
-    let mut t = [0u8; 256];
-    let mut i = 0;
-    while i < 256 {
-        let p = i as u32 & BUSY_KEY_MASK;
-        let a = (i >> 4) & 3;
-        let live = p & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
-        let bits = p & instance_bits::STATE_MASK;
-        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
-        let unique = p & instance_bits::UNIQUE_BLAS != 0;
-        let fast = a < 2 && ((a == 1) != inactive) && (inactive || !unique);
-        // Code 3 never occurs.
-        t[i] = (live && !fast) as u8;
-        i += 1;
+/// `BUSY[code][packed & 0xFF]`, for `code` the instance's hitbox code
+/// ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]): 1 where
+/// lines 14–38 do more than return early (live, not pinned, and not on the
+/// fast path: inactive in an inactive hitbox, or active/omitted and not
+/// with a unique BLAS in an active one), else 0. Only the state,
+/// [`instance_bits::ALIVE`], [`instance_bits::UNIQUE_BLAS`] and
+/// [`instance_bits::PINNED`] bits of the low byte matter.
+static BUSY: [[u8; 256]; 3] = {
+    let mut t = [[0u8; 256]; 3];
+    let mut code = 0;
+    while code < 3 {
+        let mut p = 0;
+        while p < 256 {
+            let bits = p as u32;
+            let live =
+                bits & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
+            let state = bits & instance_bits::STATE_MASK;
+            let inactive = state == 0 || state == instance_bits::STATE_MASK;
+            let unique = bits & instance_bits::UNIQUE_BLAS != 0;
+            let fast = code < 2 && ((code == 1) != inactive) && (inactive || !unique);
+            t[code][p] = (live && !fast) as u8;
+            p += 1;
+        }
+        code += 1;
     }
+    t
+};
+
+/// The row of [`BUSY`] for each `u8` code: a look-up by code without a
+/// bounds check (codes above 2 never occur; they read the out-of-range
+/// row).
+static BUSY_ROW: [&[u8; 256]; 256] = {
+    let mut t = [&BUSY[2]; 256];
+    t[CODE_INACTIVE as usize] = &BUSY[0];
+    t[CODE_ACTIVE as usize] = &BUSY[1];
     t
 };
 
@@ -549,8 +557,8 @@ fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
         return 0; // never: `codes` ends with the sentinel
     };
     let busy = |m: &InstanceHot| {
-        let code = codes[(m.hitbox as usize).min(last)];
-        u64::from(BUSY[((m.packed & BUSY_KEY_MASK) | u32::from(code)) as usize])
+        let row = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
+        u64::from(row[(m.packed & 0xFF) as usize])
     };
     let eights = chunk.chunks_exact(8);
     let tail = eights.remainder();
@@ -597,8 +605,10 @@ fn zero_rates_but(rates: &mut [u32], keep: u64) {
     }
 }
 
-/// Lines 14–38 for one slot (the rate of a dead, pinned or fast-path slot
-/// set to 0 under the decayed rule).
+/// Lines 14–38 for one slot that [`busy_mask`] marked: live, not pinned
+/// and not on the fast path (dead, pinned and fast-path slots return early
+/// without a counter, a command or a state change, their rate 0 under the
+/// decayed rule: [`zero_rates_but`]).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn slot_step(
@@ -612,32 +622,12 @@ fn slot_step(
     stats: &mut FeedbackStats,
 ) {
     let packed = instances[slot].packed;
-    // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
-    // rate of either is 0 (a dead slot is reused only after quarantine).
-    if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
-        if let Some((_, rates)) = decayed.as_mut() {
-            rates[slot] = 0;
-        }
-        return;
-    }
     let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
         stats.invalid_instances += 1;
         return;
     };
     let h_active = h.packed & hitbox_bits::ACTIVE != 0;
     let unique = packed & instance_bits::UNIQUE_BLAS != 0;
-    // Fast path, on the bits alone: nothing in lines 16–37 can fire for
-    // an inactive instance (state bits 0, or the unused 3) in an
-    // inactive hitbox, nor for a shared-BLAS active or omitted one in an
-    // active hitbox (and the rate of either is 0).
-    let bits = packed & instance_bits::STATE_MASK;
-    let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
-    if h_active != inactive && (inactive || !unique) {
-        if let Some((_, rates)) = decayed.as_mut() {
-            rates[slot] = 0;
-        }
-        return;
-    }
     let m = &mut instances[slot];
     let hits = instance_hits[slot];
     let old = m.state();

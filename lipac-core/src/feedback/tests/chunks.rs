@@ -249,10 +249,14 @@ fn busy_table_is_the_slots_lines_14_to_38_can_touch() {
                     CODE_ACTIVE => state == InstanceState::Inactive || unique,
                     _ => true,
                 };
-            let key = (low & BUSY_KEY_MASK) as usize | usize::from(code);
-            assert_eq!(BUSY[key] == 1, busy, "low byte {low:#04x}, code {code}");
+            let row = BUSY_ROW[usize::from(code)];
+            assert_eq!(
+                row[low as usize] == 1,
+                busy,
+                "low byte {low:#04x}, code {code}"
+            );
             let chunk = [InstanceHot {
-                hitbox: [0, 1, u32::MAX][usize::from(code >> 4)],
+                hitbox: [0, 1, u32::MAX][usize::from(code)],
                 packed: low,
             }];
             let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
@@ -342,7 +346,7 @@ fn nonzero_mask_has_a_bit_per_counter_with_hits() {
             .iter()
             .enumerate()
             .fold(0, |m, (i, &h)| m | u32::from(h != 0) << i);
-        assert_eq!(nonzero_mask(&hs), want, "{hs:?}");
+        assert_eq!(nonzero_mask(&hs, &HIT_BITS), want, "{hs:?}");
     }
 }
 
