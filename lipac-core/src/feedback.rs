@@ -362,7 +362,7 @@ fn step_hitboxes(
 const CHUNK: usize = 64;
 
 /// Hit counters tested together by the fast path of lines 1–6.
-const HIT_CHUNK: usize = 16;
+const HIT_CHUNK: usize = 32;
 
 /// `packed & (ALIVE | PINNED | STATE_MASK)` of a live, active, unpinned
 /// instance: the common slot with hits.
@@ -417,7 +417,7 @@ fn accumulate_hits(
     (box_hits, traced_hits)
 }
 
-/// Bit `i` set where `hs[i] != 0`, for the first 16 counters of `hs`: an
+/// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of `hs`: an
 /// OR of per-lane bits, which the compiler vectorises (compare, and, OR).
 #[inline(always)]
 fn nonzero_mask(hs: &[u32], bits: &[u32; HIT_CHUNK]) -> u32 {

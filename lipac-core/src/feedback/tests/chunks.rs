@@ -1,4 +1,4 @@
-//! The chunked fast paths of [`process`](super::super::process) (16 hit
+//! The chunked fast paths of [`process`](super::super::process) (32 hit
 //! counters tested at once and runs of adds to one hitbox in lines 1–6, the
 //! per-hitbox codes and the [`BUSY`] table deciding 64 slots at once in
 //! lines 14–38, the rates of skipped slots zeroed per chunk under the
@@ -9,14 +9,16 @@ use super::*;
 use crate::thresholds::{DecayedRule, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64};
 
+/// The decayed rule at the scale of the paper's thresholds (hits per frame
+/// in the hundreds), so that the scenes below keep inactive hitboxes.
 const RULE: DecayedRule = DecayedRule {
     shift: 2,
-    activate: 4 * RATE_ONE,
-    deactivate: RATE_ONE,
-    instance_activate: 3 * RATE_ONE,
-    instance_omit: RATE_ONE / 2,
-    per_shared: RATE_ONE / 2,
-    per_unique: 2 * RATE_ONE,
+    activate: 1500 * RATE_ONE,
+    deactivate: 100 * RATE_ONE,
+    instance_activate: 150 * RATE_ONE,
+    instance_omit: 30 * RATE_ONE,
+    per_shared: 8 * RATE_ONE,
+    per_unique: 32 * RATE_ONE,
 };
 
 fn rules() -> [Thresholds; 2] {
@@ -74,23 +76,23 @@ fn assert_matches_reference(
     got
 }
 
-/// A coherent scene where the fast paths fire (runs of 16 slots per
+/// A coherent scene where the fast paths fire (runs of 32 slots per
 /// hitbox, mostly agreeing with it, no hits on inactive slots) with every
 /// exception mixed in: dead, pinned, state value 3, scattered slots,
 /// indices out of range (just past the end and `u32::MAX`), hits that
 /// saturate the hitbox counts, a slot count that leaves a partial chunk of
-/// 64 and of 16, and command buffers that overflow. Frames carry states,
+/// 64 and of 32, and command buffers that overflow. Frames carry states,
 /// rates and hitboxes forward, under both rules.
 #[test]
 fn coherent_scene_matches_the_reference_under_both_rules() {
     for (r, th) in rules().iter().enumerate() {
         let mut rng = XorShift64::new(0xC4_0C4 + r as u64);
-        let n_hitboxes = 70u32;
-        let n = 16 * n_hitboxes as usize + 13; // 1133: 17 chunks of 64 + 45
+        let n_hitboxes = 40u32;
+        let n = 32 * n_hitboxes as usize + 13; // 1293: 20 chunks of 64 and 40 of 32, + 13
         let mut ref_hb: Vec<HitboxRecord> = (0..n_hitboxes)
             .map(|_| {
                 let mut h = hitbox(rng.below_u32(4) == 0);
-                h.rate = rng.below_u32(6 * RATE_ONE);
+                h.rate = rng.below_u32(2000) * RATE_ONE;
                 h
             })
             .collect();
@@ -99,7 +101,7 @@ fn coherent_scene_matches_the_reference_under_both_rules() {
                 let hb = match rng.below_u32(40) {
                     0 => u32::MAX,
                     1..=3 => rng.below_u32(n_hitboxes + 1), // some just past the end
-                    _ => (slot / 16) as u32 % n_hitboxes,
+                    _ => (slot / 32) as u32 % n_hitboxes,
                 };
                 let unique = rng.below_u32(7) == 0;
                 let active_hb = ref_hb.get(hb as usize).is_some_and(|h| h.is_active());
@@ -140,7 +142,7 @@ fn coherent_scene_matches_the_reference_under_both_rules() {
             .collect();
         let mut hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
         let mut split_hb = ref_hb.clone();
-        let mut ref_rates: Vec<u32> = (0..n).map(|_| rng.below_u32(6 * RATE_ONE)).collect();
+        let mut ref_rates: Vec<u32> = (0..n).map(|_| rng.below_u32(200) * RATE_ONE).collect();
         let mut split_rates = ref_rates.clone();
         let (mut quiet_chunks, mut moved, mut overflowed, mut saturated) = (0, 0, 0, 0);
         for frame in 0..12u32 {
@@ -157,7 +159,7 @@ fn coherent_scene_matches_the_reference_under_both_rules() {
                 })
                 .collect();
             quiet_chunks += hits
-                .chunks_exact(16)
+                .chunks_exact(HIT_CHUNK)
                 .filter(|c| c.iter().all(|&h| h == 0))
                 .count();
             crate::assembly::begin_frame(&mut ref_hb);
@@ -168,7 +170,7 @@ fn coherent_scene_matches_the_reference_under_both_rules() {
                 a.add_hits(box_hits);
                 b.add_hits(box_hits);
             }
-            let capacity = [1000, 7][frame as usize % 2];
+            let capacity = [1000, 2][frame as usize % 2];
             let before = hot.clone();
             let got = assert_matches_reference(
                 &mut records,
@@ -213,9 +215,9 @@ fn every_busy_key_matches_the_reference() {
             let mut hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
             let hits = vec![hits_per_slot; records.len()];
             let mut ref_hb = vec![hitbox(false), hitbox(true)];
-            ref_hb[1].rate = 2 * RATE_ONE;
+            ref_hb[1].rate = 1000 * RATE_ONE;
             let mut split_hb = ref_hb.clone();
-            let mut ref_rates = vec![RATE_ONE; records.len()];
+            let mut ref_rates = vec![100 * RATE_ONE; records.len()];
             let mut split_rates = ref_rates.clone();
             assert_matches_reference(
                 &mut records,
@@ -308,7 +310,7 @@ fn hit_runs_saturate_like_one_add_per_slot() {
             .collect();
         let mut want: Vec<HitboxRecord> = (0..4)
             .map(|_| {
-                let mut h = hitbox(rng.below_u32(2) == 0);
+                let mut h = hitbox(rng.below_u32(4) == 0);
                 h.add_hits(rng.below_u32(hitbox_bits::HITS_MAX));
                 h
             })
