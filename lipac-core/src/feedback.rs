@@ -28,7 +28,10 @@
 //!   index is out of range is skipped ([`FeedbackStats::invalid_instances`]).
 //!
 //! Every line, the deviations from the pseudocode and why:
-//! `docs/ALGORITHMS.md`.
+//! `docs/ALGORITHMS.md`. The CPU decides the common cases many slots at a
+//! time (hit counters tested 32 at once, slots past the fast path found 64
+//! at once), with the same output as slot by slot: `docs/HOT_COLD.md`,
+//! "Instructions per slot".
 
 use std::fmt;
 
@@ -294,10 +297,11 @@ fn process(
 
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
-    // active hitbox) is decided for CHUNK slots at once on the bits alone
-    // ([`busy_mask`]); only the other slots run [`slot_step`], in slot
-    // order, so that commands keep their order. Under the decayed rule the
-    // skipped slots' rates are set to 0, as `slot_step` would.
+    // active hitbox) is decided for CHUNK slots at once from the packed
+    // bits and the hitbox codes ([`busy_mask`]); only the other slots run
+    // [`slot_step`], in slot order, so that commands keep their order.
+    // Under the decayed rule the skipped slots' rates are set to 0 (dead,
+    // pinned and fast-path slots have no rate).
     let n = instances.len();
     let mut base = 0;
     while base < n {
