@@ -379,9 +379,9 @@ const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
 /// `(box_hits, traced_hits)` ([`FeedbackStats`]).
 ///
 /// Most slots have no hits (inactive ones are never hit): [`HIT_CHUNK`]
-/// counters are OR-ed at once (the compiler vectorises it) and a chunk
-/// without hits is skipped whole. Consecutive adds to the same hitbox are
-/// summed first ([`HitRun`]), which gives the same count: adds saturate at
+/// counters at once give a mask of those with hits ([`nonzero_mask`]), and
+/// only those are visited. Consecutive adds to the same hitbox are summed
+/// first ([`HitRun`]), which gives the same count: adds saturate at
 /// [`hitbox_bits::HITS_MAX`] and never subtract. Not inlined: its loop
 /// keeps its values in registers.
 #[inline(never)]
@@ -421,8 +421,9 @@ fn accumulate_hits(
     (box_hits, traced_hits)
 }
 
-/// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of `hs`: an
-/// OR of per-lane bits, which the compiler vectorises (compare, and, OR).
+/// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of
+/// `hs`, given `bits` = [`HIT_BITS`]: an OR of per-lane bits, which the
+/// compiler vectorises (compare, AND, OR).
 #[inline(always)]
 fn nonzero_mask(hs: &[u32], bits: &[u32; HIT_CHUNK]) -> u32 {
     hs.iter()
@@ -442,7 +443,8 @@ const HIT_BITS: [u32; HIT_CHUNK] = {
 };
 
 /// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
-/// slots that add to the same hitbox.
+/// slots that add to the same hitbox (a `u64` holds the sum of 2^24 slots'
+/// `u32` hits).
 struct HitRun {
     hitbox: u32,
     hits: u64,
@@ -529,7 +531,9 @@ static BUSY: [[u8; 256]; 3] = {
             let state = bits & instance_bits::STATE_MASK;
             let inactive = state == 0 || state == instance_bits::STATE_MASK;
             let unique = bits & instance_bits::UNIQUE_BLAS != 0;
-            let fast = code < 2 && ((code == 1) != inactive) && (inactive || !unique);
+            let in_range = code != CODE_OUT_OF_RANGE as usize;
+            let active = code == CODE_ACTIVE as usize;
+            let fast = in_range && (active != inactive) && (inactive || !unique);
             t[code][p] = (live && !fast) as u8;
             p += 1;
         }
@@ -542,9 +546,9 @@ static BUSY: [[u8; 256]; 3] = {
 /// bounds check (codes above 2 never occur; they read the out-of-range
 /// row).
 static BUSY_ROW: [&[u8; 256]; 256] = {
-    let mut t = [&BUSY[2]; 256];
-    t[CODE_INACTIVE as usize] = &BUSY[0];
-    t[CODE_ACTIVE as usize] = &BUSY[1];
+    let mut t = [&BUSY[CODE_OUT_OF_RANGE as usize]; 256];
+    t[CODE_INACTIVE as usize] = &BUSY[CODE_INACTIVE as usize];
+    t[CODE_ACTIVE as usize] = &BUSY[CODE_ACTIVE as usize];
     t
 };
 
@@ -552,9 +556,9 @@ static BUSY_ROW: [&[u8; 256]; 256] = {
 /// 14–38 may touch ([`BUSY`]): per slot one look-up of the hitbox's code in
 /// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
 /// out of range is clamped to) and one of the table, no branch. A clear bit
-/// is exactly a [`slot_step`] that returns early without a counter or
-/// command. Not inlined: a small loop of its own keeps its values in
-/// registers.
+/// is a slot that lines 14–38 leave alone (no counter, command or state
+/// change; rate 0 under the decayed rule), a set bit one for [`slot_step`].
+/// Not inlined: a small loop of its own keeps its values in registers.
 #[inline(never)]
 fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
     let Some(last) = codes.len().checked_sub(1) else {
