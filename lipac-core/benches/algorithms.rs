@@ -22,12 +22,14 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::command::CommandBuffer;
-use lipac_core::feedback::process_feedback;
+use lipac_core::feedback::{process_feedback, process_feedback_with_rates};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState,
 };
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{
+    DecayedSettings, DecisionRule, Thresholds, RATE_ONE, REFERENCE_RAYS_PER_FRAME,
+};
 use lipac_test_support::{Rng64, XorShift64};
 
 const CELL: f32 = 16.0;
@@ -241,6 +243,55 @@ fn bench(c: &mut Criterion) {
             })
         });
 
+        // The same frame under the decayed rule with the sim's default
+        // settings (lipac-sim `LipacConfig::DEFAULT_DECAYED`) at 1080p:
+        // active hitboxes start at a rate between the thresholds, inactive
+        // ones at 0 (the 2500-hit boxes activate); unique slots' rates start
+        // at their hits of this frame.
+        let decayed = DecayedSettings {
+            half_life_frames: 5.0,
+            activate: 150.0,
+            deactivate: 30.0,
+            instance_activate: 150.0,
+            instance_omit: 30.0,
+            per_shared: 0.0,
+            per_unique: 0.0,
+        }
+        .rule_for_rays_per_frame(REFERENCE_RAYS_PER_FRAME)
+        .unwrap();
+        let th_decayed = th.with_rule(DecisionRule::Decayed(decayed));
+        let mut start_hitboxes_decayed = start_hitboxes.clone();
+        for h in &mut start_hitboxes_decayed {
+            h.rate = if h.is_active() { 100 * RATE_ONE } else { 0 };
+        }
+        let start_rates: Vec<u32> = s.hits.iter().map(|&h| h.min(0xFFFF) << 16).collect();
+        let mut rates = start_rates.clone();
+        group.bench_function(BenchmarkId::new("process_feedback_decayed", n), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    instances.copy_from_slice(&start_hot);
+                    hitboxes.copy_from_slice(&start_hitboxes_decayed);
+                    rates.copy_from_slice(&start_rates);
+                    commands.clear();
+                    evict(&mut flush);
+                    let t = Instant::now();
+                    let st = process_feedback_with_rates(
+                        &mut instances,
+                        black_box(&s.hits),
+                        &mut rates,
+                        &mut hitboxes,
+                        &th_decayed,
+                        &mut commands,
+                    )
+                    .unwrap();
+                    total += t.elapsed();
+                    black_box(st);
+                }
+                total
+            })
+        });
+
         // Report what the synthetic frame does (once, outside timing).
         let mut i2 = start_hot.clone();
         let mut h2 = start_hitboxes.clone();
@@ -248,9 +299,19 @@ fn bench(c: &mut Criterion) {
         let fs = process_feedback(&mut i2, &s.hits, &mut h2, &th, &mut c2).unwrap();
         let mut h3 = s.hitboxes.clone();
         let as_ = assemble_tlas(&s.arrays, &mut h3, &s.grid, &cfg, &mut Vec::new()).unwrap();
+        let (mut i4, mut h4, mut r4) = (
+            start_hot.clone(),
+            start_hitboxes_decayed.clone(),
+            start_rates.clone(),
+        );
+        let mut c4 = CommandBuffer::new(n as u32);
+        let fd =
+            process_feedback_with_rates(&mut i4, &s.hits, &mut r4, &mut h4, &th_decayed, &mut c4)
+                .unwrap();
         eprintln!(
-            "n = {n}: {as_:?}\n         {fs:?}, commands {}",
-            c2.stored()
+            "n = {n}: {as_:?}\n         {fs:?}, commands {}\n         decayed: {fd:?}, commands {}",
+            c2.stored(),
+            c4.stored()
         );
     }
     group.finish();

@@ -28,7 +28,10 @@
 //!   index is out of range is skipped ([`FeedbackStats::invalid_instances`]).
 //!
 //! Every line, the deviations from the pseudocode and why:
-//! `docs/ALGORITHMS.md`.
+//! `docs/ALGORITHMS.md`. The CPU decides the common cases many slots at a
+//! time (hit counters tested 32 at once, slots past the fast path found 64
+//! at once), with the same output as slot by slot: `docs/HOT_COLD.md`,
+//! "Instructions per slot".
 
 use std::fmt;
 
@@ -276,72 +279,37 @@ fn process(
     th.validate().map_err(FeedbackError::Thresholds)?;
     let mut stats = FeedbackStats::default();
 
-    // Lines 1–6: one thread per slot. Most slots have no hits (inactive
-    // ones are never hit): eight counters are tested at once and a chunk
-    // without hits is skipped whole.
-    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
-    let mut traced_hits: u64 = 0;
-    let hot_chunks = instances.chunks_exact(CHUNK);
-    let hit_chunks = instance_hits.chunks_exact(CHUNK);
-    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
-    for (ms, hs) in hot_chunks.zip(hit_chunks) {
-        if hs.iter().fold(0, |a, &h| a | h) == 0 {
-            continue;
-        }
-        for (m, &hits) in ms.iter().zip(hs) {
-            add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
-        }
-    }
-    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
-        add_instance_hits(m, hits, hitboxes, &mut box_hits, &mut traced_hits);
-    }
+    // Lines 1–6: one thread per slot ([`accumulate_hits`]).
+    let (box_hits, traced_hits) = accumulate_hits(instances, instance_hits, hitboxes);
     stats.box_hits = box_hits;
     stats.traced_hits = traced_hits;
 
-    // Lines 7–13: one thread per hitbox.
+    // Lines 7–13: one thread per hitbox. Each hitbox's new active bit also
+    // goes into `codes` for the fast path of lines 14–38.
     let mut decayed = match (&th.rule, rates) {
         (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
         _ => None,
     };
-    for h in hitboxes.iter_mut() {
-        let change = match &decayed {
-            Some((r, _)) => hitbox_step_decayed(h, r),
-            None => {
-                let (packed, change) = hitbox_step(h.packed, th);
-                h.packed = packed;
-                change
-            }
-        };
-        stats.hitboxes_activated += u32::from(change > 0);
-        stats.hitboxes_deactivated += u32::from(change < 0);
-    }
+    let (codes, activated, deactivated) =
+        step_hitboxes(hitboxes, decayed.as_ref().map(|(r, _)| r), th);
+    stats.hitboxes_activated = activated;
+    stats.hitboxes_deactivated = deactivated;
 
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
-    // active hitbox) is decided for eight slots at once on the bits alone
-    // ([`busy_mask`]); only the other slots run [`slot_step`], in slot
-    // order, so that commands keep their order.
+    // active hitbox) is decided for CHUNK slots at once from the packed
+    // bits and the hitbox codes ([`busy_mask`]); only the other slots run
+    // [`slot_step`], in slot order, so that commands keep their order.
+    // Under the decayed rule the skipped slots' rates are set to 0 (dead,
+    // pinned and fast-path slots have no rate).
     let n = instances.len();
-    if decayed.is_some() {
-        // The decayed rule writes every slot's rate: slot by slot.
-        for slot in 0..n {
-            slot_step(
-                slot,
-                instances,
-                instance_hits,
-                &mut decayed,
-                hitboxes,
-                th,
-                commands,
-                &mut stats,
-            );
-        }
-        return Ok(stats);
-    }
     let mut base = 0;
-    while base + CHUNK <= n {
-        let end = base + CHUNK;
-        let mut busy = busy_mask(&instances[base..end], hitboxes);
+    while base < n {
+        let end = (base + CHUNK).min(n);
+        let mut busy = busy_mask(&instances[base..end], &codes);
+        if let Some((_, rates)) = decayed.as_mut() {
+            zero_rates_but(&mut rates[base..end], busy);
+        }
         while busy != 0 {
             let slot = base + busy.trailing_zeros() as usize;
             busy &= busy - 1;
@@ -358,104 +326,297 @@ fn process(
         }
         base = end;
     }
-    for slot in base..n {
-        slot_step(
-            slot,
-            instances,
-            instance_hits,
-            &mut decayed,
-            hitboxes,
-            th,
-            commands,
-            &mut stats,
-        );
-    }
     Ok(stats)
 }
 
-/// Slots decided together by the fast paths of lines 1–6 and 14–38.
-const CHUNK: usize = 8;
-
-/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
-/// live omitted or active instance that is not pinned, to its hitbox.
-#[inline(always)]
-fn add_instance_hits(
-    m: &InstanceHot,
-    hits: u32,
+/// Lines 7–13 over every hitbox, under the decayed rule if `decayed` is
+/// given, else the paper's: returns each hitbox's new code ([`CODE_ACTIVE`]
+/// or [`CODE_INACTIVE`]) followed by [`CODE_OUT_OF_RANGE`], and the counts
+/// of activations and deactivations. Not inlined: a small loop of its own.
+#[inline(never)]
+fn step_hitboxes(
     hitboxes: &mut [HitboxRecord],
-    box_hits: &mut u64,
-    traced_hits: &mut u64,
-) {
-    const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
-    const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
-    if hits == 0 {
-        return; // adds nothing, to the hitbox or the sums
+    decayed: Option<&DecayedRule>,
+    th: &Thresholds,
+) -> (Vec<u8>, u32, u32) {
+    let mut codes = vec![CODE_OUT_OF_RANGE; hitboxes.len() + 1];
+    let (mut activated, mut deactivated) = (0, 0);
+    for (h, code) in hitboxes.iter_mut().zip(codes.iter_mut()) {
+        let change = match decayed {
+            Some(r) => hitbox_step_decayed(h, r),
+            None => {
+                let (packed, change) = hitbox_step(h.packed, th);
+                h.packed = packed;
+                change
+            }
+        };
+        activated += u32::from(change > 0);
+        deactivated += u32::from(change < 0);
+        *code = if h.packed & hitbox_bits::ACTIVE != 0 {
+            CODE_ACTIVE
+        } else {
+            CODE_INACTIVE
+        };
     }
-    let key = m.packed & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-    if key == LIVE_OMITTED {
-        *box_hits += u64::from(hits);
-    } else if key & instance_bits::ALIVE != 0 {
-        *traced_hits += u64::from(hits);
-    }
-    // Pinned instances are not the hitbox's to decide on: their hits stay out.
-    if (key == LIVE_OMITTED || key == LIVE_ACTIVE) && m.packed & instance_bits::PINNED == 0 {
-        if let Some(h) = hitboxes.get_mut(m.hitbox as usize) {
-            h.add_hits(hits); // line 4
-        }
-    }
+    (codes, activated, deactivated)
 }
 
-/// The bits of an instance's `packed` word that [`slot_step`]'s early
-/// returns look at: state, [`instance_bits::ALIVE`],
-/// [`instance_bits::UNIQUE_BLAS`] and [`instance_bits::PINNED`].
-const BUSY_KEY_MASK: u32 = instance_bits::STATE_MASK
-    | instance_bits::ALIVE
-    | instance_bits::UNIQUE_BLAS
-    | instance_bits::PINNED;
+/// Slots decided together by the fast path of lines 14–38 (the bits of a
+/// `u64` mask).
+const CHUNK: usize = 64;
 
-/// `BUSY[key | a << 7]`, for `key = packed & BUSY_KEY_MASK` and `a` the
-/// hitbox's active bit (2 for an index out of range): 1 where [`slot_step`]
-/// does more than return early (live, not pinned, and not on its fast path:
-/// inactive in an inactive hitbox, or active/omitted and not with a unique
-/// BLAS in an active one), else 0. Built from the same tests as
-/// `slot_step`'s early returns.
-const BUSY: [u8; 512] = {
-    let mut t = [0u8; 512];
+/// Hit counters tested together by the fast path of lines 1–6.
+const HIT_CHUNK: usize = 32;
+
+/// `packed & (ALIVE | PINNED | STATE_MASK)` of a live, active, unpinned
+/// instance: the common slot with hits.
+const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+/// The same for a live, omitted instance.
+const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+
+/// Lines 1–6 over every slot: adds each live omitted or active, unpinned
+/// instance's hits to its hitbox (line 4) and returns this frame's
+/// `(box_hits, traced_hits)` ([`FeedbackStats`]).
+///
+/// Most slots have no hits (inactive ones are never hit): [`HIT_CHUNK`]
+/// counters at once give a mask of those with hits ([`nonzero_mask`]), and
+/// only those are visited. Consecutive adds to the same hitbox are summed
+/// first ([`HitRun`]), which gives the same count: adds saturate at
+/// [`hitbox_bits::HITS_MAX`] and never subtract. Not inlined: its loop
+/// keeps its values in registers.
+#[inline(never)]
+fn accumulate_hits(
+    instances: &[InstanceHot],
+    instance_hits: &[u32],
+    hitboxes: &mut [HitboxRecord],
+) -> (u64, u64) {
+    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced_hits: u64 = 0;
+    let mut run = HitRun { hitbox: 0, hits: 0 };
+    // Opaque to the optimiser: with the constants in sight it turns some
+    // lanes into scalar shifts instead of one vector AND per four lanes.
+    let bits = std::hint::black_box(&HIT_BITS);
+    let hot_chunks = instances.chunks_exact(HIT_CHUNK);
+    let hit_chunks = instance_hits.chunks_exact(HIT_CHUNK);
+    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
+    for (ms, hs) in hot_chunks.zip(hit_chunks) {
+        let mut nonzero = nonzero_mask(hs, bits);
+        while nonzero != 0 {
+            let i = nonzero.trailing_zeros() as usize;
+            nonzero &= nonzero - 1;
+            add_instance_hits(
+                &ms[i],
+                hs[i],
+                hitboxes,
+                &mut run,
+                &mut box_hits,
+                &mut traced_hits,
+            );
+        }
+    }
+    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
+        add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+    }
+    run.flush(hitboxes);
+    (box_hits, traced_hits)
+}
+
+/// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of
+/// `hs`, given `bits` = [`HIT_BITS`]: an OR of per-lane bits, which the
+/// compiler vectorises (compare, AND, OR).
+#[inline(always)]
+fn nonzero_mask(hs: &[u32], bits: &[u32; HIT_CHUNK]) -> u32 {
+    hs.iter()
+        .zip(bits)
+        .fold(0, |m, (&h, &bit)| m | if h != 0 { bit } else { 0 })
+}
+
+/// `1 << i` for lane `i` of [`nonzero_mask`].
+const HIT_BITS: [u32; HIT_CHUNK] = {
+    let mut t = [0; HIT_CHUNK];
     let mut i = 0;
-    while i < 512 {
-        let p = (i & 0x7F) as u32;
-        let a = i >> 7;
-        let live = p & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
-        let bits = p & instance_bits::STATE_MASK;
-        let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
-        let unique = p & instance_bits::UNIQUE_BLAS != 0;
-        let fast = a < 2 && ((a == 1) != inactive) && (inactive || !unique);
-        // Keys with bits outside BUSY_KEY_MASK, and a == 3, never occur.
-        t[i] = (live && !fast) as u8;
+    while i < HIT_CHUNK {
+        t[i] = 1 << i;
         i += 1;
     }
     t
 };
 
-/// Bit `i` set for each slot `i` of `chunk` that lines 14–38 may touch
-/// ([`BUSY`]): one table look-up per slot, no branch but the hitbox bounds
-/// check. A clear bit is exactly a [`slot_step`] that returns early without
-/// a counter or command.
-#[inline(always)]
-fn busy_mask(chunk: &[InstanceHot], hitboxes: &[HitboxRecord]) -> u32 {
-    let mut busy = 0u32;
-    for (i, m) in chunk.iter().enumerate() {
-        let a = hitboxes
-            .get(m.hitbox as usize)
-            .map_or(2, |h| h.packed & hitbox_bits::ACTIVE);
-        let key = ((m.packed & BUSY_KEY_MASK) | (a << 7)) as usize;
-        busy |= u32::from(BUSY[key & 511]) << i;
-    }
-    busy
+/// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
+/// slots that add to the same hitbox (a `u64` holds the sum of 2^24 slots'
+/// `u32` hits).
+struct HitRun {
+    hitbox: u32,
+    hits: u64,
 }
 
-/// Lines 14–38 for one slot (the rate of a dead, pinned or fast-path slot
-/// set to 0 under the decayed rule).
+impl HitRun {
+    /// Adds `hits` to `hitbox`'s run, flushing the run of another hitbox.
+    #[inline(always)]
+    fn add(&mut self, hitbox: u32, hits: u32, hitboxes: &mut [HitboxRecord]) {
+        if hitbox != self.hitbox {
+            self.flush(hitboxes);
+            self.hitbox = hitbox;
+        }
+        self.hits += u64::from(hits);
+    }
+
+    /// Adds the run's hits to its hitbox (none if its index is out of
+    /// range), saturating as [`HitboxRecord::add_hits`] one by one would.
+    #[inline(always)]
+    fn flush(&mut self, hitboxes: &mut [HitboxRecord]) {
+        if let Some(h) = hitboxes.get_mut(self.hitbox as usize) {
+            let total = (u64::from(h.hits()) + self.hits).min(u64::from(hitbox_bits::HITS_MAX));
+            h.packed = (h.packed & ((1 << hitbox_bits::HITS_SHIFT) - 1))
+                | ((total as u32) << hitbox_bits::HITS_SHIFT);
+        }
+        self.hits = 0;
+    }
+}
+
+/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
+/// live omitted or active instance that is not pinned, to its hitbox's run.
+#[inline(always)]
+fn add_instance_hits(
+    m: &InstanceHot,
+    hits: u32,
+    hitboxes: &mut [HitboxRecord],
+    run: &mut HitRun,
+    box_hits: &mut u64,
+    traced_hits: &mut u64,
+) {
+    // No test for zero hits: they add nothing, to the sums or to a run.
+    let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
+    if key == LIVE_ACTIVE {
+        *traced_hits += u64::from(hits);
+        run.add(m.hitbox, hits, hitboxes); // line 4
+        return;
+    }
+    let state = key & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+    if state == LIVE_OMITTED {
+        *box_hits += u64::from(hits);
+    } else if state & instance_bits::ALIVE != 0 {
+        *traced_hits += u64::from(hits);
+    }
+    // Pinned instances are not the hitbox's to decide on: their hits stay out.
+    if key == LIVE_OMITTED {
+        run.add(m.hitbox, hits, hitboxes); // line 4
+    }
+}
+
+/// `codes` entry of an inactive hitbox (after lines 7–13): the row of
+/// [`BUSY`] its instances read.
+const CODE_INACTIVE: u8 = 0;
+/// `codes` entry of an active hitbox.
+const CODE_ACTIVE: u8 = 1;
+/// The code of a hitbox index out of range.
+const CODE_OUT_OF_RANGE: u8 = 2;
+
+/// `BUSY[code][packed & 0xFF]`, for `code` the instance's hitbox code
+/// ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]): 1 where
+/// lines 14–38 do more than return early (live, not pinned, and not on the
+/// fast path: inactive in an inactive hitbox, or active/omitted and not
+/// with a unique BLAS in an active one), else 0. Only the state,
+/// [`instance_bits::ALIVE`], [`instance_bits::UNIQUE_BLAS`] and
+/// [`instance_bits::PINNED`] bits of the low byte matter.
+static BUSY: [[u8; 256]; 3] = {
+    let mut t = [[0u8; 256]; 3];
+    let mut code = 0;
+    while code < 3 {
+        let mut p = 0;
+        while p < 256 {
+            let bits = p as u32;
+            let live =
+                bits & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
+            let state = bits & instance_bits::STATE_MASK;
+            let inactive = state == 0 || state == instance_bits::STATE_MASK;
+            let unique = bits & instance_bits::UNIQUE_BLAS != 0;
+            let in_range = code != CODE_OUT_OF_RANGE as usize;
+            let active = code == CODE_ACTIVE as usize;
+            let fast = in_range && (active != inactive) && (inactive || !unique);
+            t[code][p] = (live && !fast) as u8;
+            p += 1;
+        }
+        code += 1;
+    }
+    t
+};
+
+/// The row of [`BUSY`] for each `u8` code: a look-up by code without a
+/// bounds check (codes above 2 never occur; they read the out-of-range
+/// row).
+static BUSY_ROW: [&[u8; 256]; 256] = {
+    let mut t = [&BUSY[CODE_OUT_OF_RANGE as usize]; 256];
+    t[CODE_INACTIVE as usize] = &BUSY[CODE_INACTIVE as usize];
+    t[CODE_ACTIVE as usize] = &BUSY[CODE_ACTIVE as usize];
+    t
+};
+
+/// Bit `i` set for each slot `i` of `chunk` (at most 64 slots) that lines
+/// 14–38 may touch ([`BUSY`]): per slot one look-up of the hitbox's code in
+/// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
+/// out of range is clamped to) and one of the table, no branch. A clear bit
+/// is a slot that lines 14–38 leave alone (no counter, command or state
+/// change; rate 0 under the decayed rule), a set bit one for [`slot_step`].
+/// Not inlined: a small loop of its own keeps its values in registers.
+#[inline(never)]
+fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
+    let Some(last) = codes.len().checked_sub(1) else {
+        return 0; // never: `codes` ends with the sentinel
+    };
+    let busy = |m: &InstanceHot| {
+        let row = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
+        u64::from(row[(m.packed & 0xFF) as usize])
+    };
+    let eights = chunk.chunks_exact(8);
+    let tail = eights.remainder();
+    let mut mask = 0u64;
+    let mut shift = 0;
+    for e in eights {
+        // Pairs, then quads, then the eight: a shallow tree of adds.
+        let b01 = busy(&e[0]) + 2 * busy(&e[1]);
+        let b23 = busy(&e[2]) + 2 * busy(&e[3]);
+        let b45 = busy(&e[4]) + 2 * busy(&e[5]);
+        let b67 = busy(&e[6]) + 2 * busy(&e[7]);
+        mask |= (b01 + 4 * b23 + 16 * (b45 + 4 * b67)) << shift;
+        shift += 8;
+    }
+    for m in tail {
+        mask |= busy(m) << shift;
+        shift += 1;
+    }
+    mask
+}
+
+/// Sets `rates[i]` to 0 where bit `i` of `keep` is clear (at most 64
+/// rates): the busy slots' rates are put aside, the chunk zeroed whole
+/// (the compiler vectorises it) and they are put back.
+#[inline(always)]
+fn zero_rates_but(rates: &mut [u32], keep: u64) {
+    let mut kept = [0u32; CHUNK];
+    let mut bits = keep;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if let (Some(k), Some(&r)) = (kept.get_mut(i), rates.get(i)) {
+            *k = r;
+        }
+    }
+    rates.fill(0);
+    let mut bits = keep;
+    while bits != 0 {
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if let (Some(r), Some(&k)) = (rates.get_mut(i), kept.get(i)) {
+            *r = k;
+        }
+    }
+}
+
+/// Lines 14–38 for one slot that [`busy_mask`] marked: live, not pinned
+/// and not on the fast path (dead, pinned and fast-path slots return early
+/// without a counter, a command or a state change, their rate 0 under the
+/// decayed rule: [`zero_rates_but`]).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn slot_step(
@@ -469,32 +630,12 @@ fn slot_step(
     stats: &mut FeedbackStats,
 ) {
     let packed = instances[slot].packed;
-    // Dead, or pinned: Algorithm 2 never moves a pinned instance. The
-    // rate of either is 0 (a dead slot is reused only after quarantine).
-    if packed & (instance_bits::ALIVE | instance_bits::PINNED) != instance_bits::ALIVE {
-        if let Some((_, rates)) = decayed.as_mut() {
-            rates[slot] = 0;
-        }
-        return;
-    }
     let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
         stats.invalid_instances += 1;
         return;
     };
     let h_active = h.packed & hitbox_bits::ACTIVE != 0;
     let unique = packed & instance_bits::UNIQUE_BLAS != 0;
-    // Fast path, on the bits alone: nothing in lines 16–37 can fire for
-    // an inactive instance (state bits 0, or the unused 3) in an
-    // inactive hitbox, nor for a shared-BLAS active or omitted one in an
-    // active hitbox (and the rate of either is 0).
-    let bits = packed & instance_bits::STATE_MASK;
-    let inactive = bits == 0 || bits == instance_bits::STATE_MASK;
-    if h_active != inactive && (inactive || !unique) {
-        if let Some((_, rates)) = decayed.as_mut() {
-            rates[slot] = 0;
-        }
-        return;
-    }
     let m = &mut instances[slot];
     let hits = instance_hits[slot];
     let old = m.state();

@@ -1103,3 +1103,5 @@ mod decayed {
         assert!(e.to_string().contains("rate buffer"));
     }
 }
+
+mod chunks;
