@@ -401,7 +401,7 @@ fn coarser_lods_at_the_budget_hold_it_through_a_pull_back() -> Result<(), Manage
     );
     // Without the lever the held instances keep LOD 0 for the hysteresis
     // while the newly hot ones arrive: over the budget by more than 5 % for
-    // most of it (measured: 10 frames at +25 %). With it they switch at
+    // most of it (measured: about 10 frames at +25 %). With it they switch at
     // once; what remains is the one frame whose acknowledgements bring the
     // coarser BLASes while the finer ones wait in the cache for the next
     // frame's eviction (allocate before free). Within 5 % before and after.
