@@ -695,7 +695,7 @@ impl BuildScheduler {
             frees: std::mem::take(&mut self.frees),
             ..FramePlan::default()
         };
-        self.process_lod_switches()?;
+        self.process_lod_switches(false)?;
 
         let mut packer = ScratchPacker {
             align: self.config.scratch_alignment,
@@ -1020,6 +1020,22 @@ impl BuildScheduler {
         self.cache.trim()
     }
 
+    /// Performs now every requested switch to a coarser LOD that still
+    /// waits for its hysteresis (`lod_hysteresis_frames`), as
+    /// [`BuildScheduler::plan`] would once it elapsed: to a cached BLAS at
+    /// once (free-before-allocate), otherwise the coarser BLAS is queued and
+    /// the instance keeps its current one until it is built. Finer switches
+    /// keep their hysteresis. Returns the switches made. A memory budget's
+    /// lever ([`crate::controller::ControllerConfig::coarsen_over_budget`]):
+    /// a camera jump away from a view leaves its instances at the near
+    /// view's LODs for the whole hysteresis.
+    pub fn expedite_coarser_lods(&mut self) -> Result<usize, BuildPlanError> {
+        if !self.started {
+            return Err(BuildPlanError::FrameNotStarted);
+        }
+        self.process_lod_switches(true)
+    }
+
     // ---- internals ----
 
     fn slot_mut(&mut self, instance: InstanceKey) -> Result<&mut Slot, BuildPlanError> {
@@ -1118,8 +1134,10 @@ impl BuildScheduler {
         Ok(())
     }
 
-    /// Performs the LOD switches whose hysteresis has elapsed: coarser first.
-    fn process_lod_switches(&mut self) -> Result<(), BuildPlanError> {
+    /// Performs the LOD switches whose hysteresis has elapsed, coarser
+    /// first, and with `coarser_now` every switch to a coarser LOD at once;
+    /// returns how many.
+    fn process_lod_switches(&mut self, coarser_now: bool) -> Result<usize, BuildPlanError> {
         let frame = self.cache.frame();
         let h = u64::from(self.config.lod_hysteresis_frames);
         let mut due: Vec<(bool, InstanceKey)> = self
@@ -1128,10 +1146,13 @@ impl BuildScheduler {
             .filter_map(|(&k, s)| {
                 let d = s.desired?;
                 let cur = s.current?;
-                (frame >= d.since.saturating_add(h)).then_some((!d.lod.is_coarser_than(cur.lod), k))
+                let coarser = d.lod.is_coarser_than(cur.lod);
+                (frame >= d.since.saturating_add(h) || (coarser_now && coarser))
+                    .then_some((!coarser, k))
             })
             .collect();
         due.sort();
+        let switches = due.len();
         for (finer, inst) in due {
             let slot = self.slot_mut(inst)?;
             let (Some(d), Some(cur)) = (slot.desired.take(), slot.current) else {
@@ -1175,7 +1196,7 @@ impl BuildScheduler {
                 self.assign(inst, d.lod, d.estimate)?;
             }
         }
-        Ok(())
+        Ok(switches)
     }
 }
 

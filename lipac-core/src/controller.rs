@@ -121,14 +121,26 @@ pub struct ControllerConfig {
     /// old view's BLASes). Nothing in use is evicted; an evicted BLAS needed
     /// again is rebuilt.
     pub evict_cached_over_budget: bool,
+    /// The third lever of a [`ControlTarget::MemoryBudget`]: in a frame
+    /// whose memory is over the budget or within the dead band below it
+    /// ([`ThresholdController::wants_coarsening`]), the Manager makes every requested
+    /// switch to a coarser LOD at once instead of after the scheduler's LOD
+    /// hysteresis ([`crate::build_plan::BuildScheduler::expedite_coarser_lods`]).
+    /// After a camera jump the old view's instances, still in use from the
+    /// new one, keep the near view's LODs for the whole hysteresis, which no
+    /// threshold reaches (docs/EVALUATION.md, "Closed-loop thresholds").
+    /// Finer switches keep their hysteresis; a coarser BLAS not cached is
+    /// built first, the instance keeps its current one until then.
+    pub coarsen_over_budget: bool,
 }
 
 impl Default for ControllerConfig {
     /// Scale in [1/32, 32], `k_p` = 0.3, `k_i` = 0.03, over-gain 2, step
     /// 0.1, dead band 0.01, error clamp 1, smoothing 0.3, 30 warm-up frames,
     /// unreachable after 30 saturated frames, 176-byte TLAS records
-    /// (lavapipe), cached BLASes evicted over budget. Measured in
-    /// docs/EVALUATION.md, "Closed-loop thresholds".
+    /// (lavapipe), cached BLASes evicted and coarser LODs switched at once
+    /// at the budget. Measured in docs/EVALUATION.md, "Closed-loop
+    /// thresholds".
     fn default() -> Self {
         Self {
             min_scale: 1.0 / 32.0,
@@ -144,6 +156,7 @@ impl Default for ControllerConfig {
             unreachable_frames: 30,
             tlas_record_bytes: 176,
             evict_cached_over_budget: true,
+            coarsen_over_budget: true,
         }
     }
 }
@@ -229,6 +242,11 @@ pub struct ControllerStats {
     pub evicting_frames: u64,
     /// BLASes evicted so.
     pub evicted: u64,
+    /// Frames at or over a memory budget in which waiting coarser LOD switches
+    /// were made at once ([`ControllerConfig::coarsen_over_budget`]).
+    pub coarsening_frames: u64,
+    /// LOD switches made so.
+    pub coarsened: u64,
 }
 
 /// The closed-loop controller; see the [module docs](self).
@@ -369,6 +387,27 @@ impl ThresholdController {
     pub fn wants_eviction(&self, memory_bytes: u64) -> bool {
         self.config.evict_cached_over_budget
             && matches!(self.target, ControlTarget::MemoryBudget { bytes } if memory_bytes > bytes)
+    }
+
+    /// Whether a memory budget's third lever should act on a frame that
+    /// measured `memory_bytes`: [`ControllerConfig::coarsen_over_budget`]
+    /// is set and the memory is not clearly under the budget (above
+    /// `budget · e^−deadband`, the dead band below it, where a held budget
+    /// sits: a camera jump is seen only once the new view's builds land,
+    /// two frames after the LODs it asks for).
+    pub fn wants_coarsening(&self, memory_bytes: u64) -> bool {
+        self.config.coarsen_over_budget
+            && matches!(self.target, ControlTarget::MemoryBudget { bytes }
+                if memory_bytes as f64 > bytes as f64 * (-self.config.deadband).exp())
+    }
+
+    /// Records that the third lever made `switches` LOD switches this frame
+    /// (a frame without a switch is not counted).
+    pub fn note_coarsening(&mut self, switches: usize) {
+        if switches > 0 {
+            self.stats.coarsening_frames += 1;
+            self.stats.coarsened = self.stats.coarsened.saturating_add(switches as u64);
+        }
     }
 
     /// Records that the second lever evicted `blases` BLASes this frame.

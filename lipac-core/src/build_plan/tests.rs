@@ -747,3 +747,53 @@ fn caller_errors() {
         Err(BuildPlanError::Cache(BlasError::NonMonotonicFrame { .. }))
     ));
 }
+
+#[test]
+fn coarser_switches_can_skip_the_hysteresis_finer_ones_cannot() {
+    let mut s = BuildScheduler::new(config(1 << 40, 0, 16)).unwrap();
+    assert_eq!(
+        s.expedite_coarser_lods(),
+        Err(BuildPlanError::FrameNotStarted)
+    );
+    s.begin_frame(1).unwrap();
+    precache(&mut s, 1, 1, 1, 10);
+    s.begin_frame(2).unwrap();
+    // X (mesh 1, LOD 0 → 1, cached), Y (mesh 2, LOD 0 → 1, not cached),
+    // Z (mesh 3, LOD 1 → 0, finer).
+    let (x, y, z) = (InstanceKey(0), InstanceKey(1), InstanceKey(2));
+    s.activate(x, req(shared(1), 0, est(1, 100, 0))).unwrap();
+    s.activate(y, req(shared(2), 0, est(1, 100, 0))).unwrap();
+    s.activate(z, req(shared(3), 1, est(1, 10, 0))).unwrap();
+    frame(&mut s, 2, &big());
+    let y_old = s.blas_address(y).unwrap();
+    s.take_address_changes();
+    s.begin_frame(3).unwrap();
+    s.request_lod(x, Lod(1), est(1, 10, 0)).unwrap();
+    s.request_lod(y, Lod(1), est(1, 10, 0)).unwrap();
+    s.request_lod(z, Lod(0), est(1, 100, 0)).unwrap();
+    s.plan(&big()).unwrap();
+    assert_eq!(s.current_lod(x), Some(Lod(0)), "hysteresis");
+    assert_eq!(s.expedite_coarser_lods(), Ok(2));
+    // The cached one at once, the other queued while Y keeps its BLAS; the
+    // finer one waits for its hysteresis.
+    assert_eq!(s.current_lod(x), Some(Lod(1)));
+    assert_eq!(s.take_address_changes(), vec![x]);
+    assert_eq!(
+        (s.current_lod(y), s.pending_lod(y)),
+        (Some(Lod(0)), Some(Lod(1)))
+    );
+    assert_eq!(s.blas_address(y), Some(y_old));
+    assert_eq!((s.current_lod(z), s.pending_lod(z)), (Some(Lod(1)), None));
+    assert_eq!(s.expedite_coarser_lods(), Ok(0), "nothing left to switch");
+    s.begin_frame(4).unwrap();
+    let p = s.plan(&big()).unwrap();
+    assert_eq!(p.builds().count(), 1, "Y's coarser BLAS");
+    ack_all(&mut s, &p);
+    assert_eq!(s.current_lod(y), Some(Lod(1)));
+    for f in 5..19 {
+        frame(&mut s, f, &big());
+        assert_eq!(s.current_lod(z), Some(Lod(1)), "frame {f}");
+    }
+    frame(&mut s, 19, &big());
+    assert_eq!(s.current_lod(z), Some(Lod(0)), "after 16 frames");
+}

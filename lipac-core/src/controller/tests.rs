@@ -339,3 +339,28 @@ fn the_second_lever_acts_only_over_a_memory_budget() {
         "an escape target has no budget"
     );
 }
+
+#[test]
+fn the_third_lever_acts_at_a_memory_budget_and_its_dead_band() {
+    // Dead band 0.01: the lever acts above 1000 · e^-0.01 ≈ 990.05 bytes.
+    let budget = ControlTarget::MemoryBudget { bytes: 1000 };
+    let mut c = ThresholdController::new(budget, ControllerConfig::default()).unwrap();
+    assert!(!c.wants_coarsening(990), "clearly under the budget");
+    assert!(c.wants_coarsening(991), "within the dead band below it");
+    assert!(c.wants_coarsening(1000) && c.wants_coarsening(u64::MAX));
+    c.note_coarsening(5);
+    c.note_coarsening(0);
+    assert_eq!((c.stats().coarsening_frames, c.stats().coarsened), (1, 5));
+    let off = ControllerConfig {
+        coarsen_over_budget: false,
+        ..ControllerConfig::default()
+    };
+    let c = ThresholdController::new(budget, off).unwrap();
+    assert!(!c.wants_coarsening(u64::MAX));
+    let escape = ControlTarget::EscapeFraction { fraction: 0.1 };
+    let c = ThresholdController::new(escape, ControllerConfig::default()).unwrap();
+    assert!(
+        !c.wants_coarsening(u64::MAX),
+        "an escape target has no budget"
+    );
+}

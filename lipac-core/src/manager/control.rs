@@ -16,6 +16,9 @@
 //!   frees follow after the frames in flight), since that memory does not
 //!   depend on the thresholds
 //!   ([`ControllerConfig::evict_cached_over_budget`]).
+//! * And a third: in a frame over the budget every requested switch to a
+//!   coarser LOD is made at once, not after the scheduler's LOD hysteresis
+//!   ([`ControllerConfig::coarsen_over_budget`]).
 
 use crate::controller::{ControlTarget, ControllerConfig, EscapeSample, ThresholdController};
 use crate::feedback::FeedbackStats;
@@ -126,9 +129,22 @@ impl<H: HitboxIndex> Manager<H> {
         let scale = c.update(memory, escape);
         // The second lever: over budget, the memory the thresholds cannot
         // reach soon (BLASes only the cache's retention keeps) goes now.
+        // The third lever: the coarser LODs the camera asks for now, not
+        // after the hysteresis (before the eviction, which then takes the
+        // finer BLASes a cached switch left unused).
+        let mut switched = false;
+        if c.wants_coarsening(memory) {
+            let switches = self.scheduler.expedite_coarser_lods()?;
+            c.note_coarsening(switches);
+            switched = switches > 0;
+        }
         if c.wants_eviction(memory) {
             let evicted = self.scheduler.trim_cache();
             c.note_eviction(evicted);
+        }
+        if switched {
+            // This frame's records and data ranges follow the switches.
+            self.sync_addresses()?;
         }
         let t = self
             .base_thresholds

@@ -227,12 +227,17 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
         "{:.3}",
         max(&free[at + 5..])
     );
-    // Held: never above what LiPaC alone takes after warm-up, the jump's
-    // transient cut (the old view's BLASes evicted once over budget, the
-    // thresholds raised), and within 5 % over from then on.
+    // Held: near or over the budget never above what LiPaC alone takes
+    // after warm-up (well under it, the cache's retention may free a BLAS
+    // a frame apart), the jump's transient cut (the old view's coarser
+    // LODs taken at once, its BLASes evicted once over budget), and within
+    // 5 % over from the second frame after the jump: the first is the one
+    // whose builds bring the coarser BLASes before the finer ones go
+    // (measured +12.2 %, LiPaC alone +11.8 %); without the coarser-LOD
+    // lever memory from that frame on reached +8.2 %.
     for f in 30..frames as usize {
         assert!(
-            held[f] <= free[f] + 0.005,
+            held[f] < -0.05 || held[f] <= free[f] + 0.005,
             "frame {f}: {:.3} vs {:.3}",
             held[f],
             free[f]
@@ -244,11 +249,7 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
         max(&held[at + 5..]),
         max(&free[at + 5..])
     );
-    assert!(
-        max(&held[at + 10..]) <= 0.05,
-        "{:.3}",
-        max(&held[at + 10..])
-    );
+    assert!(max(&held[at + 2..]) <= 0.05, "{:.3}", max(&held[at + 2..]));
     // The scale rose over the budget and came back to 1 once the far view
     // needed less than the budget (a ceiling).
     let scales: Vec<f64> = r
