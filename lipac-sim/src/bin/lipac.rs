@@ -221,10 +221,12 @@ struct SweepArgs {
     #[arg(long, value_delimiter = ',', default_value = "50:0.1,100:0.05")]
     latency: Vec<String>,
     /// Further decayed-rule settings (LiPaC at factor 1), each
-    /// `K_UP[:A/D[:IA/IO]]`: the rise shift (1..=the decay shift, 3; `-`
-    /// for the decay shift), then optionally the hitbox activation /
-    /// deactivation and instance activation / omit rates in hits per frame
-    /// at 1080p (default 150/30:150/30). E.g. `1,2,1:200/40`.
+    /// `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise shift (1..=the decay
+    /// shift, 3; `-` for the decay shift), then optionally the hitbox
+    /// activation / deactivation and instance activation / omit rates in
+    /// hits per frame at 1080p (default 150/30:150/30) and the decay
+    /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
+    /// write `--decayed=-:100/20` when the first one starts with `-`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.

@@ -143,11 +143,12 @@ pub fn scaled_thresholds(rays_per_frame: u64, factor: f64) -> Result<Thresholds,
     Thresholds::for_rays_per_frame(rays_per_frame as f64 * factor).map_err(SimError::core)
 }
 
-/// Decayed-rule settings from `K_UP[:A/D[:IA/IO]]`: the rise shift
-/// ([`lipac_core::thresholds::DecayedRule::rise_shift`]; `-` keeps the decay
-/// shift), then optionally the hitbox activation / deactivation and the
-/// instance activation / omit rates in hits per frame at 1080p (like
-/// [`LipacConfig::DEFAULT_DECAYED`]'s 150/30); what is not given is `base`'s.
+/// Decayed-rule settings from `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise
+/// shift ([`lipac_core::thresholds::DecayedRule::rise_shift`]; `-` keeps the
+/// decay shift), then optionally the hitbox activation / deactivation and
+/// the instance activation / omit rates in hits per frame at 1080p (like
+/// [`LipacConfig::DEFAULT_DECAYED`]'s 150/30) and the decay half-life in
+/// frames; what is not given is `base`'s.
 /// Checked against the rays only when the sweep builds its variants.
 ///
 /// ```
@@ -159,6 +160,7 @@ pub fn scaled_thresholds(rays_per_frame: u64, factor: f64) -> Result<Thresholds,
 /// assert_eq!((s.activate, s.deactivate, s.instance_activate, s.instance_omit), (200.0, 40.0, 100.0, 20.0));
 /// assert_eq!(parse_decayed_spec("2", &base).unwrap().activate, base.activate);
 /// assert_eq!(parse_decayed_spec("-:300/60", &base).unwrap().rise_shift, None);
+/// assert_eq!(parse_decayed_spec("1:150/30:150/30:2.4", &base).unwrap().half_life_frames, 2.4);
 /// assert!(parse_decayed_spec("1:200", &base).is_err());
 /// assert!(parse_decayed_spec("x", &base).is_err());
 /// ```
@@ -189,19 +191,31 @@ pub fn parse_decayed_spec(spec: &str, base: &DecayedSettings) -> Result<DecayedS
     if let Some(p) = parts.next() {
         (s.instance_activate, s.instance_omit) = pair(p)?;
     }
+    if let Some(p) = parts.next() {
+        s.half_life_frames = p
+            .trim()
+            .parse()
+            .map_err(|_| format!("decayed rule `{spec}`: half-life `{p}` is not a number"))?;
+    }
     if parts.next().is_some() {
-        return Err(format!("decayed rule `{spec}`: at most three `:` parts"));
+        return Err(format!("decayed rule `{spec}`: at most four `:` parts"));
     }
     Ok(s)
 }
 
-/// A decayed-rule variant's report name: `lipac rise K a/d ia/io`.
+/// A decayed-rule variant's report name: `lipac rise K a/d ia/io`, and
+/// `hl H` when the half-life is not the default's.
 fn decayed_name(s: &DecayedSettings) -> String {
     let rise = s
         .rise_shift
         .map_or_else(|| "-".to_string(), |k| k.to_string());
+    let half_life = if s.half_life_frames == LipacConfig::DEFAULT_DECAYED.half_life_frames {
+        String::new()
+    } else {
+        format!(" hl {}", s.half_life_frames)
+    };
     format!(
-        "lipac rise {rise} {}/{} {}/{}",
+        "lipac rise {rise} {}/{} {}/{}{half_life}",
         s.activate, s.deactivate, s.instance_activate, s.instance_omit
     )
 }
