@@ -39,7 +39,7 @@ use crate::command::{priority_from_hits, Command, CommandBuffer, CommandKind};
 use crate::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceHot, InstanceState, MAX_SLOTS,
 };
-use crate::thresholds::{decay_rate, DecayedRule, DecisionRule, ThresholdError, Thresholds};
+use crate::thresholds::{DecayedRule, DecisionRule, ThresholdError, Thresholds};
 
 /// What one run of [`process_feedback`] did, by line of Algorithm 2.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -170,7 +170,7 @@ fn hitbox_step(packed: u32, th: &Thresholds) -> (u32, i8) {
 /// state (streak bits cleared, hits kept); `+1` activation, `-1`
 /// deactivation.
 fn hitbox_step_decayed(h: &mut HitboxRecord, r: &DecayedRule) -> i8 {
-    let rate = decay_rate(h.rate, h.hits(), r.shift);
+    let rate = r.update_rate(h.rate, h.hits());
     h.rate = rate;
     let active = h.is_active();
     let (active, change) = if !active {
@@ -689,7 +689,7 @@ fn slot_step(
                 InstanceState::Inactive => 0,
                 // Not in the TLAS until its BLAS exists: no evidence, held.
                 InstanceState::Active if !m.has_blas() => rates[slot],
-                _ => decay_rate(rates[slot], hits, r.shift),
+                _ => r.update_rate(rates[slot], hits),
             };
             rates[slot] = rate;
             if !overflow {

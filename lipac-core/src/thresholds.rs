@@ -28,16 +28,20 @@
 //! above one rate, deactivate below a lower one) and cost-aware activation
 //! (a hitbox needs more evidence the more inactive instances activating it
 //! would bring in). The rate is a `u32` in 16.16 fixed point (hits per frame
-//! · 2^16) updated by [`decay_rate`], the exact integer rule the shaders
-//! use:
+//! · 2^16) updated by [`rise_decay_rate`], the exact integer rule the
+//! shaders use:
 //!
 //! ```text
 //! h     = min(hits, 65535)
-//! rate' = rate − (rate >> k) + ((h << 16) >> k)        (k = DecayedRule::shift)
+//! j     = k_up if (h << 16) > rate else k    (k = DecayedRule::shift,
+//!                                             k_up = DecayedRule::rise_shift)
+//! rate' = rate − (rate >> j) + ((h << 16) >> j)
 //! ```
 //!
-//! i.e. `rate' ≈ (1 − 2^−k)·rate + 2^−k·hits`, a half-life of about
-//! `0.69·2^k` frames, never overflowing (see [`decay_rate`]).
+//! i.e. `rate' ≈ (1 − 2^−j)·rate + 2^−j·hits`, a half-life of about
+//! `0.69·2^k` frames while falling and `0.69·2^k_up` while rising, never
+//! overflowing (see [`rise_decay_rate`]). `k_up = k` is the symmetric
+//! [`decay_rate`].
 
 use std::fmt;
 
@@ -120,6 +124,36 @@ pub fn decay_rate(rate: u32, hits: u32, shift: u32) -> u32 {
     rate - (rate >> k) + ((h << 16) >> k)
 }
 
+/// One frame of the decayed hit rate that rises faster than it decays:
+/// [`decay_rate`] with `rise_shift` when this frame's hits in 16.16
+/// (`min(hits, 65535) << 16`) exceed `rate`, else with `shift`. `shift` is
+/// clamped to `1..=16`, `rise_shift` to `1..=shift`; `rise_shift == shift`
+/// is [`decay_rate`] exactly.
+///
+/// Each branch is [`decay_rate`] with a valid shift, so it never overflows.
+/// It is monotone in `hits` and in `rate`: the rising branch never passes
+/// the hit rate and the falling one never drops below it (`x − ⌊x/2^j⌋` is
+/// non-decreasing), so results of the rising branch (hits above the rate)
+/// are at least `rate` and those of the falling one at most `rate`. A
+/// constant `hits = h` drives any rate to within `2^rise_shift` below or
+/// `2^shift` above `h·2^16`. The shaders compute the same expression
+/// (`lipacRiseDecayRate`).
+///
+/// ```
+/// use lipac_core::thresholds::{decay_rate, rise_decay_rate, RATE_ONE};
+/// // From 0 to 4 hits per frame: one frame at k_up = 1 gets half way.
+/// assert_eq!(rise_decay_rate(0, 4, 3, 1), 2 * RATE_ONE);
+/// // Falling, it decays with k = 3 as before.
+/// assert_eq!(rise_decay_rate(8 * RATE_ONE, 0, 3, 1), 7 * RATE_ONE);
+/// assert_eq!(rise_decay_rate(123_456, 9, 4, 4), decay_rate(123_456, 9, 4));
+/// ```
+pub fn rise_decay_rate(rate: u32, hits: u32, shift: u32, rise_shift: u32) -> u32 {
+    let k = shift.clamp(1, 16);
+    let k_up = rise_shift.clamp(1, k);
+    let target = hits.min(RATE_HITS_MAX) << 16;
+    decay_rate(rate, hits, if target > rate { k_up } else { k })
+}
+
 /// The decayed rule's settings in 16.16 fixed point (hits per frame ·
 /// [`RATE_ONE`]); build one from hits per frame with
 /// [`DecayedSettings::rule_for_rays_per_frame`].
@@ -141,6 +175,10 @@ pub struct DecayedRule {
     /// k: the rate keeps `1 − 2^−k` of itself each frame (1..=8; half-life
     /// about `0.69·2^k` frames).
     pub shift: u32,
+    /// k_up: the shift used instead of `shift` in frames whose hits exceed
+    /// the rate (1..=`shift`; [`rise_decay_rate`]): a rate that rises
+    /// faster than it decays. `rise_shift == shift` is the symmetric rule.
+    pub rise_shift: u32,
     /// Hitbox activation rate (plus the cost terms).
     pub activate: u32,
     /// Hitbox deactivation rate (below `activate`, at least `2^shift`).
@@ -156,6 +194,12 @@ pub struct DecayedRule {
 }
 
 impl DecayedRule {
+    /// This frame's rate from the last one and this frame's hits:
+    /// [`rise_decay_rate`] with this rule's shifts.
+    pub fn update_rate(&self, rate: u32, hits: u32) -> u32 {
+        rise_decay_rate(rate, hits, self.shift, self.rise_shift)
+    }
+
     /// The rate an inactive hitbox must exceed with `shared` and `unique`
     /// inactive instances (each saturated at [`MAX_COST_COUNT`]); fits a
     /// `u32` for a validated rule.
@@ -178,6 +222,7 @@ impl DecayedRule {
         let instance_omit = s(self.instance_omit).max(floor);
         let r = Self {
             shift: self.shift,
+            rise_shift: self.rise_shift,
             activate: s(self.activate).max(deactivate.saturating_add(1)),
             deactivate,
             instance_activate: s(self.instance_activate).max(instance_omit.saturating_add(1)),
@@ -197,13 +242,20 @@ impl DecayedRule {
         Ok(r)
     }
 
-    /// Checks `1 ≤ shift ≤ 8`, `2^shift ≤ deactivate < activate`,
+    /// Checks `1 ≤ shift ≤ 8`, `1 ≤ rise_shift ≤ shift`,
+    /// `2^shift ≤ deactivate < activate`,
     /// `2^shift ≤ instance_omit < instance_activate`, and that the largest
     /// activation threshold (255 instances of each kind) and
     /// `instance_activate` stay at most [`MAX_RATE_THRESHOLD`].
     pub fn validate(&self) -> Result<(), ThresholdError> {
         if self.shift == 0 || self.shift > MAX_DECAY_SHIFT {
             return Err(ThresholdError::DecayShiftOutOfRange(self.shift));
+        }
+        if self.rise_shift == 0 || self.rise_shift > self.shift {
+            return Err(ThresholdError::RiseShiftOutOfRange {
+                rise_shift: self.rise_shift,
+                shift: self.shift,
+            });
         }
         let floor = 1u32 << self.shift;
         for (name, value) in [
@@ -261,6 +313,9 @@ pub struct DecayedSettings {
     pub per_shared: f64,
     /// [`DecayedRule::per_unique`].
     pub per_unique: f64,
+    /// [`DecayedRule::rise_shift`] (1..=the decay shift), or `None` for the
+    /// decay shift itself: the symmetric rule.
+    pub rise_shift: Option<u32>,
 }
 
 impl DecayedSettings {
@@ -286,7 +341,8 @@ impl DecayedSettings {
     /// `rays / (1920·1080)` into 16.16 fixed point (rounded; the lower rate
     /// of each pair raised to the decay floor `2^k` and the upper one kept
     /// above it), validated. NaN, infinite, negative or zero rates (zero is
-    /// allowed for the cost terms) and half-lives are errors.
+    /// allowed for the cost terms) and half-lives are errors, and so is a
+    /// rise shift outside `1..=` the decay shift.
     pub fn rule_for_rays_per_frame(
         &self,
         rays_per_frame: f64,
@@ -314,6 +370,7 @@ impl DecayedSettings {
         let instance_omit = fixed("instance_omit", self.instance_omit, false)?.max(floor);
         let rule = DecayedRule {
             shift,
+            rise_shift: self.rise_shift.unwrap_or(shift),
             activate: fixed("activate", self.activate, false)?.max(deactivate + 1),
             deactivate,
             instance_activate: fixed("instance_activate", self.instance_activate, false)?
@@ -363,6 +420,13 @@ pub enum ThresholdError {
     InvalidScale(f64),
     /// [`DecayedRule::shift`] outside `1..=8`.
     DecayShiftOutOfRange(u32),
+    /// [`DecayedRule::rise_shift`] outside `1..=shift`.
+    RiseShiftOutOfRange {
+        /// The rejected rise shift.
+        rise_shift: u32,
+        /// The rule's decay shift.
+        shift: u32,
+    },
     /// A half-life was NaN, infinite or outside `0.5..=400` frames.
     InvalidHalfLife(f64),
     /// A rate setting was NaN, infinite, negative or zero.
@@ -423,6 +487,11 @@ impl fmt::Display for ThresholdError {
                 f,
                 "decay shift {k} must be in 1..={MAX_DECAY_SHIFT} (half-life 1 to 177 frames)"
             ),
+            Self::RiseShiftOutOfRange { rise_shift, shift } => write!(
+                f,
+                "rise shift {rise_shift} must be in 1..={shift} (at most the decay shift: a rate \
+                 may rise faster than it decays, not slower)"
+            ),
             Self::InvalidHalfLife(v) => write!(
                 f,
                 "half-life must be finite and in 0.5..=400 frames, got {v}"
@@ -476,7 +545,7 @@ impl Thresholds {
     /// Every hit threshold (θa, θd, σa, σo and the decayed rule's rates)
     /// multiplied by `factor`, as [`Self::for_rays_per_frame`] rounds them
     /// (at least 1, each lower one below its upper one); streaks and the
-    /// decay shift stay: the closed-loop controller's output
+    /// decay and rise shifts stay: the closed-loop controller's output
     /// ([`crate::controller`]). `scaled(1.0)` of valid thresholds is
     /// themselves; a `factor` that is NaN, infinite, zero or negative is
     /// [`ThresholdError::InvalidScale`], one that pushes a threshold past its

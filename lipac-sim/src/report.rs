@@ -250,7 +250,8 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
 }
 
 /// LiPaC's decision rule in words, as the report prints it: the paper's
-/// thresholds, or the decayed rule's half-life and rates in hits per frame.
+/// thresholds, or the decayed rule's half-life (and rise shift, if it has
+/// one) and rates in hits per frame.
 ///
 /// ```
 /// use lipac_sim::report::rule_description;
@@ -270,10 +271,15 @@ pub fn rule_description(t: &Thresholds) -> String {
         ),
         DecisionRule::Decayed(d) => {
             let hits = |rate: u32| f64::from(rate) / 65536.0;
+            let rise = if d.rise_shift == d.shift {
+                String::new()
+            } else {
+                format!(", rising with shift {}", d.rise_shift)
+            };
             format!(
-                "the decayed rule: half-life {:.1} frames (shift {}), a hitbox activates above {:.3} \
-                 and deactivates below {:.3} hits per frame, a unique-BLAS instance above {:.3} / \
-                 below {:.3}, plus {:.3} / {:.3} per inactive shared / unique instance",
+                "the decayed rule: half-life {:.1} frames (shift {}{rise}), a hitbox activates above \
+                 {:.3} and deactivates below {:.3} hits per frame, a unique-BLAS instance above {:.3} \
+                 / below {:.3}, plus {:.3} / {:.3} per inactive shared / unique instance",
                 std::f64::consts::LN_2 * f64::from(1u32 << d.shift.min(30)),
                 d.shift,
                 hits(d.activate),

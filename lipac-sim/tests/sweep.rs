@@ -19,6 +19,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         latency: vec![ActivationHeuristic::default()],
         cell_sizes: vec![],
         streaks: vec![],
+        decayed: vec![],
         threads: 2,
     }
 }

@@ -48,6 +48,7 @@ fn infinite_errors_survive_merge_and_replot() {
         latency: vec![],
         cell_sizes: vec![],
         streaks: vec![],
+        decayed: vec![],
         threads: 2,
     };
     let mut shard = run_shard(&config, Shard::new(1, 1).unwrap(), &mut |_, _, _, _| {}).unwrap();

@@ -24,6 +24,7 @@ fn tiny(frames: u32) -> SweepConfig {
         latency: vec![ActivationHeuristic::default()],
         cell_sizes: vec![],
         streaks: vec![],
+        decayed: vec![],
         threads: 2,
     }
 }

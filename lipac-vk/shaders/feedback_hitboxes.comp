@@ -14,7 +14,7 @@ void main() {
     LIPAC_FOR_EACH(i, pc.hitboxCount) {
         uint packed = hitboxes[i].packed;
         if (pc.rule == LIPAC_RULE_DECAYED) {
-            uint rate = lipacDecayRate(hitboxes[i].rate, packed >> LIPAC_HITBOX_HITS_SHIFT, pc.decayShift);
+            uint rate = lipacUpdateRate(hitboxes[i].rate, packed >> LIPAC_HITBOX_HITS_SHIFT);
             bool on = (packed & LIPAC_HITBOX_ACTIVE) != 0u;
             if (!on) {
                 on = rate > lipacActivationThreshold(hitboxes[i].cost);

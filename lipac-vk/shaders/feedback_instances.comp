@@ -62,7 +62,7 @@ void main() {
                 uint hits = instanceHits[slot];
                 bool built = (packed & LIPAC_INSTANCE_HAS_BLAS) != 0u;
                 if (state == LIPAC_STATE_OMITTED || (state == LIPAC_STATE_ACTIVE && built)) {
-                    rate = lipacDecayRate(instanceRates[slot], hits, pc.decayShift);
+                    rate = lipacUpdateRate(instanceRates[slot], hits);
                 } else if (state == LIPAC_STATE_ACTIVE) {
                     rate = instanceRates[slot];  // no BLAS yet: no evidence, held
                 }

@@ -40,7 +40,13 @@ layout(push_constant) uniform FeedbackPush {
     uint rateInstanceOmit;
     uint ratePerShared;
     uint ratePerUnique;
+    uint decayRiseShift;  // DecayedRule::rise_shift (1..decayShift)
 } pc;
+
+// lipac_core::thresholds::DecayedRule::update_rate.
+uint lipacUpdateRate(uint rate, uint hits) {
+    return lipacRiseDecayRate(rate, hits, pc.decayShift, pc.decayRiseShift);
+}
 
 #define LIPAC_RULE_PAPER 0u
 #define LIPAC_RULE_DECAYED 1u

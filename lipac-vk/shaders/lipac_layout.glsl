@@ -95,6 +95,16 @@ uint lipacDecayRate(uint rate, uint hits, uint shift) {
     return rate - (rate >> k) + ((h << 16) >> k);
 }
 
+// lipac_core::thresholds::rise_decay_rate: lipacDecayRate with riseShift
+// (clamped to 1..k) when this frame's hits in 16.16 exceed the rate, else
+// with shift; riseShift == shift is lipacDecayRate.
+uint lipacRiseDecayRate(uint rate, uint hits, uint shift, uint riseShift) {
+    uint k = clamp(shift, 1u, 16u);
+    uint kUp = clamp(riseShift, 1u, k);
+    uint target = min(hits, 0xFFFFu) << 16;
+    return lipacDecayRate(rate, hits, target > rate ? kUp : k);
+}
+
 // Command words (lipac_core::command).
 #define LIPAC_COMMAND_ADD 0u
 #define LIPAC_COMMAND_REMOVE 1u

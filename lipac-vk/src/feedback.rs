@@ -62,6 +62,7 @@ struct FeedbackPush {
     rate_instance_omit: u32,
     rate_per_shared: u32,
     rate_per_unique: u32,
+    decay_rise_shift: u32,
 }
 
 /// Buffers Algorithm 2 reads and writes (all need `STORAGE_BUFFER` usage).
@@ -269,6 +270,7 @@ impl FeedbackPipeline {
         };
         let d = decayed.unwrap_or(DecayedRule {
             shift: 0,
+            rise_shift: 0,
             activate: 0,
             deactivate: 0,
             instance_activate: 0,
@@ -294,6 +296,7 @@ impl FeedbackPipeline {
             rate_instance_omit: d.instance_omit,
             rate_per_shared: d.per_shared,
             rate_per_unique: d.per_unique,
+            decay_rise_shift: d.rise_shift,
         };
         let push = bytemuck::bytes_of(&push);
         rec.memory_barrier(

@@ -722,12 +722,29 @@ fn feedback_thresholds() -> Thresholds {
 fn decayed_thresholds() -> Thresholds {
     let th = feedback_thresholds().with_rule(DecisionRule::Decayed(DecayedRule {
         shift: 1,
+        rise_shift: 1,
         activate: 30 * RATE_ONE,
         deactivate: 8 * RATE_ONE,
         instance_activate: 25 * RATE_ONE,
         instance_omit: 5 * RATE_ONE,
         per_shared: RATE_ONE / 4,
         per_unique: RATE_ONE + 3,
+    }));
+    th.validate().unwrap();
+    th
+}
+
+/// [`decayed_thresholds`] with a rate that rises faster than it decays
+/// (`rise_shift` 2 < `shift` 3; not 1, which a missing push constant,
+/// clamped from 0, would also give).
+fn decayed_rise_thresholds() -> Thresholds {
+    let DecisionRule::Decayed(r) = decayed_thresholds().rule else {
+        unreachable!()
+    };
+    let th = decayed_thresholds().with_rule(DecisionRule::Decayed(DecayedRule {
+        shift: 3,
+        rise_shift: 2,
+        ..r
     }));
     th.validate().unwrap();
     th
@@ -748,6 +765,7 @@ fn frames_match_cpu_reference_without_overflow() {
         (11u64, feedback_thresholds()),
         (12, Thresholds::paper()),
         (13, decayed_thresholds()),
+        (14, decayed_rise_thresholds()),
     ] {
         let mut rng = Rng::new(0xD1B5_4A32_D192_ED03 ^ seed);
         let index = Grid {
@@ -1236,7 +1254,16 @@ fn decayed_hitbox_transitions_match_exhaustively() {
     let Some(h) = headless("decayed_hitbox_transitions_match_exhaustively") else {
         return;
     };
-    let th = decayed_thresholds();
+    for (what, th) in [
+        ("decayed", decayed_thresholds()),
+        ("decayed, rise shift 2 of 3", decayed_rise_thresholds()),
+    ] {
+        decayed_hitbox_transitions(&h, &th, what);
+    }
+    assert_no_validation_errors(&h);
+}
+
+fn decayed_hitbox_transitions(h: &lipac_vk::HeadlessContext, th: &Thresholds, what: &str) {
     let DecisionRule::Decayed(rule) = th.rule else {
         unreachable!()
     };
@@ -1244,7 +1271,16 @@ fn decayed_hitbox_transitions_match_exhaustively() {
     for active in [0, 1] {
         for cost in [0, 3, 0x0002_0005, 0xFFFF_FFFF, 0x0100_0100] {
             let need = rule.activation_threshold((cost & 0xFFFF).min(255), (cost >> 16).min(255));
-            for rate_base in [0, rule.deactivate, need, u32::MAX - 2] {
+            // Rates around the thresholds, and around this frame's hits in
+            // 16.16 (where the rise shift takes over from the decay shift).
+            for rate_base in [
+                0,
+                rule.deactivate,
+                need,
+                u32::MAX - 2,
+                30 * RATE_ONE,
+                0xFFFF * RATE_ONE,
+            ] {
                 for rate in rate_base.saturating_sub(2)..=rate_base.saturating_add(2) {
                     for hits in [0, 1, 29, 30, 31, 0xFFFF, 0x10000, hitbox_bits::HITS_MAX] {
                         let mut r = HitboxRecord {
@@ -1261,9 +1297,8 @@ fn decayed_hitbox_transitions_match_exhaustively() {
         }
     }
     let dead = InstanceRecord::default();
-    let words = feedback_once_exact(&h, &[dead], &[0], &hitboxes, &th, "decayed");
+    let words = feedback_once_exact(h, &[dead], &[0], &hitboxes, th, what);
     assert!(words.is_empty());
-    assert_no_validation_errors(&h);
 }
 
 /// Command words for hit counts at every priority step (and ±1 around it),

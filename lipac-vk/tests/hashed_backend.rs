@@ -159,6 +159,7 @@ fn paper() -> Thresholds {
 fn decayed() -> Thresholds {
     paper().with_rule(DecisionRule::Decayed(DecayedRule {
         shift: 2,
+        rise_shift: 1,
         activate: 8 * RATE_ONE,
         deactivate: 2 * RATE_ONE,
         instance_activate: 4 * RATE_ONE,

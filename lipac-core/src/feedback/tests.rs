@@ -570,7 +570,7 @@ fn reference_process_records(
                     InstanceState::Inactive => 0,
                     // Not in the TLAS until its BLAS exists: no evidence, held.
                     InstanceState::Active if m.blas == 0 => rates[slot],
-                    _ => decay_rate(rates[slot], hits, r.shift),
+                    _ => r.update_rate(rates[slot], hits),
                 };
                 rates[slot] = rate;
                 if !overflow {
@@ -650,6 +650,7 @@ fn split_hot_array_gives_the_records_outcome_and_the_escape_sums() {
     use lipac_test_support::{Rng64, XorShift64};
     let decayed = Thresholds::paper().with_rule(DecisionRule::Decayed(DecayedRule {
         shift: 2,
+        rise_shift: 1,
         activate: 4 * RATE_ONE,
         deactivate: RATE_ONE,
         instance_activate: 3 * RATE_ONE,
@@ -881,6 +882,7 @@ mod decayed {
 
     const RULE: DecayedRule = DecayedRule {
         shift: 2,
+        rise_shift: 2,
         activate: 4 * RATE_ONE,
         deactivate: RATE_ONE,
         instance_activate: 3 * RATE_ONE,
@@ -1058,7 +1060,7 @@ mod decayed {
         let mut rates = [7, 8, 9];
         frame(&mut i, &[5, 5, 0], &mut rates, &mut h, 0, 0);
         assert_eq!(rates[..2], [0, 0]);
-        assert_eq!(rates[2], decay_rate(9, 0, RULE.shift));
+        assert_eq!(rates[2], RULE.update_rate(9, 0));
         let mut h = HitboxRecord::default();
         let mut i = [inst(InstanceState::Inactive, true, 0)];
         let mut rates = [1234];
@@ -1101,6 +1103,74 @@ mod decayed {
             }
         ));
         assert!(e.to_string().contains("rate buffer"));
+    }
+
+    /// A fast rise with a slow decay (k_up = 1, k = 3, activation 4 and
+    /// deactivation 1 hit per frame) does not flip a hitbox that is hit
+    /// every other frame: a hit frame and an empty one move the rate by one
+    /// decay step at most (×7/8), far inside the activate/deactivate band,
+    /// whatever the hits. The rise only brings the activation forward (and
+    /// activates at 5 hits every other frame, a mean of 2.5 whose peaks
+    /// the symmetric rate never lifts above 4).
+    #[test]
+    fn a_fast_rise_does_not_flip_a_hitbox_hit_every_other_frame() {
+        let run = |k_up: u32, hits: u32| -> (u32, Option<u32>, u32, u32) {
+            let rule = DecayedRule {
+                shift: 3,
+                rise_shift: k_up,
+                ..RULE
+            };
+            let th = Thresholds::paper().with_rule(DecisionRule::Decayed(rule));
+            let mut i = [inst(InstanceState::Inactive, false, 0)];
+            let mut h = HitboxRecord::default();
+            let (mut changes, mut first_on) = (0, None);
+            let (mut lo, mut hi) = (u32::MAX, 0);
+            for f in 0..200u32 {
+                crate::assembly::begin_frame(std::slice::from_mut(&mut h));
+                h.add_hits(if f % 2 == 0 { hits } else { 0 });
+                let mut buf = CommandBuffer::new(16);
+                let s = process_feedback_with_rates(
+                    &mut i,
+                    &[0],
+                    &mut [0],
+                    std::slice::from_mut(&mut h),
+                    &th,
+                    &mut buf,
+                )
+                .unwrap();
+                changes += s.hitboxes_activated + s.hitboxes_deactivated;
+                if h.is_active() && first_on.is_none() {
+                    first_on = Some(f);
+                }
+                if f >= 198 {
+                    (lo, hi) = (lo.min(h.rate), hi.max(h.rate));
+                }
+            }
+            (changes, first_on, lo, hi)
+        };
+        for hits in [5u32, 9, 16, 40, 1000, 70_000] {
+            let mut on_at = Vec::new();
+            for k_up in [1, 2, 3] {
+                let (changes, first_on, lo, hi) = run(k_up, hits);
+                let ctx = format!("k_up {k_up}, {hits} hits every other frame");
+                assert!(changes <= 1, "{ctx}: {changes} changes");
+                assert_eq!(changes == 1, first_on.is_some(), "{ctx}: on and never off");
+                // The swing in steady state (the last hit frame and the
+                // empty one after it): one decay step, lo = ⌈hi · 7/8⌉.
+                assert!(u64::from(hi) * 7 <= u64::from(lo) * 8, "{ctx}: {lo}..{hi}");
+                on_at.push(first_on.unwrap_or(u32::MAX));
+            }
+            assert!(
+                on_at[0] <= on_at[1] && on_at[1] <= on_at[2],
+                "{hits}: {on_at:?}"
+            );
+            if hits == 5 {
+                // 2.5, 2.19, 3.59, 3.14, 4.07 > 4 with k_up = 1.
+                assert_eq!(on_at, [4, u32::MAX, u32::MAX], "never with k_up 2 or 3");
+            } else {
+                assert_eq!(on_at[0], 0, "{hits}: k_up = 1 activates at once");
+            }
+        }
     }
 }
 

@@ -144,6 +144,109 @@ mod decay {
         }
     }
 
+    /// [`rise_decay_rate`] in exact 64-bit arithmetic, from its definition.
+    fn rise_reference(rate: u32, hits: u32, k: u32, k_up: u32) -> u64 {
+        let target = u64::from(hits.min(RATE_HITS_MAX)) << 16;
+        let j = if target > u64::from(rate) { k_up } else { k };
+        reference(rate, hits, j)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        #[test]
+        fn rise_update_is_exact_and_never_overflows(
+            rate in prop_oneof![any::<u32>(), Just(u32::MAX), Just(u32::MAX - 1), Just(0)],
+            hits in prop_oneof![any::<u32>(), Just(u32::MAX), Just(RATE_HITS_MAX)],
+            k in 1u32..=16,
+            k_up_raw in 1u32..=16,
+        ) {
+            let k_up = k_up_raw.min(k);
+            let exact = rise_reference(rate, hits, k, k_up);
+            prop_assert!(exact <= u64::from(u32::MAX));
+            prop_assert_eq!(u64::from(rise_decay_rate(rate, hits, k, k_up)), exact);
+            // k_up == k is the symmetric rule; k_up above k is clamped to it.
+            prop_assert_eq!(rise_decay_rate(rate, hits, k, k), decay_rate(rate, hits, k));
+            prop_assert_eq!(rise_decay_rate(rate, hits, k, k + 1), decay_rate(rate, hits, k));
+        }
+
+        #[test]
+        fn rise_update_is_monotone_in_hits_and_rate(
+            a: u32,
+            b: u32,
+            h1 in prop_oneof![0u32..200, any::<u32>()],
+            h2 in prop_oneof![0u32..200, any::<u32>()],
+            k in 1u32..=MAX_DECAY_SHIFT,
+            k_up_raw in 1u32..=MAX_DECAY_SHIFT,
+        ) {
+            let k_up = k_up_raw.min(k);
+            let (lo, hi) = (a.min(b), a.max(b));
+            let (hl, hh) = (h1.min(h2), h1.max(h2));
+            let f = |r, h| rise_decay_rate(r, h, k, k_up);
+            prop_assert!(f(lo, hl) <= f(lo, hh), "hits {} {} rate {}", hl, hh, lo);
+            prop_assert!(f(lo, hl) <= f(hi, hl), "rates {} {} hits {}", lo, hi, hl);
+            // Rates near the hit rate, where the branch switches.
+            let t = hl.min(RATE_HITS_MAX) << 16;
+            for (x, y) in [(t.saturating_sub(1), t), (t, t.saturating_add(1))] {
+                prop_assert!(f(x, hl) <= f(y, hl));
+            }
+            prop_assert!(f(t, hl) <= f(t, hl.saturating_add(1)));
+        }
+
+        #[test]
+        fn rise_converges_to_the_hit_rate_from_below_and_above(
+            hits in prop_oneof![1u32..64, 0u32..=RATE_HITS_MAX, Just(u32::MAX)],
+            k in 1u32..=MAX_DECAY_SHIFT,
+            k_up_raw in 1u32..=MAX_DECAY_SHIFT,
+        ) {
+            let k_up = k_up_raw.min(k);
+            let target = hits.min(RATE_HITS_MAX) << 16;
+            // From below (0): rises with k_up, never overshoots, ends within
+            // 2^k_up below, after 23·2^k_up frames at most.
+            let mut r = 0u32;
+            let mut from_below = 0;
+            while r < target && target - r >= (1 << k_up) {
+                let next = rise_decay_rate(r, hits, k, k_up);
+                prop_assert!(next >= r && next <= target);
+                r = next;
+                from_below += 1;
+                prop_assert!(from_below <= 24 << k_up, "stuck at {} of {}", r, target);
+            }
+            prop_assert!(target - r < (1 << k_up));
+            // From above (u32::MAX): falls with k, never undershoots, ends
+            // within 2^k above, after 23·2^k frames at most.
+            let mut r = u32::MAX;
+            for _ in 0..(24u32 << k) {
+                let next = rise_decay_rate(r, hits, k, k_up);
+                prop_assert!(next <= r && next >= target);
+                r = next;
+            }
+            prop_assert!(r - target < (1 << k), "rate {} target {}", r, target);
+            prop_assert_eq!(rise_decay_rate(r, hits, k, k_up), r, "and stays");
+        }
+    }
+
+    /// A rise at k_up = 1 reaches a step's threshold in fewer frames than
+    /// the symmetric rule, and the decay afterwards is the same.
+    #[test]
+    fn a_fast_rise_crosses_a_threshold_sooner_and_decays_as_before() {
+        let frames_to = |k_up: u32| {
+            let mut r = 0;
+            (1..100)
+                .find(|_| {
+                    r = rise_decay_rate(r, 5, 3, k_up);
+                    r > 4 * RATE_ONE
+                })
+                .unwrap()
+        };
+        // 5 hits a frame, threshold 4: k = 3 needs 13 frames (1 − (7/8)^n > 0.8),
+        // k_up = 2 six (1 − (3/4)^n), k_up = 1 three (1 − 2^−n).
+        assert_eq!([frames_to(3), frames_to(2), frames_to(1)], [13, 6, 3]);
+        let r = 5 * RATE_ONE;
+        assert_eq!(rise_decay_rate(r, 0, 3, 1), decay_rate(r, 0, 3));
+        assert_eq!(rise_decay_rate(r, 2, 3, 1), decay_rate(r, 2, 3));
+    }
+
     #[test]
     fn saturating_inputs() {
         assert_eq!(decay_rate(u32::MAX, u32::MAX, 1), u32::MAX - (1 << 15) + 1);
@@ -152,6 +255,12 @@ mod decay {
         // Out-of-range shifts are clamped, not a panic.
         assert_eq!(decay_rate(100, 0, 0), decay_rate(100, 0, 1));
         assert_eq!(decay_rate(100, 0, 99), decay_rate(100, 0, 16));
+        assert_eq!(rise_decay_rate(0, 9, 3, 0), rise_decay_rate(0, 9, 3, 1));
+        assert_eq!(rise_decay_rate(0, 9, 0, 5), decay_rate(0, 9, 1));
+        assert_eq!(
+            rise_decay_rate(u32::MAX - 1, u32::MAX, 8, 1),
+            (u32::MAX - 1) - ((u32::MAX - 1) >> 8) + (0xFFFF << 8)
+        );
     }
 
     const SETTINGS: DecayedSettings = DecayedSettings {
@@ -162,6 +271,7 @@ mod decay {
         instance_omit: 60.0,
         per_shared: 10.0,
         per_unique: 0.0,
+        rise_shift: None,
     };
 
     #[test]
@@ -170,6 +280,21 @@ mod decay {
             .rule_for_rays_per_frame(REFERENCE_RAYS_PER_FRAME)
             .unwrap();
         assert_eq!(r.shift, 3, "half-life 5.19 frames");
+        assert_eq!(r.rise_shift, 3, "no rise shift: the symmetric rule");
+        for k_up in 1..=3 {
+            let s = DecayedSettings {
+                rise_shift: Some(k_up),
+                ..SETTINGS
+            };
+            let u = s.rule_for_rays_per_frame(REFERENCE_RAYS_PER_FRAME).unwrap();
+            assert_eq!(
+                u,
+                DecayedRule {
+                    rise_shift: k_up,
+                    ..r
+                }
+            );
+        }
         assert_eq!((r.activate, r.deactivate), (300 * RATE_ONE, 60 * RATE_ONE));
         assert_eq!((r.per_shared, r.per_unique), (10 * RATE_ONE, 0));
         // A 64th of the rays: a 64th of the rates.
@@ -233,6 +358,22 @@ mod decay {
             Err(ThresholdError::RateTooLarge { .. })
         ));
         assert!(SETTINGS.rule_for_rays_per_frame(f64::NAN).is_err());
+        // A rise slower than the decay (or a zero shift).
+        for k_up in [0, 4, 99] {
+            let s = DecayedSettings {
+                rise_shift: Some(k_up),
+                ..SETTINGS
+            };
+            let e = s.rule_for_rays_per_frame(9216.0).unwrap_err();
+            assert_eq!(
+                e,
+                ThresholdError::RiseShiftOutOfRange {
+                    rise_shift: k_up,
+                    shift: 3
+                }
+            );
+            assert!(e.to_string().contains("rise shift"), "{e}");
+        }
     }
 
     #[test]
@@ -248,6 +389,21 @@ mod decay {
             DecayedRule { shift: 9, ..r }.validate(),
             Err(ThresholdError::DecayShiftOutOfRange(9))
         ));
+        assert!(matches!(
+            DecayedRule { rise_shift: 0, ..r }.validate(),
+            Err(ThresholdError::RiseShiftOutOfRange {
+                rise_shift: 0,
+                shift: 3
+            })
+        ));
+        assert!(matches!(
+            DecayedRule { rise_shift: 4, ..r }.validate(),
+            Err(ThresholdError::RiseShiftOutOfRange {
+                rise_shift: 4,
+                shift: 3
+            })
+        ));
+        assert!(DecayedRule { rise_shift: 1, ..r }.validate().is_ok());
         assert!(matches!(
             DecayedRule { deactivate: 7, ..r }.validate(),
             Err(ThresholdError::RateBelowDecayFloor { floor: 8, .. })
@@ -302,6 +458,13 @@ mod decay {
         );
         assert_eq!(h.per_shared, 5 * RATE_ONE);
         assert_eq!(t.scaled(1.0).unwrap(), t);
+        // The rise shift stays.
+        let fast = Thresholds::paper()
+            .with_rule(DecisionRule::Decayed(DecayedRule { rise_shift: 1, ..r }));
+        let DecisionRule::Decayed(f) = fast.scaled(0.5).unwrap().rule else {
+            panic!("rule kept")
+        };
+        assert_eq!((f.shift, f.rise_shift, f.activate), (3, 1, h.activate));
         // Tiny factors keep each band open and above the floor.
         let tiny = t.scaled(1e-9).unwrap();
         let DecisionRule::Decayed(x) = tiny.rule else {

@@ -26,6 +26,7 @@ use lipac_core::latency::ActivationHeuristic;
 use lipac_sim::closed_loop::{self, ClosedLoopOptions, ClosedLoopPath};
 use lipac_sim::compare::{check_image_size, run_choice_with_snapshots, CompareConfig, SceneChoice};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
+use lipac_sim::strategy::lipac::LipacConfig;
 use lipac_sim::strategy::StrategyKind;
 use lipac_sim::sweep::{self, SweepConfig};
 
@@ -219,6 +220,15 @@ struct SweepArgs {
     /// (LiPaC + latency mitigation at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "50:0.1,100:0.05")]
     latency: Vec<String>,
+    /// Further decayed-rule settings (LiPaC at factor 1), each
+    /// `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise shift (1..=the decay
+    /// shift, 3; `-` for the decay shift), then optionally the hitbox
+    /// activation / deactivation and instance activation / omit rates in
+    /// hits per frame at 1080p (default 150/30:150/30) and the decay
+    /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
+    /// write `--decayed=-:100/20` when the first one starts with `-`.
+    #[arg(long, value_delimiter = ',')]
+    decayed: Vec<String>,
     /// Baseline strategies.
     #[arg(
         long,
@@ -342,6 +352,12 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 })
                 .collect::<Result<Vec<f64>, _>>()?,
             streaks,
+            decayed: a
+                .decayed
+                .iter()
+                .filter(|s| !s.is_empty())
+                .map(|s| sweep::parse_decayed_spec(s, &LipacConfig::DEFAULT_DECAYED))
+                .collect::<Result<Vec<_>, _>>()?,
             threads: a.threads,
         })
     })();

@@ -98,6 +98,7 @@ impl LipacConfig {
         instance_omit: 30.0,
         per_shared: 0.0,
         per_unique: 0.0,
+        rise_shift: None,
     };
 
     /// Settings for `rays_per_frame` camera rays: the paper's thresholds

@@ -79,6 +79,49 @@ fn variants_follow_the_config_and_drop_duplicates() {
     assert!(bad.variants().is_err());
 }
 
+#[test]
+fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met() {
+    use crate::strategy::lipac::LipacConfig;
+    use lipac_core::thresholds::DecisionRule;
+    let base = LipacConfig::DEFAULT_DECAYED;
+    let specs = ["1", "2:200/40", "1:150/30:100/20", "-"];
+    let c = SweepConfig {
+        decayed: specs
+            .iter()
+            .map(|s| parse_decayed_spec(s, &base).unwrap())
+            .collect(),
+        ..SweepConfig::default()
+    };
+    let (v, skipped) = c.variants().unwrap();
+    // `-` with the default rates is the default LiPaC (`lipac ×1`).
+    assert_eq!(skipped, ["lipac rise - 150/30 150/30"]);
+    let rule = |name: &str| {
+        let x = v.iter().find(|x| x.name == name).unwrap();
+        assert_eq!(x.family, Family::Decayed);
+        match x.lipac.as_ref().unwrap().thresholds.rule {
+            DecisionRule::Decayed(r) => r,
+            DecisionRule::Paper => panic!("decayed rule expected"),
+        }
+    };
+    let one = rule("lipac rise 1 150/30 150/30");
+    let two = rule("lipac rise 2 200/40 150/30");
+    let inst = rule("lipac rise 1 150/30 100/20");
+    assert_eq!((one.shift, one.rise_shift, two.rise_shift), (3, 1, 2));
+    assert!(two.activate > one.activate && two.deactivate > one.deactivate);
+    assert!(inst.instance_activate < one.instance_activate);
+    assert_eq!(inst.activate, one.activate);
+    // A rise slower than the decay is an error, not a silent clamp.
+    let bad = SweepConfig {
+        decayed: vec![parse_decayed_spec("4", &base).unwrap()],
+        ..SweepConfig::default()
+    };
+    assert!(bad
+        .variants()
+        .unwrap_err()
+        .to_string()
+        .contains("rise shift"));
+}
+
 fn point(
     scene: &str,
     name: &str,

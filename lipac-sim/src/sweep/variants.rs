@@ -1,9 +1,10 @@
 //! The configurations a sweep runs ([`Variant`]s of a [`SweepConfig`]):
 //! the baselines, LiPaC with scaled thresholds ([`scaled_thresholds`]),
-//! with latency mitigation, with other cell sizes and streak lengths.
+//! with latency mitigation, with other cell sizes and streak lengths, and
+//! with other decayed-rule settings ([`parse_decayed_spec`]).
 
 use lipac_core::latency::ActivationHeuristic;
-use lipac_core::thresholds::{DecisionRule, Thresholds};
+use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use serde::{Deserialize, Serialize};
 
 use crate::compare::{make_strategy, Contender, SceneChoice};
@@ -25,6 +26,8 @@ pub enum Family {
     CellSize,
     /// LiPaC with other streak lengths n_a / n_d.
     Streaks,
+    /// LiPaC with other decayed-rule settings (rise shift, rates).
+    Decayed,
 }
 
 impl Family {
@@ -36,6 +39,7 @@ impl Family {
             Self::Latency => "latency",
             Self::CellSize => "cell size",
             Self::Streaks => "streaks",
+            Self::Decayed => "decayed rule",
         }
     }
 }
@@ -79,6 +83,9 @@ pub struct SweepConfig {
     pub cell_sizes: Vec<f64>,
     /// Further `(n_a, n_d)` streak lengths, at factor 1.
     pub streaks: Vec<(u32, u32)>,
+    /// Further decayed-rule settings (in place of
+    /// [`LipacConfig::DEFAULT_DECAYED`]), at factor 1.
+    pub decayed: Vec<DecayedSettings>,
     /// Render threads (0 = all cores).
     pub threads: usize,
 }
@@ -88,7 +95,7 @@ impl Default for SweepConfig {
     /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
     /// mitigation with the default heuristic and a wider one (100 m, 0.05);
     /// 32 m and 128 m cells besides the default 64 m;
-    /// `(n_a, n_d)` = (1, 15) and (4, 30).
+    /// `(n_a, n_d)` = (1, 15) and (4, 30); no other decayed-rule settings.
     fn default() -> Self {
         Self {
             scenes: vec![SceneChoice::City, SceneChoice::Mirror],
@@ -112,6 +119,7 @@ impl Default for SweepConfig {
             ],
             cell_sizes: vec![32.0, 128.0],
             streaks: vec![(1, 15), (4, 30)],
+            decayed: Vec::new(),
             threads: 0,
         }
     }
@@ -133,6 +141,83 @@ pub fn scaled_thresholds(rays_per_frame: u64, factor: f64) -> Result<Thresholds,
         ));
     }
     Thresholds::for_rays_per_frame(rays_per_frame as f64 * factor).map_err(SimError::core)
+}
+
+/// Decayed-rule settings from `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise
+/// shift ([`lipac_core::thresholds::DecayedRule::rise_shift`]; `-` keeps the
+/// decay shift), then optionally the hitbox activation / deactivation and
+/// the instance activation / omit rates in hits per frame at 1080p (like
+/// [`LipacConfig::DEFAULT_DECAYED`]'s 150/30) and the decay half-life in
+/// frames; what is not given is `base`'s.
+/// Checked against the rays only when the sweep builds its variants.
+///
+/// ```
+/// use lipac_sim::sweep::parse_decayed_spec;
+/// use lipac_sim::strategy::lipac::LipacConfig;
+/// let base = LipacConfig::DEFAULT_DECAYED;
+/// let s = parse_decayed_spec("1:200/40:100/20", &base).unwrap();
+/// assert_eq!(s.rise_shift, Some(1));
+/// assert_eq!((s.activate, s.deactivate, s.instance_activate, s.instance_omit), (200.0, 40.0, 100.0, 20.0));
+/// assert_eq!(parse_decayed_spec("2", &base).unwrap().activate, base.activate);
+/// assert_eq!(parse_decayed_spec("-:300/60", &base).unwrap().rise_shift, None);
+/// assert_eq!(parse_decayed_spec("1:150/30:150/30:2.4", &base).unwrap().half_life_frames, 2.4);
+/// assert!(parse_decayed_spec("1:200", &base).is_err());
+/// assert!(parse_decayed_spec("x", &base).is_err());
+/// ```
+pub fn parse_decayed_spec(spec: &str, base: &DecayedSettings) -> Result<DecayedSettings, String> {
+    let mut parts = spec.trim().split(':');
+    let mut s = *base;
+    let rise = parts.next().unwrap_or("").trim();
+    s.rise_shift =
+        if rise == "-" {
+            None
+        } else {
+            Some(rise.parse().map_err(|_| {
+                format!("decayed rule `{spec}`: rise shift `{rise}` is not a number")
+            })?)
+        };
+    let pair = |p: &str| -> Result<(f64, f64), String> {
+        let (a, b) = p
+            .split_once('/')
+            .ok_or_else(|| format!("decayed rule `{spec}`: expected `upper/lower`, got `{p}`"))?;
+        match (a.trim().parse(), b.trim().parse()) {
+            (Ok(a), Ok(b)) => Ok((a, b)),
+            _ => Err(format!("decayed rule `{spec}`: `{p}` is not two numbers")),
+        }
+    };
+    if let Some(p) = parts.next() {
+        (s.activate, s.deactivate) = pair(p)?;
+    }
+    if let Some(p) = parts.next() {
+        (s.instance_activate, s.instance_omit) = pair(p)?;
+    }
+    if let Some(p) = parts.next() {
+        s.half_life_frames = p
+            .trim()
+            .parse()
+            .map_err(|_| format!("decayed rule `{spec}`: half-life `{p}` is not a number"))?;
+    }
+    if parts.next().is_some() {
+        return Err(format!("decayed rule `{spec}`: at most four `:` parts"));
+    }
+    Ok(s)
+}
+
+/// A decayed-rule variant's report name: `lipac rise K a/d ia/io`, and
+/// `hl H` when the half-life is not the default's.
+fn decayed_name(s: &DecayedSettings) -> String {
+    let rise = s
+        .rise_shift
+        .map_or_else(|| "-".to_string(), |k| k.to_string());
+    let half_life = if s.half_life_frames == LipacConfig::DEFAULT_DECAYED.half_life_frames {
+        String::new()
+    } else {
+        format!(" hl {}", s.half_life_frames)
+    };
+    format!(
+        "lipac rise {rise} {}/{} {}/{}{half_life}",
+        s.activate, s.deactivate, s.instance_activate, s.instance_omit
+    )
 }
 
 fn fmt_factor(f: f64) -> String {
@@ -247,6 +332,16 @@ impl SweepConfig {
             all.push(lipac(
                 format!("lipac n_a {n_a} n_d {n_d}"),
                 Family::Streaks,
+                StrategyKind::Lipac,
+                c,
+                1.0,
+            ));
+        }
+        for s in &self.decayed {
+            let c = base.clone().with_decayed_rule(s, rays)?;
+            all.push(lipac(
+                decayed_name(s),
+                Family::Decayed,
                 StrategyKind::Lipac,
                 c,
                 1.0,
