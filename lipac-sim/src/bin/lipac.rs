@@ -106,7 +106,8 @@ struct Common {
     /// 16 x 16 hitboxes per box). docs/ADAPTIVE_HITBOXES.md.
     #[arg(long, default_value_t = 0)]
     adaptive_levels: u8,
-    /// LiPaC's hitbox cell size in metres (default 32; the paper's 16).
+    /// LiPaC's hitbox cell size in metres (default 64, `LipacConfig::DEFAULT_CELL_SIZE`;
+    /// the paper's 16).
     #[arg(long)]
     cell_size: Option<f64>,
     /// Report folder.

@@ -10,9 +10,11 @@ use crate::thresholds::{DecayedRule, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64};
 
 /// The decayed rule at the scale of the paper's thresholds (hits per frame
-/// in the hundreds), so that the scenes below keep inactive hitboxes.
+/// in the hundreds), so that the scenes below keep inactive hitboxes; its
+/// rates rise faster than they decay (`rise_shift` < `shift`).
 const RULE: DecayedRule = DecayedRule {
     shift: 2,
+    rise_shift: 1,
     activate: 1500 * RATE_ONE,
     deactivate: 100 * RATE_ONE,
     instance_activate: 150 * RATE_ONE,
