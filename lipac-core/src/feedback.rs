@@ -512,29 +512,40 @@ const CODE_ACTIVE: u8 = 1;
 /// The code of a hitbox index out of range.
 const CODE_OUT_OF_RANGE: u8 = 2;
 
-/// `BUSY[code][packed & 0xFF]`, for `code` the instance's hitbox code
-/// ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]): 1 where
-/// lines 14–38 do more than return early (live, not pinned, and not on the
-/// fast path: inactive in an inactive hitbox, or active/omitted and not
-/// with a unique BLAS in an active one), else 0. Only the state,
+/// Whether lines 14–38 do more than return early for a slot whose low byte
+/// of `packed` is `low` in a hitbox with code `code` ([`CODE_INACTIVE`],
+/// [`CODE_ACTIVE`], anything else out of range): live, not pinned, and not
+/// on the fast path (inactive in an inactive hitbox, or active/omitted and
+/// not with a unique BLAS in an active one). Only the state,
 /// [`instance_bits::ALIVE`], [`instance_bits::UNIQUE_BLAS`] and
-/// [`instance_bits::PINNED`] bits of the low byte matter.
-static BUSY: [[u8; 256]; 3] = {
-    let mut t = [[0u8; 256]; 3];
+/// [`instance_bits::PINNED`] bits of `low` matter.
+const fn is_busy(code: u8, low: u32) -> bool {
+    let live = low & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
+    let state = low & instance_bits::STATE_MASK;
+    let inactive = state == 0 || state == instance_bits::STATE_MASK;
+    let unique = low & instance_bits::UNIQUE_BLAS != 0;
+    let in_range = code == CODE_INACTIVE || code == CODE_ACTIVE;
+    let active = code == CODE_ACTIVE;
+    let fast = in_range && (active != inactive) && (inactive || !unique);
+    live && !fast
+}
+
+/// `BUSY[code][p][low]` = [`is_busy`]`(code, low) << p`, for `code` a
+/// hitbox code ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]),
+/// `p` a slot's place in a group of eight and `low` its low byte of
+/// `packed`: the group's eight look-ups ORed give its byte of the busy
+/// mask, without shifts.
+static BUSY: [[[u8; 256]; 8]; 3] = {
+    let mut t = [[[0u8; 256]; 8]; 3];
     let mut code = 0;
     while code < 3 {
         let mut p = 0;
-        while p < 256 {
-            let bits = p as u32;
-            let live =
-                bits & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
-            let state = bits & instance_bits::STATE_MASK;
-            let inactive = state == 0 || state == instance_bits::STATE_MASK;
-            let unique = bits & instance_bits::UNIQUE_BLAS != 0;
-            let in_range = code != CODE_OUT_OF_RANGE as usize;
-            let active = code == CODE_ACTIVE as usize;
-            let fast = in_range && (active != inactive) && (inactive || !unique);
-            t[code][p] = (live && !fast) as u8;
+        while p < 8 {
+            let mut low = 0;
+            while low < 256 {
+                t[code][p][low] = (is_busy(code as u8, low as u32) as u8) << p;
+                low += 1;
+            }
             p += 1;
         }
         code += 1;
@@ -542,10 +553,10 @@ static BUSY: [[u8; 256]; 3] = {
     t
 };
 
-/// The row of [`BUSY`] for each `u8` code: a look-up by code without a
+/// The rows of [`BUSY`] for each `u8` code: a look-up by code without a
 /// bounds check (codes above 2 never occur; they read the out-of-range
-/// row).
-static BUSY_ROW: [&[u8; 256]; 256] = {
+/// rows).
+static BUSY_ROW: [&[[u8; 256]; 8]; 256] = {
     let mut t = [&BUSY[CODE_OUT_OF_RANGE as usize]; 256];
     t[CODE_INACTIVE as usize] = &BUSY[CODE_INACTIVE as usize];
     t[CODE_ACTIVE as usize] = &BUSY[CODE_ACTIVE as usize];
@@ -553,39 +564,36 @@ static BUSY_ROW: [&[u8; 256]; 256] = {
 };
 
 /// Bit `i` set for each slot `i` of `chunk` (at most 64 slots) that lines
-/// 14–38 may touch ([`BUSY`]): per slot one look-up of the hitbox's code in
-/// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
-/// out of range is clamped to) and one of the table, no branch. A clear bit
-/// is a slot that lines 14–38 leave alone (no counter, command or state
-/// change; rate 0 under the decayed rule), a set bit one for [`slot_step`].
-/// Not inlined: a small loop of its own keeps its values in registers.
+/// 14–38 may touch ([`is_busy`]): per slot one look-up of the hitbox's code
+/// in `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every
+/// index out of range is clamped to) and one of [`BUSY`], no branch. A
+/// clear bit is a slot that lines 14–38 leave alone (no counter, command or
+/// state change; rate 0 under the decayed rule), a set bit one for
+/// [`slot_step`]. Not inlined: a small loop of its own keeps its values in
+/// registers.
 #[inline(never)]
 fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
     let Some(last) = codes.len().checked_sub(1) else {
         return 0; // never: `codes` ends with the sentinel
     };
-    let busy = |m: &InstanceHot| {
-        let row = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
-        u64::from(row[(m.packed & 0xFF) as usize])
+    let busy = |m: &InstanceHot, p: usize| {
+        let rows = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
+        rows[p][usize::from(m.packed as u8)]
     };
     let eights = chunk.chunks_exact(8);
     let tail = eights.remainder();
-    let mut mask = 0u64;
-    let mut shift = 0;
-    for e in eights {
-        // Pairs, then quads, then the eight: a shallow tree of adds.
-        let b01 = busy(&e[0]) + 2 * busy(&e[1]);
-        let b23 = busy(&e[2]) + 2 * busy(&e[3]);
-        let b45 = busy(&e[4]) + 2 * busy(&e[5]);
-        let b67 = busy(&e[6]) + 2 * busy(&e[7]);
-        mask |= (b01 + 4 * b23 + 16 * (b45 + 4 * b67)) << shift;
-        shift += 8;
+    let mut bytes = [0u8; CHUNK / 8];
+    let mut k = 0;
+    for (e, byte) in eights.zip(bytes.iter_mut()) {
+        *byte = (busy(&e[0], 0) | busy(&e[1], 1))
+            | (busy(&e[2], 2) | busy(&e[3], 3))
+            | ((busy(&e[4], 4) | busy(&e[5], 5)) | (busy(&e[6], 6) | busy(&e[7], 7)));
+        k += 1;
     }
-    for m in tail {
-        mask |= busy(m) << shift;
-        shift += 1;
+    if let Some(byte) = bytes.get_mut(k) {
+        *byte = tail.iter().enumerate().fold(0, |b, (p, m)| b | busy(m, p));
     }
-    mask
+    u64::from_le_bytes(bytes)
 }
 
 /// Sets `rates[i]` to 0 where bit `i` of `keep` is clear (at most 64

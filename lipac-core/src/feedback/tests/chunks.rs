@@ -251,18 +251,44 @@ fn busy_table_is_the_slots_lines_14_to_38_can_touch() {
                     CODE_ACTIVE => state == InstanceState::Inactive || unique,
                     _ => true,
                 };
-            let row = BUSY_ROW[usize::from(code)];
-            assert_eq!(
-                row[low as usize] == 1,
-                busy,
-                "low byte {low:#04x}, code {code}"
-            );
+            for (p, row) in BUSY_ROW[usize::from(code)].iter().enumerate() {
+                assert_eq!(
+                    row[low as usize],
+                    u8::from(busy) << p,
+                    "low byte {low:#04x}, code {code}, position {p}"
+                );
+            }
             let chunk = [InstanceHot {
                 hitbox: [0, 1, u32::MAX][usize::from(code)],
                 packed: low,
             }];
             let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
             assert_eq!(busy_mask(&chunk, &codes), u64::from(busy));
+        }
+    }
+}
+
+/// [`busy_mask`] puts each slot's bit at its place, for every chunk
+/// length from 1 to 64 (whole groups of eight and a tail) and random low
+/// bytes and hitbox codes, including indices out of range: the same mask
+/// as [`is_busy`] slot by slot.
+#[test]
+fn busy_mask_places_every_slot_at_its_bit() {
+    let mut rng = XorShift64::new(0x5EED_B05F);
+    let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
+    for len in 1..=CHUNK {
+        for _ in 0..20 {
+            let chunk: Vec<InstanceHot> = (0..len)
+                .map(|_| InstanceHot {
+                    hitbox: [0, 1, 2, 3, 9, u32::MAX][rng.below(6) as usize],
+                    packed: rng.next_u32(),
+                })
+                .collect();
+            let expected = chunk.iter().enumerate().fold(0u64, |mask, (i, m)| {
+                let code = codes[(m.hitbox as usize).min(codes.len() - 1)];
+                mask | (u64::from(is_busy(code, m.packed & 0xFF)) << i)
+            });
+            assert_eq!(busy_mask(&chunk, &codes), expected, "{len} slots");
         }
     }
 }
