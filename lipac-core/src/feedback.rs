@@ -298,33 +298,39 @@ fn process(
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
     // active hitbox) is decided for CHUNK slots at once from the packed
-    // bits and the hitbox codes ([`busy_mask`]); only the other slots run
+    // bits and the hitbox codes ([`busy_masks`], BLOCK slots per call);
+    // only the other slots run
     // [`slot_step`], in slot order, so that commands keep their order.
     // Under the decayed rule the skipped slots' rates are set to 0 (dead,
     // pinned and fast-path slots have no rate).
-    let n = instances.len();
-    let mut base = 0;
-    while base < n {
-        let end = (base + CHUNK).min(n);
-        let mut busy = busy_mask(&instances[base..end], &codes);
-        if let Some((_, rates)) = decayed.as_mut() {
-            zero_rates_but(&mut rates[base..end], busy);
+    let mut masks = [0u64; BLOCK / CHUNK];
+    for block_base in (0..instances.len()).step_by(BLOCK) {
+        let end = (block_base + BLOCK).min(instances.len());
+        busy_masks(&instances[block_base..end], &codes, &mut masks);
+        for (c, &mask) in masks.iter().enumerate() {
+            let base = block_base + c * CHUNK;
+            let mut busy = mask;
+            if let Some((_, rates)) = decayed.as_mut() {
+                let end = (base + CHUNK).min(rates.len());
+                if let Some(chunk) = rates.get_mut(base..end) {
+                    zero_rates_but(chunk, busy);
+                }
+            }
+            while busy != 0 {
+                let slot = base + busy.trailing_zeros() as usize;
+                busy &= busy - 1;
+                slot_step(
+                    slot,
+                    instances,
+                    instance_hits,
+                    &mut decayed,
+                    hitboxes,
+                    th,
+                    commands,
+                    &mut stats,
+                );
+            }
         }
-        while busy != 0 {
-            let slot = base + busy.trailing_zeros() as usize;
-            busy &= busy - 1;
-            slot_step(
-                slot,
-                instances,
-                instance_hits,
-                &mut decayed,
-                hitboxes,
-                th,
-                commands,
-                &mut stats,
-            );
-        }
-        base = end;
     }
     Ok(stats)
 }
@@ -364,6 +370,9 @@ fn step_hitboxes(
 /// Slots decided together by the fast path of lines 14–38 (the bits of a
 /// `u64` mask).
 const CHUNK: usize = 64;
+
+/// Slots whose [`CHUNK`] masks one call of [`busy_masks`] computes.
+const BLOCK: usize = 8 * CHUNK;
 
 /// Hit counters tested together by the fast path of lines 1–6.
 const HIT_CHUNK: usize = 32;
@@ -563,37 +572,42 @@ static BUSY_ROW: [&[[u8; 256]; 8]; 256] = {
     t
 };
 
-/// Bit `i` set for each slot `i` of `chunk` (at most 64 slots) that lines
-/// 14–38 may touch ([`is_busy`]): per slot one look-up of the hitbox's code
-/// in `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every
-/// index out of range is clamped to) and one of [`BUSY`], no branch. A
-/// clear bit is a slot that lines 14–38 leave alone (no counter, command or
-/// state change; rate 0 under the decayed rule), a set bit one for
+/// Bit `i % 64` of `masks[i / 64]` set for each slot `i` of `block` (at
+/// most [`BLOCK`] slots; the masks past its end are 0) that lines 14–38
+/// may touch ([`is_busy`]): per slot one look-up of the hitbox's code in
+/// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
+/// out of range is clamped to) and one of [`BUSY`], no branch. A clear bit
+/// is a slot that lines 14–38 leave alone (no counter, command or state
+/// change; rate 0 under the decayed rule), a set bit one for
 /// [`slot_step`]. Not inlined: a small loop of its own keeps its values in
 /// registers.
 #[inline(never)]
-fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
-    let Some(last) = codes.len().checked_sub(1) else {
-        return 0; // never: `codes` ends with the sentinel
-    };
-    let busy = |m: &InstanceHot, p: usize| {
-        let rows = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
-        rows[p][usize::from(m.packed as u8)]
-    };
-    let eights = chunk.chunks_exact(8);
-    let tail = eights.remainder();
-    let mut bytes = [0u8; CHUNK / 8];
-    let mut k = 0;
-    for (e, byte) in eights.zip(bytes.iter_mut()) {
-        *byte = (busy(&e[0], 0) | busy(&e[1], 1))
-            | (busy(&e[2], 2) | busy(&e[3], 3))
-            | ((busy(&e[4], 4) | busy(&e[5], 5)) | (busy(&e[6], 6) | busy(&e[7], 7)));
-        k += 1;
+fn busy_masks(block: &[InstanceHot], codes: &[u8], masks: &mut [u64; BLOCK / CHUNK]) {
+    let mut bytes = [0u8; BLOCK / 8];
+    if let Some(last) = codes.len().checked_sub(1) {
+        // (`codes` always ends with the sentinel.)
+        let busy = |m: &InstanceHot, p: usize| {
+            let rows = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
+            rows[p][usize::from(m.packed as u8)]
+        };
+        let eights = block.chunks_exact(8);
+        let tail = eights.remainder();
+        let mut k = 0;
+        for (e, byte) in eights.zip(bytes.iter_mut()) {
+            *byte = (busy(&e[0], 0) | busy(&e[1], 1))
+                | (busy(&e[2], 2) | busy(&e[3], 3))
+                | ((busy(&e[4], 4) | busy(&e[5], 5)) | (busy(&e[6], 6) | busy(&e[7], 7)));
+            k += 1;
+        }
+        if let Some(byte) = bytes.get_mut(k) {
+            *byte = tail.iter().enumerate().fold(0, |b, (p, m)| b | busy(m, p));
+        }
     }
-    if let Some(byte) = bytes.get_mut(k) {
-        *byte = tail.iter().enumerate().fold(0, |b, (p, m)| b | busy(m, p));
+    for (mask, eight) in masks.iter_mut().zip(bytes.chunks_exact(8)) {
+        let mut le = [0u8; 8];
+        le.copy_from_slice(eight);
+        *mask = u64::from_le_bytes(le);
     }
-    u64::from_le_bytes(bytes)
 }
 
 /// Sets `rates[i]` to 0 where bit `i` of `keep` is clear (at most 64
@@ -621,7 +635,7 @@ fn zero_rates_but(rates: &mut [u32], keep: u64) {
     }
 }
 
-/// Lines 14–38 for one slot that [`busy_mask`] marked: live, not pinned
+/// Lines 14–38 for one slot that [`busy_masks`] marked: live, not pinned
 /// and not on the fast path (dead, pinned and fast-path slots return early
 /// without a counter, a command or a state change, their rate 0 under the
 /// decayed rule: [`zero_rates_but`]).

@@ -263,31 +263,41 @@ fn busy_table_is_the_slots_lines_14_to_38_can_touch() {
                 packed: low,
             }];
             let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
-            assert_eq!(busy_mask(&chunk, &codes), u64::from(busy));
+            assert_eq!(
+                busy_mask(&chunk, &codes),
+                [u64::from(busy), 0, 0, 0, 0, 0, 0, 0]
+            );
         }
     }
 }
 
-/// [`busy_mask`] puts each slot's bit at its place, for every chunk
-/// length from 1 to 64 (whole groups of eight and a tail) and random low
+/// [`busy_masks`] puts each slot's bit at its place, for every block
+/// length from 1 to [`BLOCK`] (whole groups of eight and a tail) and random low
 /// bytes and hitbox codes, including indices out of range: the same mask
 /// as [`is_busy`] slot by slot.
+fn busy_mask(block: &[InstanceHot], codes: &[u8]) -> [u64; BLOCK / CHUNK] {
+    let mut masks = [u64::MAX; BLOCK / CHUNK];
+    busy_masks(block, codes, &mut masks);
+    masks
+}
+
 #[test]
-fn busy_mask_places_every_slot_at_its_bit() {
+fn busy_masks_place_every_slot_at_its_bit() {
     let mut rng = XorShift64::new(0x5EED_B05F);
     let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
-    for len in 1..=CHUNK {
-        for _ in 0..20 {
+    for len in 1..=BLOCK {
+        for _ in 0..4 {
             let chunk: Vec<InstanceHot> = (0..len)
                 .map(|_| InstanceHot {
                     hitbox: [0, 1, 2, 3, 9, u32::MAX][rng.below(6) as usize],
                     packed: rng.next_u32(),
                 })
                 .collect();
-            let expected = chunk.iter().enumerate().fold(0u64, |mask, (i, m)| {
+            let mut expected = [0u64; BLOCK / CHUNK];
+            for (i, m) in chunk.iter().enumerate() {
                 let code = codes[(m.hitbox as usize).min(codes.len() - 1)];
-                mask | (u64::from(is_busy(code, m.packed & 0xFF)) << i)
-            });
+                expected[i / CHUNK] |= u64::from(is_busy(code, m.packed & 0xFF)) << (i % CHUNK);
+            }
             assert_eq!(busy_mask(&chunk, &codes), expected, "{len} slots");
         }
     }
