@@ -351,7 +351,23 @@ fn step_hitboxes(
         let change = match decayed {
             Some(r) => hitbox_step_decayed(h, r),
             None => {
-                let (packed, change) = hitbox_step(h.packed, th);
+                let p = h.packed;
+                let active = p & hitbox_bits::ACTIVE != 0;
+                let hits = p >> hitbox_bits::HITS_SHIFT;
+                // The common case, decided without `hitbox_step`: an active
+                // hitbox at or above θd, an inactive one at or below θa
+                // keeps its state and loses its streak.
+                let quiet = if active {
+                    hits >= th.theta_d
+                } else {
+                    hits <= th.theta_a
+                };
+                if quiet {
+                    h.packed = p & !(hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT);
+                    *code = if active { CODE_ACTIVE } else { CODE_INACTIVE };
+                    continue;
+                }
+                let (packed, change) = hitbox_step(p, th);
                 h.packed = packed;
                 change
             }

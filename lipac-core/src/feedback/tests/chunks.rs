@@ -303,6 +303,55 @@ fn busy_masks_place_every_slot_at_its_bit() {
     }
 }
 
+/// [`step_hitboxes`] under the paper's rule, whose common case (active at
+/// or above θd, inactive at or below θa) skips [`hitbox_step`], gives the
+/// words, codes and counts of [`hitbox_step`] on every hitbox: both states,
+/// every streak, hit counts around θd, θa, 2·θa and the maximum.
+#[test]
+fn paper_hitbox_pass_matches_hitbox_step() {
+    let th = TH;
+    let mut hit_counts = vec![0, hitbox_bits::HITS_MAX];
+    for t in [th.theta_d, th.theta_a, 2 * th.theta_a] {
+        hit_counts.extend([t - 1, t, t + 1]);
+    }
+    let mut words = Vec::new();
+    for hits in hit_counts {
+        for streak in 0..=hitbox_bits::STREAK_MAX {
+            for active in [0, hitbox_bits::ACTIVE] {
+                words.push(
+                    (hits << hitbox_bits::HITS_SHIFT)
+                        | (streak << hitbox_bits::STREAK_SHIFT)
+                        | active,
+                );
+            }
+        }
+    }
+    let mut hitboxes: Vec<HitboxRecord> = words
+        .iter()
+        .map(|&packed| HitboxRecord {
+            packed,
+            ..Default::default()
+        })
+        .collect();
+    let (codes, activated, deactivated) = step_hitboxes(&mut hitboxes, None, &th);
+    let (mut up, mut down) = (0, 0);
+    for (i, &word) in words.iter().enumerate() {
+        let (packed, change) = hitbox_step(word, &th);
+        up += u32::from(change > 0);
+        down += u32::from(change < 0);
+        assert_eq!(hitboxes[i].packed, packed, "word {word:#010x}");
+        let code = if packed & hitbox_bits::ACTIVE != 0 {
+            CODE_ACTIVE
+        } else {
+            CODE_INACTIVE
+        };
+        assert_eq!(codes[i], code, "word {word:#010x}");
+    }
+    assert_eq!((activated, deactivated), (up, down));
+    assert!(up > 0 && down > 0, "{up} activations, {down} deactivations");
+    assert!(codes[words.len()..].iter().all(|&c| c == CODE_OUT_OF_RANGE));
+}
+
 /// Runs of adds to one hitbox (line 4) give the count that one saturating
 /// add per slot gives: near and past `HITS_MAX`, with `u32::MAX` hits, runs
 /// broken by other hitboxes, by indices out of range and by slots whose
