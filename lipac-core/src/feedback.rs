@@ -298,33 +298,39 @@ fn process(
     // Lines 14–38: one thread per slot. The common case (dead or pinned;
     // inactive in an inactive hitbox; shared-BLAS active or omitted in an
     // active hitbox) is decided for CHUNK slots at once from the packed
-    // bits and the hitbox codes ([`busy_mask`]); only the other slots run
+    // bits and the hitbox codes ([`busy_masks`], BLOCK slots per call);
+    // only the other slots run
     // [`slot_step`], in slot order, so that commands keep their order.
     // Under the decayed rule the skipped slots' rates are set to 0 (dead,
     // pinned and fast-path slots have no rate).
-    let n = instances.len();
-    let mut base = 0;
-    while base < n {
-        let end = (base + CHUNK).min(n);
-        let mut busy = busy_mask(&instances[base..end], &codes);
-        if let Some((_, rates)) = decayed.as_mut() {
-            zero_rates_but(&mut rates[base..end], busy);
+    let mut masks = [0u64; BLOCK / CHUNK];
+    for block_base in (0..instances.len()).step_by(BLOCK) {
+        let end = (block_base + BLOCK).min(instances.len());
+        busy_masks(&instances[block_base..end], &codes, &mut masks);
+        for (c, &mask) in masks.iter().enumerate() {
+            let base = block_base + c * CHUNK;
+            let mut busy = mask;
+            if let Some((_, rates)) = decayed.as_mut() {
+                let end = (base + CHUNK).min(rates.len());
+                if let Some(chunk) = rates.get_mut(base..end) {
+                    zero_rates_but(chunk, busy);
+                }
+            }
+            while busy != 0 {
+                let slot = base + busy.trailing_zeros() as usize;
+                busy &= busy - 1;
+                slot_step(
+                    slot,
+                    instances,
+                    instance_hits,
+                    &mut decayed,
+                    hitboxes,
+                    th,
+                    commands,
+                    &mut stats,
+                );
+            }
         }
-        while busy != 0 {
-            let slot = base + busy.trailing_zeros() as usize;
-            busy &= busy - 1;
-            slot_step(
-                slot,
-                instances,
-                instance_hits,
-                &mut decayed,
-                hitboxes,
-                th,
-                commands,
-                &mut stats,
-            );
-        }
-        base = end;
     }
     Ok(stats)
 }
@@ -345,7 +351,23 @@ fn step_hitboxes(
         let change = match decayed {
             Some(r) => hitbox_step_decayed(h, r),
             None => {
-                let (packed, change) = hitbox_step(h.packed, th);
+                let p = h.packed;
+                let active = p & hitbox_bits::ACTIVE != 0;
+                let hits = p >> hitbox_bits::HITS_SHIFT;
+                // The common case, decided without `hitbox_step`: an active
+                // hitbox at or above θd, an inactive one at or below θa
+                // keeps its state and loses its streak.
+                let quiet = if active {
+                    hits >= th.theta_d
+                } else {
+                    hits <= th.theta_a
+                };
+                if quiet {
+                    h.packed = p & !(hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT);
+                    *code = if active { CODE_ACTIVE } else { CODE_INACTIVE };
+                    continue;
+                }
+                let (packed, change) = hitbox_step(p, th);
                 h.packed = packed;
                 change
             }
@@ -364,6 +386,9 @@ fn step_hitboxes(
 /// Slots decided together by the fast path of lines 14–38 (the bits of a
 /// `u64` mask).
 const CHUNK: usize = 64;
+
+/// Slots whose [`CHUNK`] masks one call of [`busy_masks`] computes.
+const BLOCK: usize = 8 * CHUNK;
 
 /// Hit counters tested together by the fast path of lines 1–6.
 const HIT_CHUNK: usize = 32;
@@ -512,29 +537,40 @@ const CODE_ACTIVE: u8 = 1;
 /// The code of a hitbox index out of range.
 const CODE_OUT_OF_RANGE: u8 = 2;
 
-/// `BUSY[code][packed & 0xFF]`, for `code` the instance's hitbox code
-/// ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]): 1 where
-/// lines 14–38 do more than return early (live, not pinned, and not on the
-/// fast path: inactive in an inactive hitbox, or active/omitted and not
-/// with a unique BLAS in an active one), else 0. Only the state,
+/// Whether lines 14–38 do more than return early for a slot whose low byte
+/// of `packed` is `low` in a hitbox with code `code` ([`CODE_INACTIVE`],
+/// [`CODE_ACTIVE`], anything else out of range): live, not pinned, and not
+/// on the fast path (inactive in an inactive hitbox, or active/omitted and
+/// not with a unique BLAS in an active one). Only the state,
 /// [`instance_bits::ALIVE`], [`instance_bits::UNIQUE_BLAS`] and
-/// [`instance_bits::PINNED`] bits of the low byte matter.
-static BUSY: [[u8; 256]; 3] = {
-    let mut t = [[0u8; 256]; 3];
+/// [`instance_bits::PINNED`] bits of `low` matter.
+const fn is_busy(code: u8, low: u32) -> bool {
+    let live = low & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
+    let state = low & instance_bits::STATE_MASK;
+    let inactive = state == 0 || state == instance_bits::STATE_MASK;
+    let unique = low & instance_bits::UNIQUE_BLAS != 0;
+    let in_range = code == CODE_INACTIVE || code == CODE_ACTIVE;
+    let active = code == CODE_ACTIVE;
+    let fast = in_range && (active != inactive) && (inactive || !unique);
+    live && !fast
+}
+
+/// `BUSY[code][p][low]` = [`is_busy`]`(code, low) << p`, for `code` a
+/// hitbox code ([`CODE_INACTIVE`], [`CODE_ACTIVE`], [`CODE_OUT_OF_RANGE`]),
+/// `p` a slot's place in a group of eight and `low` its low byte of
+/// `packed`: the group's eight look-ups ORed give its byte of the busy
+/// mask, without shifts.
+static BUSY: [[[u8; 256]; 8]; 3] = {
+    let mut t = [[[0u8; 256]; 8]; 3];
     let mut code = 0;
     while code < 3 {
         let mut p = 0;
-        while p < 256 {
-            let bits = p as u32;
-            let live =
-                bits & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
-            let state = bits & instance_bits::STATE_MASK;
-            let inactive = state == 0 || state == instance_bits::STATE_MASK;
-            let unique = bits & instance_bits::UNIQUE_BLAS != 0;
-            let in_range = code != CODE_OUT_OF_RANGE as usize;
-            let active = code == CODE_ACTIVE as usize;
-            let fast = in_range && (active != inactive) && (inactive || !unique);
-            t[code][p] = (live && !fast) as u8;
+        while p < 8 {
+            let mut low = 0;
+            while low < 256 {
+                t[code][p][low] = (is_busy(code as u8, low as u32) as u8) << p;
+                low += 1;
+            }
             p += 1;
         }
         code += 1;
@@ -542,50 +578,52 @@ static BUSY: [[u8; 256]; 3] = {
     t
 };
 
-/// The row of [`BUSY`] for each `u8` code: a look-up by code without a
+/// The rows of [`BUSY`] for each `u8` code: a look-up by code without a
 /// bounds check (codes above 2 never occur; they read the out-of-range
-/// row).
-static BUSY_ROW: [&[u8; 256]; 256] = {
+/// rows).
+static BUSY_ROW: [&[[u8; 256]; 8]; 256] = {
     let mut t = [&BUSY[CODE_OUT_OF_RANGE as usize]; 256];
     t[CODE_INACTIVE as usize] = &BUSY[CODE_INACTIVE as usize];
     t[CODE_ACTIVE as usize] = &BUSY[CODE_ACTIVE as usize];
     t
 };
 
-/// Bit `i` set for each slot `i` of `chunk` (at most 64 slots) that lines
-/// 14–38 may touch ([`BUSY`]): per slot one look-up of the hitbox's code in
+/// Bit `i % 64` of `masks[i / 64]` set for each slot `i` of `block` (at
+/// most [`BLOCK`] slots; the masks past its end are 0) that lines 14–38
+/// may touch ([`is_busy`]): per slot one look-up of the hitbox's code in
 /// `codes` (one per hitbox, then [`CODE_OUT_OF_RANGE`], which every index
-/// out of range is clamped to) and one of the table, no branch. A clear bit
+/// out of range is clamped to) and one of [`BUSY`], no branch. A clear bit
 /// is a slot that lines 14–38 leave alone (no counter, command or state
-/// change; rate 0 under the decayed rule), a set bit one for [`slot_step`].
-/// Not inlined: a small loop of its own keeps its values in registers.
+/// change; rate 0 under the decayed rule), a set bit one for
+/// [`slot_step`]. Not inlined: a small loop of its own keeps its values in
+/// registers.
 #[inline(never)]
-fn busy_mask(chunk: &[InstanceHot], codes: &[u8]) -> u64 {
-    let Some(last) = codes.len().checked_sub(1) else {
-        return 0; // never: `codes` ends with the sentinel
-    };
-    let busy = |m: &InstanceHot| {
-        let row = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
-        u64::from(row[(m.packed & 0xFF) as usize])
-    };
-    let eights = chunk.chunks_exact(8);
-    let tail = eights.remainder();
-    let mut mask = 0u64;
-    let mut shift = 0;
-    for e in eights {
-        // Pairs, then quads, then the eight: a shallow tree of adds.
-        let b01 = busy(&e[0]) + 2 * busy(&e[1]);
-        let b23 = busy(&e[2]) + 2 * busy(&e[3]);
-        let b45 = busy(&e[4]) + 2 * busy(&e[5]);
-        let b67 = busy(&e[6]) + 2 * busy(&e[7]);
-        mask |= (b01 + 4 * b23 + 16 * (b45 + 4 * b67)) << shift;
-        shift += 8;
+fn busy_masks(block: &[InstanceHot], codes: &[u8], masks: &mut [u64; BLOCK / CHUNK]) {
+    let mut bytes = [0u8; BLOCK / 8];
+    if let Some(last) = codes.len().checked_sub(1) {
+        // (`codes` always ends with the sentinel.)
+        let busy = |m: &InstanceHot, p: usize| {
+            let rows = BUSY_ROW[usize::from(codes[(m.hitbox as usize).min(last)])];
+            rows[p][usize::from(m.packed as u8)]
+        };
+        let eights = block.chunks_exact(8);
+        let tail = eights.remainder();
+        let mut k = 0;
+        for (e, byte) in eights.zip(bytes.iter_mut()) {
+            *byte = (busy(&e[0], 0) | busy(&e[1], 1))
+                | (busy(&e[2], 2) | busy(&e[3], 3))
+                | ((busy(&e[4], 4) | busy(&e[5], 5)) | (busy(&e[6], 6) | busy(&e[7], 7)));
+            k += 1;
+        }
+        if let Some(byte) = bytes.get_mut(k) {
+            *byte = tail.iter().enumerate().fold(0, |b, (p, m)| b | busy(m, p));
+        }
     }
-    for m in tail {
-        mask |= busy(m) << shift;
-        shift += 1;
+    for (mask, eight) in masks.iter_mut().zip(bytes.chunks_exact(8)) {
+        let mut le = [0u8; 8];
+        le.copy_from_slice(eight);
+        *mask = u64::from_le_bytes(le);
     }
-    mask
 }
 
 /// Sets `rates[i]` to 0 where bit `i` of `keep` is clear (at most 64
@@ -613,7 +651,7 @@ fn zero_rates_but(rates: &mut [u32], keep: u64) {
     }
 }
 
-/// Lines 14–38 for one slot that [`busy_mask`] marked: live, not pinned
+/// Lines 14–38 for one slot that [`busy_masks`] marked: live, not pinned
 /// and not on the fast path (dead, pinned and fast-path slots return early
 /// without a counter, a command or a state change, their rate 0 under the
 /// decayed rule: [`zero_rates_but`]).

@@ -253,20 +253,105 @@ fn busy_table_is_the_slots_lines_14_to_38_can_touch() {
                     CODE_ACTIVE => state == InstanceState::Inactive || unique,
                     _ => true,
                 };
-            let row = BUSY_ROW[usize::from(code)];
-            assert_eq!(
-                row[low as usize] == 1,
-                busy,
-                "low byte {low:#04x}, code {code}"
-            );
+            for (p, row) in BUSY_ROW[usize::from(code)].iter().enumerate() {
+                assert_eq!(
+                    row[low as usize],
+                    u8::from(busy) << p,
+                    "low byte {low:#04x}, code {code}, position {p}"
+                );
+            }
             let chunk = [InstanceHot {
                 hitbox: [0, 1, u32::MAX][usize::from(code)],
                 packed: low,
             }];
             let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
-            assert_eq!(busy_mask(&chunk, &codes), u64::from(busy));
+            assert_eq!(
+                busy_mask(&chunk, &codes),
+                [u64::from(busy), 0, 0, 0, 0, 0, 0, 0]
+            );
         }
     }
+}
+
+/// [`busy_masks`] puts each slot's bit at its place, for every block
+/// length from 1 to [`BLOCK`] (whole groups of eight and a tail) and random low
+/// bytes and hitbox codes, including indices out of range: the same mask
+/// as [`is_busy`] slot by slot.
+fn busy_mask(block: &[InstanceHot], codes: &[u8]) -> [u64; BLOCK / CHUNK] {
+    let mut masks = [u64::MAX; BLOCK / CHUNK];
+    busy_masks(block, codes, &mut masks);
+    masks
+}
+
+#[test]
+fn busy_masks_place_every_slot_at_its_bit() {
+    let mut rng = XorShift64::new(0x5EED_B05F);
+    let codes = [CODE_INACTIVE, CODE_ACTIVE, CODE_ACTIVE, CODE_OUT_OF_RANGE];
+    for len in 1..=BLOCK {
+        for _ in 0..4 {
+            let chunk: Vec<InstanceHot> = (0..len)
+                .map(|_| InstanceHot {
+                    hitbox: [0, 1, 2, 3, 9, u32::MAX][rng.below(6) as usize],
+                    packed: rng.next_u32(),
+                })
+                .collect();
+            let mut expected = [0u64; BLOCK / CHUNK];
+            for (i, m) in chunk.iter().enumerate() {
+                let code = codes[(m.hitbox as usize).min(codes.len() - 1)];
+                expected[i / CHUNK] |= u64::from(is_busy(code, m.packed & 0xFF)) << (i % CHUNK);
+            }
+            assert_eq!(busy_mask(&chunk, &codes), expected, "{len} slots");
+        }
+    }
+}
+
+/// [`step_hitboxes`] under the paper's rule, whose common case (active at
+/// or above θd, inactive at or below θa) skips [`hitbox_step`], gives the
+/// words, codes and counts of [`hitbox_step`] on every hitbox: both states,
+/// every streak, hit counts around θd, θa, 2·θa and the maximum.
+#[test]
+fn paper_hitbox_pass_matches_hitbox_step() {
+    let th = TH;
+    let mut hit_counts = vec![0, hitbox_bits::HITS_MAX];
+    for t in [th.theta_d, th.theta_a, 2 * th.theta_a] {
+        hit_counts.extend([t - 1, t, t + 1]);
+    }
+    let mut words = Vec::new();
+    for hits in hit_counts {
+        for streak in 0..=hitbox_bits::STREAK_MAX {
+            for active in [0, hitbox_bits::ACTIVE] {
+                words.push(
+                    (hits << hitbox_bits::HITS_SHIFT)
+                        | (streak << hitbox_bits::STREAK_SHIFT)
+                        | active,
+                );
+            }
+        }
+    }
+    let mut hitboxes: Vec<HitboxRecord> = words
+        .iter()
+        .map(|&packed| HitboxRecord {
+            packed,
+            ..Default::default()
+        })
+        .collect();
+    let (codes, activated, deactivated) = step_hitboxes(&mut hitboxes, None, &th);
+    let (mut up, mut down) = (0, 0);
+    for (i, &word) in words.iter().enumerate() {
+        let (packed, change) = hitbox_step(word, &th);
+        up += u32::from(change > 0);
+        down += u32::from(change < 0);
+        assert_eq!(hitboxes[i].packed, packed, "word {word:#010x}");
+        let code = if packed & hitbox_bits::ACTIVE != 0 {
+            CODE_ACTIVE
+        } else {
+            CODE_INACTIVE
+        };
+        assert_eq!(codes[i], code, "word {word:#010x}");
+    }
+    assert_eq!((activated, deactivated), (up, down));
+    assert!(up > 0 && down > 0, "{up} activations, {down} deactivations");
+    assert!(codes[words.len()..].iter().all(|&c| c == CODE_OUT_OF_RANGE));
 }
 
 /// Runs of adds to one hitbox (line 4) give the count that one saturating
