@@ -1,4 +1,5 @@
 use super::*;
+use super::{busy::*, hit_sums::*};
 use crate::command::CommandQueue;
 use crate::layout::InstanceRecord;
 

@@ -1,0 +1,149 @@
+//! Lines 1–6 of Algorithm 2 on the CPU: every live omitted or active,
+//! unpinned instance's hits added to its hitbox, and the frame's hit sums
+//! ([`super::FeedbackStats::box_hits`], [`super::FeedbackStats::traced_hits`]).
+//!
+//! Most slots have no hits, so [`HIT_CHUNK`] counters at once give a mask of
+//! those with hits and only those are visited; adds to one hitbox from
+//! consecutive slots are summed first ([`HitRun`]). The counts are those of
+//! one add per slot (`feedback/tests/chunks.rs`).
+
+use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceHot, InstanceState};
+
+/// Hit counters tested together by the fast path of lines 1–6.
+pub(super) const HIT_CHUNK: usize = 32;
+
+/// `packed & (ALIVE | PINNED | STATE_MASK)` of a live, active, unpinned
+/// instance: the common slot with hits.
+pub(super) const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
+/// The same for a live, omitted instance.
+pub(super) const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+
+/// Lines 1–6 over every slot: adds each live omitted or active, unpinned
+/// instance's hits to its hitbox (line 4) and returns this frame's
+/// `(box_hits, traced_hits)` ([`FeedbackStats`]).
+///
+/// Most slots have no hits (inactive ones are never hit): [`HIT_CHUNK`]
+/// counters at once give a mask of those with hits ([`nonzero_mask`]), and
+/// only those are visited. Consecutive adds to the same hitbox are summed
+/// first ([`HitRun`]), which gives the same count: adds saturate at
+/// [`hitbox_bits::HITS_MAX`] and never subtract. Not inlined: its loop
+/// keeps its values in registers.
+#[inline(never)]
+pub(super) fn accumulate_hits(
+    instances: &[InstanceHot],
+    instance_hits: &[u32],
+    hitboxes: &mut [HitboxRecord],
+) -> (u64, u64) {
+    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
+    let mut traced_hits: u64 = 0;
+    let mut run = HitRun { hitbox: 0, hits: 0 };
+    // Opaque to the optimiser: with the constants in sight it turns some
+    // lanes into scalar shifts instead of one vector AND per four lanes.
+    let bits = std::hint::black_box(&HIT_BITS);
+    let hot_chunks = instances.chunks_exact(HIT_CHUNK);
+    let hit_chunks = instance_hits.chunks_exact(HIT_CHUNK);
+    let (hot_tail, hit_tail) = (hot_chunks.remainder(), hit_chunks.remainder());
+    for (ms, hs) in hot_chunks.zip(hit_chunks) {
+        let mut nonzero = nonzero_mask(hs, bits);
+        while nonzero != 0 {
+            let i = nonzero.trailing_zeros() as usize;
+            nonzero &= nonzero - 1;
+            add_instance_hits(
+                &ms[i],
+                hs[i],
+                hitboxes,
+                &mut run,
+                &mut box_hits,
+                &mut traced_hits,
+            );
+        }
+    }
+    for (m, &hits) in hot_tail.iter().zip(hit_tail) {
+        add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+    }
+    run.flush(hitboxes);
+    (box_hits, traced_hits)
+}
+
+/// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of
+/// `hs`, given `bits` = [`HIT_BITS`]: an OR of per-lane bits, which the
+/// compiler vectorises (compare, AND, OR).
+#[inline(always)]
+pub(super) fn nonzero_mask(hs: &[u32], bits: &[u32; HIT_CHUNK]) -> u32 {
+    hs.iter()
+        .zip(bits)
+        .fold(0, |m, (&h, &bit)| m | if h != 0 { bit } else { 0 })
+}
+
+/// `1 << i` for lane `i` of [`nonzero_mask`].
+pub(super) const HIT_BITS: [u32; HIT_CHUNK] = {
+    let mut t = [0; HIT_CHUNK];
+    let mut i = 0;
+    while i < HIT_CHUNK {
+        t[i] = 1 << i;
+        i += 1;
+    }
+    t
+};
+
+/// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
+/// slots that add to the same hitbox (a `u64` holds the sum of 2^24 slots'
+/// `u32` hits).
+pub(super) struct HitRun {
+    hitbox: u32,
+    hits: u64,
+}
+
+impl HitRun {
+    /// Adds `hits` to `hitbox`'s run, flushing the run of another hitbox.
+    #[inline(always)]
+    fn add(&mut self, hitbox: u32, hits: u32, hitboxes: &mut [HitboxRecord]) {
+        if hitbox != self.hitbox {
+            self.flush(hitboxes);
+            self.hitbox = hitbox;
+        }
+        self.hits += u64::from(hits);
+    }
+
+    /// Adds the run's hits to its hitbox (none if its index is out of
+    /// range), saturating as [`HitboxRecord::add_hits`] one by one would.
+    #[inline(always)]
+    fn flush(&mut self, hitboxes: &mut [HitboxRecord]) {
+        if let Some(h) = hitboxes.get_mut(self.hitbox as usize) {
+            let total = (u64::from(h.hits()) + self.hits).min(u64::from(hitbox_bits::HITS_MAX));
+            h.packed = (h.packed & ((1 << hitbox_bits::HITS_SHIFT) - 1))
+                | ((total as u32) << hitbox_bits::HITS_SHIFT);
+        }
+        self.hits = 0;
+    }
+}
+
+/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
+/// live omitted or active instance that is not pinned, to its hitbox's run.
+#[inline(always)]
+pub(super) fn add_instance_hits(
+    m: &InstanceHot,
+    hits: u32,
+    hitboxes: &mut [HitboxRecord],
+    run: &mut HitRun,
+    box_hits: &mut u64,
+    traced_hits: &mut u64,
+) {
+    // No test for zero hits: they add nothing, to the sums or to a run.
+    let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
+    if key == LIVE_ACTIVE {
+        *traced_hits += u64::from(hits);
+        run.add(m.hitbox, hits, hitboxes); // line 4
+        return;
+    }
+    let state = key & (instance_bits::ALIVE | instance_bits::STATE_MASK);
+    if state == LIVE_OMITTED {
+        *box_hits += u64::from(hits);
+    } else if state & instance_bits::ALIVE != 0 {
+        *traced_hits += u64::from(hits);
+    }
+    // Pinned instances are not the hitbox's to decide on: their hits stay out.
+    if key == LIVE_OMITTED {
+        run.add(m.hitbox, hits, hitboxes); // line 4
+    }
+}
