@@ -256,6 +256,7 @@ fn bench(c: &mut Criterion) {
             instance_omit: 30.0,
             per_shared: 0.0,
             per_unique: 0.0,
+            rise_shift: None,
         }
         .rule_for_rays_per_frame(REFERENCE_RAYS_PER_FRAME)
         .unwrap();
