@@ -373,14 +373,13 @@ pub fn assemble_tlas_adaptive(
     // Per chunk of slots, first the reduction of the instances that count
     // as inactive (three quarters of the slots on a typical frame), in a
     // tight loop that only notes the slots that emit a record; then those
-    // slots' records, built in a chunk buffer and appended at once. The
+    // slots' records, appended to `out` one by one (reserved per chunk). The
     // same records in the same order, the same bits as one loop.
     let hot = instances.hot();
     let n = hot.len();
     let (heights, cold) = (&instances.heights()[..n], &instances.cold()[..n]);
     let mut counts = Pass1Counts::default();
     let mut emit = [0u32; PASS1_CHUNK];
-    let mut records = [TlasInstance::default(); PASS1_CHUNK];
     for start in (0..n).step_by(PASS1_CHUNK) {
         let end = n.min(start + PASS1_CHUNK);
         let emitting = reduce_chunk(
@@ -390,16 +389,15 @@ pub fn assemble_tlas_adaptive(
             &mut emit,
             &mut counts,
         );
-        let built = build_chunk(
+        build_chunk(
             hot,
             cold,
             start as u32,
             &emit[..emitting],
             cfg,
-            &mut records,
+            out,
             &mut counts,
         );
-        out.extend_from_slice(&records[..built]);
     }
     let Pass1Counts {
         active,
@@ -433,8 +431,8 @@ pub fn assemble_tlas_adaptive(
     Ok(stats)
 }
 
-/// Slots per chunk of pass 1 (the emitting slots' offsets and their records
-/// of one chunk are kept on the stack).
+/// Slots per chunk of pass 1 (the emitting slots' offsets of one chunk are
+/// kept on the stack).
 const PASS1_CHUNK: usize = 256;
 
 /// Pass 1's counters, summed over the chunks.
@@ -511,8 +509,8 @@ fn reduce_chunk(
 }
 
 /// Pass 1, second half: the records of the chunk's slots noted by
-/// [`reduce_chunk`] (offsets `emit` from slot `start`), in slot order, into
-/// `records`; returns how many. Active: its own record once its BLAS exists;
+/// [`reduce_chunk`] (offsets `emit` from slot `start`), in slot order,
+/// appended to `out`. Active: its own record once its BLAS exists;
 /// omitted: a counting box over its AABB unless that is not finite.
 #[inline(never)]
 fn build_chunk(
@@ -521,11 +519,11 @@ fn build_chunk(
     start: u32,
     emit: &[u32],
     cfg: &AssemblyConfig,
-    records: &mut [TlasInstance; PASS1_CHUNK],
+    out: &mut Vec<TlasInstance>,
     counts: &mut Pass1Counts,
-) -> usize {
+) {
     let (mut active, mut without_blas, mut omitted, mut invalid) = (0u32, 0u32, 0u32, 0u32);
-    let mut built = 0;
+    out.reserve(emit.len());
     for &offset in emit {
         let slot = start + offset;
         let s = slot as usize;
@@ -568,15 +566,12 @@ fn build_chunk(
                 cfg.unit_cube_blas,
             )
         };
-        // built < emit.len() <= PASS1_CHUNK: the mask only spares a check.
-        records[built & (PASS1_CHUNK - 1)] = record;
-        built += 1;
+        out.push(record);
     }
     counts.active += active;
     counts.without_blas += without_blas;
     counts.omitted += omitted;
     counts.invalid += invalid;
-    built
 }
 
 /// [`begin_frame`] with the height range as the empty reduction's keys
