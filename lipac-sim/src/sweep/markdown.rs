@@ -1,12 +1,14 @@
-//! `sweep.md`: per scene a table of every variant, fronts marked
-//! ([`sweep_markdown`]).
+//! `sweep.md`: per scene a table of every variant, fronts marked, and
+//! where LiPaC's fronts lie below the baselines' ([`sweep_markdown`]).
 
 use std::fmt::Write as _;
 
+use super::dominance::dominance_markdown;
 use super::{SweepReport, COSTS};
 use crate::metrics::TIMING_NOTE;
 
-/// The Markdown report: per scene a table of every variant, fronts marked.
+/// The Markdown report: per scene a table of every variant, fronts marked;
+/// then [`dominance_markdown`].
 pub fn sweep_markdown(r: &SweepReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
@@ -88,6 +90,10 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
             );
         }
         s.push('\n');
+    }
+    let dominance = dominance_markdown(r);
+    if !dominance.is_empty() {
+        let _ = write!(s, "## LiPaC's fronts against the baselines'\n\n{dominance}");
     }
     let _ = writeln!(s, "## Plots\n");
     for (file, title, _, _) in COSTS {

@@ -31,9 +31,12 @@
 //! The modules: [`variants`] (what is run), [`results`] (what comes back),
 //! [`pareto`] (the fronts and the costs they are over), [`csv`] and
 //! [`markdown`] (two of the files [`write_sweep`] writes; the plots are
-//! [`crate::plots::pareto_plot`]), [`shard`] (a sweep in parts).
+//! [`crate::plots::pareto_plot`]), [`dominance`] (where LiPaC's fronts lie
+//! below the frustum's and the heuristic's, printed in `sweep.md`),
+//! [`shard`] (a sweep in parts).
 
 pub mod csv;
+pub mod dominance;
 pub mod markdown;
 pub mod pareto;
 pub mod results;

@@ -200,3 +200,46 @@ fn time_fronts_of_a_hand_made_sweep() {
     assert_eq!(r.points[2].fronts(), [true, false, false, false]);
     assert!(r.points[2].on_front(0) && !r.points[2].on_front(1) && !r.points[2].on_front(9));
 }
+
+#[test]
+fn sweep_markdown_says_where_lipac_is_below_the_baselines() {
+    // Scene a: frustum (frame 30 ms, error 0.02), heuristic (5 ms, 0.2),
+    // LiPaC (20 ms, 0.04) and (8 ms, 0.1). Scene b has no baseline.
+    let r = SweepReport {
+        frames: 1,
+        width: 1,
+        height: 1,
+        rays_per_frame: 1,
+        scenes: ["a", "b"]
+            .map(|n| SweepScene {
+                name: n.into(),
+                instances: 1,
+                ground_truth_ms: 0.0,
+                traced_rays_per_frame: 0.0,
+                wall_s: 0.0,
+            })
+            .to_vec(),
+        points: vec![
+            point("a", "frustum", "frustum", 30.0, 3.0, 0.02),
+            point("a", "heuristic", "heuristic", 5.0, 0.5, 0.2),
+            point("a", "lipac ×1", "lipac", 20.0, 2.0, 0.04),
+            point("a", "lipac ×4", "lipac", 8.0, 1.0, 0.1),
+            point("b", "lipac ×1", "lipac", 20.0, 2.0, 0.04),
+        ],
+        skipped: vec![],
+        wall_s: 0.0,
+    };
+    let md = sweep_markdown(&r);
+    assert!(md.contains("### a: LiPaC's front against the baselines'"));
+    assert!(!md.contains("### b: LiPaC's front"));
+    assert!(md.contains(
+        "- frame time (CPU, ms) vs frustum: [0.0050, 0.0200) neither; \
+         [0.0200, 0.0400) baseline only; ≥ 0.0400 LiPaC below (20.000 vs 30.000 from 0.0400)"
+    ));
+    assert!(md.contains(
+        "- frame time (CPU, ms) vs heuristic: [0.0050, 0.0400) neither; \
+         [0.0400, 0.2000) LiPaC only; ≥ 0.2000 LiPaC not below (8.000 vs 5.000 from 0.2000)"
+    ));
+    // Every point has 1 MiB: equal memory is not below.
+    assert!(md.contains("- memory (MiB) vs frustum: [0.0050, 0.0200) neither; [0.0200, 0.0400) baseline only; ≥ 0.0400 LiPaC not below"));
+}
