@@ -26,17 +26,17 @@ use common::*;
 use glam::Vec3;
 use lipac_core::assembly::assemble_tlas_adaptive;
 use lipac_core::blas_cache::BlasOwner;
-use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
+use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::hitbox_tree::AdaptiveHitboxes;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::layout::{tlas_multiset, HitboxRecord, TlasInstance};
-use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
+use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog};
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    hitbox_bounds, Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter, GpuBlas,
+    hitbox_bounds, Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter,
     HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, MergedBoxes, OneShot, Polled,
     TriangleGeometry,
 };
@@ -269,20 +269,7 @@ fn adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3() {
 
 fn adaptive_frame_loop(h: &HeadlessContext, levels: u8) {
     let ctx = h.context();
-    let mesh = GpuMesh::new(h, Mesh::bumpy_grid(4));
-    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    let s = GpuBlas::query_sizes(ctx, &[mesh.geometry()], fast).unwrap();
-    let mut catalog = MeshCatalog::new();
-    let lod = MeshLod {
-        estimate: BuildEstimate {
-            primitives: u64::from(mesh.mesh.triangle_count()),
-            result_bytes: s.acceleration_structure,
-            build_scratch_bytes: s.build_scratch,
-            update_scratch_bytes: s.update_scratch,
-        },
-        data_bytes: DATA_BYTES,
-    };
-    catalog.insert(MeshId(1), vec![lod]).unwrap();
+    let (mesh, catalog) = common::one_mesh_catalog(h, DATA_BYTES);
     let commands = 512;
     let config = LipacVkConfig {
         initial_slot_capacity: 16,

@@ -11,15 +11,15 @@ use ash::vk;
 use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::blas_cache::BlasOwner;
-use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
+use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::layout::tlas_multiset;
-use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
+use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig};
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
 use lipac_vk::{
-    Buffer, FrameSubmitter, GpuBlas, LipacVk, LipacVkConfig, MemoryLocation, OneShot, Polled,
+    Buffer, FrameSubmitter, LipacVk, LipacVkConfig, MemoryLocation, OneShot, Polled,
     TriangleGeometry, VkError,
 };
 
@@ -46,20 +46,7 @@ fn tables_and_data_grow_and_assembly_matches_the_manager() {
         return;
     };
     let ctx = h.context();
-    let mesh = GpuMesh::new(&h, Mesh::bumpy_grid(4));
-    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    let s = GpuBlas::query_sizes(ctx, &[mesh.geometry()], fast).unwrap();
-    let mut catalog = MeshCatalog::new();
-    let lod = MeshLod {
-        estimate: BuildEstimate {
-            primitives: u64::from(mesh.mesh.triangle_count()),
-            result_bytes: s.acceleration_structure,
-            build_scratch_bytes: s.build_scratch,
-            update_scratch_bytes: s.update_scratch,
-        },
-        data_bytes: DATA_BYTES,
-    };
-    catalog.insert(MeshId(1), vec![lod]).unwrap();
+    let (mesh, catalog) = common::one_mesh_catalog(&h, DATA_BYTES);
     let grid = HitboxGrid::new(GridConfig {
         min: [0.0, 0.0],
         max: [64.0, 64.0],

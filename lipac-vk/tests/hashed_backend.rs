@@ -18,18 +18,18 @@ use ash::vk;
 use common::*;
 use glam::Vec3;
 use lipac_core::blas_cache::BlasOwner;
-use lipac_core::build_plan::{BuildEstimate, SchedulerConfig};
+use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::layout::tlas_multiset;
-use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog, MeshLod};
+use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog};
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter, GpuBlas, HeadlessContext,
-    LipacVk, LipacVkConfig, MemoryLocation, Polled, TriangleGeometry,
+    Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter, HeadlessContext, LipacVk,
+    LipacVkConfig, MemoryLocation, Polled, TriangleGeometry,
 };
 
 const FRAMES: u64 = 22;
@@ -267,20 +267,7 @@ fn overwrite_hits(rec: &mut lipac_vk::Recorder<'_>, staging: &Buffer, dst: &Buff
 
 fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool) {
     let ctx = h.context();
-    let mesh = GpuMesh::new(h, Mesh::bumpy_grid(4));
-    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
-    let s = GpuBlas::query_sizes(ctx, &[mesh.geometry()], fast).unwrap();
-    let mut catalog = MeshCatalog::new();
-    let lod = MeshLod {
-        estimate: BuildEstimate {
-            primitives: u64::from(mesh.mesh.triangle_count()),
-            result_bytes: s.acceleration_structure,
-            build_scratch_bytes: s.build_scratch,
-            update_scratch_bytes: s.update_scratch,
-        },
-        data_bytes: DATA_BYTES,
-    };
-    catalog.insert(MeshId(1), vec![lod]).unwrap();
+    let (mesh, catalog) = common::one_mesh_catalog(h, DATA_BYTES);
     let commands = 512;
     let empty = HashedHitboxes::new(HashedConfig::default()).unwrap();
     let config = LipacVkConfig {

@@ -163,6 +163,34 @@ impl GpuMesh {
     }
 }
 
+/// The backend tests' one mesh: `Mesh::bumpy_grid(4)` uploaded, and a
+/// catalog holding it as `MeshId(1)` with one LOD whose build estimate is
+/// the device's size query (fast trace) and whose geometry data is
+/// `data_bytes`.
+pub fn one_mesh_catalog(
+    h: &HeadlessContext,
+    data_bytes: u64,
+) -> (GpuMesh, lipac_core::manager::MeshCatalog) {
+    use lipac_core::build_plan::BuildEstimate;
+    use lipac_core::instance::MeshId;
+    use lipac_core::manager::{MeshCatalog, MeshLod};
+    let mesh = GpuMesh::new(h, Mesh::bumpy_grid(4));
+    let fast = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
+    let s = GpuBlas::query_sizes(h.context(), &[mesh.geometry()], fast).unwrap();
+    let mut catalog = MeshCatalog::new();
+    let lod = MeshLod {
+        estimate: BuildEstimate {
+            primitives: u64::from(mesh.mesh.triangle_count()),
+            result_bytes: s.acceleration_structure,
+            build_scratch_bytes: s.build_scratch,
+            update_scratch_bytes: s.update_scratch,
+        },
+        data_bytes,
+    };
+    catalog.insert(MeshId(1), vec![lod]).unwrap();
+    (mesh, catalog)
+}
+
 /// Builds one BLAS per mesh in one batch.
 pub fn build_blases(
     h: &HeadlessContext,
