@@ -45,6 +45,7 @@ use crate::tlas::{CountingBoxes, CpuTlas};
 use crate::tlas_map::TlasMap;
 use crate::traversal::{Counters, SlotSet};
 use lipac_core::layout::TlasInstance;
+use lipac_core::thresholds::DecayedSettings;
 
 /// Which scene to compare on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -101,6 +102,11 @@ pub struct CompareConfig {
     /// LiPaC's hitbox cell size in metres (`None`:
     /// [`LipacConfig::DEFAULT_CELL_SIZE`]).
     pub lipac_cell_size: Option<f64>,
+    /// The rise shift of LiPaC's decayed rule (`None`: the symmetric rule
+    /// of [`LipacConfig::DEFAULT_DECAYED`]; `Some(k)`: the rate rises with
+    /// shift `k`, 1..=its decay shift, docs/EVALUATION.md "A faster rise
+    /// than decay"). A shift outside that range is an error.
+    pub lipac_rise_shift: Option<u32>,
 }
 
 impl Default for CompareConfig {
@@ -115,6 +121,7 @@ impl Default for CompareConfig {
             threads: 0,
             adaptive_levels: 0,
             lipac_cell_size: None,
+            lipac_rise_shift: None,
         }
     }
 }
@@ -275,14 +282,28 @@ pub fn run(
     run_contenders(scene_name, scene, path, config, contenders, progress)
 }
 
-/// The strategies of `config.strategies`, under their own names.
-fn contenders_of(scene: &Scene, config: &CompareConfig) -> Result<Vec<Contender>, SimError> {
+/// LiPaC's configuration of a comparison: the defaults for its rays, with
+/// `config`'s adaptive hitboxes, cell size and rise shift.
+fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
     let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
         .with_adaptive_hitboxes(config.adaptive_levels);
     if let Some(cell) = config.lipac_cell_size {
         lipac_config.cell_size = cell;
     }
+    if let Some(k) = config.lipac_rise_shift {
+        let settings = DecayedSettings {
+            rise_shift: Some(k),
+            ..LipacConfig::DEFAULT_DECAYED
+        };
+        lipac_config = lipac_config.with_decayed_rule(&settings, rays_per_frame)?;
+    }
+    Ok(lipac_config)
+}
+
+/// The strategies of `config.strategies`, under their own names.
+fn contenders_of(scene: &Scene, config: &CompareConfig) -> Result<Vec<Contender>, SimError> {
+    let lipac_config = lipac_config_of(config)?;
     config
         .strategies
         .iter()
@@ -441,7 +462,7 @@ impl Comparison {
         }
         check_image_size(config.width, config.height)?;
         let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-        let lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+        let lipac_config = lipac_config_of(config)?;
         let pt = PathTraceConfig {
             width: config.width,
             height: config.height,

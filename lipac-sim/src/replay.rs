@@ -108,6 +108,7 @@ impl ReplayConfig {
             threads: self.threads,
             adaptive_levels: 0,
             lipac_cell_size: None,
+            lipac_rise_shift: None,
         }
     }
 }

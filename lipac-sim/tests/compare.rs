@@ -20,6 +20,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         threads: 2,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -101,6 +102,7 @@ fn config(frames: u32) -> CompareConfig {
         threads: 2,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     }
 }
 
@@ -339,5 +341,57 @@ fn extra_mib(name: &str) -> f64 {
         lipac_sim::memory::blas_bytes(12) as f64 / (1024.0 * 1024.0)
     } else {
         0.0
+    }
+}
+
+/// `lipac compare --rise-shift K` (`CompareConfig::lipac_rise_shift`):
+/// LiPaC decides with the faster rise (the report names the shift, and its
+/// decisions differ from the symmetric rule's: at 64x36 one hit on a cell
+/// stays below the activation rate with shift 3 and crosses it with 1), and
+/// a shift outside 1..=the decay shift is refused with the rule's error.
+#[test]
+fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
+    let with = |rise_shift: Option<u32>| {
+        let config = CompareConfig {
+            frames: Some(8),
+            width: 64,
+            height: 36,
+            strategies: vec![StrategyKind::Lipac],
+            share_ground_truth: true,
+            threads: 2,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
+            lipac_rise_shift: rise_shift,
+        };
+        run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
+    };
+    let symmetric = with(None).expect("symmetric rule");
+    let fast = with(Some(1)).expect("rise shift 1");
+    assert!(!symmetric.rule.contains("rising"), "{}", symmetric.rule);
+    assert!(fast.rule.contains("rising with shift 1"), "{}", fast.rule);
+    let decisions = |r: &CompareReport| -> Vec<(u64, u64, u64, u64)> {
+        r.strategies[0]
+            .frames
+            .iter()
+            .map(|f| {
+                (
+                    f.tlas_instances,
+                    f.blas_bytes,
+                    f.state_changes,
+                    f.needed_missing,
+                )
+            })
+            .collect()
+    };
+    assert_ne!(
+        decisions(&symmetric),
+        decisions(&fast),
+        "the rise shift must change LiPaC's decisions in some frame"
+    );
+    for bad in [0, 4] {
+        let e = with(Some(bad))
+            .expect_err("rise shift outside 1..=3")
+            .to_string();
+        assert!(e.contains("rise shift"), "{e}");
     }
 }

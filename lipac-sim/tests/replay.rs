@@ -107,6 +107,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             threads: 2,
             adaptive_levels: 0,
             lipac_cell_size: None,
+            lipac_rise_shift: None,
         },
         &mut |_, _| {},
     )

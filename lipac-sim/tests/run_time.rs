@@ -17,6 +17,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         threads: 2,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;

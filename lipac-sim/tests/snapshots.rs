@@ -32,6 +32,7 @@ fn run(frames: u32, snapshots: &[u32]) -> (lipac_sim::compare::CompareReport, Ve
         threads: 2,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     };
     run_choice_with_snapshots(SceneChoice::Small, None, &config, snapshots, &mut |_, _| {}).unwrap()
 }

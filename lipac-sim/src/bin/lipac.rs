@@ -110,6 +110,12 @@ struct Common {
     /// the paper's 16).
     #[arg(long)]
     cell_size: Option<f64>,
+    /// LiPaC's decayed rule rises with this shift (1..=3, its decay shift)
+    /// when a frame's hits exceed the rate: 1 climbs half way in one frame
+    /// (lower latency and error, more memory; docs/EVALUATION.md "A faster
+    /// rise than decay"). Default: the symmetric rule.
+    #[arg(long)]
+    rise_shift: Option<u32>,
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
@@ -463,6 +469,7 @@ fn main() -> ExitCode {
         threads: common.threads,
         adaptive_levels: common.adaptive_levels,
         lipac_cell_size: common.cell_size,
+        lipac_rise_shift: common.rise_shift,
     };
     // Hidden when stderr is not a terminal (CI, pipes): indicatif's default.
     let bar = ProgressBar::new(0);

@@ -135,6 +135,7 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         threads: 2,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     };
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),

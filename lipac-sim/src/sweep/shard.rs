@@ -255,6 +255,7 @@ pub fn run_shard(
         threads: config.threads,
         adaptive_levels: 0,
         lipac_cell_size: None,
+        lipac_rise_shift: None,
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();
