@@ -170,10 +170,21 @@ impl std::error::Error for AssemblyError {}
 /// and its cost word to 0, keeping the active bit, streak and rate.
 /// [`assemble_tlas`] calls it first.
 pub fn begin_frame(hitboxes: &mut [HitboxRecord]) {
-    const KEEP: u32 = (1 << crate::layout::hitbox_bits::HITS_SHIFT) - 1;
+    reset_hitboxes(
+        hitboxes,
+        f32::INFINITY.to_bits(),
+        f32::NEG_INFINITY.to_bits(),
+    );
+}
+
+/// Pass 0 with the bits `(min_bits, max_bits)` in the height range (floats,
+/// or [`height_keys`] during [`assemble_tlas_adaptive`]'s pass 1): hit count
+/// and cost word to 0, the active bit, streak and rate kept.
+fn reset_hitboxes(hitboxes: &mut [HitboxRecord], min_bits: u32, max_bits: u32) {
+    const KEEP: u32 = (1 << hitbox_bits::HITS_SHIFT) - 1;
     for h in hitboxes {
-        h.min_y = f32::INFINITY;
-        h.max_y = f32::NEG_INFINITY;
+        h.min_y = f32::from_bits(min_bits);
+        h.max_y = f32::from_bits(max_bits);
         h.packed &= KEEP;
         h.cost = 0;
     }
@@ -577,13 +588,11 @@ fn build_chunk(
 /// [`begin_frame`] with the height range as the empty reduction's keys
 /// ([`height_keys`]) instead of `(+∞, −∞)`, as `hitbox_reset.comp` writes it.
 fn begin_frame_keys(hitboxes: &mut [HitboxRecord]) {
-    const KEEP: u32 = (1 << hitbox_bits::HITS_SHIFT) - 1;
-    for h in hitboxes {
-        h.min_y = f32::from_bits(height_keys::MIN_KEY_EMPTY);
-        h.max_y = f32::from_bits(height_keys::MAX_KEY_EMPTY);
-        h.packed &= KEEP;
-        h.cost = 0;
-    }
+    reset_hitboxes(
+        hitboxes,
+        height_keys::MIN_KEY_EMPTY,
+        height_keys::MAX_KEY_EMPTY,
+    );
 }
 
 /// Turns a hitbox's height keys back into f32 heights.
