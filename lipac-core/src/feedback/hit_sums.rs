@@ -129,21 +129,18 @@ pub(super) fn add_instance_hits(
     box_hits: &mut u64,
     traced_hits: &mut u64,
 ) {
-    // No test for zero hits: they add nothing, to the sums or to a run.
+    // No test for zero hits: they add nothing, to the sums or to a run. The
+    // sums take their hits by selection, not by branch (the omitted slots
+    // among the active ones are not predictable).
     let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
-    if key == LIVE_ACTIVE {
-        *traced_hits += u64::from(hits);
-        run.add(m.hitbox, hits, hitboxes); // line 4
-        return;
-    }
     let state = key & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-    if state == LIVE_OMITTED {
-        *box_hits += u64::from(hits);
-    } else if state & instance_bits::ALIVE != 0 {
-        *traced_hits += u64::from(hits);
-    }
+    let omitted = state == LIVE_OMITTED;
+    let alive = state & instance_bits::ALIVE != 0;
+    let h = u64::from(hits);
+    *box_hits += if omitted { h } else { 0 };
+    *traced_hits += if alive && !omitted { h } else { 0 };
     // Pinned instances are not the hitbox's to decide on: their hits stay out.
-    if key == LIVE_OMITTED {
+    if key == LIVE_ACTIVE || key == LIVE_OMITTED {
         run.add(m.hitbox, hits, hitboxes); // line 4
     }
 }
