@@ -336,7 +336,6 @@ fn process(
                     instance_hits,
                     &mut decayed,
                     hitboxes,
-                    &codes,
                     th,
                     commands,
                     &mut stats,
@@ -415,26 +414,19 @@ fn slot_step(
     instance_hits: &[u32],
     decayed: &mut Option<(DecayedRule, &mut [u32])>,
     hitboxes: &[HitboxRecord],
-    codes: &[u8],
     th: &Thresholds,
     commands: &mut CommandBuffer,
     stats: &mut FeedbackStats,
 ) {
     let packed = instances[slot].packed;
-    let hitbox = instances[slot].hitbox as usize;
-    // The hitbox's state after lines 7–13 from its code (a byte, near in
-    // the cache); its record only for the hits of a command at lines 17/25.
-    let code = codes.get(hitbox).copied().unwrap_or(CODE_OUT_OF_RANGE);
-    if code == CODE_OUT_OF_RANGE {
+    let Some(h) = hitboxes.get(instances[slot].hitbox as usize) else {
         stats.invalid_instances += 1;
         return;
-    }
-    let h_active = code == CODE_ACTIVE;
-    let box_hits = || hitboxes.get(hitbox).map_or(0, HitboxRecord::hits);
+    };
+    let h_active = h.packed & hitbox_bits::ACTIVE != 0;
     let unique = packed & instance_bits::UNIQUE_BLAS != 0;
     let m = &mut instances[slot];
-    // Read only where a unique-BLAS slot's own hits are needed (lines 29–37).
-    let hits = || instance_hits[slot];
+    let hits = instance_hits[slot];
     let old = m.state();
     let slot = slot as u32;
     let command = |kind, hits| Command {
@@ -448,7 +440,7 @@ fn slot_step(
     match (state, h_active) {
         (InstanceState::Active, false) => {
             // Lines 17/18.
-            if commands.push(command(CommandKind::Remove, box_hits())) {
+            if commands.push(command(CommandKind::Remove, h.hits())) {
                 state = InstanceState::Inactive;
                 stats.active_to_inactive += 1;
             } else {
@@ -465,7 +457,7 @@ fn slot_step(
                 // Line 23.
                 state = InstanceState::Omitted;
                 stats.inactive_to_omitted += 1;
-            } else if commands.push(command(CommandKind::Add, box_hits())) {
+            } else if commands.push(command(CommandKind::Add, h.hits())) {
                 // Lines 25/26.
                 state = InstanceState::Active;
                 stats.inactive_to_active += 1;
@@ -486,19 +478,19 @@ fn slot_step(
                 InstanceState::Inactive => 0,
                 // Not in the TLAS until its BLAS exists: no evidence, held.
                 InstanceState::Active if !m.has_blas() => rates[slot],
-                _ => r.update_rate(rates[slot], hits()),
+                _ => r.update_rate(rates[slot], hits),
             };
             rates[slot] = rate;
             if !overflow {
                 if state == InstanceState::Omitted && rate > r.instance_activate {
-                    if commands.push(command(CommandKind::Add, hits())) {
+                    if commands.push(command(CommandKind::Add, hits)) {
                         state = InstanceState::Active;
                         stats.omitted_to_active += 1;
                     } else {
                         overflow = true;
                     }
                 } else if state == InstanceState::Active && m.has_blas() && rate < r.instance_omit {
-                    if commands.push(command(CommandKind::Remove, hits())) {
+                    if commands.push(command(CommandKind::Remove, hits)) {
                         state = InstanceState::Omitted;
                         stats.active_to_omitted += 1;
                     } else {
@@ -509,17 +501,17 @@ fn slot_step(
         }
     } else if unique && !overflow {
         // Lines 29–37 (M needs a unique BLAS).
-        if state == InstanceState::Omitted && hits() > th.sigma_a {
+        if state == InstanceState::Omitted && hits > th.sigma_a {
             // Lines 31/32.
-            if commands.push(command(CommandKind::Add, hits())) {
+            if commands.push(command(CommandKind::Add, hits)) {
                 state = InstanceState::Active;
                 stats.omitted_to_active += 1;
             } else {
                 overflow = true;
             }
-        } else if state == InstanceState::Active && m.has_blas() && hits() < th.sigma_o {
+        } else if state == InstanceState::Active && m.has_blas() && hits < th.sigma_o {
             // Lines 34/35 (only once the BLAS exists; see docs/ALGORITHMS.md).
-            if commands.push(command(CommandKind::Remove, hits())) {
+            if commands.push(command(CommandKind::Remove, hits)) {
                 state = InstanceState::Omitted;
                 stats.active_to_omitted += 1;
             } else {
