@@ -17,6 +17,7 @@ pub(super) const HIT_CHUNK: usize = 32;
 pub(super) const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
 /// The same for a live, omitted instance.
 pub(super) const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+const _: () = assert!(LIVE_ACTIVE == LIVE_OMITTED + 1);
 
 /// Lines 1–6 over every slot: adds each live omitted or active, unpinned
 /// instance's hits to its hitbox's entry of `added` (line 4; one entry per
@@ -42,7 +43,7 @@ pub(super) fn accumulate_hits(
     added: &mut [u32],
 ) -> (u64, u64) {
     let mut box_hits: u64 = 0;
-    let mut traced_hits: u64 = 0;
+    let mut live_hits: u64 = 0;
     let mut run = HitRun { hitbox: 0, hits: 0 };
     // Opaque to the optimiser: with the constants in sight it turns some
     // lanes into scalar shifts instead of one vector AND per four lanes.
@@ -61,15 +62,16 @@ pub(super) fn accumulate_hits(
                 added,
                 &mut run,
                 &mut box_hits,
-                &mut traced_hits,
+                &mut live_hits,
             );
         }
     }
     for (m, &hits) in hot_tail.iter().zip(hit_tail) {
-        add_instance_hits(m, hits, added, &mut run, &mut box_hits, &mut traced_hits);
+        add_instance_hits(m, hits, added, &mut run, &mut box_hits, &mut live_hits);
     }
     run.flush(added);
-    (box_hits, traced_hits)
+    // Omitted slots are live: `live_hits` holds `box_hits`.
+    (box_hits, live_hits - box_hits)
 }
 
 /// A hitbox's `packed` word with `added` (its entry from
@@ -145,8 +147,10 @@ impl HitRun {
     }
 }
 
-/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
-/// live omitted or active instance that is not pinned, to its hitbox's run.
+/// Lines 1–6 for one slot: adds its hits to `box_hits` if it is live and
+/// omitted, to `live_hits` if it is live (the traced hits are their
+/// difference) and, for a live omitted or active instance that is not
+/// pinned, to its hitbox's run.
 #[inline(always)]
 pub(super) fn add_instance_hits(
     m: &InstanceHot,
@@ -154,7 +158,7 @@ pub(super) fn add_instance_hits(
     added: &mut [u32],
     run: &mut HitRun,
     box_hits: &mut u64,
-    traced_hits: &mut u64,
+    live_hits: &mut u64,
 ) {
     // No test for zero hits: they add nothing, to the sums or to a run. The
     // sums take their hits by selection, not by branch (the omitted slots
@@ -165,9 +169,11 @@ pub(super) fn add_instance_hits(
     let alive = state & instance_bits::ALIVE != 0;
     let h = u64::from(hits);
     *box_hits += if omitted { h } else { 0 };
-    *traced_hits += if alive && !omitted { h } else { 0 };
-    // Pinned instances are not the hitbox's to decide on: their hits stay out.
-    if key == LIVE_ACTIVE || key == LIVE_OMITTED {
+    // All live slots' hits here; the omitted ones are taken out at the end.
+    *live_hits += if alive { h } else { 0 };
+    // Pinned instances are not the hitbox's to decide on: their hits stay
+    // out. `LIVE_OMITTED` and `LIVE_ACTIVE` are consecutive keys.
+    if key.wrapping_sub(LIVE_OMITTED) < 2 {
         run.add(m.hitbox, hits, added); // line 4
     }
 }
