@@ -4,8 +4,10 @@
 //!
 //! Most slots have no hits, so [`HIT_CHUNK`] counters at once give a mask of
 //! those with hits and only those are visited; adds to one hitbox from
-//! consecutive slots are summed first ([`HitRun`]). The counts are those of
-//! one add per slot (`feedback/tests/chunks.rs`).
+//! consecutive slots are summed first ([`HitRun`]) into one `u32` per
+//! hitbox, which the hitbox pass of lines 7–13 adds to the records
+//! ([`merge_hits`]). The counts are those of one add per slot
+//! (`feedback/tests/chunks.rs`).
 
 use crate::layout::{hitbox_bits, instance_bits, InstanceHot, InstanceState};
 
