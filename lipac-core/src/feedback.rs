@@ -47,7 +47,7 @@ mod hit_sums;
 use busy::{
     busy_masks, zero_rates_but, BLOCK, CHUNK, CODE_ACTIVE, CODE_INACTIVE, CODE_OUT_OF_RANGE,
 };
-use hit_sums::accumulate_hits;
+use hit_sums::{accumulate_hits, merge_hits};
 
 /// What one run of [`process_feedback`] did, by line of Algorithm 2.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -287,9 +287,11 @@ fn process(
     th.validate().map_err(FeedbackError::Thresholds)?;
     let mut stats = FeedbackStats::default();
 
-    // Lines 1–6: one thread per slot ([`accumulate_hits`]).
-    let (box_hits, traced_hits) = accumulate_hits(instances, instance_hits, hitboxes);
-    stats.box_hits = box_hits;
+    // Lines 1–6: one thread per slot ([`accumulate_hits`]), the hits for
+    // each hitbox summed in `added`, added to the records by the hitbox
+    // pass below.
+    let mut added = vec![0u32; hitboxes.len()];
+    let (omitted_hits, traced_hits) = accumulate_hits(instances, instance_hits, &mut added);
     stats.traced_hits = traced_hits;
 
     // Lines 7–13: one thread per hitbox. Each hitbox's new active bit also
@@ -298,8 +300,9 @@ fn process(
         (DecisionRule::Decayed(r), Some(rates)) => Some((*r, rates)),
         _ => None,
     };
-    let (codes, activated, deactivated) =
-        step_hitboxes(hitboxes, decayed.as_ref().map(|(r, _)| r), th);
+    let (codes, activated, deactivated, counted_hits) =
+        step_hitboxes(hitboxes, &added, decayed.as_ref().map(|(r, _)| r), th);
+    stats.box_hits = counted_hits + omitted_hits;
     stats.hitboxes_activated = activated;
     stats.hitboxes_deactivated = deactivated;
 
@@ -343,19 +346,27 @@ fn process(
     Ok(stats)
 }
 
-/// Lines 7–13 over every hitbox, under the decayed rule if `decayed` is
-/// given, else the paper's: returns each hitbox's new code ([`CODE_ACTIVE`]
-/// or [`CODE_INACTIVE`]) followed by [`CODE_OUT_OF_RANGE`], and the counts
-/// of activations and deactivations. Not inlined: a small loop of its own.
+/// Line 4's adds ([`merge_hits`] of each hitbox's entry of `added`, from
+/// [`accumulate_hits`]), then lines 7–13 over every hitbox, under the
+/// decayed rule if `decayed` is given, else the paper's: returns each
+/// hitbox's new code ([`CODE_ACTIVE`] or [`CODE_INACTIVE`]) followed by
+/// [`CODE_OUT_OF_RANGE`], the counts of activations and deactivations, and
+/// the sum of the hitboxes' hit counts before the adds (the counting
+/// boxes' part of [`FeedbackStats::box_hits`]). Not inlined: a small loop
+/// of its own.
 #[inline(never)]
 fn step_hitboxes(
     hitboxes: &mut [HitboxRecord],
+    added: &[u32],
     decayed: Option<&DecayedRule>,
     th: &Thresholds,
-) -> (Vec<u8>, u32, u32) {
+) -> (Vec<u8>, u32, u32, u64) {
     let mut codes = vec![CODE_OUT_OF_RANGE; hitboxes.len() + 1];
     let (mut activated, mut deactivated) = (0, 0);
-    for (h, code) in hitboxes.iter_mut().zip(codes.iter_mut()) {
+    let mut counted: u64 = 0;
+    for ((h, code), &a) in hitboxes.iter_mut().zip(codes.iter_mut()).zip(added) {
+        counted += u64::from(h.hits());
+        h.packed = merge_hits(h.packed, a);
         let change = match decayed {
             Some(r) => hitbox_step_decayed(h, r),
             None => {
@@ -388,7 +399,7 @@ fn step_hitboxes(
             CODE_INACTIVE
         };
     }
-    (codes, activated, deactivated)
+    (codes, activated, deactivated, counted)
 }
 
 /// Lines 14–38 for one slot that [`busy_masks`] marked: live, not pinned

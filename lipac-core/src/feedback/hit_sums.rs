@@ -4,10 +4,12 @@
 //!
 //! Most slots have no hits, so [`HIT_CHUNK`] counters at once give a mask of
 //! those with hits and only those are visited; adds to one hitbox from
-//! consecutive slots are summed first ([`HitRun`]). The counts are those of
-//! one add per slot (`feedback/tests/chunks.rs`).
+//! consecutive slots are summed first ([`HitRun`]) into one `u32` per
+//! hitbox, which the hitbox pass of lines 7–13 adds to the records
+//! ([`merge_hits`]). The counts are those of one add per slot
+//! (`feedback/tests/chunks.rs`).
 
-use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceHot, InstanceState};
+use crate::layout::{hitbox_bits, instance_bits, InstanceHot, InstanceState};
 
 /// Hit counters tested together by the fast path of lines 1–6.
 pub(super) const HIT_CHUNK: usize = 32;
@@ -17,10 +19,16 @@ pub(super) const HIT_CHUNK: usize = 32;
 pub(super) const LIVE_ACTIVE: u32 = instance_bits::ALIVE | InstanceState::Active as u32;
 /// The same for a live, omitted instance.
 pub(super) const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitted as u32;
+const _: () = assert!(LIVE_ACTIVE == LIVE_OMITTED + 1);
 
 /// Lines 1–6 over every slot: adds each live omitted or active, unpinned
-/// instance's hits to its hitbox (line 4) and returns this frame's
-/// `(box_hits, traced_hits)` ([`FeedbackStats`]).
+/// instance's hits to its hitbox's entry of `added` (line 4; one entry per
+/// hitbox, zero at first, a saturating sum) and returns the hits of live
+/// omitted instances and this frame's `traced_hits` ([`FeedbackStats`]).
+/// The hitbox records are not touched: [`merge_hits`] adds `added` to
+/// them in the pass of lines 7–13, which reads each record once, in order,
+/// instead of here where the records of scattered slots are far apart in
+/// memory.
 ///
 /// Most slots have no hits (inactive ones are never hit): [`HIT_CHUNK`]
 /// counters at once give a mask of those with hits ([`nonzero_mask`]), and
@@ -28,14 +36,16 @@ pub(super) const LIVE_OMITTED: u32 = instance_bits::ALIVE | InstanceState::Omitt
 /// first ([`HitRun`]), which gives the same count: adds saturate at
 /// [`hitbox_bits::HITS_MAX`] and never subtract. Not inlined: its loop
 /// keeps its values in registers.
+///
+/// [`FeedbackStats`]: super::FeedbackStats
 #[inline(never)]
 pub(super) fn accumulate_hits(
     instances: &[InstanceHot],
     instance_hits: &[u32],
-    hitboxes: &mut [HitboxRecord],
+    added: &mut [u32],
 ) -> (u64, u64) {
-    let mut box_hits: u64 = hitboxes.iter().map(|h| u64::from(h.hits())).sum();
-    let mut traced_hits: u64 = 0;
+    let mut box_hits: u64 = 0;
+    let mut live_hits: u64 = 0;
     let mut run = HitRun { hitbox: 0, hits: 0 };
     // Opaque to the optimiser: with the constants in sight it turns some
     // lanes into scalar shifts instead of one vector AND per four lanes.
@@ -51,18 +61,40 @@ pub(super) fn accumulate_hits(
             add_instance_hits(
                 &ms[i],
                 hs[i],
-                hitboxes,
+                added,
                 &mut run,
                 &mut box_hits,
-                &mut traced_hits,
+                &mut live_hits,
             );
         }
     }
     for (m, &hits) in hot_tail.iter().zip(hit_tail) {
-        add_instance_hits(m, hits, hitboxes, &mut run, &mut box_hits, &mut traced_hits);
+        add_instance_hits(m, hits, added, &mut run, &mut box_hits, &mut live_hits);
     }
-    run.flush(hitboxes);
-    (box_hits, traced_hits)
+    run.flush(added);
+    // Omitted slots are live: `live_hits` holds `box_hits`.
+    (box_hits, live_hits - box_hits)
+}
+
+/// A hitbox's `packed` word with `added` (its entry from
+/// [`accumulate_hits`]) added to its hit count, saturating at
+/// [`hitbox_bits::HITS_MAX`] as one
+/// [`crate::layout::HitboxRecord::add_hits`] per slot
+/// would (a saturated `added`, `u32::MAX`, is above `HITS_MAX`).
+#[inline(always)]
+pub(super) fn merge_hits(packed: u32, added: u32) -> u32 {
+    let total = (u64::from(packed >> hitbox_bits::HITS_SHIFT) + u64::from(added))
+        .min(u64::from(hitbox_bits::HITS_MAX));
+    (packed & ((1 << hitbox_bits::HITS_SHIFT) - 1)) | ((total as u32) << hitbox_bits::HITS_SHIFT)
+}
+
+/// [`merge_hits`] over every hitbox: the records as lines 1–6 leave them
+/// (for tests; [`super::step_hitboxes`] merges as it goes).
+#[cfg(test)]
+pub(super) fn merge_all(hitboxes: &mut [crate::layout::HitboxRecord], added: &[u32]) {
+    for (h, &a) in hitboxes.iter_mut().zip(added) {
+        h.packed = merge_hits(h.packed, a);
+    }
 }
 
 /// Bit `i` set where `hs[i] != 0`, for the first [`HIT_CHUNK`] counters of
@@ -86,9 +118,9 @@ pub(super) const HIT_BITS: [u32; HIT_CHUNK] = {
     t
 };
 
-/// Hits not yet added to hitbox `hitbox` (line 4), summed over a run of
-/// slots that add to the same hitbox (a `u64` holds the sum of 2^24 slots'
-/// `u32` hits).
+/// Hits not yet added to hitbox `hitbox`'s entry of `added` (line 4),
+/// summed over a run of slots that add to the same hitbox (a `u64` holds
+/// the sum of 2^24 slots' `u32` hits).
 pub(super) struct HitRun {
     hitbox: u32,
     hits: u64,
@@ -97,53 +129,53 @@ pub(super) struct HitRun {
 impl HitRun {
     /// Adds `hits` to `hitbox`'s run, flushing the run of another hitbox.
     #[inline(always)]
-    fn add(&mut self, hitbox: u32, hits: u32, hitboxes: &mut [HitboxRecord]) {
+    fn add(&mut self, hitbox: u32, hits: u32, added: &mut [u32]) {
         if hitbox != self.hitbox {
-            self.flush(hitboxes);
+            self.flush(added);
             self.hitbox = hitbox;
         }
         self.hits += u64::from(hits);
     }
 
-    /// Adds the run's hits to its hitbox (none if its index is out of
-    /// range), saturating as [`HitboxRecord::add_hits`] one by one would.
+    /// Adds the run's hits to its hitbox's entry of `added` (none if its
+    /// index is out of range), saturating at `u32::MAX`: above
+    /// [`hitbox_bits::HITS_MAX`], so [`merge_hits`] still saturates there.
     #[inline(always)]
-    fn flush(&mut self, hitboxes: &mut [HitboxRecord]) {
-        if let Some(h) = hitboxes.get_mut(self.hitbox as usize) {
-            let total = (u64::from(h.hits()) + self.hits).min(u64::from(hitbox_bits::HITS_MAX));
-            h.packed = (h.packed & ((1 << hitbox_bits::HITS_SHIFT) - 1))
-                | ((total as u32) << hitbox_bits::HITS_SHIFT);
+    fn flush(&mut self, added: &mut [u32]) {
+        if let Some(a) = added.get_mut(self.hitbox as usize) {
+            *a = a.saturating_add(u32::try_from(self.hits).unwrap_or(u32::MAX));
         }
         self.hits = 0;
     }
 }
 
-/// Lines 1–6 for one slot: adds its hits to the frame's sums and, for a
-/// live omitted or active instance that is not pinned, to its hitbox's run.
+/// Lines 1–6 for one slot: adds its hits to `box_hits` if it is live and
+/// omitted, to `live_hits` if it is live (the traced hits are their
+/// difference) and, for a live omitted or active instance that is not
+/// pinned, to its hitbox's run.
 #[inline(always)]
 pub(super) fn add_instance_hits(
     m: &InstanceHot,
     hits: u32,
-    hitboxes: &mut [HitboxRecord],
+    added: &mut [u32],
     run: &mut HitRun,
     box_hits: &mut u64,
-    traced_hits: &mut u64,
+    live_hits: &mut u64,
 ) {
-    // No test for zero hits: they add nothing, to the sums or to a run.
+    // No test for zero hits: they add nothing, to the sums or to a run. The
+    // sums take their hits by selection, not by branch (the omitted slots
+    // among the active ones are not predictable).
     let key = m.packed & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
-    if key == LIVE_ACTIVE {
-        *traced_hits += u64::from(hits);
-        run.add(m.hitbox, hits, hitboxes); // line 4
-        return;
-    }
     let state = key & (instance_bits::ALIVE | instance_bits::STATE_MASK);
-    if state == LIVE_OMITTED {
-        *box_hits += u64::from(hits);
-    } else if state & instance_bits::ALIVE != 0 {
-        *traced_hits += u64::from(hits);
-    }
-    // Pinned instances are not the hitbox's to decide on: their hits stay out.
-    if key == LIVE_OMITTED {
-        run.add(m.hitbox, hits, hitboxes); // line 4
+    let omitted = state == LIVE_OMITTED;
+    let alive = state & instance_bits::ALIVE != 0;
+    let h = u64::from(hits);
+    *box_hits += if omitted { h } else { 0 };
+    // All live slots' hits here; the omitted ones are taken out at the end.
+    *live_hits += if alive { h } else { 0 };
+    // Pinned instances are not the hitbox's to decide on: their hits stay
+    // out. `LIVE_OMITTED` and `LIVE_ACTIVE` are consecutive keys.
+    if key.wrapping_sub(LIVE_OMITTED) < 2 {
+        run.add(m.hitbox, hits, added); // line 4
     }
 }

@@ -335,7 +335,8 @@ fn paper_hitbox_pass_matches_hitbox_step() {
             ..Default::default()
         })
         .collect();
-    let (codes, activated, deactivated) = step_hitboxes(&mut hitboxes, None, &th);
+    let added = vec![0; hitboxes.len()];
+    let (codes, activated, deactivated, _) = step_hitboxes(&mut hitboxes, &added, None, &th);
     let (mut up, mut down) = (0, 0);
     for (i, &word) in words.iter().enumerate() {
         let (packed, change) = hitbox_step(word, &th);
@@ -411,7 +412,9 @@ fn hit_runs_saturate_like_one_add_per_slot() {
             }
         }
         let hot: Vec<InstanceHot> = records.iter().map(InstanceRecord::hot).collect();
-        accumulate_hits(&hot, &hits, &mut got);
+        let mut added = vec![0; got.len()];
+        accumulate_hits(&hot, &hits, &mut added);
+        hit_sums::merge_all(&mut got, &added);
         assert_eq!(
             bytemuck::cast_slice::<_, u32>(&got),
             bytemuck::cast_slice::<_, u32>(&want),
