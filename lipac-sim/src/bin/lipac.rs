@@ -233,7 +233,10 @@ struct SweepArgs {
     /// activation / deactivation and instance activation / omit rates in
     /// hits per frame at 1080p (default 150/30:150/30) and the decay
     /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
-    /// write `--decayed=-:100/20` when the first one starts with `-`.
+    /// write `--decayed=-:100/20` when the first one starts with `-`. A
+    /// setting may end in `@CELL` (its own hitbox cell size in metres)
+    /// and then `+DIST/SIZE` (latency mitigation, as `--latency`), e.g.
+    /// `1:5/1:5/1@128+100/0.05`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.
@@ -363,7 +366,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 .decayed
                 .iter()
                 .filter(|s| !s.is_empty())
-                .map(|s| sweep::parse_decayed_spec(s, &LipacConfig::DEFAULT_DECAYED))
+                .map(|s| sweep::parse_decayed_variant(s, &LipacConfig::DEFAULT_DECAYED))
                 .collect::<Result<Vec<_>, _>>()?,
             threads: a.threads,
         })
