@@ -77,16 +77,23 @@ pub struct PriorityConfig {
     pub frustum_bonus: u64,
     /// Added per frame waited.
     pub ageing_per_frame: u64,
+    /// Added when a waiting instance has no BLAS yet: until this build is
+    /// done it is not traced at all, while an instance waiting for a LOD
+    /// switch is traced with its current BLAS meanwhile.
+    pub first_build_bonus: u64,
 }
 
 impl Default for PriorityConfig {
-    /// `hit_cap` 100 000, `frustum_bonus` 100 000, `ageing_per_frame` 10 000:
-    /// any request outranks every newer one after at most 21 frames.
+    /// `hit_cap` 100 000, `frustum_bonus` 100 000, `ageing_per_frame` 10 000,
+    /// `first_build_bonus` 200 000: a first build outranks every LOD switch
+    /// up to 20 frames older, and any request outranks every newer one after
+    /// at most 41 frames.
     fn default() -> Self {
         Self {
             hit_cap: 100_000,
             frustum_bonus: 100_000,
             ageing_per_frame: 10_000,
+            first_build_bonus: 200_000,
         }
     }
 }
@@ -1046,16 +1053,18 @@ impl BuildScheduler {
 
     fn priority(&self, id: BlasId, q: &Queued) -> u64 {
         let p = &self.config.priority;
-        let (mut hits, mut frustum) = (0u32, false);
+        let (mut hits, mut frustum, mut untraced) = (0u32, false, false);
         if let Some(w) = self.waiters.get(&id) {
             for s in w.iter().filter_map(|k| self.slots.get(k)) {
                 hits = hits.max(s.hits);
                 frustum |= s.in_frustum;
+                untraced |= s.current.is_none();
             }
         }
         let waited = self.cache.frame().saturating_sub(q.since);
         u64::from(hits.min(p.hit_cap))
             .saturating_add(if frustum { p.frustum_bonus } else { 0 })
+            .saturating_add(if untraced { p.first_build_bonus } else { 0 })
             .saturating_add(waited.saturating_mul(p.ageing_per_frame))
     }
 

@@ -44,6 +44,7 @@ use crate::strategy::{
 use crate::tlas::{CountingBoxes, CpuTlas};
 use crate::tlas_map::TlasMap;
 use crate::traversal::{Counters, SlotSet};
+use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
 use lipac_core::thresholds::DecayedSettings;
 
@@ -107,6 +108,59 @@ pub struct CompareConfig {
     /// shift `k`, 1..=its decay shift, docs/EVALUATION.md "A faster rise
     /// than decay"). A shift outside that range is an error.
     pub lipac_rise_shift: Option<u32>,
+    /// LiPaC's start: [`LipacConfig::warm_start`] as configured by
+    /// default, cold, or warm with a given heuristic.
+    pub lipac_start: LipacStart,
+}
+
+/// How LiPaC starts in a comparison ([`LipacConfig::warm_start`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum LipacStart {
+    /// [`LipacConfig::for_rays_per_frame`]'s choice.
+    #[default]
+    Default,
+    /// The paper's cold start (no warm start).
+    Cold,
+    /// A warm start with this heuristic.
+    Warm(ActivationHeuristic),
+}
+
+impl LipacStart {
+    /// From the command line's `--warm-start` value: `off` (the paper's
+    /// cold start) or `DIST:SIZE` (a warm start accepting what is in view
+    /// within `DIST` metres or of projected size at least `SIZE`; `inf:0`
+    /// takes the whole view).
+    ///
+    /// ```
+    /// use lipac_sim::compare::LipacStart;
+    /// assert_eq!(LipacStart::parse("off"), Ok(LipacStart::Cold));
+    /// let LipacStart::Warm(h) = LipacStart::parse("inf:0").unwrap() else { panic!() };
+    /// assert_eq!((h.max_distance, h.min_projected_size), (f32::INFINITY, 0.0));
+    /// for bad in ["", "50", "-1:0", "50:NaN", "NaN:0.1", "50:inf", "a:b"] {
+    ///     assert!(LipacStart::parse(bad).is_err(), "{bad}");
+    /// }
+    /// ```
+    pub fn parse(spec: &str) -> Result<Self, String> {
+        let spec = spec.trim();
+        if spec == "off" {
+            return Ok(Self::Cold);
+        }
+        let bad = || {
+            format!("warm start `{spec}`: expected `off` or `DIST:SIZE`, both >= 0, SIZE finite")
+        };
+        let (d, p) = spec.split_once(':').ok_or_else(bad)?;
+        let (d, p): (f32, f32) = match (d.trim().parse(), p.trim().parse()) {
+            (Ok(d), Ok(p)) => (d, p),
+            _ => return Err(bad()),
+        };
+        if !(d >= 0.0 && p >= 0.0 && p.is_finite()) {
+            return Err(bad());
+        }
+        Ok(Self::Warm(ActivationHeuristic {
+            max_distance: d,
+            min_projected_size: p,
+        }))
+    }
 }
 
 impl Default for CompareConfig {
@@ -122,6 +176,7 @@ impl Default for CompareConfig {
             adaptive_levels: 0,
             lipac_cell_size: None,
             lipac_rise_shift: None,
+            lipac_start: LipacStart::Default,
         }
     }
 }
@@ -283,7 +338,7 @@ pub fn run(
 }
 
 /// LiPaC's configuration of a comparison: the defaults for its rays, with
-/// `config`'s adaptive hitboxes, cell size and rise shift.
+/// `config`'s adaptive hitboxes, cell size, rise shift and start.
 fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
     let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
@@ -297,6 +352,11 @@ fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
             ..LipacConfig::DEFAULT_DECAYED
         };
         lipac_config = lipac_config.with_decayed_rule(&settings, rays_per_frame)?;
+    }
+    match config.lipac_start {
+        LipacStart::Default => {}
+        LipacStart::Cold => lipac_config.warm_start = None,
+        LipacStart::Warm(h) => lipac_config.warm_start = Some(h),
     }
     Ok(lipac_config)
 }

@@ -16,7 +16,9 @@
 //!    [`LipacConfig::readback_latency`] frames.
 //! 2. [`CpuBackend::begin_frame`], then the frame's instance changes
 //!    (register, update, move, LOD, remove).
-//! 3. [`CpuBackend::run`]: latency mitigation (if configured), the commands
+//! 3. [`CpuBackend::run`]: at the first run the warm start (if configured,
+//!    [`LipacConfig::warm_start`]: that frame's builds unbudgeted), latency
+//!    mitigation (if configured), the commands
 //!    of frame `f − k` ([`Manager::ingest_readback`]), [`Manager::plan`]
 //!    under the frame's budgets, the plan executed, and Algorithm 1
 //!    ([`Manager::assemble`]) into the caller's TLAS records.
@@ -49,7 +51,7 @@ use lipac_core::culling::{CullingConfig, ReadbackRing, Selection};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::InstanceDesc;
-use lipac_core::latency::Frustum;
+use lipac_core::latency::{ActivationHeuristic, Frustum};
 use lipac_core::layout::{HitboxRecord, InstanceRecord, TlasInstance};
 use lipac_core::manager::{
     Ack, DataConfig, FrameBudgets, InstanceView, Manager, ManagerConfig, ManagerPlan, MeshCatalog,
@@ -78,7 +80,7 @@ pub struct BackendFrame {
     pub commands_processed: u32,
     /// Commands still pending after this frame.
     pub commands_pending: u32,
-    /// Instances activated by latency mitigation.
+    /// Instances activated by latency mitigation or the warm start.
     pub latency_activations: u32,
 }
 
@@ -103,6 +105,8 @@ pub struct CpuBackend<H: HitboxIndex = HitboxGrid> {
     ring: ReadbackRing,
     budgets: FrameBudgets,
     latency_mitigation: bool,
+    /// The warm start still to make at the first [`CpuBackend::run`].
+    warm_start: Option<ActivationHeuristic>,
     next_address: u64,
     /// The Manager frame of the last `begin_frame` whose feedback is due.
     open_frame: Option<u64>,
@@ -161,6 +165,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
                 builds: config.build_budgets,
             },
             latency_mitigation: config.latency.is_some(),
+            warm_start: config.warm_start,
             next_address: 0x1000,
             open_frame: None,
         })
@@ -199,6 +204,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
                 builds: crate::strategy::unlimited_budgets(),
             },
             latency_mitigation: false,
+            warm_start: None,
             next_address: 0x1000,
             open_frame: None,
         })
@@ -343,13 +349,27 @@ impl<H: HitboxIndex> CpuBackend<H> {
             .open_frame
             .ok_or_else(|| SimError::Core("CpuBackend::run before begin_frame".into()))?;
         let mut stats = BackendFrame::default();
+        let mut budgets = &self.budgets;
+        let load = FrameBudgets {
+            commands: self.budgets.commands,
+            builds: crate::strategy::unlimited_budgets(),
+        };
+        if let Some(h) = self.warm_start.take() {
+            let frustum = Frustum::from_view_projection(camera.view_proj()).map_err(core)?;
+            let outcome = self
+                .manager
+                .warm_start(camera.position, &frustum, h)
+                .map_err(core)?;
+            stats.latency_activations += outcome.summary.accepted;
+            budgets = &load;
+        }
         if self.latency_mitigation {
             let frustum = Frustum::from_view_projection(camera.view_proj()).map_err(core)?;
             let outcome = self
                 .manager
                 .mitigate_latency(camera.position, &frustum)
                 .map_err(core)?;
-            stats.latency_activations = outcome.summary.accepted;
+            stats.latency_activations += outcome.summary.accepted;
         }
         while let Some(r) = self.ring.pop_ready(frame) {
             stats.commands_ingested += self
@@ -357,7 +377,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
                 .ingest_readback(r.frame, r.counter, &r.words)
                 .accepted;
         }
-        let plan = self.manager.plan(&self.budgets).map_err(core)?;
+        let plan = self.manager.plan(budgets).map_err(core)?;
         stats.commands_processed = plan.commands.drained;
         stats.commands_pending = plan.commands.remaining;
         stats.work = self.execute(&plan)?;

@@ -49,7 +49,7 @@ use lipac_core::trace::{
     TraceHeader, TraceLocation, TraceReader,
 };
 
-use crate::compare::{CompareConfig, CompareReport, Comparison};
+use crate::compare::{CompareConfig, CompareReport, Comparison, LipacStart};
 use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
 use crate::scene::Scene;
@@ -88,6 +88,8 @@ pub struct ReplayConfig {
     /// Frame numbers to take [`Snapshot`]s of (geometry mode only; see
     /// [`replay_with_snapshots`]).
     pub snapshots: Vec<u32>,
+    /// How LiPaC starts ([`CompareConfig::lipac_start`]).
+    pub lipac_start: LipacStart,
 }
 
 impl ReplayConfig {
@@ -109,6 +111,7 @@ impl ReplayConfig {
             adaptive_levels: 0,
             lipac_cell_size: None,
             lipac_rise_shift: None,
+            lipac_start: self.lipac_start,
         }
     }
 }
@@ -124,6 +127,7 @@ impl Default for ReplayConfig {
             mode: None,
             keep_frames: true,
             snapshots: Vec::new(),
+            lipac_start: LipacStart::Default,
         }
     }
 }

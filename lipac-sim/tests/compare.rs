@@ -21,6 +21,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: lipac_sim::compare::LipacStart::Default,
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -103,6 +104,7 @@ fn config(frames: u32) -> CompareConfig {
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: lipac_sim::compare::LipacStart::Default,
     }
 }
 
@@ -197,6 +199,10 @@ fn lipac_activates_an_instance_seen_only_in_a_mirror() {
     let path = CameraPath::fixed(cam, 16);
     let mut cfg = config(16);
     cfg.strategies.push(StrategyKind::Frustum);
+    // The paper's cold start, so that only hit feedback activates the
+    // building (a warm start activates the hitboxes in view, and through
+    // Algorithm 2 their other instances).
+    cfg.lipac_start = lipac_sim::compare::LipacStart::Cold;
     let r = run("mirror", &mut scene, &path, &cfg, &mut |_, _| {}).unwrap();
     let lipac = r.strategy("lipac").unwrap();
     assert!(
@@ -362,6 +368,7 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
             adaptive_levels: 0,
             lipac_cell_size: None,
             lipac_rise_shift: rise_shift,
+            lipac_start: lipac_sim::compare::LipacStart::Default,
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
     };
@@ -394,4 +401,64 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
             .to_string();
         assert!(e.contains("rise shift"), "{e}");
     }
+}
+
+/// The warm start (`LipacConfig::warm_start`, `lipac compare --warm-start`):
+/// on the city, where LiPaC's cold start traces nothing but the pinned
+/// terrain until the first read-back (error above 0.3 in frames 0 and 1),
+/// the default warm start traces the view from frame 0 (its first two
+/// frames' error at most half the cold start's, its first frame's TLAS
+/// many times larger), and hit feedback culls it down again: by frame 7 it
+/// holds no more than 1.5x the records of the cold start.
+#[test]
+fn a_warm_start_traces_the_view_from_frame_0_and_feedback_culls_it() {
+    use lipac_sim::compare::LipacStart;
+    let with = |start: LipacStart| {
+        let config = CompareConfig {
+            frames: Some(8),
+            width: 64,
+            height: 36,
+            strategies: vec![StrategyKind::Lipac],
+            share_ground_truth: true,
+            threads: 2,
+            adaptive_levels: 0,
+            lipac_cell_size: None,
+            lipac_rise_shift: None,
+            lipac_start: start,
+        };
+        run_choice(SceneChoice::City, None, &config, &mut |_, _| {}).expect("comparison")
+    };
+    let cold = with(LipacStart::Cold);
+    let warm = with(LipacStart::Default);
+    let (c, w) = (&cold.strategies[0].frames, &warm.strategies[0].frames);
+    for f in 0..2 {
+        assert!(c[f].error > 0.3, "cold start, frame {f}: {}", c[f].error);
+        assert!(
+            w[f].error <= 0.5 * c[f].error,
+            "frame {f}: warm {} against cold {}",
+            w[f].error,
+            c[f].error
+        );
+    }
+    assert!(
+        w[0].tlas_instances > 4 * c[0].tlas_instances,
+        "{} {}",
+        w[0].tlas_instances,
+        c[0].tlas_instances
+    );
+    assert!(
+        (w[7].tlas_instances as f64) <= 1.5 * c[7].tlas_instances as f64,
+        "not culled down: {} against {}",
+        w[7].tlas_instances,
+        c[7].tlas_instances
+    );
+    // The heuristic chooses the set: one that accepts nothing activates
+    // nothing (the load frame still builds the pinned terrain unbudgeted).
+    let none = with(LipacStart::Warm(lipac_core::latency::ActivationHeuristic {
+        max_distance: 0.0,
+        min_projected_size: f32::INFINITY,
+    }));
+    let n0 = none.strategies[0].frames[0].tlas_instances;
+    assert!(4 * n0 < w[0].tlas_instances, "{n0} {}", w[0].tlas_instances);
+    assert!(none.strategies[0].frames[0].error > 0.3);
 }

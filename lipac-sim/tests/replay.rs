@@ -108,6 +108,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             adaptive_levels: 0,
             lipac_cell_size: None,
             lipac_rise_shift: None,
+            lipac_start: lipac_sim::compare::LipacStart::Default,
         },
         &mut |_, _| {},
     )

@@ -99,6 +99,7 @@ fn report_html_renders_in_headless_chromium() {
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: lipac_sim::compare::LipacStart::Default,
     };
     let (r, snaps) =
         run_choice_with_snapshots(SceneChoice::Small, None, &config, &[0, 3], &mut |_, _| {})

@@ -18,6 +18,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: lipac_sim::compare::LipacStart::Default,
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;

@@ -33,6 +33,8 @@ fn run(frames: u32, snapshots: &[u32]) -> (lipac_sim::compare::CompareReport, Ve
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        // The paper's cold start: every hitbox inactive at frame 0.
+        lipac_start: lipac_sim::compare::LipacStart::Cold,
     };
     run_choice_with_snapshots(SceneChoice::Small, None, &config, snapshots, &mut |_, _| {}).unwrap()
 }
@@ -163,6 +165,7 @@ fn a_geometry_replay_takes_the_same_snapshots_as_compare() {
         height: 24,
         threads: 2,
         snapshots: vec![2],
+        lipac_start: lipac_sim::compare::LipacStart::Cold, // as run()
         ..ReplayConfig::default()
     };
     let input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();

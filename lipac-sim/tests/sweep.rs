@@ -171,6 +171,7 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: lipac_sim::compare::LipacStart::Default,
     };
     let c = run_choice(SceneChoice::Small, None, &compare, &mut |_, _| {}).unwrap();
     for (swept, compared) in [("lipac ×1", "lipac"), ("lipac-latency", "lipac-latency")] {

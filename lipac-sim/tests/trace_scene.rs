@@ -11,6 +11,7 @@ use lipac_core::trace::{
     AddInstance, Camera, Frame, InstanceEvent, LodGeometry, LodInfo, MeshInfo, Pose, TraceFormat,
     TraceHeader, TraceWriter, UpdateInstance, WorldInfo,
 };
+use lipac_sim::compare::LipacStart;
 use lipac_sim::mesh::leaf_opaque;
 use lipac_sim::replay::{ReplayConfig, TraceInput};
 use lipac_sim::strategy::StrategyKind;
@@ -223,6 +224,9 @@ fn run(
         width: 48,
         height: 27,
         threads: 2,
+        // The paper's cold start: LiPaC's error is then never zero in the
+        // first frames, which the tests below rely on.
+        lipac_start: LipacStart::Cold,
         ..ReplayConfig::default()
     };
     replay_trace(
@@ -535,6 +539,7 @@ fn a_trace_from_a_pipe_replays_with_geometry() {
         width: 48,
         height: 27,
         threads: 2,
+        lipac_start: LipacStart::Cold, // as run()
         ..ReplayConfig::default()
     };
     // Small chunks: the replay reads as the bytes come.
@@ -667,6 +672,8 @@ fn mid_trace_flag_updates_reach_the_tracer_and_lipac() {
         height: 27,
         threads: 2,
         snapshots: numbers.clone(),
+        // The paper's cold start: nothing active before feedback.
+        lipac_start: LipacStart::Cold,
         ..ReplayConfig::default()
     };
     let r = replay_trace(

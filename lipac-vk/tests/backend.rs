@@ -14,6 +14,7 @@ use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::instance::{InstanceDesc, MeshId};
+use lipac_core::latency::{ActivationHeuristic, Frustum};
 use lipac_core::layout::tlas_multiset;
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig};
 use lipac_core::math::Aabb;
@@ -42,7 +43,23 @@ fn desc(i: u32) -> InstanceDesc {
 
 #[test]
 fn tables_and_data_grow_and_assembly_matches_the_manager() {
-    let Some(h) = headless("tables_and_data_grow_and_assembly_matches_the_manager") else {
+    grow_and_match(
+        "tables_and_data_grow_and_assembly_matches_the_manager",
+        false,
+    );
+}
+
+/// The same frames with a warm start at frame 1 (`Manager::warm_start`):
+/// its state and hitbox overrides reach the GPU's records, so GPU
+/// Algorithm 1 equals the manager's assembly with the instances active,
+/// and from frame 2 on (their BLASes built) they are geometry records.
+#[test]
+fn a_warm_start_reaches_the_gpu_records() {
+    grow_and_match("a_warm_start_reaches_the_gpu_records", true);
+}
+
+fn grow_and_match(name: &str, warm: bool) {
+    let Some(h) = headless(name) else {
         return;
     };
     let ctx = h.context();
@@ -86,6 +103,20 @@ fn tables_and_data_grow_and_assembly_matches_the_manager() {
             handles.extend((2..7).map(|i| manager.register(desc(i)).unwrap()));
         }
         manager.begin_frame(f).unwrap();
+        if warm && f == 1 {
+            // Above the 64 m world, looking down at all of it.
+            let eye = Vec3::new(32.0, 80.0, 32.0);
+            let view = glam::camera::rh::view::look_to_mat4(eye, Vec3::NEG_Y, Vec3::NEG_Z);
+            let proj =
+                glam::camera::rh::proj::vulkan::perspective(100f32.to_radians(), 1.0, 0.1, 500.0);
+            let frustum = Frustum::from_view_projection(proj * view).unwrap();
+            let all = ActivationHeuristic {
+                max_distance: f32::INFINITY,
+                min_projected_size: 0.0,
+            };
+            let out = manager.warm_start(eye, &frustum, all).unwrap();
+            assert_eq!(out.requests.len(), 2, "both instances in view");
+        }
         if let Some(p) = last.take() {
             p.deliver(&mut manager).unwrap();
         }
@@ -119,11 +150,25 @@ fn tables_and_data_grow_and_assembly_matches_the_manager() {
         manager.assemble(&mut cpu).unwrap();
         let diag = r.diagnostics.as_ref().unwrap();
         assert_eq!(r.tlas_records as usize, cpu.len(), "frame {f}");
-        assert!(!cpu.is_empty(), "hitbox boxes over the inactive instances");
+        if warm && f == 1 {
+            // Both instances active without their BLASes yet, their
+            // hitboxes active: nothing to emit, on the GPU too.
+            assert!(cpu.is_empty(), "{cpu:?}");
+        } else {
+            assert!(!cpu.is_empty(), "hitbox boxes over the inactive instances");
+        }
         assert!(
             tlas_multiset(&cpu) == tlas_multiset(&diag.tlas_instances),
             "frame {f}"
         );
+        if warm && f >= 2 {
+            let unit_cube = lipac.unit_cube_address();
+            let geometry = cpu
+                .iter()
+                .filter(|r| r.acceleration_structure_reference != unit_cube)
+                .count();
+            assert!(geometry >= 2, "frame {f}: {geometry} geometry records");
+        }
         last = Some(polled);
     }
     assert_eq!(table_growths, [3], "2 slots, then 7");

@@ -227,6 +227,7 @@ fn low_priority_served(ageing: u64, frames: u64) -> Option<u64> {
         hit_cap: 100,
         frustum_bonus: 100,
         ageing_per_frame: ageing,
+        first_build_bonus: 0,
     };
     let mut s = BuildScheduler::new(cfg).unwrap();
     s.begin_frame(1).unwrap();
@@ -283,6 +284,51 @@ fn hits_and_frustum_order_builds() {
         .unwrap();
     let order: Vec<u32> = p.builds().map(|b| b.owner.mesh().0).collect();
     assert_eq!(order, vec![2, 3, 1]);
+}
+
+/// An instance switching LOD (traced meanwhile with its current BLAS) and a
+/// newer instance waiting for its first BLAS (not traced at all), one build
+/// per frame: returns the order of the meshes built from frame 4 on.
+fn switch_against_first_build(first_build_bonus: u64) -> Vec<u32> {
+    let mut cfg = config(1 << 40, 0, 0);
+    cfg.priority.first_build_bonus = first_build_bonus;
+    let mut s = BuildScheduler::new(cfg).unwrap();
+    s.begin_frame(1).unwrap();
+    s.activate(InstanceKey(0), req(shared(0), 1, est(1, 1, 0)))
+        .unwrap();
+    frame(&mut s, 1, &big());
+    assert!(s.blas_address(InstanceKey(0)).is_some());
+    s.begin_frame(2).unwrap();
+    s.request_lod(InstanceKey(0), Lod(0), est(1, 1, 0)).unwrap();
+    let none = BuildBudgets {
+        max_builds: 0,
+        ..big()
+    };
+    frame(&mut s, 2, &none); // the switch is due and queued, nothing built
+    s.begin_frame(3).unwrap();
+    s.activate(InstanceKey(1), req(shared(1), 0, est(1, 1, 0)))
+        .unwrap();
+    frame(&mut s, 3, &none);
+    let one = BuildBudgets {
+        max_builds: 1,
+        ..big()
+    };
+    (4..6)
+        .flat_map(|f| {
+            let p = frame(&mut s, f, &one);
+            p.builds().map(|b| b.owner.mesh().0).collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+#[test]
+fn first_builds_go_before_lod_switches() {
+    // By age alone the older switch goes first; with the default bonus the
+    // instance that is not traced at all gets its BLAS first.
+    assert_eq!(switch_against_first_build(0), vec![0, 1]);
+    let bonus = PriorityConfig::default().first_build_bonus;
+    assert!(bonus > 0);
+    assert_eq!(switch_against_first_build(bonus), vec![1, 0]);
 }
 
 // ---------------------------------------------------------------- unique BLASes

@@ -835,12 +835,68 @@ impl<H: HitboxIndex> Culling<H> {
             },
             &mut activate,
         )?;
+        let out = self.activate_now(&activate, summary);
+        self.scratch = activate;
+        out
+    }
+
+    /// A warm start, at a level load or a camera cut, when no hit feedback
+    /// speaks for the view yet: every live instance in `frustum` that
+    /// `heuristic` accepts from `camera` and that is not active becomes
+    /// active now, as [`Culling::mitigate_latency`] activates the newly
+    /// visible ones (hitboxes too; the BLAS requests are returned), whether
+    /// or not latency mitigation is configured and without touching its
+    /// memory of what was visible. Hit feedback then deactivates, after
+    /// the read-back latency, what the paths do not reach: LiPaC starts
+    /// from the view and culls down instead of starting from nothing.
+    /// `ActivationHeuristic { max_distance: f32::INFINITY, .. }` takes the
+    /// whole frustum. Fails for a non-finite camera or a heuristic with NaN
+    /// or negative values, changing nothing.
+    pub fn warm_start(
+        &mut self,
+        camera: Vec3,
+        frustum: &Frustum,
+        heuristic: ActivationHeuristic,
+    ) -> Result<LatencyOutcome, CoreError> {
+        // A fresh tracker has seen nothing: everything in view is new to it.
+        let mut once = LatencyMitigation::new(heuristic)?;
+        let mut activate = std::mem::take(&mut self.scratch);
+        let registry = &self.registry;
+        let summary = once.update_with(
+            registry,
+            camera,
+            frustum,
+            |slot| {
+                registry
+                    .table()
+                    .get(slot as usize)
+                    .is_some_and(|r| r.view.commanded_active)
+            },
+            &mut activate,
+        );
+        let out = match summary {
+            Ok(summary) => self.activate_now(&activate, summary),
+            Err(e) => Err(e),
+        };
+        self.scratch = activate;
+        out
+    }
+
+    /// Makes the instances in `activate` (live slots the loop decided to
+    /// activate on the CPU: latency mitigation, a warm start) active now,
+    /// with their hitboxes, and returns the BLAS requests of those without
+    /// one.
+    fn activate_now(
+        &mut self,
+        activate: &[u32],
+        summary: LatencySummary,
+    ) -> Result<LatencyOutcome, CoreError> {
         let frame = self.registry.frame();
         let mut out = LatencyOutcome {
             summary,
             ..LatencyOutcome::default()
         };
-        for &slot in &activate {
+        for &slot in activate {
             let Some(handle) = self.registry.handle_at(slot) else {
                 continue;
             };
@@ -878,7 +934,6 @@ impl<H: HitboxIndex> Culling<H> {
                 });
             }
         }
-        self.scratch = activate;
         Ok(out)
     }
 

@@ -302,6 +302,63 @@ fn latency_mitigation_in_inactive_hitbox_adds_the_other_instances() {
 }
 
 #[test]
+fn warm_start_activates_the_view_without_latency_mitigation_and_feedback_culls_it() {
+    // Latency mitigation off (config()): mitigate_latency does nothing, the
+    // warm start takes its own heuristic.
+    let mut c = Culling::new(grid(), config()).unwrap();
+    let near = c.register(desc(30.0, 30.0, 1, false)).unwrap();
+    let far = c.register(desc(2.0, 2.0, 2, false)).unwrap(); // ~58 m from the camera
+    let u = c.register(desc(26.0, 26.0, 3, true)).unwrap(); // same hitbox as near
+    c.begin_frame(0).unwrap();
+    let (camera, f) = frustum_over_world();
+    assert!(c.mitigate_latency(camera, &f).unwrap().requests.is_empty());
+    // Nothing outside the frustum, whatever the heuristic.
+    let (cam_away, away) = frustum_away();
+    let all = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+    };
+    assert!(c
+        .warm_start(cam_away, &away, all)
+        .unwrap()
+        .requests
+        .is_empty());
+    // Bad input changes nothing.
+    let nan = ActivationHeuristic {
+        max_distance: f32::NAN,
+        min_projected_size: 0.0,
+    };
+    assert!(c.warm_start(camera, &f, nan).is_err());
+    assert!(c.warm_start(Vec3::NAN, &f, all).is_err());
+    assert_eq!(c.registry().state(near).unwrap(), InstanceState::Inactive);
+    // Within 50 m of the camera (40 m above the world's centre): near and
+    // u, not far (too far, too small to pass 0.5).
+    let h = ActivationHeuristic {
+        max_distance: 50.0,
+        min_projected_size: 0.5,
+    };
+    let out = c.warm_start(camera, &f, h).unwrap();
+    let requested: Vec<InstanceHandle> = out.requests.iter().map(|r| r.handle).collect();
+    assert_eq!(requested, vec![near, u]);
+    assert_eq!(out.hitboxes_activated, 1);
+    assert_eq!(c.registry().state(far).unwrap(), InstanceState::Inactive);
+    // A second warm start finds them active: nothing more to do.
+    assert!(c.warm_start(camera, &f, h).unwrap().requests.is_empty());
+    for r in &out.requests {
+        c.set_blas(r.handle, 0x100 + u64::from(r.slot)).unwrap();
+    }
+    let mut tlas = Vec::new();
+    let st = c.assemble(&mut tlas).unwrap();
+    assert_eq!(st.active, 2);
+    // No path reaches them: Algorithm 2 omits the unique one at once and
+    // the hitbox's streak starts (paper rule, n_d = 15 frames).
+    let fs = c.process_feedback().unwrap();
+    assert_eq!(fs.active_to_omitted, 1);
+    assert_eq!(c.registry().state(u).unwrap(), InstanceState::Omitted);
+    assert_eq!(c.registry().state(near).unwrap(), InstanceState::Active);
+}
+
+#[test]
 fn remove_cancels_pending_command_and_returns_the_blas() {
     let mut c = Culling::new(grid(), config()).unwrap();
     let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();

@@ -79,7 +79,7 @@ use crate::feedback::FeedbackStats;
 use crate::grid::HitboxGrid;
 use crate::hitbox_index::HitboxIndex;
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
-use crate::latency::Frustum;
+use crate::latency::{ActivationHeuristic, Frustum};
 use crate::layout::{HitboxRecord, InstanceArrays, InstanceState, TlasInstance};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
@@ -790,6 +790,30 @@ impl<H: HitboxIndex> Manager<H> {
         frustum: &Frustum,
     ) -> Result<LatencyOutcome, ManagerError> {
         let out = self.culling.mitigate_latency(camera, frustum)?;
+        for r in &out.requests {
+            let hits = self.last_hits(r.slot);
+            self.activate(r.slot, hits, true)?;
+        }
+        self.sync_addresses()?;
+        Ok(out)
+    }
+
+    /// A warm start ([`Culling::warm_start`]), at a level load or a camera
+    /// cut: every instance in `frustum` that `heuristic` accepts from
+    /// `camera` becomes active now, and its BLAS is requested from the
+    /// scheduler at once (in the frustum: high priority); hit feedback culls
+    /// the set down after the read-back latency. Call it between
+    /// [`Manager::begin_frame`] and [`Manager::plan`], and give that frame's
+    /// plan the build budget of a load (the builds of the whole view) if
+    /// the view should be traced from this frame on. A cached BLAS is in
+    /// the record when this returns.
+    pub fn warm_start(
+        &mut self,
+        camera: Vec3,
+        frustum: &Frustum,
+        heuristic: ActivationHeuristic,
+    ) -> Result<LatencyOutcome, ManagerError> {
+        let out = self.culling.warm_start(camera, frustum, heuristic)?;
         for r in &out.requests {
             let hits = self.last_hits(r.slot);
             self.activate(r.slot, hits, true)?;

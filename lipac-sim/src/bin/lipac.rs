@@ -24,7 +24,9 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_sim::closed_loop::{self, ClosedLoopOptions, ClosedLoopPath};
-use lipac_sim::compare::{check_image_size, run_choice_with_snapshots, CompareConfig, SceneChoice};
+use lipac_sim::compare::{
+    check_image_size, run_choice_with_snapshots, CompareConfig, LipacStart, SceneChoice,
+};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::lipac::LipacConfig;
 use lipac_sim::strategy::StrategyKind;
@@ -116,6 +118,14 @@ struct Common {
     /// rise than decay"). Default: the symmetric rule.
     #[arg(long)]
     rise_shift: Option<u32>,
+    /// LiPaC's start: `off` for the paper's cold start (nothing traced but
+    /// the pinned instances until the first read-back), or `DIST:SIZE` for
+    /// a warm start at the level load that activates what is in view within
+    /// DIST metres or of projected size at least SIZE (`inf:0`: the whole
+    /// view), its builds unbudgeted. Default: LiPaC's configured start.
+    /// docs/EVALUATION.md "Cold start".
+    #[arg(long)]
+    warm_start: Option<String>,
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
@@ -233,7 +243,10 @@ struct SweepArgs {
     /// activation / deactivation and instance activation / omit rates in
     /// hits per frame at 1080p (default 150/30:150/30) and the decay
     /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
-    /// write `--decayed=-:100/20` when the first one starts with `-`.
+    /// write `--decayed=-:100/20` when the first one starts with `-`. A
+    /// setting may end in `@CELL` (its own hitbox cell size in metres)
+    /// and then `+DIST/SIZE` (latency mitigation, as `--latency`), e.g.
+    /// `1:5/1:5/1@128+100/0.05`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.
@@ -363,7 +376,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 .decayed
                 .iter()
                 .filter(|s| !s.is_empty())
-                .map(|s| sweep::parse_decayed_spec(s, &LipacConfig::DEFAULT_DECAYED))
+                .map(|s| sweep::parse_decayed_variant(s, &LipacConfig::DEFAULT_DECAYED))
                 .collect::<Result<Vec<_>, _>>()?,
             threads: a.threads,
         })
@@ -460,6 +473,14 @@ fn main() -> ExitCode {
         eprintln!("lipac: --frames 0: nothing to render (give at least 1)");
         return ExitCode::FAILURE;
     }
+    let lipac_start = match common.warm_start.as_deref().map(LipacStart::parse) {
+        None => LipacStart::Default,
+        Some(Ok(start)) => start,
+        Some(Err(e)) => {
+            eprintln!("lipac: --warm-start: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let config = CompareConfig {
         frames: common.frames,
         width: common.width,
@@ -470,6 +491,7 @@ fn main() -> ExitCode {
         adaptive_levels: common.adaptive_levels,
         lipac_cell_size: common.cell_size,
         lipac_rise_shift: common.rise_shift,
+        lipac_start,
     };
     // Hidden when stderr is not a terminal (CI, pipes): indicatif's default.
     let bar = ProgressBar::new(0);

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
 use lipac_core::trace::{binary_to_jsonl, jsonl_to_binary, TraceFormat, TraceLimits};
-use lipac_sim::compare::check_image_size;
+use lipac_sim::compare::{check_image_size, LipacStart};
 use lipac_sim::record::{record, CameraChoice, RecordConfig};
 use lipac_sim::replay::{ReplayConfig, ReplayMode};
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
@@ -99,6 +99,11 @@ pub struct ReplayArgs {
     /// every frame and memory does not grow with the trace's length.
     #[arg(long)]
     keep_frames: bool,
+    /// LiPaC's start (geometry mode): `off` for the paper's cold start, or
+    /// `DIST:SIZE` for a warm start at the first frame (as `lipac compare
+    /// --warm-start`). Default: LiPaC's configured start (the whole view).
+    #[arg(long)]
+    warm_start: Option<String>,
     /// Geometry mode of a trace of another scene: trace a box over the
     /// bounds of a mesh without geometry instead of failing.
     #[arg(long)]
@@ -196,6 +201,10 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
         }),
         keep_frames: a.keep_frames,
         snapshots: a.snapshots.clone(),
+        lipac_start: match a.warm_start.as_deref() {
+            None => LipacStart::Default,
+            Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
+        },
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());

@@ -136,6 +136,7 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: crate::compare::LipacStart::Default,
     };
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),

@@ -71,6 +71,14 @@ pub struct LipacConfig {
     /// Adaptive hitboxes (merged counting boxes for cold regions,
     /// [`lipac_core::hitbox_tree`]); off by default.
     pub adaptive_hitboxes: AdaptiveHitboxes,
+    /// A warm start at the first frame, the level load: the Manager
+    /// activates the instances in view that this heuristic accepts
+    /// ([`lipac_core::manager::Manager::warm_start`]) and that frame's builds
+    /// are not budgeted, as a load's are not; hit feedback culls the set
+    /// down from the read-back on. `None`: the paper's cold start (every
+    /// hitbox inactive, nothing traced but the pinned instances until the
+    /// first read-back, the first frame budgeted like any other).
+    pub warm_start: Option<ActivationHeuristic>,
 }
 
 impl LipacConfig {
@@ -101,10 +109,19 @@ impl LipacConfig {
         rise_shift: None,
     };
 
+    /// The default warm start ([`LipacConfig::warm_start`]): the whole view
+    /// at the level load, culled down by hit feedback from the first
+    /// read-back on (docs/EVALUATION.md, "Cold start").
+    pub const DEFAULT_WARM_START: ActivationHeuristic = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+    };
+
     /// Settings for `rays_per_frame` camera rays: the paper's thresholds
     /// scaled to the rays, deciding with the decayed rule
     /// [`Self::DEFAULT_DECAYED`] ([`Self::with_paper_rule`] for the paper's),
-    /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, 4096 commands per frame,
+    /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, a warm
+    /// start ([`Self::DEFAULT_WARM_START`]), 4096 commands per frame,
     /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
     /// no compaction copies (lavapipe's compaction gains nothing,
     /// [`crate::memory`]), and builds ordered by waiting time alone
@@ -135,6 +152,7 @@ impl LipacConfig {
                 ..ControllerConfig::default()
             },
             adaptive_hitboxes: AdaptiveHitboxes::OFF,
+            warm_start: Some(Self::DEFAULT_WARM_START),
         })
     }
     /// The same with adaptive hitboxes of `levels` merge levels (0: off).

@@ -49,7 +49,10 @@ pub use csv::{sweep_csv, SWEEP_CSV_HEADER};
 pub use markdown::sweep_markdown;
 pub use pareto::{mark_fronts, pareto_front, Cost, COSTS};
 pub use results::{SweepPoint, SweepReport, SweepScene};
-pub use variants::{parse_decayed_spec, scaled_thresholds, Family, SweepConfig, Variant};
+pub use variants::{
+    parse_decayed_spec, parse_decayed_variant, scaled_thresholds, DecayedVariant, Family,
+    SweepConfig, Variant,
+};
 
 use crate::error::SimError;
 use crate::plots::pareto_plot;

@@ -44,7 +44,7 @@ use serde::{Deserialize, Serialize};
 use super::variants::make_contender;
 use super::{mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
 use crate::camera::CameraPath;
-use crate::compare::{run_contenders, CompareConfig};
+use crate::compare::{run_contenders, CompareConfig, LipacStart};
 use crate::error::SimError;
 use crate::scene::Scene;
 use crate::strategy::lipac::LipacConfig;
@@ -256,6 +256,7 @@ pub fn run_shard(
         adaptive_levels: 0,
         lipac_cell_size: None,
         lipac_rise_shift: None,
+        lipac_start: LipacStart::Default,
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();

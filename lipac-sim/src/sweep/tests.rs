@@ -88,7 +88,7 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
     let c = SweepConfig {
         decayed: specs
             .iter()
-            .map(|s| parse_decayed_spec(s, &base).unwrap())
+            .map(|s| parse_decayed_variant(s, &base).unwrap())
             .collect(),
         ..SweepConfig::default()
     };
@@ -112,7 +112,7 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
     assert_eq!(inst.activate, one.activate);
     // A rise slower than the decay is an error, not a silent clamp.
     let bad = SweepConfig {
-        decayed: vec![parse_decayed_spec("4", &base).unwrap()],
+        decayed: vec![parse_decayed_variant("4", &base).unwrap()],
         ..SweepConfig::default()
     };
     assert!(bad
@@ -120,6 +120,58 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
         .unwrap_err()
         .to_string()
         .contains("rise shift"));
+}
+
+#[test]
+fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
+    use crate::strategy::lipac::LipacConfig;
+    let base = LipacConfig::DEFAULT_DECAYED;
+    let specs = [
+        "1:5/1:5/1",
+        "1:5/1:5/1@128",
+        "1:5/1:5/1@128+100/0.05",
+        "1+50/0.1",
+    ];
+    let c = SweepConfig {
+        decayed: specs
+            .iter()
+            .map(|s| parse_decayed_variant(s, &base).unwrap())
+            .collect(),
+        ..SweepConfig::default()
+    };
+    let (v, skipped) = c.variants().unwrap();
+    assert!(skipped.is_empty(), "{skipped:?}");
+    let find = |name: &str| {
+        v.iter()
+            .find(|x| x.name == name)
+            .unwrap_or_else(|| panic!("no variant {name}"))
+    };
+    let plain = find("lipac rise 1 5/1 5/1");
+    let cells = find("lipac rise 1 5/1 5/1 128 m cells");
+    let both = find("lipac rise 1 5/1 5/1 128 m cells + latency 100 m / 0.05");
+    let lat = find("lipac rise 1 150/30 150/30 + latency 50 m / 0.1");
+    let cfg = |x: &Variant| x.lipac.clone().unwrap();
+    assert_eq!(cfg(plain).cell_size, LipacConfig::DEFAULT_CELL_SIZE);
+    assert_eq!((cfg(cells).cell_size, cfg(cells).latency), (128.0, None));
+    assert_eq!(cfg(both).cell_size, 128.0);
+    assert_eq!(cfg(both).latency.unwrap().max_distance, 100.0);
+    assert_eq!(cfg(lat).cell_size, LipacConfig::DEFAULT_CELL_SIZE);
+    // Same rule: the cell size and mitigation are the only differences.
+    assert_eq!(cfg(plain).thresholds, cfg(both).thresholds);
+    assert_eq!(
+        (plain.kind, cells.kind),
+        (StrategyKind::Lipac, StrategyKind::Lipac)
+    );
+    assert_eq!(
+        (both.kind, lat.kind),
+        (StrategyKind::LipacLatency, StrategyKind::LipacLatency)
+    );
+    assert!(v
+        .iter()
+        .all(|x| x.family != Family::Decayed || x.factor == Some(1.0)));
+    for bad in ["1@0", "1@x", "1+100", "1+-1/0.1", "1+100/inf", "1@128+"] {
+        assert!(parse_decayed_variant(bad, &base).is_err(), "{bad} accepted");
+    }
 }
 
 fn point(

@@ -84,8 +84,9 @@ pub struct SweepConfig {
     /// Further `(n_a, n_d)` streak lengths, at factor 1.
     pub streaks: Vec<(u32, u32)>,
     /// Further decayed-rule settings (in place of
-    /// [`LipacConfig::DEFAULT_DECAYED`]), at factor 1.
-    pub decayed: Vec<DecayedSettings>,
+    /// [`LipacConfig::DEFAULT_DECAYED`]), at factor 1, each optionally with
+    /// its own cell size and latency mitigation ([`parse_decayed_variant`]).
+    pub decayed: Vec<DecayedVariant>,
     /// Render threads (0 = all cores).
     pub threads: usize,
 }
@@ -224,6 +225,83 @@ fn fmt_factor(f: f64) -> String {
     format!("×{f}")
 }
 
+/// A decayed-rule variant of a sweep: the rule's settings and, where given,
+/// its own hitbox cell size and latency mitigation, so that the levers that
+/// each helped alone can be measured together.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DecayedVariant {
+    /// The rule's settings.
+    pub settings: DecayedSettings,
+    /// Hitbox cell size in metres (`None`: the base configuration's).
+    pub cell_size: Option<f64>,
+    /// Latency mitigation (`None`: off, as in the base configuration).
+    pub latency: Option<ActivationHeuristic>,
+}
+
+/// A decayed-rule variant from `RULE[@CELL][+DIST/SIZE]`: `RULE` as
+/// [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox cell
+/// size in metres, then optionally `+` and a latency-mitigation heuristic
+/// (maximum distance in metres / minimum projected size).
+///
+/// ```
+/// use lipac_sim::sweep::parse_decayed_variant;
+/// use lipac_sim::strategy::lipac::LipacConfig;
+/// let base = LipacConfig::DEFAULT_DECAYED;
+/// let v = parse_decayed_variant("1:5/1:5/1@128+100/0.05", &base).unwrap();
+/// assert_eq!((v.settings.rise_shift, v.settings.activate), (Some(1), 5.0));
+/// assert_eq!(v.cell_size, Some(128.0));
+/// let h = v.latency.unwrap();
+/// assert_eq!((h.max_distance, h.min_projected_size), (100.0, 0.05));
+/// let plain = parse_decayed_variant("2", &base).unwrap();
+/// assert_eq!((plain.cell_size, plain.latency), (None, None));
+/// assert!(parse_decayed_variant("1@-3", &base).is_err());
+/// assert!(parse_decayed_variant("1+100", &base).is_err());
+/// assert!(parse_decayed_variant("1+100/NaN", &base).is_err());
+/// ```
+pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<DecayedVariant, String> {
+    let (rest, latency) = match spec.split_once('+') {
+        Some((rest, h)) => {
+            let (d, p) = h.split_once('/').ok_or_else(|| {
+                format!("decayed variant `{spec}`: latency mitigation `{h}` is not DIST/SIZE")
+            })?;
+            let num = |x: &str| -> Result<f32, String> {
+                x.trim()
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|v| v.is_finite() && *v >= 0.0)
+                    .ok_or_else(|| {
+                        format!("decayed variant `{spec}`: `{x}` is not a finite number >= 0")
+                    })
+            };
+            let heuristic = ActivationHeuristic {
+                max_distance: num(d)?,
+                min_projected_size: num(p)?,
+            };
+            (rest, Some(heuristic))
+        }
+        None => (spec, None),
+    };
+    let (rule, cell_size) = match rest.split_once('@') {
+        Some((rule, cell)) => {
+            let c = cell
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|c| c.is_finite() && *c > 0.0)
+                .ok_or_else(|| {
+                    format!("decayed variant `{spec}`: cell size `{cell}` is not a positive number")
+                })?;
+            (rule, Some(c))
+        }
+        None => (rest, None),
+    };
+    Ok(DecayedVariant {
+        settings: parse_decayed_spec(rule, base)?,
+        cell_size,
+        latency,
+    })
+}
+
 impl SweepConfig {
     /// Camera rays per frame.
     pub fn rays_per_frame(&self) -> u64 {
@@ -337,15 +415,28 @@ impl SweepConfig {
                 1.0,
             ));
         }
-        for s in &self.decayed {
-            let c = base.clone().with_decayed_rule(s, rays)?;
-            all.push(lipac(
-                decayed_name(s),
-                Family::Decayed,
-                StrategyKind::Lipac,
-                c,
-                1.0,
-            ));
+        for d in &self.decayed {
+            let mut c = base.clone().with_decayed_rule(&d.settings, rays)?;
+            let mut name = decayed_name(&d.settings);
+            if let Some(cell) = d.cell_size {
+                if !cell.is_finite() || cell <= 0.0 {
+                    return Err(SimError::BadConfig(
+                        "cell sizes must be finite and positive",
+                    ));
+                }
+                c.cell_size = cell;
+                name.push_str(&format!(" {cell} m cells"));
+            }
+            let mut kind = StrategyKind::Lipac;
+            if let Some(h) = d.latency {
+                c.latency = Some(h);
+                kind = StrategyKind::LipacLatency;
+                name.push_str(&format!(
+                    " + latency {} m / {}",
+                    h.max_distance, h.min_projected_size
+                ));
+            }
+            all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
         let mut kept: Vec<Variant> = Vec::new();
         let mut skipped = Vec::new();
