@@ -233,6 +233,65 @@ fn image_sizes_that_cannot_be_allocated_are_refused() {
     assert!(!e.contains("θd"), "{e}");
 }
 
+/// `--warm-start` on `compare` and `replay`: a bad value is refused with
+/// its reason before anything is written; `off` and `DIST:SIZE` run.
+#[test]
+fn warm_start_values_are_checked_before_anything_is_written() {
+    let dir = scratch("warm-start");
+    for bad in ["bogus", "50", "-1:0.1", "50:NaN", "50:inf"] {
+        let out = dir.join(format!("compare-{}", bad.replace(':', "_")));
+        let o = run(lipac()
+            .args(["compare", "--scene", "small", "--frames", "1"])
+            .args([
+                "--width",
+                "16",
+                "--height",
+                "9",
+                &format!("--warm-start={bad}"),
+                "--out",
+            ])
+            .arg(&out));
+        assert!(!o.status.success(), "{bad} accepted");
+        let e = stderr(&o);
+        assert!(
+            e.contains("--warm-start") && e.contains("DIST:SIZE"),
+            "{bad}: {e}"
+        );
+        assert!(!out.exists(), "{bad}: {} written", out.display());
+        let out = dir.join("replay-bad");
+        let o = run(lipac()
+            .arg("replay")
+            .arg(data("tiny.lipactrace"))
+            .arg(format!("--warm-start={bad}"))
+            .arg("--out")
+            .arg(&out));
+        assert!(!o.status.success(), "replay: {bad} accepted");
+        assert!(stderr(&o).contains("--warm-start"), "{}", stderr(&o));
+        assert!(!out.exists());
+    }
+    for good in ["off", "inf:0", "100:0.05"] {
+        let out = dir.join(format!("compare-ok-{}", good.replace(':', "_")));
+        let o = run(lipac()
+            .args(["compare", "--scene", "small", "--frames", "2"])
+            .args([
+                "--width",
+                "16",
+                "--height",
+                "9",
+                "--strategies",
+                "lipac",
+                "--threads",
+                "1",
+                &format!("--warm-start={good}"),
+                "--out",
+            ])
+            .arg(&out));
+        assert!(o.status.success(), "{good}: {}", stderr(&o));
+        assert!(out.join("report.json").exists());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 fn camera(aspect: f32) -> Camera {
     Camera::look_to(
         glam::Vec3::new(0.0, 1.0, 0.0),
