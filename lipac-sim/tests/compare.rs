@@ -419,12 +419,9 @@ fn a_warm_start_traces_the_view_from_frame_0_and_feedback_culls_it() {
             width: 64,
             height: 36,
             strategies: vec![StrategyKind::Lipac],
-            share_ground_truth: true,
             threads: 2,
-            adaptive_levels: 0,
-            lipac_cell_size: None,
-            lipac_rise_shift: None,
             lipac_start: start,
+            ..CompareConfig::default()
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {}).expect("comparison")
     };

@@ -818,25 +818,11 @@ impl<H: HitboxIndex> Culling<H> {
         camera: Vec3,
         frustum: &Frustum,
     ) -> Result<LatencyOutcome, CoreError> {
-        let Some(lm) = self.latency.as_mut() else {
+        let Some(mut lm) = self.latency.take() else {
             return Ok(LatencyOutcome::default());
         };
-        let mut activate = std::mem::take(&mut self.scratch);
-        let registry = &self.registry;
-        let summary = lm.update_with(
-            registry,
-            camera,
-            frustum,
-            |slot| {
-                registry
-                    .table()
-                    .get(slot as usize)
-                    .is_some_and(|r| r.view.commanded_active)
-            },
-            &mut activate,
-        )?;
-        let out = self.activate_now(&activate, summary);
-        self.scratch = activate;
+        let out = self.activate_newly_visible(&mut lm, camera, frustum);
+        self.latency = Some(lm);
         out
     }
 
@@ -860,9 +846,20 @@ impl<H: HitboxIndex> Culling<H> {
     ) -> Result<LatencyOutcome, CoreError> {
         // A fresh tracker has seen nothing: everything in view is new to it.
         let mut once = LatencyMitigation::new(heuristic)?;
+        self.activate_newly_visible(&mut once, camera, frustum)
+    }
+
+    /// `tracker`'s newly visible instances ([`LatencyMitigation::update_with`],
+    /// judged by the commanded state) made active now ([`Culling::activate_now`]).
+    fn activate_newly_visible(
+        &mut self,
+        tracker: &mut LatencyMitigation,
+        camera: Vec3,
+        frustum: &Frustum,
+    ) -> Result<LatencyOutcome, CoreError> {
         let mut activate = std::mem::take(&mut self.scratch);
         let registry = &self.registry;
-        let summary = once.update_with(
+        let summary = tracker.update_with(
             registry,
             camera,
             frustum,
@@ -874,10 +871,7 @@ impl<H: HitboxIndex> Culling<H> {
             },
             &mut activate,
         );
-        let out = match summary {
-            Ok(summary) => self.activate_now(&activate, summary),
-            Err(e) => Err(e),
-        };
+        let out = summary.and_then(|summary| self.activate_now(&activate, summary));
         self.scratch = activate;
         out
     }
