@@ -111,6 +111,9 @@ pub struct CompareConfig {
     /// LiPaC's start: [`LipacConfig::warm_start`] as configured by
     /// default, cold, or warm with a given heuristic.
     pub lipac_start: LipacStart,
+    /// LiPaC warm-starts at every camera cut too
+    /// ([`LipacConfig::warm_start_at_cuts`]).
+    pub lipac_warm_start_at_cuts: bool,
 }
 
 /// How LiPaC starts in a comparison ([`LipacConfig::warm_start`]).
@@ -177,6 +180,7 @@ impl Default for CompareConfig {
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: LipacStart::Default,
+            lipac_warm_start_at_cuts: false,
         }
     }
 }
@@ -358,6 +362,7 @@ fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
         LipacStart::Cold => lipac_config.warm_start = None,
         LipacStart::Warm(h) => lipac_config.warm_start = Some(h),
     }
+    lipac_config.warm_start_at_cuts = config.lipac_warm_start_at_cuts;
     Ok(lipac_config)
 }
 
@@ -407,6 +412,7 @@ pub(crate) fn run_path(
     }
     let mut c = Comparison::with_contenders(scene_name, scene, config, contenders)?;
     c.capture_frames(snapshots);
+    c.set_camera_cuts(path.cuts());
     for frame in 0..frames {
         scene.set_frame(frame);
         c.frame(scene, frame, &path.camera_at(frame))?;
@@ -460,6 +466,7 @@ pub struct Comparison {
     gpu: GpuModel,
     frames: u32,
     capture: Vec<u32>,
+    cuts: Vec<u32>,
     snapshots: Vec<Snapshot>,
 }
 
@@ -584,8 +591,16 @@ impl Comparison {
             gpu: GpuModel::PUBLISHED,
             frames: 0,
             capture: Vec::new(),
+            cuts: Vec::new(),
             snapshots: Vec::new(),
         })
+    }
+
+    /// The frames at which the camera jumps (a cut the engine knows of,
+    /// [`CameraPath::cuts`]): the strategies see them as
+    /// [`FrameContext::camera_cut`].
+    pub fn set_camera_cuts(&mut self, cuts: &[u32]) {
+        self.cuts = cuts.to_vec();
     }
 
     /// Captures a [`Snapshot`] of each of `frames` when it is compared
@@ -726,6 +741,7 @@ impl Comparison {
             unit_cube: self.unit_cube,
             rays_per_frame: self.rays_per_frame,
             ground_truth_hits: &gt.counters.instances,
+            camera_cut: self.cuts.contains(&frame),
         };
         for (i, s) in self.strategies.iter_mut().enumerate() {
             let t = Instant::now();

@@ -105,8 +105,10 @@ pub struct CpuBackend<H: HitboxIndex = HitboxGrid> {
     ring: ReadbackRing,
     budgets: FrameBudgets,
     latency_mitigation: bool,
-    /// The warm start still to make at the first [`CpuBackend::run`].
+    /// The warm start still to make at the next [`CpuBackend::run`].
     warm_start: Option<ActivationHeuristic>,
+    /// The configured warm start ([`LipacConfig::warm_start`]).
+    warm_start_heuristic: Option<ActivationHeuristic>,
     next_address: u64,
     /// The Manager frame of the last `begin_frame` whose feedback is due.
     open_frame: Option<u64>,
@@ -166,6 +168,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
             },
             latency_mitigation: config.latency.is_some(),
             warm_start: config.warm_start,
+            warm_start_heuristic: config.warm_start,
             next_address: 0x1000,
             open_frame: None,
         })
@@ -205,6 +208,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
             },
             latency_mitigation: false,
             warm_start: None,
+            warm_start_heuristic: None,
             next_address: 0x1000,
             open_frame: None,
         })
@@ -321,6 +325,13 @@ impl<H: HitboxIndex> CpuBackend<H> {
     /// Whether a frame was begun and not yet ended.
     pub fn frame_open(&self) -> bool {
         self.open_frame.is_some()
+    }
+
+    /// Makes the configured warm start ([`LipacConfig::warm_start`]) again at
+    /// the next [`CpuBackend::run`], with that frame's builds unbudgeted: at
+    /// a camera cut. Does nothing without one.
+    pub fn warm_start_again(&mut self) {
+        self.warm_start = self.warm_start_heuristic;
     }
 
     /// Starts frame `frame` (the Manager's `frame + 1`, module docs). The

@@ -112,6 +112,7 @@ impl ReplayConfig {
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: self.lipac_start,
+            lipac_warm_start_at_cuts: false,
         }
     }
 }

@@ -310,6 +310,9 @@ pub struct FrameContext<'a> {
     /// Instance hits of this frame's ground-truth paths (bounce rays), per
     /// slot. Only the [`Oracle`] may look.
     pub ground_truth_hits: &'a [u32],
+    /// Whether the camera jumped to this frame (a cut the engine knows of:
+    /// LiPaC warm-starts there, [`lipac::LipacConfig::warm_start_at_cuts`]).
+    pub camera_cut: bool,
 }
 
 /// What a strategy reports for one frame (besides its records).

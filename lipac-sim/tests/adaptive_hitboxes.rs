@@ -176,6 +176,7 @@ fn compare_with_adaptive_hitboxes_decides_alike_with_fewer_boxes() {
             lipac_cell_size: Some(16.0),
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,
+            lipac_warm_start_at_cuts: false,
         };
         run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
     };

@@ -22,6 +22,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -105,6 +106,7 @@ fn config(frames: u32) -> CompareConfig {
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     }
 }
 
@@ -369,6 +371,7 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
             lipac_cell_size: None,
             lipac_rise_shift: rise_shift,
             lipac_start: lipac_sim::compare::LipacStart::Default,
+            lipac_warm_start_at_cuts: false,
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
     };
@@ -458,4 +461,45 @@ fn a_warm_start_traces_the_view_from_frame_0_and_feedback_culls_it() {
     let n0 = none.strategies[0].frames[0].tlas_instances;
     assert!(4 * n0 < w[0].tlas_instances, "{n0} {}", w[0].tlas_instances);
     assert!(none.strategies[0].frames[0].error > 0.3);
+}
+
+/// `--warm-start-at-cuts` (`LipacConfig::warm_start_at_cuts`): LiPaC makes
+/// its warm start again at the camera cut. Before the cut the run is the
+/// same frame for frame; at the cut frame its TLAS holds more of the new
+/// view than without (its builds unbudgeted, as at the load).
+#[test]
+fn a_warm_start_at_the_cut_activates_the_new_view() {
+    let (at, frames) = (12u32, 16u32);
+    let with = |cuts: bool| {
+        let config = CompareConfig {
+            frames: Some(frames),
+            width: 32,
+            height: 18,
+            strategies: vec![StrategyKind::Lipac],
+            threads: 2,
+            lipac_warm_start_at_cuts: cuts,
+            ..CompareConfig::default()
+        };
+        let mut scene =
+            Scene::generate(&lipac_sim::compare::SceneChoice::City.config(None)).unwrap();
+        let j = CameraPath::city_jump(&scene, 32.0 / 18.0);
+        let path = CameraPath::jump(j.camera_at(0), j.camera_at(j.frames() - 1), at, frames);
+        assert_eq!(path.cuts(), [at]);
+        run("city", &mut scene, &path, &config, &mut |_, _| {}).unwrap()
+    };
+    let (plain, warm) = (with(false), with(true));
+    let (p, w) = (&plain.strategies[0].frames, &warm.strategies[0].frames);
+    for f in 0..at as usize {
+        assert_eq!(p[f].tlas_instances, w[f].tlas_instances, "frame {f}");
+        assert_eq!(p[f].error.to_bits(), w[f].error.to_bits(), "frame {f}");
+    }
+    let c = at as usize;
+    assert!(
+        w[c].tlas_instances > p[c].tlas_instances,
+        "{} {}",
+        w[c].tlas_instances,
+        p[c].tlas_instances
+    );
+    assert!(w[c].builds > p[c].builds, "{} {}", w[c].builds, p[c].builds);
+    assert!(w[c].error < p[c].error, "{} {}", w[c].error, p[c].error);
 }

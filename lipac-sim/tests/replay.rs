@@ -109,6 +109,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,
+            lipac_warm_start_at_cuts: false,
         },
         &mut |_, _| {},
     )

@@ -19,6 +19,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;

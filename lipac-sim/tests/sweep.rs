@@ -172,6 +172,7 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     };
     let c = run_choice(SceneChoice::Small, None, &compare, &mut |_, _| {}).unwrap();
     for (swept, compared) in [("lipac ×1", "lipac"), ("lipac-latency", "lipac-latency")] {

@@ -126,6 +126,10 @@ struct Common {
     /// docs/EVALUATION.md "Cold start".
     #[arg(long)]
     warm_start: Option<String>,
+    /// LiPaC warm-starts at every camera cut too (`--camera jump`), as at
+    /// the load (its builds unbudgeted). docs/EVALUATION.md "Cold start".
+    #[arg(long)]
+    warm_start_at_cuts: bool,
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
@@ -492,6 +496,7 @@ fn main() -> ExitCode {
         lipac_cell_size: common.cell_size,
         lipac_rise_shift: common.rise_shift,
         lipac_start,
+        lipac_warm_start_at_cuts: common.warm_start_at_cuts,
     };
     // Hidden when stderr is not a terminal (CI, pipes): indicatif's default.
     let bar = ProgressBar::new(0);

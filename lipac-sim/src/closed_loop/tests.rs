@@ -137,6 +137,7 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: crate::compare::LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     };
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),

@@ -79,6 +79,13 @@ pub struct LipacConfig {
     /// hitbox inactive, nothing traced but the pinned instances until the
     /// first read-back, the first frame budgeted like any other).
     pub warm_start: Option<ActivationHeuristic>,
+    /// Also warm-start at every camera cut
+    /// ([`crate::strategy::FrameContext::camera_cut`]), with
+    /// [`LipacConfig::warm_start`]'s heuristic and that frame's builds
+    /// unbudgeted, as at the load. Off by default: on the sim's jump it
+    /// lowers the error after the cut but adds a peak of memory and builds
+    /// (docs/EVALUATION.md, "Cold start, and the levers together").
+    pub warm_start_at_cuts: bool,
 }
 
 impl LipacConfig {
@@ -153,6 +160,7 @@ impl LipacConfig {
             },
             adaptive_hitboxes: AdaptiveHitboxes::OFF,
             warm_start: Some(Self::DEFAULT_WARM_START),
+            warm_start_at_cuts: false,
         })
     }
     /// The same with adaptive hitboxes of `levels` merge levels (0: off).
@@ -408,7 +416,11 @@ impl Strategy for Lipac {
             }
         }
 
-        // 3. Latency mitigation, commands, builds, Algorithm 1.
+        // 3. Warm start (a cut), latency mitigation, commands, builds,
+        // Algorithm 1.
+        if ctx.camera_cut && self.config.warm_start_at_cuts {
+            self.backend.warm_start_again();
+        }
         let f = self.backend.run(ctx.camera, out)?;
         self.stats.commands_ingested = f.commands_ingested;
         self.stats.commands_processed = f.commands_processed;

@@ -257,6 +257,7 @@ pub fn run_shard(
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: LipacStart::Default,
+        lipac_warm_start_at_cuts: false,
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();
