@@ -79,19 +79,24 @@ fn variants_follow_the_config_and_drop_duplicates() {
     assert!(bad.variants().is_err());
 }
 
-#[test]
-fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met() {
-    use crate::strategy::lipac::LipacConfig;
-    use lipac_core::thresholds::DecisionRule;
-    let base = LipacConfig::DEFAULT_DECAYED;
-    let specs = ["1", "2:200/40", "1:150/30:100/20", "-"];
-    let c = SweepConfig {
+/// The default sweep with the decayed-rule variants `specs`.
+fn with_decayed(specs: &[&str]) -> SweepConfig {
+    let base = crate::strategy::lipac::LipacConfig::DEFAULT_DECAYED;
+    SweepConfig {
         decayed: specs
             .iter()
             .map(|s| parse_decayed_variant(s, &base).unwrap())
             .collect(),
         ..SweepConfig::default()
-    };
+    }
+}
+
+#[test]
+fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met() {
+    use crate::strategy::lipac::LipacConfig;
+    use lipac_core::thresholds::DecisionRule;
+    let base = LipacConfig::DEFAULT_DECAYED;
+    let c = with_decayed(&["1", "2:200/40", "1:150/30:100/20", "-"]);
     let (v, skipped) = c.variants().unwrap();
     // `-` with the default rates is the default LiPaC (`lipac ×1`).
     assert_eq!(skipped, ["lipac rise - 150/30 150/30"]);
@@ -126,19 +131,12 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
 fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     use crate::strategy::lipac::LipacConfig;
     let base = LipacConfig::DEFAULT_DECAYED;
-    let specs = [
+    let c = with_decayed(&[
         "1:5/1:5/1",
         "1:5/1:5/1@128",
         "1:5/1:5/1@128+100/0.05",
         "1+50/0.1",
-    ];
-    let c = SweepConfig {
-        decayed: specs
-            .iter()
-            .map(|s| parse_decayed_variant(s, &base).unwrap())
-            .collect(),
-        ..SweepConfig::default()
-    };
+    ]);
     let (v, skipped) = c.variants().unwrap();
     assert!(skipped.is_empty(), "{skipped:?}");
     let find = |name: &str| {
