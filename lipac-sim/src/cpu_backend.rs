@@ -16,8 +16,9 @@
 //!    [`LipacConfig::readback_latency`] frames.
 //! 2. [`CpuBackend::begin_frame`], then the frame's instance changes
 //!    (register, update, move, LOD, remove).
-//! 3. [`CpuBackend::run`]: at the first run the warm start (if configured,
-//!    [`LipacConfig::warm_start`]: that frame's builds unbudgeted), latency
+//! 3. [`CpuBackend::run`]: at the first run (and after
+//!    [`CpuBackend::warm_start_again`]) the warm start, if configured
+//!    ([`LipacConfig::warm_start`]; that frame's builds unbudgeted), latency
 //!    mitigation (if configured), the commands
 //!    of frame `f − k` ([`Manager::ingest_readback`]), [`Manager::plan`]
 //!    under the frame's budgets, the plan executed, and Algorithm 1
@@ -360,19 +361,14 @@ impl<H: HitboxIndex> CpuBackend<H> {
             .open_frame
             .ok_or_else(|| SimError::Core("CpuBackend::run before begin_frame".into()))?;
         let mut stats = BackendFrame::default();
-        let mut budgets = &self.budgets;
-        let load = FrameBudgets {
-            commands: self.budgets.commands,
-            builds: crate::strategy::unlimited_budgets(),
-        };
-        if let Some(h) = self.warm_start.take() {
+        let warm = self.warm_start.take();
+        if let Some(h) = warm {
             let frustum = Frustum::from_view_projection(camera.view_proj()).map_err(core)?;
             let outcome = self
                 .manager
                 .warm_start(camera.position, &frustum, h)
                 .map_err(core)?;
             stats.latency_activations += outcome.summary.accepted;
-            budgets = &load;
         }
         if self.latency_mitigation {
             let frustum = Frustum::from_view_projection(camera.view_proj()).map_err(core)?;
@@ -388,6 +384,17 @@ impl<H: HitboxIndex> CpuBackend<H> {
                 .ingest_readback(r.frame, r.counter, &r.words)
                 .accepted;
         }
+        // A warm start's frame is a load: its builds are not budgeted.
+        let load;
+        let budgets = if warm.is_some() {
+            load = FrameBudgets {
+                commands: self.budgets.commands,
+                builds: crate::strategy::unlimited_budgets(),
+            };
+            &load
+        } else {
+            &self.budgets
+        };
         let plan = self.manager.plan(budgets).map_err(core)?;
         stats.commands_processed = plan.commands.drained;
         stats.commands_pending = plan.commands.remaining;

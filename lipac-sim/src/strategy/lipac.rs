@@ -118,7 +118,8 @@ impl LipacConfig {
 
     /// The default warm start ([`LipacConfig::warm_start`]): the whole view
     /// at the level load, culled down by hit feedback from the first
-    /// read-back on (docs/EVALUATION.md, "Cold start").
+    /// read-back on (docs/EVALUATION.md, "Cold start, and the levers
+    /// together").
     pub const DEFAULT_WARM_START: ActivationHeuristic = ActivationHeuristic {
         max_distance: f32::INFINITY,
         min_projected_size: 0.0,
