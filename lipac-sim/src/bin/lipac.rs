@@ -123,11 +123,11 @@ struct Common {
     /// a warm start at the level load that activates what is in view within
     /// DIST metres or of projected size at least SIZE (`inf:0`: the whole
     /// view), its builds unbudgeted. Default: LiPaC's configured start.
-    /// docs/EVALUATION.md "Cold start".
+    /// docs/EVALUATION.md "Cold start, and the levers together".
     #[arg(long)]
     warm_start: Option<String>,
     /// LiPaC warm-starts at every camera cut too (`--camera jump`), as at
-    /// the load (its builds unbudgeted). docs/EVALUATION.md "Cold start".
+    /// the load (its builds unbudgeted); off by default (its memory peak).
     #[arg(long)]
     warm_start_at_cuts: bool,
     /// Report folder.
