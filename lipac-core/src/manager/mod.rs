@@ -790,12 +790,7 @@ impl<H: HitboxIndex> Manager<H> {
         frustum: &Frustum,
     ) -> Result<LatencyOutcome, ManagerError> {
         let out = self.culling.mitigate_latency(camera, frustum)?;
-        for r in &out.requests {
-            let hits = self.last_hits(r.slot);
-            self.activate(r.slot, hits, true)?;
-        }
-        self.sync_addresses()?;
-        Ok(out)
+        self.take_cpu_activations(out)
     }
 
     /// A warm start ([`Culling::warm_start`]), at a level load or a camera
@@ -814,6 +809,16 @@ impl<H: HitboxIndex> Manager<H> {
         heuristic: ActivationHeuristic,
     ) -> Result<LatencyOutcome, ManagerError> {
         let out = self.culling.warm_start(camera, frustum, heuristic)?;
+        self.take_cpu_activations(out)
+    }
+
+    /// The BLAS requests of instances the loop activated on the CPU
+    /// (latency mitigation, a warm start) handed to the scheduler at once
+    /// (in the frustum: high priority), and cached BLASes put in the records.
+    fn take_cpu_activations(
+        &mut self,
+        out: LatencyOutcome,
+    ) -> Result<LatencyOutcome, ManagerError> {
         for r in &out.requests {
             let hits = self.last_hits(r.slot);
             self.activate(r.slot, hits, true)?;

@@ -379,11 +379,7 @@ impl SweepConfig {
             ));
         }
         for &cell in &self.cell_sizes {
-            if !cell.is_finite() || cell <= 0.0 {
-                return Err(SimError::BadConfig(
-                    "cell sizes must be finite and positive",
-                ));
-            }
+            check_cell_size(cell)?;
             let c = LipacConfig {
                 cell_size: cell,
                 ..base.clone()
@@ -419,11 +415,7 @@ impl SweepConfig {
             let mut c = base.clone().with_decayed_rule(&d.settings, rays)?;
             let mut name = decayed_name(&d.settings);
             if let Some(cell) = d.cell_size {
-                if !cell.is_finite() || cell <= 0.0 {
-                    return Err(SimError::BadConfig(
-                        "cell sizes must be finite and positive",
-                    ));
-                }
+                check_cell_size(cell)?;
                 c.cell_size = cell;
                 name.push_str(&format!(" {cell} m cells"));
             }
@@ -453,6 +445,17 @@ impl SweepConfig {
             return Err(SimError::BadConfig("nothing to sweep"));
         }
         Ok((kept, skipped))
+    }
+}
+
+/// A swept hitbox cell size must be finite and positive.
+fn check_cell_size(cell: f64) -> Result<(), SimError> {
+    if cell.is_finite() && cell > 0.0 {
+        Ok(())
+    } else {
+        Err(SimError::BadConfig(
+            "cell sizes must be finite and positive",
+        ))
     }
 }
 
