@@ -89,8 +89,15 @@ pub struct ClosedLoopOptions {
 }
 
 /// The controller gains of the comparison: the defaults'
-/// ([`ControllerConfig::default`]) with integral gain 0.4 (13x), over-budget
-/// weight 3 and a step of up to 0.2 in ln s per frame. At 9,216 camera rays
+/// ([`ControllerConfig::default`]) with a scale of up to 1024, integral
+/// gain 0.4 (13x), over-budget weight 3 and a step of up to 0.2 in ln s
+/// per frame. The scale's range: LiPaC's default rule
+/// ([`LipacConfig::DEFAULT_DECAYED`]) activates on a single hit and
+/// deactivates below 0.2 hits per frame at 1080p, so a scale of 32 (the
+/// library default's ceiling) leaves every cell a path met in the last
+/// ~20 frames active; 1024 reaches deactivation at 205 (0.9 hits per frame
+/// at 128 x 72; docs/EVALUATION.md, "A default within 1.15x the oracle").
+/// At 9,216 camera rays
 /// per frame most of LiPaC's memory does not depend on the thresholds
 /// (pinned terrain, shared BLASes other active instances use, counting
 /// boxes): street level of the jump path moves 14.2 → 12.8 MiB for scale
@@ -102,6 +109,7 @@ pub struct ClosedLoopOptions {
 pub fn sim_controller() -> ControllerConfig {
     let d = ControllerConfig::default();
     ControllerConfig {
+        max_scale: 1024.0,
         ki: 0.4,
         over_gain: 3.0,
         max_step: 0.2,

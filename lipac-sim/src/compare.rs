@@ -97,14 +97,15 @@ pub struct CompareConfig {
     pub share_ground_truth: bool,
     /// Render threads (0 = all cores).
     pub threads: usize,
-    /// LiPaC's adaptive hitbox merge levels (0: off, one counting box per
-    /// inactive hitbox; [`lipac_core::hitbox_tree`]).
-    pub adaptive_levels: u8,
+    /// LiPaC's adaptive hitbox merge levels (`None`:
+    /// [`LipacConfig::DEFAULT_ADAPTIVE_LEVELS`]; `Some(0)`: off, one
+    /// counting box per inactive hitbox; [`lipac_core::hitbox_tree`]).
+    pub adaptive_levels: Option<u8>,
     /// LiPaC's hitbox cell size in metres (`None`:
     /// [`LipacConfig::DEFAULT_CELL_SIZE`]).
     pub lipac_cell_size: Option<f64>,
-    /// The rise shift of LiPaC's decayed rule (`None`: the symmetric rule
-    /// of [`LipacConfig::DEFAULT_DECAYED`]; `Some(k)`: the rate rises with
+    /// The rise shift of LiPaC's decayed rule (`None`: that of
+    /// [`LipacConfig::DEFAULT_DECAYED`], 1; `Some(k)`: the rate rises with
     /// shift `k`, 1..=its decay shift, docs/EVALUATION.md "A faster rise
     /// than decay"). A shift outside that range is an error.
     pub lipac_rise_shift: Option<u32>,
@@ -176,7 +177,7 @@ impl Default for CompareConfig {
             strategies: StrategyKind::ALL.to_vec(),
             share_ground_truth: true,
             threads: 0,
-            adaptive_levels: 0,
+            adaptive_levels: None,
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: LipacStart::Default,
@@ -345,8 +346,10 @@ pub fn run(
 /// `config`'s adaptive hitboxes, cell size, rise shift and start.
 fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
-        .with_adaptive_hitboxes(config.adaptive_levels);
+    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    if let Some(levels) = config.adaptive_levels {
+        lipac_config = lipac_config.with_adaptive_hitboxes(levels);
+    }
     if let Some(cell) = config.lipac_cell_size {
         lipac_config.cell_size = cell;
     }

@@ -108,7 +108,7 @@ impl ReplayConfig {
             },
             share_ground_truth: true,
             threads: self.threads,
-            adaptive_levels: 0,
+            adaptive_levels: None,
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: self.lipac_start,

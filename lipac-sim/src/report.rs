@@ -260,7 +260,9 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
 /// assert!(rule_description(&Thresholds::paper()).starts_with("the paper's rule"));
 /// let default = LipacConfig::for_rays_per_frame(128 * 72).unwrap().thresholds;
 /// let d = rule_description(&default);
-/// assert!(d.starts_with("the decayed rule: half-life 5.5 frames (shift 3)"), "{d}");
+/// assert!(d.starts_with("the decayed rule: half-life 5.5 frames (shift 3, rising with shift 1)"), "{d}");
+/// // Rates far below one hit per frame keep three significant digits.
+/// assert!(d.contains("deactivates below 0.000885 hits"), "{d}");
 /// ```
 pub fn rule_description(t: &Thresholds) -> String {
     match t.rule {
@@ -270,7 +272,16 @@ pub fn rule_description(t: &Thresholds) -> String {
             t.theta_a, t.theta_d, t.sigma_a, t.sigma_o, t.n_a, t.n_d
         ),
         DecisionRule::Decayed(d) => {
-            let hits = |rate: u32| f64::from(rate) / 65536.0;
+            // Three decimals, or three significant digits below 0.1 hits.
+            let hits = |rate: u32| {
+                let x = f64::from(rate) / 65536.0;
+                let decimals = if x == 0.0 || x >= 0.1 {
+                    3
+                } else {
+                    (2.0 - x.log10().floor()) as usize
+                };
+                format!("{x:.decimals$}")
+            };
             let rise = if d.rise_shift == d.shift {
                 String::new()
             } else {
@@ -278,8 +289,8 @@ pub fn rule_description(t: &Thresholds) -> String {
             };
             format!(
                 "the decayed rule: half-life {:.1} frames (shift {}{rise}), a hitbox activates above \
-                 {:.3} and deactivates below {:.3} hits per frame, a unique-BLAS instance above {:.3} \
-                 / below {:.3}, plus {:.3} / {:.3} per inactive shared / unique instance",
+                 {} and deactivates below {} hits per frame, a unique-BLAS instance above {} \
+                 / below {}, plus {} / {} per inactive shared / unique instance",
                 std::f64::consts::LN_2 * f64::from(1u32 << d.shift.min(30)),
                 d.shift,
                 hits(d.activate),

@@ -71,8 +71,12 @@ pub struct MapInstance {
 /// One inactive hitbox's counting box on the map.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MapHitbox {
-    /// Hitbox index (the record's custom index).
+    /// Hitbox index (the record's custom index), or for a merged box
+    /// (`merged`) the id of its tree node, which is no hitbox index.
     pub index: u32,
+    /// A merged counting box of adaptive hitboxes (a cold region of
+    /// several inactive hitboxes drawn as one box).
+    pub merged: bool,
     /// Footprint minimum corner (x, z), m.
     pub min: Vec2,
     /// Footprint maximum corner (x, z), m.
@@ -175,6 +179,7 @@ impl TlasMap {
                 }
                 hitboxes.push(MapHitbox {
                     index: custom,
+                    merged,
                     min: Vec2::new(lo.x, lo.z),
                     max: Vec2::new(hi.x, hi.z),
                     hits: if merged {
@@ -225,6 +230,7 @@ impl TlasMap {
             .filter(|c| c.active && c.min.is_finite() && c.max.is_finite())
             .map(|c| MapHitbox {
                 index: c.index,
+                merged: false,
                 min: c.min,
                 max: c.max,
                 hits: c.hits,

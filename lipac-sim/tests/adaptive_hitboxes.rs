@@ -172,7 +172,7 @@ fn compare_with_adaptive_hitboxes_decides_alike_with_fewer_boxes() {
             strategies: vec![StrategyKind::Lipac],
             share_ground_truth: true,
             threads: 2,
-            adaptive_levels: levels,
+            adaptive_levels: Some(levels),
             lipac_cell_size: Some(16.0),
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,

@@ -18,7 +18,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         strategies: strategies.to_vec(),
         share_ground_truth: share,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
@@ -102,7 +102,7 @@ fn config(frames: u32) -> CompareConfig {
         ],
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
@@ -362,12 +362,12 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
     let with = |rise_shift: Option<u32>| {
         let config = CompareConfig {
             frames: Some(8),
-            width: 64,
-            height: 36,
+            width: 128,
+            height: 72,
             strategies: vec![StrategyKind::Lipac],
             share_ground_truth: true,
             threads: 2,
-            adaptive_levels: 0,
+            adaptive_levels: None,
             lipac_cell_size: None,
             lipac_rise_shift: rise_shift,
             lipac_start: lipac_sim::compare::LipacStart::Default,
@@ -375,8 +375,12 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
     };
-    let symmetric = with(None).expect("symmetric rule");
-    let fast = with(Some(1)).expect("rise shift 1");
+    // The default rises with shift 1; 3 is the symmetric rule. At 128 x 72
+    // the default activation rate (0.44 hits per frame) is below one hit
+    // at shift 1 (0.5) and above it at shift 3 (0.125); at 64 x 36 (0.11)
+    // both would activate on one hit.
+    let symmetric = with(Some(3)).expect("symmetric rule");
+    let fast = with(None).expect("default rise shift 1");
     assert!(!symmetric.rule.contains("rising"), "{}", symmetric.rule);
     assert!(fast.rule.contains("rising with shift 1"), "{}", fast.rule);
     let decisions = |r: &CompareReport| -> Vec<(u64, u64, u64, u64)> {
@@ -398,6 +402,10 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
         decisions(&fast),
         "the rise shift must change LiPaC's decisions in some frame"
     );
+    assert_eq!(
+        decisions(&fast),
+        decisions(&with(Some(1)).expect("rise shift 1"))
+    );
     for bad in [0, 4] {
         let e = with(Some(bad))
             .expect_err("rise shift outside 1..=3")
@@ -409,8 +417,10 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
 /// The warm start (`LipacConfig::warm_start`, `lipac compare --warm-start`):
 /// on the city, where LiPaC's cold start traces nothing but the pinned
 /// terrain until the first read-back (error above 0.3 in frames 0 and 1),
-/// the default warm start traces the view from frame 0 (its first two
-/// frames' error at most half the cold start's, its first frame's TLAS
+/// the default warm start traces the view from frame 0 (its first frame's
+/// error at most half the cold start's, its second's at most two thirds:
+/// Algorithm 2 of frame 0 already deactivates the warm-started cells no
+/// path met, whose rates start at 0; its first frame's TLAS
 /// many times larger), and hit feedback culls it down again: by frame 7 it
 /// holds no more than 1.5x the records of the cold start.
 #[test]
@@ -431,10 +441,10 @@ fn a_warm_start_traces_the_view_from_frame_0_and_feedback_culls_it() {
     let cold = with(LipacStart::Cold);
     let warm = with(LipacStart::Default);
     let (c, w) = (&cold.strategies[0].frames, &warm.strategies[0].frames);
-    for f in 0..2 {
+    for (f, bound) in [(0, 0.5), (1, 2.0 / 3.0)] {
         assert!(c[f].error > 0.3, "cold start, frame {f}: {}", c[f].error);
         assert!(
-            w[f].error <= 0.5 * c[f].error,
+            w[f].error <= bound * c[f].error,
             "frame {f}: warm {} against cold {}",
             w[f].error,
             c[f].error

@@ -105,7 +105,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             strategies: strategies.clone(),
             share_ground_truth: true,
             threads: 2,
-            adaptive_levels: 0,
+            adaptive_levels: None,
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,

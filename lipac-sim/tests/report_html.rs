@@ -96,7 +96,7 @@ fn report_html_renders_in_headless_chromium() {
         ],
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,

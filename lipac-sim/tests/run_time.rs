@@ -15,7 +15,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         strategies: StrategyKind::ALL.to_vec(),
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,

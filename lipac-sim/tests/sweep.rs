@@ -14,8 +14,10 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         width: 64,
         height: 36,
         baselines: vec![StrategyKind::Full, StrategyKind::Oracle],
-        // 2304 rays: ×1 gives θa = 2, ×4 gives θa = 4.
-        factors: vec![1.0, 4.0],
+        // 2304 rays: ×1 gives θa = 2, ×16 gives θa = 18; the default
+        // decayed rule's activation rate, 0.11 hits per frame here, at ×16
+        // asks for more than one hit.
+        factors: vec![1.0, 16.0],
         latency: vec![ActivationHeuristic::default()],
         cell_sizes: vec![],
         streaks: vec![],
@@ -94,11 +96,11 @@ fn tiny_sweep_writes_well_formed_outputs() {
     assert_eq!(rows.len(), configs * 2);
     let columns = SWEEP_CSV_HEADER.split(',').count();
     assert!(rows.iter().all(|l| l.split(',').count() == columns));
-    let lipac4 = rows
+    let lipac16 = rows
         .iter()
-        .find(|l| l.starts_with("city,lipac ×4,thresholds,lipac,4,64,4,1,4,1,4,15,"))
+        .find(|l| l.starts_with("city,lipac ×16,thresholds,lipac,16,32,18,2,18,2,4,15,"))
         .copied();
-    assert!(lipac4.is_some(), "{csv}");
+    assert!(lipac16.is_some(), "{csv}");
 
     for (plot, file) in [
         "sweep_time.svg",
@@ -149,7 +151,7 @@ fn tiny_sweep_writes_well_formed_outputs() {
     for file in &SWEEP_FILES[2..] {
         assert!(md.contains(&format!("]({file})")), "{file}");
     }
-    assert!(md.contains("| lipac ×4 | 4 1 4 1 4 15 | 64 |"));
+    assert!(md.contains("| lipac ×16 | 18 2 18 2 4 15 | 32 |"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -168,7 +170,7 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         strategies: vec![StrategyKind::Lipac, StrategyKind::LipacLatency],
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
@@ -185,9 +187,9 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         assert_eq!(s.summary.mean_mib, run.summary.mean_mib);
     }
     // The check can fail: other thresholds give other errors.
-    let x4 = r.point("small", "lipac ×4").unwrap();
+    let x16 = r.point("small", "lipac ×16").unwrap();
     assert_ne!(
-        x4.frame_errors,
+        x16.frame_errors,
         r.point("small", "lipac ×1").unwrap().frame_errors
     );
 }

@@ -105,17 +105,19 @@ struct Common {
     threads: usize,
     /// LiPaC's adaptive hitboxes: merge levels of cold hitboxes into one
     /// counting box (0 = off, one box per inactive hitbox; up to 4:
-    /// 16 x 16 hitboxes per box). docs/ADAPTIVE_HITBOXES.md.
-    #[arg(long, default_value_t = 0)]
-    adaptive_levels: u8,
-    /// LiPaC's hitbox cell size in metres (default 64, `LipacConfig::DEFAULT_CELL_SIZE`;
+    /// 16 x 16 hitboxes per box; default 3,
+    /// `LipacConfig::DEFAULT_ADAPTIVE_LEVELS`). docs/ADAPTIVE_HITBOXES.md.
+    #[arg(long)]
+    adaptive_levels: Option<u8>,
+    /// LiPaC's hitbox cell size in metres (default 32, `LipacConfig::DEFAULT_CELL_SIZE`;
     /// the paper's 16).
     #[arg(long)]
     cell_size: Option<f64>,
     /// LiPaC's decayed rule rises with this shift (1..=3, its decay shift)
     /// when a frame's hits exceed the rate: 1 climbs half way in one frame
-    /// (lower latency and error, more memory; docs/EVALUATION.md "A faster
-    /// rise than decay"). Default: the symmetric rule.
+    /// (lower latency and error; docs/EVALUATION.md "A faster rise than
+    /// decay"), 3 is the symmetric rule. Default: 1
+    /// (`LipacConfig::DEFAULT_DECAYED`).
     #[arg(long)]
     rise_shift: Option<u32>,
     /// LiPaC's start: `off` for the paper's cold start (nothing traced but
@@ -231,8 +233,8 @@ struct SweepArgs {
     #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,4")]
     factors: Vec<f64>,
     /// Further hitbox cell sizes in metres (LiPaC at factor 1; the base is
-    /// lipac-sim's default, 64 m); empty for none.
-    #[arg(long, value_delimiter = ',', default_value = "32,128")]
+    /// lipac-sim's default, 32 m); empty for none.
+    #[arg(long, value_delimiter = ',', default_value = "16,64")]
     cells: Vec<String>,
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
@@ -245,12 +247,13 @@ struct SweepArgs {
     /// `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise shift (1..=the decay
     /// shift, 3; `-` for the decay shift), then optionally the hitbox
     /// activation / deactivation and instance activation / omit rates in
-    /// hits per frame at 1080p (default 150/30:150/30) and the decay
+    /// hits per frame at 1080p (default 1/0.2:1/0.2) and the decay
     /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
     /// write `--decayed=-:100/20` when the first one starts with `-`. A
-    /// setting may end in `@CELL` (its own hitbox cell size in metres)
-    /// and then `+DIST/SIZE` (latency mitigation, as `--latency`), e.g.
-    /// `1:5/1:5/1@128+100/0.05`.
+    /// setting may end in `@CELL` (its own hitbox cell size in metres),
+    /// then `%LEVELS` (adaptive hitboxes' merge levels, 0..=4, as
+    /// `compare --adaptive-levels`) and then `+DIST/SIZE` (latency
+    /// mitigation, as `--latency`), e.g. `1:5/1:5/1@32%3+100/0.05`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.

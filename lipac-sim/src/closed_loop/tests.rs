@@ -133,7 +133,7 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: crate::compare::LipacStart::Default,
@@ -232,15 +232,19 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
     );
     // Held: near or over the budget never above what LiPaC alone takes
     // after warm-up (well under it, the cache's retention may free a BLAS
-    // a frame apart), the jump's transient cut (the old view's coarser
-    // LODs taken at once, its BLASes evicted once over budget), and within
-    // 5 % over from the second frame after the jump: the first is the one
-    // whose builds bring the coarser BLASes before the finer ones go
-    // (measured +12.2 %, LiPaC alone +11.8 %); without the coarser-LOD
-    // lever memory from that frame on reached +8.2 %.
+    // a frame apart), but in the first frame after the jump, whose builds
+    // bring the coarser BLASes of the old view's instances before the finer
+    // ones go (measured +12.9 % against LiPaC alone's +9.1 %; with the
+    // symmetric 150/30 rule of before +12.2 % against +11.8 %); then the
+    // jump's transient cut (the old view's coarser LODs taken at once, its
+    // BLASes evicted once over budget), and within 5 % over from the
+    // second frame after the jump. In the near view the default rule,
+    // which activates on a single hit, leaves the scale nothing to cut
+    // before it passes ~18 (32 x 18 rays): memory there is LiPaC's own.
     for f in 30..frames as usize {
+        let slack = if f == at + 1 { 0.05 } else { 0.005 };
         assert!(
-            held[f] < -0.05 || held[f] <= free[f] + 0.005,
+            held[f] < -0.05 || held[f] <= free[f] + slack,
             "frame {f}: {:.3} vs {:.3}",
             held[f],
             free[f]

@@ -276,7 +276,10 @@ pub fn replay_hits_with<R: Read>(
     } else {
         config.strategies.clone()
     };
-    let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?;
+    // Leaf hitboxes only: the recorded hits already name the instance or
+    // cell a path met, so merged counting boxes would decide nothing
+    // differently, and the hashed index of an unbounded world is leaf-only.
+    let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?.with_adaptive_hitboxes(0);
     // A bounded world's grid, or the hashed grid of an unbounded one (the
     // readers checked the grid's size).
     let grid = WorldHitboxes::for_world(&header.world, u64::MAX).map_err(core)?;

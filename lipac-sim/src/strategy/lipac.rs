@@ -69,7 +69,8 @@ pub struct LipacConfig {
     /// The controller's settings (with a `target`).
     pub controller: ControllerConfig,
     /// Adaptive hitboxes (merged counting boxes for cold regions,
-    /// [`lipac_core::hitbox_tree`]); off by default.
+    /// [`lipac_core::hitbox_tree`]); [`Self::DEFAULT_ADAPTIVE_LEVELS`] by
+    /// default.
     pub adaptive_hitboxes: AdaptiveHitboxes,
     /// A warm start at the first frame, the level load: the Manager
     /// activates the instances in view that this heuristic accepts
@@ -89,31 +90,48 @@ pub struct LipacConfig {
 }
 
 impl LipacConfig {
-    /// Default hitbox cell size, metres: 64, not the paper's 16. At the
-    /// comparison's ray counts (9,216 camera rays per frame against the
-    /// paper's 2 M) a small cell collects too few hits to rise above its
-    /// threshold soon, and every inactive cell costs a counting box's TLAS
-    /// record. With the decayed rule and pinned terrain, 64 m cells against
-    /// 32 m over the 270-frame fly-through (docs/EVALUATION.md, "Where
-    /// LiPaC's memory goes"): city 12.22 MiB / error 0.0495 / latency 5.1
-    /// frames against 12.34 / 0.0652 / 6.0, the mirror city 11.58 / 0.0468
-    /// / 5.6 against 11.69 / 0.0613 / 6.6; 96 m lowers the error further
-    /// (city 0.0438) for more memory (12.43 MiB). (With the paper's rule and
-    /// terrain culled, 32 m had been the best of 16–128 m.)
-    pub const DEFAULT_CELL_SIZE: f64 = 64.0;
+    /// Default hitbox cell size, metres: 32, not the paper's 16. With the
+    /// default rule ([`Self::DEFAULT_DECAYED`]) a single hit activates a
+    /// cell, so the cell size trades what an activation brings in (each
+    /// instance of an active cell is a TLAS record) against how much of
+    /// the neighbourhood it activates before it is hit; with adaptive
+    /// hitboxes ([`Self::DEFAULT_ADAPTIVE_LEVELS`]) cold cells cost few
+    /// counting boxes whatever their size. Over the 270-frame fly-through
+    /// (docs/EVALUATION.md, "A default within 1.15x the oracle"): 28 m /
+    /// 32 m / 36 m cells give city 12.16 / 12.27 / 12.32 MiB at error
+    /// 0.0278 / 0.0264 / 0.0249; the 64 m cells of before cost 13.1 MiB
+    /// for 0.0196.
+    pub const DEFAULT_CELL_SIZE: f64 = 32.0;
+
+    /// Default merge levels of adaptive hitboxes: 3 (a cold region of up
+    /// to 8 x 8 hitboxes is one counting box; decisions unchanged,
+    /// docs/ADAPTIVE_HITBOXES.md). At 32 m cells they halve LiPaC's TLAS
+    /// records of cold cells (docs/EVALUATION.md, "A default within 1.15x
+    /// the oracle").
+    pub const DEFAULT_ADAPTIVE_LEVELS: u8 = 3;
 
     /// The default decision rule's settings (hits per frame at 1080p, 1 spp,
-    /// scaled to the rays like the paper's θa = 1000): see
-    /// docs/EVALUATION.md, "The decayed rule".
+    /// scaled to the rays like the paper's θa = 1000): a rate that rises
+    /// half way to a frame's hits in one frame (rise shift 1) and decays
+    /// with a half-life of 5 frames; hitboxes and unique-BLAS instances
+    /// activate above 100 hits per frame and deactivate below 0.2. At the
+    /// comparison's 9,216 rays per frame that is 0.44 and 0.0009: a single
+    /// hit (a rate of 0.5) activates, and a cell or instance stays for
+    /// about 45 frames after its last hit. The activation rate sits just
+    /// under one hit so that a controller's scale
+    /// ([`LipacConfig::target`]) above 1.13 already asks for more than one
+    /// hit; any activation rate from 1 to 110 decides the same here.
+    /// docs/EVALUATION.md, "A default within 1.15x the oracle" (before:
+    /// symmetric, 150/30, "The decayed rule").
     pub const DEFAULT_DECAYED: DecayedSettings = DecayedSettings {
         half_life_frames: 5.0,
-        activate: 150.0,
-        deactivate: 30.0,
-        instance_activate: 150.0,
-        instance_omit: 30.0,
+        activate: 100.0,
+        deactivate: 0.2,
+        instance_activate: 100.0,
+        instance_omit: 0.2,
         per_shared: 0.0,
         per_unique: 0.0,
-        rise_shift: None,
+        rise_shift: Some(1),
     };
 
     /// The default warm start ([`LipacConfig::warm_start`]): the whole view
@@ -128,7 +146,8 @@ impl LipacConfig {
     /// Settings for `rays_per_frame` camera rays: the paper's thresholds
     /// scaled to the rays, deciding with the decayed rule
     /// [`Self::DEFAULT_DECAYED`] ([`Self::with_paper_rule`] for the paper's),
-    /// [`Self::DEFAULT_CELL_SIZE`] cells, readback after 2 frames, a warm
+    /// [`Self::DEFAULT_CELL_SIZE`] cells, adaptive hitboxes of
+    /// [`Self::DEFAULT_ADAPTIVE_LEVELS`] merge levels, readback after 2 frames, a warm
     /// start ([`Self::DEFAULT_WARM_START`]), 4096 commands per frame,
     /// the scheduler's default build budgets (64 builds, 4 Mi triangles) but
     /// no compaction copies (lavapipe's compaction gains nothing,
@@ -159,7 +178,7 @@ impl LipacConfig {
                 tlas_record_bytes: crate::memory::TLAS_BYTES_PER_INSTANCE,
                 ..ControllerConfig::default()
             },
-            adaptive_hitboxes: AdaptiveHitboxes::OFF,
+            adaptive_hitboxes: AdaptiveHitboxes::with_levels(Self::DEFAULT_ADAPTIVE_LEVELS),
             warm_start: Some(Self::DEFAULT_WARM_START),
             warm_start_at_cuts: false,
         })

@@ -253,7 +253,7 @@ pub fn run_shard(
         strategies: Vec::new(),
         share_ground_truth: true,
         threads: config.threads,
-        adaptive_levels: 0,
+        adaptive_levels: None,
         lipac_cell_size: None,
         lipac_rise_shift: None,
         lipac_start: LipacStart::Default,

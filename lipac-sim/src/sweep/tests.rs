@@ -66,7 +66,7 @@ fn variants_follow_the_config_and_drop_duplicates() {
         .filter(|x| x.family == Family::CellSize)
         .map(|x| x.lipac.as_ref().unwrap().cell_size)
         .collect();
-    assert_eq!(cells, [32.0, 128.0]);
+    assert_eq!(cells, [16.0, 64.0]);
     let bad = SweepConfig {
         factors: vec![0.0],
         ..SweepConfig::default()
@@ -96,10 +96,10 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
     use crate::strategy::lipac::LipacConfig;
     use lipac_core::thresholds::DecisionRule;
     let base = LipacConfig::DEFAULT_DECAYED;
-    let c = with_decayed(&["1", "2:200/40", "1:150/30:100/20", "-"]);
+    let c = with_decayed(&["1", "2:200/40", "1:150/30:50/20", "-", "1:150/30"]);
     let (v, skipped) = c.variants().unwrap();
-    // `-` with the default rates is the default LiPaC (`lipac ×1`).
-    assert_eq!(skipped, ["lipac rise - 150/30 150/30"]);
+    // `1` with the default rates is the default LiPaC (`lipac ×1`).
+    assert_eq!(skipped, ["lipac rise 1 100/0.2 100/0.2"]);
     let rule = |name: &str| {
         let x = v.iter().find(|x| x.name == name).unwrap();
         assert_eq!(x.family, Family::Decayed);
@@ -108,10 +108,14 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
             DecisionRule::Paper => panic!("decayed rule expected"),
         }
     };
-    let one = rule("lipac rise 1 150/30 150/30");
-    let two = rule("lipac rise 2 200/40 150/30");
-    let inst = rule("lipac rise 1 150/30 100/20");
-    assert_eq!((one.shift, one.rise_shift, two.rise_shift), (3, 1, 2));
+    let one = rule("lipac rise 1 150/30 100/0.2");
+    let two = rule("lipac rise 2 200/40 100/0.2");
+    let inst = rule("lipac rise 1 150/30 50/20");
+    let sym = rule("lipac rise - 100/0.2 100/0.2");
+    assert_eq!(
+        (one.shift, one.rise_shift, two.rise_shift, sym.rise_shift),
+        (3, 1, 2, 3)
+    );
     assert!(two.activate > one.activate && two.deactivate > one.deactivate);
     assert!(inst.instance_activate < one.instance_activate);
     assert_eq!(inst.activate, one.activate);
@@ -127,6 +131,10 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
         .contains("rise shift"));
 }
 
+fn cfg_levels(x: &Variant) -> u8 {
+    x.lipac.as_ref().unwrap().adaptive_hitboxes.levels
+}
+
 #[test]
 fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     use crate::strategy::lipac::LipacConfig;
@@ -135,7 +143,8 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
         "1:5/1:5/1",
         "1:5/1:5/1@128",
         "1:5/1:5/1@128+100/0.05",
-        "1+50/0.1",
+        "1:150/30+50/0.1",
+        "1:5/1:5/1@128%0",
     ]);
     let (v, skipped) = c.variants().unwrap();
     assert!(skipped.is_empty(), "{skipped:?}");
@@ -147,7 +156,12 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     let plain = find("lipac rise 1 5/1 5/1");
     let cells = find("lipac rise 1 5/1 5/1 128 m cells");
     let both = find("lipac rise 1 5/1 5/1 128 m cells + latency 100 m / 0.05");
-    let lat = find("lipac rise 1 150/30 150/30 + latency 50 m / 0.1");
+    let lat = find("lipac rise 1 150/30 100/0.2 + latency 50 m / 0.1");
+    let leaf = find("lipac rise 1 5/1 5/1 128 m cells merged 0");
+    // Merge levels: the default's unless a variant sets its own.
+    assert_eq!(cfg_levels(plain), LipacConfig::DEFAULT_ADAPTIVE_LEVELS);
+    assert_eq!(cfg_levels(leaf), 0);
+    assert_eq!(leaf.lipac.as_ref().unwrap().cell_size, 128.0);
     let cfg = |x: &Variant| x.lipac.clone().unwrap();
     assert_eq!(cfg(plain).cell_size, LipacConfig::DEFAULT_CELL_SIZE);
     assert_eq!((cfg(cells).cell_size, cfg(cells).latency), (128.0, None));
@@ -167,7 +181,16 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     assert!(v
         .iter()
         .all(|x| x.family != Family::Decayed || x.factor == Some(1.0)));
-    for bad in ["1@0", "1@x", "1+100", "1+-1/0.1", "1+100/inf", "1@128+"] {
+    for bad in [
+        "1@0",
+        "1@x",
+        "1+100",
+        "1+-1/0.1",
+        "1+100/inf",
+        "1@128+",
+        "1%5",
+        "1@32%x",
+    ] {
         assert!(parse_decayed_variant(bad, &base).is_err(), "{bad} accepted");
     }
 }

@@ -3,6 +3,7 @@
 //! with latency mitigation, with other cell sizes and streak lengths, and
 //! with other decayed-rule settings ([`parse_decayed_spec`]).
 
+use lipac_core::hitbox_tree::MAX_MERGE_LEVELS;
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use serde::{Deserialize, Serialize};
@@ -95,7 +96,7 @@ impl Default for SweepConfig {
     /// City and mirror scenes, the whole fly-through at 128 x 72; full,
     /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
     /// mitigation with the default heuristic and a wider one (100 m, 0.05);
-    /// 32 m and 128 m cells besides the default 64 m;
+    /// 16 m and 64 m cells besides the default 32 m;
     /// `(n_a, n_d)` = (1, 15) and (4, 30); no other decayed-rule settings.
     fn default() -> Self {
         Self {
@@ -118,7 +119,7 @@ impl Default for SweepConfig {
                     min_projected_size: 0.05,
                 },
             ],
-            cell_sizes: vec![32.0, 128.0],
+            cell_sizes: vec![16.0, 64.0],
             streaks: vec![(1, 15), (4, 30)],
             decayed: Vec::new(),
             threads: 0,
@@ -236,12 +237,17 @@ pub struct DecayedVariant {
     pub cell_size: Option<f64>,
     /// Latency mitigation (`None`: off, as in the base configuration).
     pub latency: Option<ActivationHeuristic>,
+    /// Adaptive hitboxes' merge levels (`None`: the base configuration's,
+    /// off; docs/ADAPTIVE_HITBOXES.md).
+    pub adaptive_levels: Option<u8>,
 }
 
-/// A decayed-rule variant from `RULE[@CELL][+DIST/SIZE]`: `RULE` as
-/// [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox cell
-/// size in metres, then optionally `+` and a latency-mitigation heuristic
-/// (maximum distance in metres / minimum projected size).
+/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE]`: `RULE`
+/// as [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox
+/// cell size in metres, then optionally `%` and the merge levels of
+/// adaptive hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `+` and a
+/// latency-mitigation heuristic (maximum distance in metres / minimum
+/// projected size).
 ///
 /// ```
 /// use lipac_sim::sweep::parse_decayed_variant;
@@ -253,7 +259,10 @@ pub struct DecayedVariant {
 /// let h = v.latency.unwrap();
 /// assert_eq!((h.max_distance, h.min_projected_size), (100.0, 0.05));
 /// let plain = parse_decayed_variant("2", &base).unwrap();
-/// assert_eq!((plain.cell_size, plain.latency), (None, None));
+/// assert_eq!((plain.cell_size, plain.latency, plain.adaptive_levels), (None, None, None));
+/// let merged = parse_decayed_variant("1:5/1:5/1@32%3", &base).unwrap();
+/// assert_eq!((merged.cell_size, merged.adaptive_levels), (Some(32.0), Some(3)));
+/// assert!(parse_decayed_variant("1%9", &base).is_err());
 /// assert!(parse_decayed_variant("1@-3", &base).is_err());
 /// assert!(parse_decayed_variant("1+100", &base).is_err());
 /// assert!(parse_decayed_variant("1+100/NaN", &base).is_err());
@@ -281,6 +290,22 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         }
         None => (spec, None),
     };
+    let (rest, adaptive_levels) = match rest.split_once('%') {
+        Some((rest, l)) => {
+            let levels = l
+                .trim()
+                .parse::<u8>()
+                .ok()
+                .filter(|l| *l <= MAX_MERGE_LEVELS)
+                .ok_or_else(|| {
+                    format!(
+                        "decayed variant `{spec}`: merge levels `{l}` are not 0..={MAX_MERGE_LEVELS}"
+                    )
+                })?;
+            (rest, Some(levels))
+        }
+        None => (rest, None),
+    };
     let (rule, cell_size) = match rest.split_once('@') {
         Some((rule, cell)) => {
             let c = cell
@@ -299,6 +324,7 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         settings: parse_decayed_spec(rule, base)?,
         cell_size,
         latency,
+        adaptive_levels,
     })
 }
 
@@ -418,6 +444,10 @@ impl SweepConfig {
                 check_cell_size(cell)?;
                 c.cell_size = cell;
                 name.push_str(&format!(" {cell} m cells"));
+            }
+            if let Some(levels) = d.adaptive_levels {
+                c = c.with_adaptive_hitboxes(levels);
+                name.push_str(&format!(" merged {levels}"));
             }
             let mut kind = StrategyKind::Lipac;
             if let Some(h) = d.latency {

@@ -73,12 +73,14 @@ fn active_hitboxes_are_outlined_inactive_ones_shaded() {
     // cell 5..10 m x 5..10 m (pixels 8..16).
     map.active_hitboxes.push(MapHitbox {
         index: 0,
+        merged: false,
         min: Vec2::ZERO,
         max: Vec2::splat(5.0),
         hits: 3,
     });
     map.hitboxes.push(MapHitbox {
         index: 3,
+        merged: false,
         min: Vec2::splat(5.0),
         max: Vec2::splat(10.0),
         hits: 2,
