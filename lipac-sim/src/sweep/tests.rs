@@ -131,10 +131,6 @@ fn decayed_family_sets_the_rise_shift_and_rates_and_rejects_what_cannot_be_met()
         .contains("rise shift"));
 }
 
-fn cfg_levels(x: &Variant) -> u8 {
-    x.lipac.as_ref().unwrap().adaptive_hitboxes.levels
-}
-
 #[test]
 fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     use crate::strategy::lipac::LipacConfig;
@@ -158,11 +154,14 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     let both = find("lipac rise 1 5/1 5/1 128 m cells + latency 100 m / 0.05");
     let lat = find("lipac rise 1 150/30 100/0.2 + latency 50 m / 0.1");
     let leaf = find("lipac rise 1 5/1 5/1 128 m cells merged 0");
-    // Merge levels: the default's unless a variant sets its own.
-    assert_eq!(cfg_levels(plain), LipacConfig::DEFAULT_ADAPTIVE_LEVELS);
-    assert_eq!(cfg_levels(leaf), 0);
-    assert_eq!(leaf.lipac.as_ref().unwrap().cell_size, 128.0);
     let cfg = |x: &Variant| x.lipac.clone().unwrap();
+    // Merge levels: the default's unless a variant sets its own.
+    assert_eq!(
+        cfg(plain).adaptive_hitboxes.levels,
+        LipacConfig::DEFAULT_ADAPTIVE_LEVELS
+    );
+    assert_eq!(cfg(leaf).adaptive_hitboxes.levels, 0);
+    assert_eq!(cfg(leaf).cell_size, 128.0);
     assert_eq!(cfg(plain).cell_size, LipacConfig::DEFAULT_CELL_SIZE);
     assert_eq!((cfg(cells).cell_size, cfg(cells).latency), (128.0, None));
     assert_eq!(cfg(both).cell_size, 128.0);

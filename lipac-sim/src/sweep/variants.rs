@@ -290,42 +290,48 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         }
         None => (spec, None),
     };
-    let (rest, adaptive_levels) = match rest.split_once('%') {
-        Some((rest, l)) => {
-            let levels = l
-                .trim()
-                .parse::<u8>()
-                .ok()
-                .filter(|l| *l <= MAX_MERGE_LEVELS)
-                .ok_or_else(|| {
-                    format!(
-                        "decayed variant `{spec}`: merge levels `{l}` are not 0..={MAX_MERGE_LEVELS}"
-                    )
-                })?;
-            (rest, Some(levels))
-        }
-        None => (rest, None),
-    };
-    let (rule, cell_size) = match rest.split_once('@') {
-        Some((rule, cell)) => {
-            let c = cell
-                .trim()
-                .parse::<f64>()
-                .ok()
-                .filter(|c| c.is_finite() && *c > 0.0)
-                .ok_or_else(|| {
-                    format!("decayed variant `{spec}`: cell size `{cell}` is not a positive number")
-                })?;
-            (rule, Some(c))
-        }
-        None => (rest, None),
-    };
+    let levels_ok = |l: &u8| *l <= MAX_MERGE_LEVELS;
+    let levels_are = format!("are not 0..={MAX_MERGE_LEVELS}");
+    let (rest, adaptive_levels) =
+        optional_suffix(spec, rest, '%', "merge levels", levels_ok, &levels_are)?;
+    let cell_ok = |c: &f64| c.is_finite() && *c > 0.0;
+    let (rule, cell_size) = optional_suffix(
+        spec,
+        rest,
+        '@',
+        "cell size",
+        cell_ok,
+        "is not a positive number",
+    )?;
     Ok(DecayedVariant {
         settings: parse_decayed_spec(rule, base)?,
         cell_size,
         latency,
         adaptive_levels,
     })
+}
+
+/// `text` split at `sep` into the rest and a value (`None` without
+/// `sep`) that parses as `T` and passes `valid`; otherwise the error
+/// "decayed variant `spec`: WHAT `value` EXPECTED".
+fn optional_suffix<'a, T: std::str::FromStr>(
+    spec: &str,
+    text: &'a str,
+    sep: char,
+    what: &str,
+    valid: impl Fn(&T) -> bool,
+    expected: &str,
+) -> Result<(&'a str, Option<T>), String> {
+    let Some((rest, value)) = text.split_once(sep) else {
+        return Ok((text, None));
+    };
+    let v = value
+        .trim()
+        .parse::<T>()
+        .ok()
+        .filter(|v| valid(v))
+        .ok_or_else(|| format!("decayed variant `{spec}`: {what} `{value}` {expected}"))?;
+    Ok((rest, Some(v)))
 }
 
 impl SweepConfig {
