@@ -247,7 +247,7 @@ struct SweepArgs {
     /// `K_UP[:A/D[:IA/IO[:HALF_LIFE]]]`: the rise shift (1..=the decay
     /// shift, 3; `-` for the decay shift), then optionally the hitbox
     /// activation / deactivation and instance activation / omit rates in
-    /// hits per frame at 1080p (default 1/0.2:1/0.2) and the decay
+    /// hits per frame at 1080p (default 100/0.2:100/0.2) and the decay
     /// half-life in frames (default 5). E.g. `1,2,1:200/40,1:150/30:150/30:2.4`;
     /// write `--decayed=-:100/20` when the first one starts with `-`. A
     /// setting may end in `@CELL` (its own hitbox cell size in metres),
