@@ -234,7 +234,7 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
     // after warm-up (well under it, the cache's retention may free a BLAS
     // a frame apart), but in the first frame after the jump, whose builds
     // bring the coarser BLASes of the old view's instances before the finer
-    // ones go (measured +12.9 % against LiPaC alone's +9.1 %; with the
+    // ones go (measured +12.5 % against LiPaC alone's +9.1 %; with the
     // symmetric 150/30 rule of before +12.2 % against +11.8 %); then the
     // jump's transient cut (the old view's coarser LODs taken at once, its
     // BLASes evicted once over budget), and within 5 % over from the
