@@ -513,3 +513,72 @@ fn a_warm_start_at_the_cut_activates_the_new_view() {
     assert!(w[c].builds > p[c].builds, "{} {}", w[c].builds, p[c].builds);
     assert!(w[c].error < p[c].error, "{} {}", w[c].error, p[c].error);
 }
+
+/// `LipacConfig::honour_pins` false (`lipac sweep --decayed` with `!`):
+/// the terrain is culled like any instance, so some tile the paths miss is
+/// out of the TLAS, while the default keeps every tile every frame.
+#[test]
+fn lipac_without_pins_culls_terrain_the_default_keeps() {
+    use lipac_sim::compare::{run_contenders, Contender};
+    use lipac_sim::strategy::lipac::{Lipac, LipacConfig};
+    let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+    let (w, h) = (48, 27);
+    let path = CameraPath::flythrough(&scene, w as f32 / h as f32);
+    let config = CompareConfig {
+        strategies: Vec::new(),
+        ..config(12)
+    };
+    let config = CompareConfig {
+        width: w,
+        height: h,
+        ..config
+    };
+    let base = LipacConfig::for_rays_per_frame(u64::from(w * h)).unwrap();
+    let free = LipacConfig {
+        honour_pins: false,
+        ..base.clone()
+    };
+    let contenders = vec![
+        Contender {
+            name: "pinned".into(),
+            strategy: Box::new(Lipac::new(&scene, base).unwrap()),
+        },
+        Contender {
+            name: "unpinned".into(),
+            strategy: Box::new(Lipac::new(&scene, free).unwrap()),
+        },
+    ];
+    let terrain: Vec<u32> = (0u32..)
+        .zip(scene.instances())
+        .filter(|(_, i)| i.is_pinned())
+        .map(|(s, _)| s)
+        .collect();
+    assert!(!terrain.is_empty(), "the small scene pins its terrain");
+    let r = run_contenders(
+        "small",
+        &mut scene,
+        &path,
+        &config,
+        contenders,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let pinned = r.strategy("pinned").unwrap();
+    let free = r.strategy("unpinned").unwrap();
+    for s in &terrain {
+        assert!(pinned.last_geometry.contains(s), "pinned tile {s} culled");
+    }
+    let kept = terrain
+        .iter()
+        .filter(|s| free.last_geometry.contains(s))
+        .count();
+    assert!(kept < terrain.len(), "every tile kept without pins");
+    let terrain_bytes = |st: &lipac_sim::compare::StrategyRun| {
+        st.frames.iter().map(|m| m.blas_split.terrain).sum::<u64>()
+    };
+    let (a, b) = (terrain_bytes(free), terrain_bytes(pinned));
+    assert!(
+        a < b,
+        "terrain BLAS bytes over the frames: {a} without pins vs {b}"
+    );
+}

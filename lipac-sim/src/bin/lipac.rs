@@ -252,8 +252,10 @@ struct SweepArgs {
     /// write `--decayed=-:100/20` when the first one starts with `-`. A
     /// setting may end in `@CELL` (its own hitbox cell size in metres),
     /// then `%LEVELS` (adaptive hitboxes' merge levels, 0..=4, as
-    /// `compare --adaptive-levels`) and then `+DIST/SIZE` (latency
-    /// mitigation, as `--latency`), e.g. `1:5/1:5/1@32%3+100/0.05`.
+    /// `compare --adaptive-levels`), then `+DIST/SIZE` (latency
+    /// mitigation, as `--latency`) and then `!` (the terrain not pinned:
+    /// culled like any instance), e.g. `1:5/1:5/1@32%3+100/0.05` or
+    /// `-:2400/480:2400/480!`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.

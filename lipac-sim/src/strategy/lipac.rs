@@ -25,7 +25,7 @@ use lipac_core::controller::{ControlTarget, ControllerConfig};
 use lipac_core::grid::HitboxGrid;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::hitbox_tree::AdaptiveHitboxes;
-use lipac_core::instance::{InstanceDesc, MeshId};
+use lipac_core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::{InstanceState, TlasInstance};
 use lipac_core::manager::Manager;
@@ -87,6 +87,13 @@ pub struct LipacConfig {
     /// lowers the error after the cut but adds a peak of memory and builds
     /// (docs/EVALUATION.md, "Cold start, and the levers together").
     pub warm_start_at_cuts: bool,
+    /// Register the scene's pinned instances (the terrain tiles) pinned:
+    /// always traced, never culled, never a counting box (the paper's
+    /// choice; on by default). `false` culls them like any other
+    /// instance: less memory for more error, the far end of a sweep
+    /// (`lipac sweep --decayed` with `!`; docs/EVALUATION.md, "A default
+    /// within 1.15x the oracle"). The oracle keeps the pins either way.
+    pub honour_pins: bool,
 }
 
 impl LipacConfig {
@@ -181,6 +188,7 @@ impl LipacConfig {
             adaptive_hitboxes: AdaptiveHitboxes::with_levels(Self::DEFAULT_ADAPTIVE_LEVELS),
             warm_start: Some(Self::DEFAULT_WARM_START),
             warm_start_at_cuts: false,
+            honour_pins: true,
         })
     }
     /// The same with adaptive hitboxes of `levels` merge levels (0: off).
@@ -268,7 +276,10 @@ impl Lipac {
         let mut handles = Vec::with_capacity(n);
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
-            let f = inst.instance_flags();
+            let mut f = inst.instance_flags();
+            if !config.honour_pins {
+                f.remove(InstanceFlags::PINNED);
+            }
             if inst.is_animated() {
                 units.push(slot as u32);
             }
@@ -288,6 +299,11 @@ impl Lipac {
             }
             handles.push(h);
         }
+        let pinned = scene
+            .instances()
+            .iter()
+            .map(|i| i.is_pinned() && config.honour_pins)
+            .collect();
         Ok(Self {
             name: if config.latency.is_some() {
                 "lipac-latency"
@@ -299,7 +315,7 @@ impl Lipac {
             lods: vec![0; handles.len()],
             handles,
             units,
-            pinned: scene.instances().iter().map(|i| i.is_pinned()).collect(),
+            pinned,
             stats: LipacFrameStats::default(),
         })
     }
@@ -424,8 +440,9 @@ impl Strategy for Lipac {
             .zip(&mut self.pinned)
             .zip(&self.handles)
         {
-            if inst.is_pinned() != *was {
-                *was = inst.is_pinned();
+            let pinned = inst.is_pinned() && self.config.honour_pins;
+            if pinned != *was {
+                *was = pinned;
                 self.backend.set_pinned(h, *was)?;
             }
         }

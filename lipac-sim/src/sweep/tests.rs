@@ -141,6 +141,7 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
         "1:5/1:5/1@128+100/0.05",
         "1:150/30+50/0.1",
         "1:5/1:5/1@128%0",
+        "1:5/1:5/1%3+100/0.05!",
     ]);
     let (v, skipped) = c.variants().unwrap();
     assert!(skipped.is_empty(), "{skipped:?}");
@@ -154,6 +155,7 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     let both = find("lipac rise 1 5/1 5/1 128 m cells + latency 100 m / 0.05");
     let lat = find("lipac rise 1 150/30 100/0.2 + latency 50 m / 0.1");
     let leaf = find("lipac rise 1 5/1 5/1 128 m cells merged 0");
+    let free = find("lipac rise 1 5/1 5/1 merged 3 unpinned + latency 100 m / 0.05");
     let cfg = |x: &Variant| x.lipac.clone().unwrap();
     // Merge levels: the default's unless a variant sets its own.
     assert_eq!(
@@ -161,6 +163,14 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
         LipacConfig::DEFAULT_ADAPTIVE_LEVELS
     );
     assert_eq!(cfg(leaf).adaptive_hitboxes.levels, 0);
+    // Pins: honoured unless a variant ends in `!`.
+    assert!(v
+        .iter()
+        .filter(|x| x.name != free.name)
+        .all(|x| x.lipac.as_ref().is_none_or(|c| c.honour_pins)));
+    assert!(!cfg(free).honour_pins);
+    assert_eq!(cfg(free).thresholds, cfg(plain).thresholds);
+    assert_eq!(free.kind, StrategyKind::LipacLatency);
     assert_eq!(cfg(leaf).cell_size, 128.0);
     assert_eq!(cfg(plain).cell_size, LipacConfig::DEFAULT_CELL_SIZE);
     assert_eq!((cfg(cells).cell_size, cfg(cells).latency), (128.0, None));
@@ -189,6 +199,8 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
         "1@128+",
         "1%5",
         "1@32%x",
+        "1!!",
+        "1!@32",
     ] {
         assert!(parse_decayed_variant(bad, &base).is_err(), "{bad} accepted");
     }

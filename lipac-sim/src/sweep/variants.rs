@@ -240,14 +240,18 @@ pub struct DecayedVariant {
     /// Adaptive hitboxes' merge levels (`None`: the base configuration's,
     /// off; docs/ADAPTIVE_HITBOXES.md).
     pub adaptive_levels: Option<u8>,
+    /// The scene's pinned instances (terrain) culled like any other
+    /// ([`LipacConfig::honour_pins`] false): a trailing `!`.
+    pub unpinned: bool,
 }
 
-/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE]`: `RULE`
-/// as [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox
-/// cell size in metres, then optionally `%` and the merge levels of
+/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE][!]`:
+/// `RULE` as [`parse_decayed_spec`] reads it, then optionally `@` and a
+/// hitbox cell size in metres, then optionally `%` and the merge levels of
 /// adaptive hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `+` and a
 /// latency-mitigation heuristic (maximum distance in metres / minimum
-/// projected size).
+/// projected size), then optionally `!`: the scene's pinned instances
+/// (terrain) culled like any other ([`DecayedVariant::unpinned`]).
 ///
 /// ```
 /// use lipac_sim::sweep::parse_decayed_variant;
@@ -262,13 +266,21 @@ pub struct DecayedVariant {
 /// assert_eq!((plain.cell_size, plain.latency, plain.adaptive_levels), (None, None, None));
 /// let merged = parse_decayed_variant("1:5/1:5/1@32%3", &base).unwrap();
 /// assert_eq!((merged.cell_size, merged.adaptive_levels), (Some(32.0), Some(3)));
+/// assert!(!merged.unpinned);
+/// let free = parse_decayed_variant("-:2400/480:2400/480%3!", &base).unwrap();
+/// assert_eq!((free.adaptive_levels, free.unpinned), (Some(3), true));
+/// assert!(parse_decayed_variant("1!%3", &base).is_err());
 /// assert!(parse_decayed_variant("1%9", &base).is_err());
 /// assert!(parse_decayed_variant("1@-3", &base).is_err());
 /// assert!(parse_decayed_variant("1+100", &base).is_err());
 /// assert!(parse_decayed_variant("1+100/NaN", &base).is_err());
 /// ```
 pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<DecayedVariant, String> {
-    let (rest, latency) = match spec.split_once('+') {
+    let (rest, unpinned) = match spec.strip_suffix('!') {
+        Some(rest) => (rest, true),
+        None => (spec, false),
+    };
+    let (rest, latency) = match rest.split_once('+') {
         Some((rest, h)) => {
             let (d, p) = h.split_once('/').ok_or_else(|| {
                 format!("decayed variant `{spec}`: latency mitigation `{h}` is not DIST/SIZE")
@@ -288,7 +300,7 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
             };
             (rest, Some(heuristic))
         }
-        None => (spec, None),
+        None => (rest, None),
     };
     let levels_ok = |l: &u8| *l <= MAX_MERGE_LEVELS;
     let levels_are = format!("are not 0..={MAX_MERGE_LEVELS}");
@@ -308,6 +320,7 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         cell_size,
         latency,
         adaptive_levels,
+        unpinned,
     })
 }
 
@@ -454,6 +467,10 @@ impl SweepConfig {
             if let Some(levels) = d.adaptive_levels {
                 c = c.with_adaptive_hitboxes(levels);
                 name.push_str(&format!(" merged {levels}"));
+            }
+            if d.unpinned {
+                c.honour_pins = false;
+                name.push_str(" unpinned");
             }
             let mut kind = StrategyKind::Lipac;
             if let Some(h) = d.latency {
