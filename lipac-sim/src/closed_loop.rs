@@ -122,25 +122,34 @@ pub fn sim_controller() -> ControllerConfig {
     }
 }
 
-/// LiPaC's configuration for `rays_per_frame` holding `target` with
-/// [`sim_controller`]. A memory budget is a ceiling here: the scale never
-/// falls below 1 (`min_scale` = 1), since spending spare budget by lowering
-/// the thresholds drove the scale to its floor wherever the scene needed
-/// less than the budget (high above the city), and it then rose too late
-/// when the camera came down (docs/EVALUATION.md).
+/// LiPaC's default configuration for `rays_per_frame` holding `target`
+/// ([`with_target`]).
 pub fn lipac_with_target(
     rays_per_frame: u64,
     target: ControlTarget,
 ) -> Result<LipacConfig, SimError> {
+    Ok(with_target(
+        LipacConfig::for_rays_per_frame(rays_per_frame)?,
+        target,
+    ))
+}
+
+/// `base` holding `target` with [`sim_controller`]. A memory budget is a
+/// ceiling here: the scale never falls below 1 (`min_scale` = 1), since
+/// spending spare budget by lowering the thresholds drove the scale to its
+/// floor wherever the scene needed less than the budget (high above the
+/// city), and it then rose too late when the camera came down
+/// (docs/EVALUATION.md).
+pub fn with_target(base: LipacConfig, target: ControlTarget) -> LipacConfig {
     let mut controller = sim_controller();
     if matches!(target, ControlTarget::MemoryBudget { .. }) {
         controller.min_scale = 1.0;
     }
-    Ok(LipacConfig {
+    LipacConfig {
         target: Some(target),
         controller,
-        ..LipacConfig::for_rays_per_frame(rays_per_frame)?
-    })
+        ..base
+    }
 }
 
 /// The Manager's budget for a report memory budget of `mib` MiB: the unit
@@ -166,8 +175,9 @@ pub fn contenders(
     config: &CompareConfig,
     opts: &ClosedLoopOptions,
 ) -> Result<Vec<Contender>, SimError> {
-    let rays = u64::from(config.width) * u64::from(config.height);
-    let base = LipacConfig::for_rays_per_frame(rays)?;
+    // LiPaC as the comparison configures it (cells, merge levels, rise
+    // shift, start), the controlled runs too.
+    let base = crate::compare::lipac_config_of(config)?;
     let mut out = Vec::new();
     for &k in &config.strategies {
         out.push(Contender {
@@ -176,14 +186,14 @@ pub fn contenders(
         });
     }
     if let Some(mib) = opts.memory_budget_mib {
-        let c = lipac_with_target(rays, manager_budget(mib)?)?;
+        let c = with_target(base.clone(), manager_budget(mib)?);
         out.push(Contender {
             name: "lipac-budget".into(),
             strategy: Box::new(Lipac::new(scene, c)?),
         });
     }
     if let Some(fraction) = opts.escape_target {
-        let c = lipac_with_target(rays, ControlTarget::EscapeFraction { fraction })?;
+        let c = with_target(base.clone(), ControlTarget::EscapeFraction { fraction });
         out.push(Contender {
             name: "lipac-escape".into(),
             strategy: Box::new(Lipac::new(scene, c)?),

@@ -344,7 +344,7 @@ pub fn run(
 
 /// LiPaC's configuration of a comparison: the defaults for its rays, with
 /// `config`'s adaptive hitboxes, cell size, rise shift and start.
-fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
+pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
     let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
     if let Some(levels) = config.adaptive_levels {

@@ -174,6 +174,46 @@ fn a_budget_run_on_the_small_scene_reports_the_controller() {
 }
 
 #[test]
+fn closed_loop_runs_take_the_comparisons_lipac_settings() {
+    // `lipac compare --camera jump --cell-size 64 --warm-start off`: LiPaC
+    // and the controlled runs with 64 m cells (fewer hitboxes, less
+    // overhead) and a cold start (frame 0 traces only the pinned terrain).
+    let config = CompareConfig {
+        frames: Some(3),
+        width: 32,
+        height: 18,
+        strategies: vec![StrategyKind::Lipac],
+        share_ground_truth: true,
+        threads: 2,
+        ..CompareConfig::default()
+    };
+    let opts = ClosedLoopOptions {
+        memory_budget_mib: Some(8.0),
+        escape_target: Some(0.05),
+        camera: ClosedLoopPath::Jump,
+    };
+    let go = |c: &CompareConfig| {
+        run(SceneChoice::Small, None, c, &opts, &[], &mut |_, _| {})
+            .unwrap()
+            .0
+    };
+    let default = go(&config);
+    let set = go(&CompareConfig {
+        lipac_cell_size: Some(64.0),
+        lipac_start: crate::compare::LipacStart::Cold,
+        ..config.clone()
+    });
+    for name in ["lipac", "lipac-budget", "lipac-escape"] {
+        let (a, b) = (
+            &default.strategy(name).unwrap().frames[0],
+            &set.strategy(name).unwrap().frames[0],
+        );
+        assert!(b.overhead_bytes < a.overhead_bytes, "{name}: cells");
+        assert!(b.tlas_instances < a.tlas_instances, "{name}: start");
+    }
+}
+
+#[test]
 fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
     // LiPaC and LiPaC with a budget 8 % below what LiPaC takes in the near
     // view (measured: 5.25 MiB at 32 x 18), in one comparison along a jump
