@@ -11,7 +11,11 @@
 //! the hot record, the heights of inactive slots and the cold record of
 //! emitted ones; `docs/HOT_COLD.md`). Algorithm 2's input is restored and a
 //! 64 MiB buffer streamed before each timed run ([`evict`]), so that it
-//! starts from memory, not from the cache the restore filled.
+//! starts from memory, not from the cache the restore filled. The
+//! `floor_*` benches time what the algorithms cannot avoid, nothing
+//! decided: Algorithm 1's emitted records moved (as laid out, and from a
+//! TLAS-ready 64-byte array), Algorithm 2's line 4 (docs/BENCHMARKS.md,
+//! "Floors").
 //!
 //! `cargo bench -p lipac-core --bench algorithms`
 
@@ -26,6 +30,7 @@ use lipac_core::feedback::{process_feedback, process_feedback_with_rates};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState,
+    TlasInstance,
 };
 use lipac_core::thresholds::{
     DecayedSettings, DecisionRule, Thresholds, RATE_ONE, REFERENCE_RAYS_PER_FRAME,
@@ -199,6 +204,59 @@ fn bench(c: &mut Criterion) {
             })
         });
 
+        // Floors: what the two algorithms cannot avoid, nothing decided
+        // (docs/BENCHMARKS.md, "Floors"). Algorithm 1: the emitted slots'
+        // cold records read and their TLAS records written, as laid out
+        // (`InstanceCold`, 88 B) and as a TLAS-ready 64 B array would
+        // hold them; the slot list is made outside the timing.
+        let hot = s.arrays.hot();
+        let emitted: Vec<u32> = (0u32..)
+            .zip(hot)
+            .filter(|(_, m)| {
+                m.is_alive() && (m.is_pinned() || m.state() != InstanceState::Inactive)
+            })
+            .map(|(slot, _)| slot)
+            .collect();
+        let cold = s.arrays.cold();
+        let mut floor_out: Vec<TlasInstance> = Vec::with_capacity(emitted.len());
+        group.bench_function(BenchmarkId::new("floor_assemble_cold", n), |b| {
+            b.iter(|| {
+                floor_out.clear();
+                for &slot in black_box(&emitted) {
+                    let c = &cold[slot as usize];
+                    let transform = if hot[slot as usize].state() == InstanceState::Omitted {
+                        let (lo, hi) = (c.aabb_min, c.aabb_max);
+                        [
+                            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                        ]
+                    } else {
+                        c.transform
+                    };
+                    floor_out.push(TlasInstance::new(
+                        transform,
+                        slot,
+                        0xFF,
+                        c.sbt_offset,
+                        0,
+                        c.blas,
+                    ));
+                }
+                black_box(floor_out.len())
+            })
+        });
+        let ready: Vec<TlasInstance> = (0u32..)
+            .zip(cold)
+            .map(|(slot, c)| TlasInstance::new(c.transform, slot, 0xFF, c.sbt_offset, 0, c.blas))
+            .collect();
+        group.bench_function(BenchmarkId::new("floor_assemble_ready", n), |b| {
+            b.iter(|| {
+                floor_out.clear();
+                floor_out.extend(black_box(&emitted).iter().map(|&slot| ready[slot as usize]));
+                black_box(floor_out.len())
+            })
+        });
+        drop(ready);
+
         // Counting-box hits of the frame, on top of the reset hitboxes.
         let mut start_hitboxes = s.hitboxes.clone();
         for (i, h) in start_hitboxes.iter_mut().enumerate() {
@@ -238,6 +296,32 @@ fn bench(c: &mut Criterion) {
                     .unwrap();
                     total += t.elapsed();
                     black_box(st);
+                }
+                total
+            })
+        });
+
+        // Floor of Algorithm 2: line 4 alone (every slot's hit counter
+        // read, the hits of slots that have any added to their hitbox's
+        // sum), from memory as above.
+        let mut sums = vec![0u32; s.hitboxes.len()];
+        group.bench_function(BenchmarkId::new("floor_feedback", n), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    instances.copy_from_slice(&start_hot);
+                    sums.fill(0);
+                    evict(&mut flush);
+                    let t = Instant::now();
+                    for (m, &h) in instances.iter().zip(black_box(&s.hits)) {
+                        if h != 0 {
+                            if let Some(x) = sums.get_mut(m.hitbox as usize) {
+                                *x = x.wrapping_add(h);
+                            }
+                        }
+                    }
+                    total += t.elapsed();
+                    black_box(&sums);
                 }
                 total
             })
