@@ -370,7 +370,10 @@ pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, Sim
 }
 
 /// The strategies of `config.strategies`, under their own names.
-fn contenders_of(scene: &Scene, config: &CompareConfig) -> Result<Vec<Contender>, SimError> {
+pub(crate) fn contenders_of(
+    scene: &Scene,
+    config: &CompareConfig,
+) -> Result<Vec<Contender>, SimError> {
     let lipac_config = lipac_config_of(config)?;
     config
         .strategies

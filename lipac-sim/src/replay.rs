@@ -49,11 +49,12 @@ use lipac_core::trace::{
     TraceHeader, TraceLocation, TraceReader,
 };
 
-use crate::compare::{CompareConfig, CompareReport, Comparison, LipacStart};
+use crate::compare::{CompareConfig, CompareReport, Comparison, Contender, LipacStart};
 use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
 use crate::scene::Scene;
 use crate::snapshot::Snapshot;
+use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::StrategyKind;
 
 /// How a trace is replayed.
@@ -90,18 +91,24 @@ pub struct ReplayConfig {
     pub snapshots: Vec<u32>,
     /// How LiPaC starts ([`CompareConfig::lipac_start`]).
     pub lipac_start: LipacStart,
+    /// Further LiPaC configurations run beside `strategies`, each under
+    /// its report name (geometry mode; `lipac sweep --trace` puts its
+    /// LiPaC variants here). Names must differ from each other and from
+    /// the strategies'.
+    pub lipac_variants: Vec<(String, LipacConfig)>,
 }
 
 impl ReplayConfig {
     /// The [`CompareConfig`] a geometry replay runs with: every frame the
-    /// trace has, these strategies (all when none are named), image size and
-    /// threads, one ground truth shared by the strategies.
+    /// trace has, these strategies (all when none are named and there are
+    /// no [`ReplayConfig::lipac_variants`]), image size and threads, one
+    /// ground truth shared by the strategies.
     pub fn compare_config(&self) -> CompareConfig {
         CompareConfig {
             frames: None,
             width: self.width,
             height: self.height,
-            strategies: if self.strategies.is_empty() {
+            strategies: if self.strategies.is_empty() && self.lipac_variants.is_empty() {
                 StrategyKind::ALL.to_vec()
             } else {
                 self.strategies.clone()
@@ -129,7 +136,25 @@ impl Default for ReplayConfig {
             keep_frames: true,
             snapshots: Vec::new(),
             lipac_start: LipacStart::Default,
+            lipac_variants: Vec::new(),
         }
+    }
+}
+
+impl ReplayConfig {
+    /// The comparison of a geometry replay on `scene` named `name`: the
+    /// strategies of [`ReplayConfig::compare_config`], then the
+    /// [`ReplayConfig::lipac_variants`].
+    pub(crate) fn comparison(&self, name: &str, scene: &Scene) -> Result<Comparison, SimError> {
+        let cc = self.compare_config();
+        let mut contenders = crate::compare::contenders_of(scene, &cc)?;
+        for (variant, config) in &self.lipac_variants {
+            contenders.push(Contender {
+                name: variant.clone(),
+                strategy: Box::new(Lipac::new(scene, config.clone())?),
+            });
+        }
+        Comparison::with_contenders(name, scene, &cc, contenders)
     }
 }
 
@@ -361,6 +386,11 @@ pub fn replay_with_snapshots<R: Read>(
         ReplayMode::HitsOnly if !config.snapshots.is_empty() => Err(SimError::Replay(
             "snapshots need geometry mode: a hits-only replay renders no images".into(),
         )),
+        ReplayMode::HitsOnly if !config.lipac_variants.is_empty() => Err(SimError::Replay(
+            "LiPaC variants need geometry mode: a hits-only replay runs LiPaC's own \
+             configuration against the recorded hits"
+                .into(),
+        )),
         ReplayMode::HitsOnly => {
             hits::replay_hits(&mut input, config, progress).map(|r| (r, Vec::new()))
         }
@@ -391,8 +421,7 @@ fn replay_geometry<R: Read>(
     let mut scene = Scene::generate(&scene_ref.scene.config(Some(scene_ref.seed)))?;
     let expected = header(&scene, &scene_ref, false)?;
     check_meshes(&h, &expected)?;
-    let cc = config.compare_config();
-    let mut cmp = Comparison::new(scene_ref.scene.name(), &scene, &cc)?;
+    let mut cmp = config.comparison(scene_ref.scene.name(), &scene)?;
     cmp.capture_frames(&config.snapshots);
     let n = scene.instances().len();
     let mut frame = empty_frame();

@@ -887,7 +887,6 @@ fn replay_planned<R: Read>(
         ));
     }
     let mut ts = TraceScene::new(header, plan, options)?;
-    let cc = config.compare_config();
     let name = if ts.box_proxies().is_empty() {
         header.scene_name.clone()
     } else {
@@ -913,7 +912,7 @@ fn replay_planned<R: Read>(
         let c = match &mut cmp {
             Some(c) => c,
             None => {
-                let mut c = Comparison::new(&name, ts.scene(), &cc)?;
+                let mut c = config.comparison(&name, ts.scene())?;
                 c.capture_frames(&config.snapshots);
                 let l = options.lighting;
                 c.set_lighting(l.sun_direction, l.sun_irradiance, l.sky_radiance)?;

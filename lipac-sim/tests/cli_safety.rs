@@ -467,3 +467,59 @@ fn replay_streams_frames_unless_asked_to_keep_them() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_sweep_never_writes_over_the_trace_it_sweeps() {
+    // A trace named like one of the sweep's outputs, in the report folder.
+    let dir = scratch("sweep-trace");
+    let trace = dir.join("sweep.json");
+    let o = run(lipac()
+        .args([
+            "record", "--scene", "small", "--frames", "2", "--format", "binary",
+        ])
+        .arg(&trace));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let original = std::fs::read(&trace).unwrap();
+    let o = run(lipac()
+        .args(["sweep", "--trace"])
+        .arg(&trace)
+        .args([
+            "--factors",
+            "1",
+            "--cells",
+            "",
+            "--streaks",
+            "",
+            "--latency",
+            "",
+        ])
+        .args(["--baselines", "full", "--width", "32", "--height", "18"])
+        .args(["--threads", "2", "--out"])
+        .arg(&dir));
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is the input"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&trace).unwrap(), original);
+    assert_eq!(listing(&dir), ["sweep.json"]);
+    // The same sweep into a folder of its own writes the report.
+    let out = dir.join("report");
+    let o = run(lipac()
+        .args(["sweep", "--trace"])
+        .arg(&trace)
+        .args([
+            "--factors",
+            "1",
+            "--cells",
+            "",
+            "--streaks",
+            "",
+            "--latency",
+            "",
+        ])
+        .args(["--baselines", "full", "--width", "32", "--height", "18"])
+        .args(["--threads", "2", "--out"])
+        .arg(&out));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = std::fs::read_to_string(out.join("sweep.md")).unwrap();
+    assert!(md.contains("## trace sweep.json"), "{md}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -23,6 +23,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         streaks: vec![],
         decayed: vec![],
         threads: 2,
+        trace: None,
     }
 }
 
@@ -198,4 +199,102 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
 fn duplicate_scenes_are_rejected() {
     let c = tiny(vec![SceneChoice::Small, SceneChoice::Small], 1);
     assert!(sweep::run(&c, &mut |_, _, _, _| {}).is_err());
+}
+
+#[test]
+fn a_sweep_of_a_recorded_trace_gives_the_errors_of_its_replay() {
+    use lipac_core::trace::TraceFormat;
+    use lipac_sim::record::{record, CameraChoice, RecordConfig};
+    use lipac_sim::replay::{replay, ReplayConfig, TraceInput};
+    let (w, h) = (64u32, 36u32);
+    let rc = RecordConfig {
+        scene: SceneChoice::Small,
+        seed: None,
+        camera: CameraChoice::Jump,
+        frames: Some(6),
+        aspect: w as f32 / h as f32,
+        geometry: false,
+    };
+    let bytes = record(&rc, TraceFormat::Binary, Vec::new()).unwrap().0;
+    let dir = std::env::temp_dir().join(format!("lipac-sweep-trace-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("small-jump.bin");
+    std::fs::write(&file, &bytes).unwrap();
+    let config = SweepConfig {
+        scenes: Vec::new(),
+        frames: None,
+        baselines: vec![StrategyKind::Frustum],
+        trace: Some(file.clone()),
+        ..tiny(Vec::new(), 1)
+    };
+    let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
+    let replayed = replay(
+        TraceInput::open(&file).unwrap(),
+        &ReplayConfig {
+            strategies: vec![
+                StrategyKind::Frustum,
+                StrategyKind::Lipac,
+                StrategyKind::LipacLatency,
+            ],
+            width: w,
+            height: h,
+            threads: 2,
+            ..ReplayConfig::default()
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(r.points.len(), 4);
+    assert!(r.points.iter().all(|p| p.scene == "trace small-jump.bin"));
+    let point = |name: &str| r.points.iter().find(|p| p.name == name).unwrap();
+    for (swept, run) in [
+        ("frustum", "frustum"),
+        ("lipac ×1", "lipac"),
+        ("lipac-latency", "lipac-latency"),
+    ] {
+        let want: Vec<u64> = replayed
+            .strategy(run)
+            .unwrap()
+            .frames
+            .iter()
+            .map(|m| m.error.to_bits())
+            .collect();
+        let got: Vec<u64> = point(swept)
+            .frame_errors
+            .iter()
+            .map(|e| e.to_bits())
+            .collect();
+        assert_eq!(got.len(), 6);
+        assert_eq!(got, want, "{swept}");
+        assert_eq!(
+            point(swept).summary.mean_mib.to_bits(),
+            replayed.strategy(run).unwrap().summary.mean_mib.to_bits(),
+            "{swept}"
+        );
+    }
+    // Higher thresholds are another configuration on the same frames.
+    assert_ne!(
+        point("lipac ×16").summary.mean_mib,
+        point("lipac ×1").summary.mean_mib
+    );
+    // A trace is swept alone: not with scenes, a seed or a frame count.
+    for bad in [
+        SweepConfig {
+            scenes: vec![SceneChoice::Small],
+            ..config.clone()
+        },
+        SweepConfig {
+            frames: Some(3),
+            ..config.clone()
+        },
+    ] {
+        assert!(sweep::run(&bad, &mut |_, _, _, _| {}).is_err());
+    }
+    let missing = SweepConfig {
+        trace: Some(dir.join("missing.bin")),
+        ..config.clone()
+    };
+    let e = sweep::run(&missing, &mut |_, _, _, _| {}).unwrap_err();
+    assert!(e.to_string().contains("missing.bin"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

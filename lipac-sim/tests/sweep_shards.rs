@@ -26,6 +26,7 @@ fn tiny(frames: u32) -> SweepConfig {
         streaks: vec![],
         decayed: vec![],
         threads: 2,
+        trace: None,
     }
 }
 

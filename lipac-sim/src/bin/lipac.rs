@@ -17,7 +17,7 @@ mod output;
 #[path = "../cli/trace_cmds.rs"]
 mod trace_cmds;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
@@ -269,6 +269,12 @@ struct SweepArgs {
     /// Scene seed (default: each scene's own).
     #[arg(long)]
     seed: Option<u64>,
+    /// Sweep a recorded trace instead of the scenes (`lipac record`'s, or
+    /// one whose header carries its meshes' geometry): every
+    /// configuration replays it in geometry mode as `lipac replay` does.
+    /// Not with --scenes, --seed or --frames.
+    #[arg(long, conflicts_with_all = ["scenes", "seed", "frames"])]
+    trace: Option<PathBuf>,
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -362,7 +368,11 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(SweepConfig {
-            scenes: a.scenes.iter().map(|&s| s.into()).collect(),
+            scenes: if a.trace.is_some() {
+                Vec::new()
+            } else {
+                a.scenes.iter().map(|&s| s.into()).collect()
+            },
             seed: a.seed,
             frames: a.frames,
             width: a.width,
@@ -388,6 +398,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 .map(|s| sweep::parse_decayed_variant(s, &LipacConfig::DEFAULT_DECAYED))
                 .collect::<Result<Vec<_>, _>>()?,
             threads: a.threads,
+            trace: a.trace.clone(),
         })
     })();
     let config = match parsed.and_then(|c| {
@@ -405,17 +416,26 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} frames  {elapsed} (eta {eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let names: Vec<&str> = config.scenes.iter().map(|s| s.name()).collect();
+    // The trace is an input: neither the report folder nor any file
+    // written into it may be the trace (checked again on writing).
+    let inputs: Vec<&Path> = config.trace.iter().map(PathBuf::as_path).collect();
+    if let Err(e) = output::check_not_input(&a.out, &inputs) {
+        eprintln!("lipac sweep: {e}");
+        return ExitCode::FAILURE;
+    }
+    let names = config.scene_names();
     let mut progress = |si: usize, count: usize, done: u32, total: u32| {
-        bar.set_message(format!("{} ({}/{count})", names[si], si + 1));
-        bar.set_length(u64::from(total));
+        let name = names.get(si).map_or("", String::as_str);
+        bar.set_message(format!("{name} ({}/{count})", si + 1));
+        // A trace's length is unknown until its end (total 0).
+        bar.set_length(u64::from(total.max(done)));
         bar.set_position(u64::from(done));
     };
     if let Some(shard) = a.shard {
         let result = sweep::shard::run_shard(&config, shard, &mut progress);
         bar.finish_and_clear();
         return done(result.map_err(|e| e.to_string()).and_then(|part| {
-            let written = output::publish_dir(&a.out, &[], |dir| {
+            let written = output::publish_dir(&a.out, &inputs, |dir| {
                 sweep::shard::write_shard(&part, dir).map_err(|e| e.to_string())
             })?;
             let path = a.out.join(written.file_name().unwrap_or_default());
@@ -440,7 +460,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         }
     };
     print!("{}", sweep::sweep_markdown(&report));
-    match output::publish_dir(&a.out, &[], |dir| {
+    match output::publish_dir(&a.out, &inputs, |dir| {
         sweep::write_sweep(&report, dir).map_err(|e| e.to_string())
     }) {
         Ok(_) => {

@@ -205,6 +205,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
             None => LipacStart::Default,
             Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
         },
+        lipac_variants: Vec::new(),
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());

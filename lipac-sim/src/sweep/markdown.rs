@@ -17,7 +17,7 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
     );
     let _ = writeln!(
         s,
-        "{} frames of the fly-through per scene at {}x{} ({} camera rays per frame). \
+        "{} frames per scene (a scene's fly-through, or a trace's own frames and cameras) at {}x{} ({} camera rays per frame). \
          Wall time {:.1} s. Every configuration of a scene renders against the same ground \
          truth (rendered once per frame). Front columns: T = on the (frame time, error) Pareto \
          front (measured on the CPU), G = (modelled GPU frame time, error), M = (memory, error), \

@@ -44,10 +44,12 @@ use serde::{Deserialize, Serialize};
 use super::variants::make_contender;
 use super::{mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
 use crate::camera::CameraPath;
-use crate::compare::{run_contenders, CompareConfig, LipacStart};
+use crate::compare::{run_contenders, CompareConfig, CompareReport, LipacStart};
 use crate::error::SimError;
+use crate::replay::{ReplayConfig, ReplayMode};
 use crate::scene::Scene;
 use crate::strategy::lipac::LipacConfig;
+use crate::trace_scene::{replay_path, TraceSceneOptions};
 
 /// Part `index` of `count` (1 ≤ index ≤ count) of a sweep.
 ///
@@ -196,6 +198,17 @@ pub struct SweepShard {
 }
 
 fn validate(config: &SweepConfig) -> Result<(), SimError> {
+    if config.trace.is_some() {
+        if !config.scenes.is_empty() {
+            return Err(SimError::BadConfig("sweep scenes or a trace, not both"));
+        }
+        if config.seed.is_some() || config.frames.is_some() {
+            return Err(SimError::BadConfig(
+                "a trace has its own scene and frames: no seed or frame count",
+            ));
+        }
+        return Ok(());
+    }
     if config.scenes.is_empty() {
         return Err(SimError::BadConfig("no scene to sweep"));
     }
@@ -234,7 +247,7 @@ pub fn run_shard(
         width: config.width,
         height: config.height,
         rays_per_frame: config.rays_per_frame(),
-        scenes: config.scenes.iter().map(|s| s.name().to_string()).collect(),
+        scenes: config.scene_names(),
         variants: variants.iter().map(|v| v.name.clone()).collect(),
         skipped,
     };
@@ -261,8 +274,8 @@ pub fn run_shard(
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();
-    let count = config.scenes.len();
-    for (si, &choice) in config.scenes.iter().enumerate() {
+    let count = plan.scenes.len();
+    for si in 0..count {
         let here: Vec<&super::Variant> = mine
             .iter()
             .filter(|u| u.0 == si)
@@ -271,21 +284,30 @@ pub fn run_shard(
         if here.is_empty() {
             continue;
         }
-        let mut scene = Scene::generate(&choice.config(config.seed))?;
-        let aspect = config.width as f32 / config.height.max(1) as f32;
-        let path = CameraPath::flythrough(&scene, aspect);
-        let contenders = here
-            .iter()
-            .map(|v| make_contender(v, &scene, &base))
-            .collect::<Result<Vec<_>, _>>()?;
-        let r = run_contenders(
-            choice.name(),
-            &mut scene,
-            &path,
-            &compare,
-            contenders,
-            &mut |d, t| progress(si, count, d, t),
-        )?;
+        let mut r = match &config.trace {
+            Some(file) => {
+                replay_variants(file, config, &here, &mut |d, t| progress(si, count, d, t))?
+            }
+            None => {
+                let choice = config.scenes[si];
+                let mut scene = Scene::generate(&choice.config(config.seed))?;
+                let aspect = config.width as f32 / config.height.max(1) as f32;
+                let path = CameraPath::flythrough(&scene, aspect);
+                let contenders = here
+                    .iter()
+                    .map(|v| make_contender(v, &scene, &base))
+                    .collect::<Result<Vec<_>, _>>()?;
+                run_contenders(
+                    choice.name(),
+                    &mut scene,
+                    &path,
+                    &compare,
+                    contenders,
+                    &mut |d, t| progress(si, count, d, t),
+                )?
+            }
+        };
+        r.scene.clone_from(&plan.scenes[si]);
         points.extend(here.iter().zip(&r.strategies).map(|(v, run)| {
             let th = v.lipac.as_ref().map(|c| {
                 let t = c.thresholds;
@@ -333,6 +355,53 @@ pub fn run_shard(
         points,
         wall_s: start.elapsed().as_secs_f64(),
     })
+}
+
+/// The variants `here` on the trace `file`, replayed in geometry mode
+/// (`lipac replay`'s choice of scene: built-in or the trace's own): the
+/// baselines as the replay's strategies, the LiPaC variants as its
+/// [`ReplayConfig::lipac_variants`]; the report's runs in the order of
+/// `here`.
+fn replay_variants(
+    file: &Path,
+    config: &SweepConfig,
+    here: &[&super::Variant],
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CompareReport, SimError> {
+    let replay = ReplayConfig {
+        strategies: here
+            .iter()
+            .filter(|v| v.lipac.is_none())
+            .map(|v| v.kind)
+            .collect(),
+        width: config.width,
+        height: config.height,
+        threads: config.threads,
+        mode: Some(ReplayMode::Geometry),
+        keep_frames: true,
+        snapshots: Vec::new(),
+        lipac_start: LipacStart::Default,
+        lipac_variants: here
+            .iter()
+            .filter_map(|v| v.lipac.clone().map(|c| (v.name.clone(), c)))
+            .collect(),
+    };
+    // A trace does not say its length up front: the total is 0 (unknown).
+    let (mut report, _) = replay_path(file, &replay, &TraceSceneOptions::default(), &mut |done| {
+        progress(u32::try_from(done).unwrap_or(u32::MAX), 0)
+    })
+    .map_err(|e| SimError::Replay(format!("{}: {e}", file.display())))?;
+    let mut runs = Vec::with_capacity(here.len());
+    for v in here {
+        let i = report
+            .strategies
+            .iter()
+            .position(|s| s.name == v.name)
+            .ok_or_else(|| SimError::Replay(format!("the replay has no run {}", v.name)))?;
+        runs.push(report.strategies.swap_remove(i));
+    }
+    report.strategies = runs;
+    Ok(report)
 }
 
 fn io(path: &Path, e: impl std::fmt::Display) -> SimError {

@@ -3,6 +3,8 @@
 //! with latency mitigation, with other cell sizes and streak lengths, and
 //! with other decayed-rule settings ([`parse_decayed_spec`]).
 
+use std::path::PathBuf;
+
 use lipac_core::hitbox_tree::MAX_MERGE_LEVELS;
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
@@ -90,6 +92,11 @@ pub struct SweepConfig {
     pub decayed: Vec<DecayedVariant>,
     /// Render threads (0 = all cores).
     pub threads: usize,
+    /// Sweep this recorded trace (replayed in geometry mode, as `lipac
+    /// replay` does: a trace of a built-in scene, or one whose header
+    /// carries its meshes' geometry) instead of `scenes`, which must then
+    /// be empty; `seed` and `frames` do not apply.
+    pub trace: Option<PathBuf>,
 }
 
 impl Default for SweepConfig {
@@ -123,6 +130,7 @@ impl Default for SweepConfig {
             streaks: vec![(1, 15), (4, 30)],
             decayed: Vec::new(),
             threads: 0,
+            trace: None,
         }
     }
 }
@@ -348,6 +356,20 @@ fn optional_suffix<'a, T: std::str::FromStr>(
 }
 
 impl SweepConfig {
+    /// The names of what is swept, in order: the scenes', or `trace FILE`
+    /// for [`SweepConfig::trace`].
+    pub fn scene_names(&self) -> Vec<String> {
+        match &self.trace {
+            Some(path) => vec![format!(
+                "trace {}",
+                path.file_name()
+                    .unwrap_or(path.as_os_str())
+                    .to_string_lossy()
+            )],
+            None => self.scenes.iter().map(|s| s.name().to_string()).collect(),
+        }
+    }
+
     /// Camera rays per frame.
     pub fn rays_per_frame(&self) -> u64 {
         u64::from(self.width) * u64::from(self.height)
