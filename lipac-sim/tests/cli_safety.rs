@@ -473,51 +473,42 @@ fn a_sweep_never_writes_over_the_trace_it_sweeps() {
     // A trace named like one of the sweep's outputs, in the report folder.
     let dir = scratch("sweep-trace");
     let trace = dir.join("sweep.json");
+    let record = ["record", "--scene", "small", "--frames", "2"];
     let o = run(lipac()
-        .args([
-            "record", "--scene", "small", "--frames", "2", "--format", "binary",
-        ])
+        .args(record)
+        .args(["--format", "binary"])
         .arg(&trace));
     assert!(o.status.success(), "{}", stderr(&o));
     let original = std::fs::read(&trace).unwrap();
-    let o = run(lipac()
-        .args(["sweep", "--trace"])
-        .arg(&trace)
-        .args([
-            "--factors",
-            "1",
-            "--cells",
-            "",
-            "--streaks",
-            "",
-            "--latency",
-            "",
-        ])
-        .args(["--baselines", "full", "--width", "32", "--height", "18"])
-        .args(["--threads", "2", "--out"])
-        .arg(&dir));
+    // One configuration and one baseline on 32 x 18.
+    let only = [
+        "--factors",
+        "1",
+        "--cells",
+        "",
+        "--streaks",
+        "",
+        "--latency",
+        "",
+    ];
+    let small = ["--baselines", "full", "--width", "32", "--height", "18"];
+    let sweep_into = |out: &Path| {
+        run(lipac()
+            .args(["sweep", "--trace"])
+            .arg(&trace)
+            .args(only)
+            .args(small)
+            .args(["--threads", "2", "--out"])
+            .arg(out))
+    };
+    let o = sweep_into(&dir);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("is the input"), "{}", stderr(&o));
     assert_eq!(std::fs::read(&trace).unwrap(), original);
     assert_eq!(listing(&dir), ["sweep.json"]);
     // The same sweep into a folder of its own writes the report.
     let out = dir.join("report");
-    let o = run(lipac()
-        .args(["sweep", "--trace"])
-        .arg(&trace)
-        .args([
-            "--factors",
-            "1",
-            "--cells",
-            "",
-            "--streaks",
-            "",
-            "--latency",
-            "",
-        ])
-        .args(["--baselines", "full", "--width", "32", "--height", "18"])
-        .args(["--threads", "2", "--out"])
-        .arg(&out));
+    let o = sweep_into(&out);
     assert!(o.status.success(), "{}", stderr(&o));
     let md = std::fs::read_to_string(out.join("sweep.md")).unwrap();
     assert!(md.contains("## trace sweep.json"), "{md}");

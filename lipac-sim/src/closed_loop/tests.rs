@@ -124,21 +124,23 @@ fn budget_figures_measure_the_settled_frames_and_the_jump() {
     assert!(svgs[0].1.contains("budget of lipac-budget"));
 }
 
-#[test]
-fn a_budget_run_on_the_small_scene_reports_the_controller() {
-    let config = CompareConfig {
-        frames: Some(12),
+/// LiPaC alone on `frames` frames at 32 x 18, LiPaC's settings the
+/// comparison's defaults.
+fn small_lipac(frames: u32) -> CompareConfig {
+    CompareConfig {
+        frames: Some(frames),
         width: 32,
         height: 18,
         strategies: vec![StrategyKind::Lipac],
         share_ground_truth: true,
         threads: 2,
-        adaptive_levels: None,
-        lipac_cell_size: None,
-        lipac_rise_shift: None,
-        lipac_start: crate::compare::LipacStart::Default,
-        lipac_warm_start_at_cuts: false,
-    };
+        ..CompareConfig::default()
+    }
+}
+
+#[test]
+fn a_budget_run_on_the_small_scene_reports_the_controller() {
+    let config = small_lipac(12);
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(0.5),
         escape_target: Some(0.05),
@@ -178,15 +180,7 @@ fn closed_loop_runs_take_the_comparisons_lipac_settings() {
     // `lipac compare --camera jump --cell-size 64 --warm-start off`: LiPaC
     // and the controlled runs with 64 m cells (fewer hitboxes, less
     // overhead) and a cold start (frame 0 traces only the pinned terrain).
-    let config = CompareConfig {
-        frames: Some(3),
-        width: 32,
-        height: 18,
-        strategies: vec![StrategyKind::Lipac],
-        share_ground_truth: true,
-        threads: 2,
-        ..CompareConfig::default()
-    };
+    let config = small_lipac(3);
     let opts = ClosedLoopOptions {
         memory_budget_mib: Some(8.0),
         escape_target: Some(0.05),
@@ -220,15 +214,7 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
     // at frame 50 of 100.
     let (at, frames) = (50usize, 100u32);
     let budget_mib = 4.83;
-    let config = CompareConfig {
-        frames: Some(frames),
-        width: 32,
-        height: 18,
-        strategies: vec![StrategyKind::Lipac],
-        share_ground_truth: true,
-        threads: 2,
-        ..CompareConfig::default()
-    };
+    let config = small_lipac(frames);
     let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
     let j = CameraPath::city_jump(&scene, 32.0 / 18.0);
     let path = CameraPath::jump(
