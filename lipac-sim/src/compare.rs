@@ -149,21 +149,9 @@ impl LipacStart {
         if spec == "off" {
             return Ok(Self::Cold);
         }
-        let bad = || {
-            format!("warm start `{spec}`: expected `off` or `DIST:SIZE`, both >= 0, SIZE finite")
-        };
-        let (d, p) = spec.split_once(':').ok_or_else(bad)?;
-        let (d, p): (f32, f32) = match (d.trim().parse(), p.trim().parse()) {
-            (Ok(d), Ok(p)) => (d, p),
-            _ => return Err(bad()),
-        };
-        if !(d >= 0.0 && p >= 0.0 && p.is_finite()) {
-            return Err(bad());
-        }
-        Ok(Self::Warm(ActivationHeuristic {
-            max_distance: d,
-            min_projected_size: p,
-        }))
+        crate::heuristic_arg::parse_heuristic(spec, ':')
+            .map(Self::Warm)
+            .map_err(|e| format!("warm start {e}, or `off`"))
     }
 }
 

@@ -11,6 +11,7 @@ pub mod closed_loop;
 pub mod compare;
 pub mod cpu_backend;
 pub mod error;
+pub mod heuristic_arg;
 pub mod html;
 pub mod import;
 pub mod json_float;

@@ -269,6 +269,22 @@ fn warm_start_values_are_checked_before_anything_is_written() {
         assert!(stderr(&o).contains("--warm-start"), "{}", stderr(&o));
         assert!(!out.exists());
     }
+    // The sweep's heuristics follow the same rule (one parser).
+    for bad in ["50", "NaN:0.1", "50:inf", "-1:0"] {
+        let out = dir.join("sweep-bad");
+        let o = run(lipac()
+            .args(["sweep", "--scenes", "small", "--frames", "1"])
+            .arg(format!("--latency={bad}"))
+            .arg("--out")
+            .arg(&out));
+        assert!(!o.status.success(), "sweep: {bad} accepted");
+        let e = stderr(&o);
+        assert!(
+            e.contains("--latency") && e.contains("DIST:SIZE"),
+            "{bad}: {e}"
+        );
+        assert!(!out.exists());
+    }
     for good in ["off", "inf:0", "100:0.05"] {
         let out = dir.join(format!("compare-ok-{}", good.replace(':', "_")));
         let o = run(lipac()

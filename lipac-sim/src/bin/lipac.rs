@@ -22,11 +22,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use lipac_core::latency::ActivationHeuristic;
 use lipac_sim::closed_loop::{self, ClosedLoopOptions, ClosedLoopPath};
 use lipac_sim::compare::{
     check_image_size, run_choice_with_snapshots, CompareConfig, LipacStart, SceneChoice,
 };
+use lipac_sim::heuristic_arg::parse_heuristic;
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::lipac::LipacConfig;
 use lipac_sim::strategy::StrategyKind;
@@ -360,12 +360,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             .latency
             .iter()
             .filter(|s| !s.is_empty())
-            .map(|s| {
-                pair::<f32, f32>(s, "latency heuristic").map(|(d, p)| ActivationHeuristic {
-                    max_distance: d,
-                    min_projected_size: p,
-                })
-            })
+            .map(|s| parse_heuristic(s, ':').map_err(|e| format!("--latency {e}")))
             .collect::<Result<Vec<_>, _>>()?;
         Ok(SweepConfig {
             scenes: if a.trace.is_some() {

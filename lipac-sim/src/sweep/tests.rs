@@ -204,6 +204,15 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     ] {
         assert!(parse_decayed_variant(bad, &base).is_err(), "{bad} accepted");
     }
+    // Latency mitigation without a distance limit, as `--warm-start inf:0`.
+    let h = parse_decayed_variant("1+inf/0.05", &base)
+        .unwrap()
+        .latency
+        .unwrap();
+    assert_eq!(
+        (h.max_distance, h.min_projected_size),
+        (f32::INFINITY, 0.05)
+    );
 }
 
 fn point(

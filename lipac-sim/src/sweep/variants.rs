@@ -290,22 +290,8 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
     };
     let (rest, latency) = match rest.split_once('+') {
         Some((rest, h)) => {
-            let (d, p) = h.split_once('/').ok_or_else(|| {
-                format!("decayed variant `{spec}`: latency mitigation `{h}` is not DIST/SIZE")
-            })?;
-            let num = |x: &str| -> Result<f32, String> {
-                x.trim()
-                    .parse::<f32>()
-                    .ok()
-                    .filter(|v| v.is_finite() && *v >= 0.0)
-                    .ok_or_else(|| {
-                        format!("decayed variant `{spec}`: `{x}` is not a finite number >= 0")
-                    })
-            };
-            let heuristic = ActivationHeuristic {
-                max_distance: num(d)?,
-                min_projected_size: num(p)?,
-            };
+            let heuristic = crate::heuristic_arg::parse_heuristic(h, '/')
+                .map_err(|e| format!("decayed variant `{spec}`: latency mitigation {e}"))?;
             (rest, Some(heuristic))
         }
         None => (rest, None),
