@@ -26,6 +26,13 @@ pub struct FlyCamera {
     pub aspect: f32,
 }
 
+/// The eye moving more than this many metres in one frame is a cut
+/// ([`FlyCamera::is_cut_from`]).
+pub const CUT_DISTANCE: f32 = 100.0;
+/// The view turning by more than this (radians) in one frame is a cut
+/// ([`FlyCamera::is_cut_from`]).
+pub const CUT_TURN: f32 = std::f32::consts::FRAC_PI_2;
+
 /// Near plane of [`FlyCamera::view_proj`].
 pub const NEAR: f32 = 0.1;
 /// Far plane of [`FlyCamera::view_proj`].
@@ -71,6 +78,27 @@ impl FlyCamera {
         let (sy, cy) = self.yaw.sin_cos();
         let (sp, cp) = self.pitch.sin_cos();
         Vec3::new(cp * sy, sp, cp * cy)
+    }
+    /// Whether going from `previous` to this camera is a cut (a teleport or
+    /// a cinematic cut, not motion): the eye moved more than
+    /// [`CUT_DISTANCE`] metres or the view turned by more than
+    /// [`CUT_TURN`] radians in one frame. A replay finds a trace's cuts
+    /// this way (traces do not mark them); the built-in paths move at most
+    /// 15 m and a few degrees per frame, their jumps 850 m.
+    ///
+    /// ```
+    /// use glam::Vec3;
+    /// use lipac_sim::camera::FlyCamera;
+    /// let a = FlyCamera::new(Vec3::ZERO, 0.0, 0.0, 1.0, 1.5).unwrap();
+    /// let walk = FlyCamera::new(Vec3::new(0.0, 0.0, 20.0), 0.3, 0.0, 1.0, 1.5).unwrap();
+    /// let far = FlyCamera::new(Vec3::new(0.0, 0.0, 500.0), 0.0, 0.0, 1.0, 1.5).unwrap();
+    /// let behind = FlyCamera::new(Vec3::ZERO, 3.0, 0.0, 1.0, 1.5).unwrap();
+    /// assert!(!walk.is_cut_from(&a));
+    /// assert!(far.is_cut_from(&a) && behind.is_cut_from(&a));
+    /// ```
+    pub fn is_cut_from(&self, previous: &FlyCamera) -> bool {
+        self.position.distance(previous.position) > CUT_DISTANCE
+            || self.forward().dot(previous.forward()) < CUT_TURN.cos()
     }
     /// Unit right and up vectors of the image plane.
     pub fn basis(&self) -> (Vec3, Vec3) {

@@ -597,6 +597,16 @@ impl Comparison {
         self.cuts = cuts.to_vec();
     }
 
+    /// Marks `frame` (not compared yet) as a cut, as
+    /// [`Comparison::set_camera_cuts`] does for a whole path: for callers
+    /// that find cuts as frames come (a replay,
+    /// [`FlyCamera::is_cut_from`]). The report lists the marked cuts.
+    pub fn mark_camera_cut(&mut self, frame: u32) {
+        if !self.cuts.contains(&frame) {
+            self.cuts.push(frame);
+        }
+    }
+
     /// Captures a [`Snapshot`] of each of `frames` when it is compared
     /// (the images and TLAS maps of [`crate::snapshot`]); the snapshots come
     /// back from [`Comparison::finish_with_snapshots`].
@@ -883,7 +893,7 @@ impl Comparison {
             blas_throughput: self.throughput,
             gpu_model: self.gpu,
             strategies,
-            camera_cuts: Vec::new(),
+            camera_cuts: self.cuts.clone(),
             rule: crate::report::rule_description(&th),
         };
         Ok((report, self.snapshots))

@@ -49,6 +49,7 @@ use lipac_core::trace::{
     TraceHeader, TraceLocation, TraceReader,
 };
 
+use crate::camera::FlyCamera;
 use crate::compare::{CompareConfig, CompareReport, Comparison, Contender, LipacStart};
 use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
@@ -91,6 +92,12 @@ pub struct ReplayConfig {
     pub snapshots: Vec<u32>,
     /// How LiPaC starts ([`CompareConfig::lipac_start`]).
     pub lipac_start: LipacStart,
+    /// LiPaC warm-starts again at each camera cut
+    /// ([`CompareConfig::lipac_warm_start_at_cuts`]); a geometry replay
+    /// finds the cuts from the recorded cameras
+    /// ([`crate::camera::FlyCamera::is_cut_from`]: traces do not mark
+    /// them).
+    pub warm_start_at_cuts: bool,
     /// Further LiPaC configurations run beside `strategies`, each under
     /// its report name (geometry mode; `lipac sweep --trace` puts its
     /// LiPaC variants here). Names must differ from each other and from
@@ -119,7 +126,7 @@ impl ReplayConfig {
             lipac_cell_size: None,
             lipac_rise_shift: None,
             lipac_start: self.lipac_start,
-            lipac_warm_start_at_cuts: false,
+            lipac_warm_start_at_cuts: self.warm_start_at_cuts,
         }
     }
 }
@@ -136,6 +143,7 @@ impl Default for ReplayConfig {
             keep_frames: true,
             snapshots: Vec::new(),
             lipac_start: LipacStart::Default,
+            warm_start_at_cuts: false,
             lipac_variants: Vec::new(),
         }
     }
@@ -386,6 +394,11 @@ pub fn replay_with_snapshots<R: Read>(
         ReplayMode::HitsOnly if !config.snapshots.is_empty() => Err(SimError::Replay(
             "snapshots need geometry mode: a hits-only replay renders no images".into(),
         )),
+        ReplayMode::HitsOnly if config.warm_start_at_cuts => Err(SimError::Replay(
+            "a warm start at cuts needs geometry mode: a hits-only replay's LiPaC follows \
+             the recorded hits"
+                .into(),
+        )),
         ReplayMode::HitsOnly if !config.lipac_variants.is_empty() => Err(SimError::Replay(
             "LiPaC variants need geometry mode: a hits-only replay runs LiPaC's own \
              configuration against the recorded hits"
@@ -426,6 +439,7 @@ fn replay_geometry<R: Read>(
     let n = scene.instances().len();
     let mut frame = empty_frame();
     let mut path = None;
+    let mut previous: Option<FlyCamera> = None;
     let mut read = 0u64;
     while input.next_frame_into(&mut frame)? {
         // (`replay` adds the frame and its location.)
@@ -474,6 +488,10 @@ fn replay_geometry<R: Read>(
         } else {
             from_trace_camera(&frame.camera)?
         };
+        if previous.is_some_and(|p| camera.is_cut_from(&p)) {
+            cmp.mark_camera_cut(number);
+        }
+        previous = Some(camera);
         cmp.frame(&scene, number, &camera)?;
         read += 1;
         progress(read);

@@ -62,6 +62,7 @@ use lipac_core::trace::{Frame, InstanceEvent, LodInfo, MeshInfo, TraceHeader};
 use obvhs::triangle::Triangle;
 use serde::Deserialize;
 
+use crate::camera::FlyCamera;
 use crate::compare::{CompareReport, Comparison};
 use crate::error::SimError;
 use crate::mesh::{
@@ -898,6 +899,7 @@ fn replay_planned<R: Read>(
         )
     };
     let mut cmp: Option<Comparison> = None;
+    let mut previous = None;
     let mut frame = empty_frame();
     let mut read = 0u64;
     while input.next_frame_into(&mut frame)? {
@@ -909,6 +911,8 @@ fn replay_planned<R: Read>(
             ))
         })?;
         let camera = from_trace_camera(&frame.camera)?;
+        let cut = previous.is_some_and(|p: FlyCamera| camera.is_cut_from(&p));
+        previous = Some(camera);
         let c = match &mut cmp {
             Some(c) => c,
             None => {
@@ -919,6 +923,9 @@ fn replay_planned<R: Read>(
                 cmp.insert(c)
             }
         };
+        if cut {
+            c.mark_camera_cut(number);
+        }
         c.frame_with_lods(ts.scene(), number, &camera, ts.lods())?;
         read += 1;
         progress(read);

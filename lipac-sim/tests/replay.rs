@@ -598,3 +598,61 @@ fn cli_records_converts_and_replays() {
     assert_eq!(json["scene"], "small");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A replay finds the recorded jump's cut from the cameras and, asked to,
+/// warm-starts LiPaC there as `compare --warm-start-at-cuts` does along
+/// the path: the same frames as without before the cut, more of the new
+/// view in the TLAS at it.
+#[test]
+fn a_replay_finds_the_cut_and_warm_starts_there() {
+    use lipac_sim::scene::Scene;
+    let aspect = W as f32 / H as f32;
+    let scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+    let path = CameraChoice::Jump.path(&scene, aspect);
+    let cut = path.cuts()[0];
+    let frames = cut + 4;
+    let bytes = record(
+        &RecordConfig {
+            scene: SceneChoice::Small,
+            seed: None,
+            camera: CameraChoice::Jump,
+            frames: Some(frames),
+            aspect,
+            geometry: false,
+        },
+        TraceFormat::Binary,
+        Vec::new(),
+    )
+    .unwrap()
+    .0;
+    let go = |at_cuts: bool| {
+        let config = ReplayConfig {
+            strategies: vec![StrategyKind::Lipac],
+            width: W,
+            height: H,
+            threads: 2,
+            warm_start_at_cuts: at_cuts,
+            ..ReplayConfig::default()
+        };
+        let input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();
+        replay(input, &config, &mut |_| {}).unwrap()
+    };
+    let (plain, warm) = (go(false), go(true));
+    assert_eq!(plain.camera_cuts, [cut]);
+    assert_eq!(warm.camera_cuts, [cut]);
+    let (a, b) = (
+        &plain.strategy("lipac").unwrap().frames,
+        &warm.strategy("lipac").unwrap().frames,
+    );
+    let c = cut as usize;
+    for f in 0..c {
+        assert_eq!(a[f].tlas_instances, b[f].tlas_instances, "frame {f}");
+        assert_eq!(a[f].error.to_bits(), b[f].error.to_bits(), "frame {f}");
+    }
+    assert!(
+        b[c].tlas_instances > a[c].tlas_instances,
+        "{} vs {}",
+        b[c].tlas_instances,
+        a[c].tlas_instances
+    );
+}

@@ -104,6 +104,12 @@ pub struct ReplayArgs {
     /// --warm-start`). Default: LiPaC's configured start (the whole view).
     #[arg(long)]
     warm_start: Option<String>,
+    /// Geometry mode: LiPaC warm-starts again at each camera cut (as
+    /// `lipac compare --warm-start-at-cuts`). A trace does not mark its
+    /// cuts: a frame whose camera moved more than 100 m or turned more
+    /// than 90° since the last one is taken for a cut.
+    #[arg(long)]
+    warm_start_at_cuts: bool,
     /// Geometry mode of a trace of another scene: trace a box over the
     /// bounds of a mesh without geometry instead of failing.
     #[arg(long)]
@@ -205,6 +211,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
             None => LipacStart::Default,
             Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
         },
+        warm_start_at_cuts: a.warm_start_at_cuts,
         lipac_variants: Vec::new(),
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
