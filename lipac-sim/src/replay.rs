@@ -129,6 +129,21 @@ impl ReplayConfig {
             lipac_warm_start_at_cuts: self.warm_start_at_cuts,
         }
     }
+
+    /// The comparison of a geometry replay on `scene` named `name`: the
+    /// strategies of [`ReplayConfig::compare_config`], then the
+    /// [`ReplayConfig::lipac_variants`].
+    pub(crate) fn comparison(&self, name: &str, scene: &Scene) -> Result<Comparison, SimError> {
+        let cc = self.compare_config();
+        let mut contenders = crate::compare::contenders_of(scene, &cc)?;
+        for (variant, config) in &self.lipac_variants {
+            contenders.push(Contender {
+                name: variant.clone(),
+                strategy: Box::new(Lipac::new(scene, config.clone())?),
+            });
+        }
+        Comparison::with_contenders(name, scene, &cc, contenders)
+    }
 }
 
 impl Default for ReplayConfig {
@@ -146,23 +161,6 @@ impl Default for ReplayConfig {
             warm_start_at_cuts: false,
             lipac_variants: Vec::new(),
         }
-    }
-}
-
-impl ReplayConfig {
-    /// The comparison of a geometry replay on `scene` named `name`: the
-    /// strategies of [`ReplayConfig::compare_config`], then the
-    /// [`ReplayConfig::lipac_variants`].
-    pub(crate) fn comparison(&self, name: &str, scene: &Scene) -> Result<Comparison, SimError> {
-        let cc = self.compare_config();
-        let mut contenders = crate::compare::contenders_of(scene, &cc)?;
-        for (variant, config) in &self.lipac_variants {
-            contenders.push(Contender {
-                name: variant.clone(),
-                strategy: Box::new(Lipac::new(scene, config.clone())?),
-            });
-        }
-        Comparison::with_contenders(name, scene, &cc, contenders)
     }
 }
 
