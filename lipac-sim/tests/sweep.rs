@@ -24,6 +24,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         decayed: vec![],
         threads: 2,
         trace: None,
+        trace_options: Default::default(),
     }
 }
 
@@ -296,5 +297,84 @@ fn a_sweep_of_a_recorded_trace_gives_the_errors_of_its_replay() {
     };
     let e = sweep::run(&missing, &mut |_, _, _, _| {}).unwrap_err();
     assert!(e.to_string().contains("missing.bin"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A trace of another scene (the small scene recorded with geometry,
+/// renamed) sweeps through the trace's own scene, with `lipac replay`'s
+/// options: without box proxies its terrain (no geometry in the header)
+/// is an error that says so; with them the LiPaC point equals the replay.
+#[test]
+fn a_trace_of_another_scene_sweeps_with_the_replays_options() {
+    use lipac_core::trace::TraceFormat;
+    use lipac_sim::record::{record, CameraChoice, RecordConfig};
+    use lipac_sim::replay::ReplayConfig;
+    use lipac_sim::trace_scene::{replay_path, TraceSceneOptions};
+    let (w, h) = (32u32, 18u32);
+    let rc = RecordConfig {
+        scene: SceneChoice::Small,
+        seed: None,
+        camera: CameraChoice::Flythrough,
+        frames: Some(3),
+        aspect: w as f32 / h as f32,
+        geometry: true,
+    };
+    let bytes = record(&rc, TraceFormat::Jsonl, Vec::new()).unwrap().0;
+    let text = String::from_utf8(bytes).unwrap();
+    let (first, rest) = text.split_once('\n').unwrap();
+    let start = first.find("lipac-sim:small").unwrap();
+    let end = start + first[start..].find('"').unwrap();
+    let renamed = format!("{}my-game{}\n{rest}", &first[..start], &first[end..]);
+    let dir = std::env::temp_dir().join(format!("lipac-sweep-other-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("my-game.jsonl");
+    std::fs::write(&file, renamed).unwrap();
+    let config = SweepConfig {
+        scenes: Vec::new(),
+        frames: None,
+        width: w,
+        height: h,
+        baselines: vec![StrategyKind::Frustum],
+        factors: vec![1.0],
+        latency: Vec::new(),
+        trace: Some(file.clone()),
+        ..tiny(Vec::new(), 1)
+    };
+    let e = sweep::run(&config, &mut |_, _, _, _| {}).unwrap_err();
+    assert!(e.to_string().contains("box-proxy"), "{e}");
+    let proxies = TraceSceneOptions {
+        box_proxy: true,
+        ..TraceSceneOptions::default()
+    };
+    let r = sweep::run(
+        &SweepConfig {
+            trace_options: proxies,
+            ..config
+        },
+        &mut |_, _, _, _| {},
+    )
+    .unwrap();
+    let (replayed, _) = replay_path(
+        &file,
+        &ReplayConfig {
+            strategies: vec![StrategyKind::Lipac],
+            width: w,
+            height: h,
+            threads: 2,
+            ..ReplayConfig::default()
+        },
+        &proxies,
+        &mut |_| {},
+    )
+    .unwrap();
+    let point = r.points.iter().find(|p| p.name == "lipac ×1").unwrap();
+    assert_eq!(point.scene, "trace my-game.jsonl");
+    let want: Vec<u64> = replayed.strategies[0]
+        .frames
+        .iter()
+        .map(|m| m.error.to_bits())
+        .collect();
+    let got: Vec<u64> = point.frame_errors.iter().map(|e| e.to_bits()).collect();
+    assert_eq!((got.len(), &got), (3, &want));
     std::fs::remove_dir_all(&dir).unwrap();
 }

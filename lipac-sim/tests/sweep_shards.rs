@@ -27,6 +27,7 @@ fn tiny(frames: u32) -> SweepConfig {
         decayed: vec![],
         threads: 2,
         trace: None,
+        trace_options: Default::default(),
     }
 }
 

@@ -275,6 +275,8 @@ struct SweepArgs {
     /// Not with --scenes, --seed or --frames.
     #[arg(long, conflicts_with_all = ["scenes", "seed", "frames"])]
     trace: Option<PathBuf>,
+    #[command(flatten)]
+    trace_scene: trace_cmds::TraceSceneArgs,
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -394,6 +396,8 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 .collect::<Result<Vec<_>, _>>()?,
             threads: a.threads,
             trace: a.trace.clone(),
+            trace_options: trace_cmds::trace_scene_options(&a.trace_scene)
+                .map_err(|e| e.to_string())?,
         })
     })();
     let config = match parsed.and_then(|c| {

@@ -110,6 +110,14 @@ pub struct ReplayArgs {
     /// than 90° since the last one is taken for a cut.
     #[arg(long)]
     warm_start_at_cuts: bool,
+    #[command(flatten)]
+    scene: TraceSceneArgs,
+}
+
+/// How a trace of another scene than the built-in ones is traced
+/// (`lipac replay`, `lipac sweep --trace`).
+#[derive(Args)]
+pub struct TraceSceneArgs {
     /// Geometry mode of a trace of another scene: trace a box over the
     /// bounds of a mesh without geometry instead of failing.
     #[arg(long)]
@@ -216,7 +224,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());
-    let options = trace_scene_options(a).map_err(|e| e.to_string())?;
+    let options = trace_scene_options(&a.scene).map_err(|e| e.to_string())?;
     let (report, snapshots) = if regular_file {
         // A file can be read twice: traces of other scenes replay with
         // geometry (lipac_sim::trace_scene).
@@ -244,7 +252,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
 }
 
 /// The scene file's options (if any), then the flags.
-fn trace_scene_options(a: &ReplayArgs) -> Result<TraceSceneOptions, SimError> {
+pub fn trace_scene_options(a: &TraceSceneArgs) -> Result<TraceSceneOptions, SimError> {
     let mut o = TraceSceneOptions::default();
     if let Some(p) = a.scene_file.as_deref() {
         o = o.with_json(&std::fs::read_to_string(p).map_err(|e| SimError::Io(io_err(p, e)))?)?;

@@ -49,7 +49,7 @@ use crate::error::SimError;
 use crate::replay::{ReplayConfig, ReplayMode};
 use crate::scene::Scene;
 use crate::strategy::lipac::LipacConfig;
-use crate::trace_scene::{replay_path, TraceSceneOptions};
+use crate::trace_scene::replay_path;
 
 /// Part `index` of `count` (1 ≤ index ≤ count) of a sweep.
 ///
@@ -388,7 +388,7 @@ fn replay_variants(
             .collect(),
     };
     // A trace does not say its length up front: the total is 0 (unknown).
-    let (mut report, _) = replay_path(file, &replay, &TraceSceneOptions::default(), &mut |done| {
+    let (mut report, _) = replay_path(file, &replay, &config.trace_options, &mut |done| {
         progress(u32::try_from(done).unwrap_or(u32::MAX), 0)
     })
     .map_err(|e| SimError::Replay(format!("{}: {e}", file.display())))?;

@@ -15,6 +15,7 @@ use crate::error::SimError;
 use crate::scene::Scene;
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::StrategyKind;
+use crate::trace_scene::TraceSceneOptions;
 
 /// What a variant varies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -97,6 +98,10 @@ pub struct SweepConfig {
     /// carries its meshes' geometry) instead of `scenes`, which must then
     /// be empty; `seed` and `frames` do not apply.
     pub trace: Option<PathBuf>,
+    /// How a [`SweepConfig::trace`] of another scene than the built-in
+    /// ones is traced (box proxies, vegetation, sun and sky), as `lipac
+    /// replay` takes them.
+    pub trace_options: TraceSceneOptions,
 }
 
 impl Default for SweepConfig {
@@ -131,6 +136,7 @@ impl Default for SweepConfig {
             decayed: Vec::new(),
             threads: 0,
             trace: None,
+            trace_options: TraceSceneOptions::default(),
         }
     }
 }
