@@ -25,6 +25,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         threads: 2,
         trace: None,
         trace_options: Default::default(),
+        warm_start_at_cuts: false,
     }
 }
 
@@ -376,5 +377,82 @@ fn a_trace_of_another_scene_sweeps_with_the_replays_options() {
         .collect();
     let got: Vec<u64> = point.frame_errors.iter().map(|e| e.to_bits()).collect();
     assert_eq!((got.len(), &got), (3, &want));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--warm-start-at-cuts` on a trace: every LiPaC configuration
+/// warm-starts at the cut the replay finds, as `lipac replay
+/// --warm-start-at-cuts` does.
+#[test]
+fn a_trace_sweep_warm_starts_at_the_cut_as_the_replay_does() {
+    use lipac_core::trace::TraceFormat;
+    use lipac_sim::record::{record, CameraChoice, RecordConfig};
+    use lipac_sim::replay::{replay, ReplayConfig, TraceInput};
+    use lipac_sim::scene::Scene;
+    let (w, h) = (64u32, 36u32);
+    let aspect = w as f32 / h as f32;
+    let scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+    let cut = CameraChoice::Jump.path(&scene, aspect).cuts()[0];
+    let rc = RecordConfig {
+        scene: SceneChoice::Small,
+        seed: None,
+        camera: CameraChoice::Jump,
+        frames: Some(cut + 3),
+        aspect,
+        geometry: false,
+    };
+    let bytes = record(&rc, TraceFormat::Binary, Vec::new()).unwrap().0;
+    let dir = std::env::temp_dir().join(format!("lipac-sweep-cut-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("jump.bin");
+    std::fs::write(&file, &bytes).unwrap();
+    let sweep_with = |at_cuts: bool| {
+        let config = SweepConfig {
+            scenes: Vec::new(),
+            frames: None,
+            baselines: Vec::new(),
+            factors: vec![1.0],
+            latency: Vec::new(),
+            trace: Some(file.clone()),
+            warm_start_at_cuts: at_cuts,
+            ..tiny(Vec::new(), 1)
+        };
+        let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
+        assert_eq!(r.points.len(), 1);
+        r.points[0].clone()
+    };
+    let (plain, warm) = (sweep_with(false), sweep_with(true));
+    let replayed = replay(
+        TraceInput::open(&file).unwrap(),
+        &ReplayConfig {
+            strategies: vec![StrategyKind::Lipac],
+            width: w,
+            height: h,
+            threads: 2,
+            warm_start_at_cuts: true,
+            ..ReplayConfig::default()
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    let bits = |v: &[f64]| v.iter().map(|e| e.to_bits()).collect::<Vec<_>>();
+    let want: Vec<f64> = replayed.strategies[0]
+        .frames
+        .iter()
+        .map(|m| m.error)
+        .collect();
+    assert_eq!(bits(&warm.frame_errors), bits(&want));
+    let c = cut as usize;
+    assert_eq!(
+        bits(&plain.frame_errors[..c]),
+        bits(&warm.frame_errors[..c])
+    );
+    // From the cut on, more of the new view is built at once.
+    assert!(
+        warm.summary.builds > plain.summary.builds,
+        "{} vs {}",
+        warm.summary.builds,
+        plain.summary.builds
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -28,6 +28,7 @@ fn tiny(frames: u32) -> SweepConfig {
         threads: 2,
         trace: None,
         trace_options: Default::default(),
+        warm_start_at_cuts: false,
     }
 }
 

@@ -277,6 +277,12 @@ struct SweepArgs {
     trace: Option<PathBuf>,
     #[command(flatten)]
     trace_scene: trace_cmds::TraceSceneArgs,
+    /// Every LiPaC configuration warm-starts again at each camera cut (as
+    /// `lipac compare --warm-start-at-cuts`); a trace's cuts are found
+    /// from its cameras (more than 100 m or 90° in one frame), the
+    /// scenes' fly-throughs have none.
+    #[arg(long)]
+    warm_start_at_cuts: bool,
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -398,6 +404,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             trace: a.trace.clone(),
             trace_options: trace_cmds::trace_scene_options(&a.trace_scene)
                 .map_err(|e| e.to_string())?,
+            warm_start_at_cuts: a.warm_start_at_cuts,
         })
     })();
     let config = match parsed.and_then(|c| {

@@ -381,7 +381,7 @@ fn replay_variants(
         keep_frames: true,
         snapshots: Vec::new(),
         lipac_start: LipacStart::Default,
-        warm_start_at_cuts: false,
+        warm_start_at_cuts: config.warm_start_at_cuts,
         lipac_variants: here
             .iter()
             .filter_map(|v| v.lipac.clone().map(|c| (v.name.clone(), c)))

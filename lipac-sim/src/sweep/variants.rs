@@ -102,6 +102,11 @@ pub struct SweepConfig {
     /// ones is traced (box proxies, vegetation, sun and sky), as `lipac
     /// replay` takes them.
     pub trace_options: TraceSceneOptions,
+    /// Every LiPaC configuration warm-starts again at each camera cut
+    /// ([`LipacConfig::warm_start_at_cuts`]): on a trace at the cuts the
+    /// replay finds ([`crate::camera::FlyCamera::is_cut_from`]); the
+    /// scenes' fly-throughs have none.
+    pub warm_start_at_cuts: bool,
 }
 
 impl Default for SweepConfig {
@@ -137,6 +142,7 @@ impl Default for SweepConfig {
             threads: 0,
             trace: None,
             trace_options: TraceSceneOptions::default(),
+            warm_start_at_cuts: false,
         }
     }
 }
@@ -374,7 +380,10 @@ impl SweepConfig {
         if rays == 0 {
             return Err(SimError::BadConfig("image size must be positive"));
         }
-        let base = LipacConfig::for_rays_per_frame(rays)?;
+        let base = LipacConfig {
+            warm_start_at_cuts: self.warm_start_at_cuts,
+            ..LipacConfig::for_rays_per_frame(rays)?
+        };
         let mut all = Vec::new();
         for &k in &self.baselines {
             if matches!(k, StrategyKind::Lipac | StrategyKind::LipacLatency) {
