@@ -419,6 +419,8 @@ fn a_trace_sweep_warm_starts_at_the_cut_as_the_replay_does() {
         };
         let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
         assert_eq!(r.points.len(), 1);
+        let named = r.points[0].name.ends_with(" + warm start at cuts");
+        assert_eq!(named, at_cuts, "{}", r.points[0].name);
         r.points[0].clone()
     };
     let (plain, warm) = (sweep_with(false), sweep_with(true));

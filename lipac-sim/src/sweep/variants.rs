@@ -506,6 +506,12 @@ impl SweepConfig {
             }
             all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
+        if self.warm_start_at_cuts {
+            // Said in every LiPaC name, so the report says it too.
+            for v in all.iter_mut().filter(|v| v.lipac.is_some()) {
+                v.name.push_str(" + warm start at cuts");
+            }
+        }
         let mut kept: Vec<Variant> = Vec::new();
         let mut skipped = Vec::new();
         for v in all {
