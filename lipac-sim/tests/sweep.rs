@@ -29,6 +29,15 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
     }
 }
 
+/// [`tiny`] on the trace `file` instead of scenes (no frame count).
+fn on_trace(file: &std::path::Path) -> SweepConfig {
+    SweepConfig {
+        frames: None,
+        trace: Some(file.to_path_buf()),
+        ..tiny(Vec::new(), 1)
+    }
+}
+
 #[test]
 fn tiny_sweep_writes_well_formed_outputs() {
     let config = tiny(vec![SceneChoice::Small, SceneChoice::City], 3);
@@ -223,11 +232,8 @@ fn a_sweep_of_a_recorded_trace_gives_the_errors_of_its_replay() {
     let file = dir.join("small-jump.bin");
     std::fs::write(&file, &bytes).unwrap();
     let config = SweepConfig {
-        scenes: Vec::new(),
-        frames: None,
         baselines: vec![StrategyKind::Frustum],
-        trace: Some(file.clone()),
-        ..tiny(Vec::new(), 1)
+        ..on_trace(&file)
     };
     let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
     let replayed = replay(
@@ -331,15 +337,12 @@ fn a_trace_of_another_scene_sweeps_with_the_replays_options() {
     let file = dir.join("my-game.jsonl");
     std::fs::write(&file, renamed).unwrap();
     let config = SweepConfig {
-        scenes: Vec::new(),
-        frames: None,
         width: w,
         height: h,
         baselines: vec![StrategyKind::Frustum],
         factors: vec![1.0],
         latency: Vec::new(),
-        trace: Some(file.clone()),
-        ..tiny(Vec::new(), 1)
+        ..on_trace(&file)
     };
     let e = sweep::run(&config, &mut |_, _, _, _| {}).unwrap_err();
     assert!(e.to_string().contains("box-proxy"), "{e}");
@@ -408,14 +411,11 @@ fn a_trace_sweep_warm_starts_at_the_cut_as_the_replay_does() {
     std::fs::write(&file, &bytes).unwrap();
     let sweep_with = |at_cuts: bool| {
         let config = SweepConfig {
-            scenes: Vec::new(),
-            frames: None,
             baselines: Vec::new(),
             factors: vec![1.0],
             latency: Vec::new(),
-            trace: Some(file.clone()),
             warm_start_at_cuts: at_cuts,
-            ..tiny(Vec::new(), 1)
+            ..on_trace(&file)
         };
         let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
         assert_eq!(r.points.len(), 1);

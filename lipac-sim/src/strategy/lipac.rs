@@ -36,7 +36,7 @@ use super::{ControlFrame, FrameContext, InstanceCatalog, Strategy, StrategyFrame
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
 use crate::memory::{blas_bytes, decayed_rate_bytes, lipac_overhead_bytes};
-use crate::scene::Scene;
+use crate::scene::{Scene, SceneInstance};
 use crate::scene_blas::instance_mask;
 use crate::tlas::{CountingBoxes, MergedBoxes};
 use crate::tlas_map::HitboxCell;
@@ -226,6 +226,11 @@ impl LipacConfig {
         self.thresholds.rule = DecisionRule::Decayed(rule);
         Ok(self)
     }
+    /// Whether LiPaC registers `inst` pinned: the scene pins it and
+    /// [`Self::honour_pins`] is set.
+    fn pins(&self, inst: &SceneInstance) -> bool {
+        self.honour_pins && inst.is_pinned()
+    }
     /// The same with latency mitigation (lipac-core's default heuristic).
     pub fn with_latency_mitigation(mut self) -> Self {
         self.latency = Some(ActivationHeuristic::default());
@@ -277,7 +282,7 @@ impl Lipac {
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {
             let mut f = inst.instance_flags();
-            if !config.honour_pins {
+            if !config.pins(inst) {
                 f.remove(InstanceFlags::PINNED);
             }
             if inst.is_animated() {
@@ -299,11 +304,7 @@ impl Lipac {
             }
             handles.push(h);
         }
-        let pinned = scene
-            .instances()
-            .iter()
-            .map(|i| i.is_pinned() && config.honour_pins)
-            .collect();
+        let pinned = scene.instances().iter().map(|i| config.pins(i)).collect();
         Ok(Self {
             name: if config.latency.is_some() {
                 "lipac-latency"
@@ -440,7 +441,7 @@ impl Strategy for Lipac {
             .zip(&mut self.pinned)
             .zip(&self.handles)
         {
-            let pinned = inst.is_pinned() && self.config.honour_pins;
+            let pinned = self.config.pins(inst);
             if pinned != *was {
                 *was = pinned;
                 self.backend.set_pinned(h, *was)?;

@@ -378,14 +378,12 @@ fn replay_variants(
         height: config.height,
         threads: config.threads,
         mode: Some(ReplayMode::Geometry),
-        keep_frames: true,
-        snapshots: Vec::new(),
-        lipac_start: LipacStart::Default,
         warm_start_at_cuts: config.warm_start_at_cuts,
         lipac_variants: here
             .iter()
             .filter_map(|v| v.lipac.clone().map(|c| (v.name.clone(), c)))
             .collect(),
+        ..ReplayConfig::default()
     };
     // A trace does not say its length up front: the total is 0 (unknown).
     let (mut report, _) = replay_path(file, &replay, &config.trace_options, &mut |done| {
