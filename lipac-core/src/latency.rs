@@ -132,6 +132,12 @@ impl Frustum {
 ///
 /// `max_distance = f32::INFINITY` or `min_projected_size = 0` accept every
 /// newly visible instance.
+///
+/// What counts as *visible* is the frustum, and with a `surround_radius`
+/// also every instance within that distance of the camera in any
+/// direction: off-screen geometry near the camera shadows and reflects
+/// into the view (the frustum + radius baseline's 800 m). `0` (the
+/// default) is the frustum alone.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ActivationHeuristic {
     /// Distance (metres) within which every newly visible instance is
@@ -140,6 +146,10 @@ pub struct ActivationHeuristic {
     /// Smallest `radius / distance` of a farther instance to be accepted.
     /// Default 0.1 (a 10 m radius building at 100 m).
     pub min_projected_size: f32,
+    /// Distance (metres) from the camera to an instance's AABB within
+    /// which it counts as visible whether or not it is in the frustum.
+    /// Default 0: the frustum alone.
+    pub surround_radius: f32,
 }
 
 impl Default for ActivationHeuristic {
@@ -147,6 +157,7 @@ impl Default for ActivationHeuristic {
         Self {
             max_distance: 50.0,
             min_projected_size: 0.1,
+            surround_radius: 0.0,
         }
     }
 }
@@ -156,6 +167,7 @@ impl ActivationHeuristic {
         for (name, v) in [
             ("max_distance", self.max_distance),
             ("min_projected_size", self.min_projected_size),
+            ("surround_radius", self.surround_radius),
         ] {
             if v.is_nan() || v < 0.0 {
                 return Err(CoreError::InvalidConfig {
@@ -168,7 +180,7 @@ impl ActivationHeuristic {
 
     /// Whether an instance with bounds `aabb` seen from `camera` is accepted.
     pub fn accepts(&self, camera: Vec3, aabb: &Aabb) -> bool {
-        let near = camera.clamp(aabb.min, aabb.max).distance(camera);
+        let near = distance_to_box(camera, aabb);
         if near <= self.max_distance {
             return true;
         }
@@ -176,6 +188,18 @@ impl ActivationHeuristic {
         let to_center = aabb.center().distance(camera);
         to_center <= radius || radius >= self.min_projected_size * to_center
     }
+
+    /// Whether an instance with bounds `aabb` counts as visible from
+    /// `camera` though outside the frustum: within
+    /// [`ActivationHeuristic::surround_radius`] of it.
+    pub fn surrounds(&self, camera: Vec3, aabb: &Aabb) -> bool {
+        self.surround_radius > 0.0 && distance_to_box(camera, aabb) <= self.surround_radius
+    }
+}
+
+/// Distance from `p` to the box (0 inside it).
+fn distance_to_box(p: Vec3, aabb: &Aabb) -> f32 {
+    p.clamp(aabb.min, aabb.max).distance(p)
 }
 
 /// Counts of one [`LatencyMitigation::update`].
@@ -183,7 +207,7 @@ impl ActivationHeuristic {
 pub struct LatencySummary {
     /// Live instances tested against the frustum.
     pub tested: u32,
-    /// Of those, in the frustum now.
+    /// Of those, in the frustum now (or within the surround radius).
     pub in_frustum: u32,
     /// Of those, not in the frustum at the previous update (or new since).
     pub newly_visible: u32,
@@ -283,7 +307,9 @@ impl LatencyMitigation {
     /// ascending order, that are newly in the frustum, not already
     /// [`InstanceState::Active`], and accepted by the heuristic from
     /// `camera`. An instance whose AABB contains `camera` counts as in the
-    /// frustum even if it ends before the near plane (rays start inside it).
+    /// frustum even if it ends before the near plane (rays start inside it),
+    /// and so does one within the heuristic's
+    /// [`ActivationHeuristic::surround_radius`].
     ///
     /// Removed instances are forgotten, and a reused slot counts as a new
     /// instance even if updates were skipped in between. Use one tracker per
@@ -339,7 +365,10 @@ impl LatencyMitigation {
             // A box around the camera is in view even where it ends before
             // the near plane: every primary ray starts inside it.
             let around_camera = camera.cmpge(aabb.min).all() && camera.cmple(aabb.max).all();
-            if !around_camera && !frustum.intersects_aabb(&aabb) {
+            if !around_camera
+                && !frustum.intersects_aabb(&aabb)
+                && !self.heuristic.surrounds(camera, &aabb)
+            {
                 continue;
             }
             self.visible[word] |= bit;

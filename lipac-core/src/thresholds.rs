@@ -200,6 +200,55 @@ impl DecayedRule {
         rise_decay_rate(rate, hits, self.shift, self.rise_shift)
     }
 
+    /// The least rate that is still at least `threshold` after `frames`
+    /// frames without a hit ([`DecayedRule::update_rate`] with 0 hits,
+    /// exactly): a hitbox given it (`threshold` = [`DecayedRule::deactivate`])
+    /// or a unique-BLAS instance (`threshold` =
+    /// [`DecayedRule::instance_omit`]) stays active through that many
+    /// frames of Algorithm 2 that do not hit it. Saturates at `u32::MAX`.
+    ///
+    /// ```
+    /// use lipac_core::thresholds::DecayedRule;
+    /// let rule = DecayedRule {
+    ///     shift: 3, // keeps 7/8 of itself per frame
+    ///     rise_shift: 1,
+    ///     activate: 100,
+    ///     deactivate: 8,
+    ///     instance_activate: 100,
+    ///     instance_omit: 8,
+    ///     per_shared: 0,
+    ///     per_unique: 0,
+    /// };
+    /// assert_eq!(rule.hold_rate(8, 0), 8);
+    /// assert_eq!(rule.hold_rate(8, 1), 9); // 9 - 9/8 = 8
+    /// assert_eq!(rule.hold_rate(8, 3), 11); // 11 → 10 → 9 → 8
+    /// assert_eq!(rule.hold_rate(u32::MAX, 1), u32::MAX);
+    /// ```
+    pub fn hold_rate(&self, threshold: u32, frames: u32) -> u32 {
+        let mut rate = threshold;
+        for _ in 0..frames {
+            if rate == u32::MAX {
+                break;
+            }
+            // The least r with update_rate(r, 0) >= rate: the update is
+            // non-decreasing in r (see `rise_decay_rate`).
+            let (mut lo, mut hi) = (u64::from(rate), u64::from(u32::MAX));
+            if u64::from(self.update_rate(u32::MAX, 0)) < u64::from(rate) {
+                return u32::MAX;
+            }
+            while lo < hi {
+                let mid = (lo + hi) / 2;
+                if self.update_rate(mid as u32, 0) >= rate {
+                    hi = mid;
+                } else {
+                    lo = mid + 1;
+                }
+            }
+            rate = lo as u32;
+        }
+        rate
+    }
+
     /// The rate an inactive hitbox must exceed with `shared` and `unique`
     /// inactive instances (each saturated at [`MAX_COST_COUNT`]); fits a
     /// `u32` for a validated rule.

@@ -248,6 +248,7 @@ impl Sim {
         cfg.latency_mitigation = p.mitigation.then_some(ActivationHeuristic {
             max_distance: 30.0,
             min_projected_size: 0.05,
+            surround_radius: 0.0,
         });
         let mut sim = Sim {
             culling: Culling::new(grid, cfg).unwrap(),

@@ -49,7 +49,7 @@ use lipac_core::manager::{
 };
 use lipac_core::math::Aabb;
 use lipac_core::registry::InstanceHandle;
-use lipac_core::thresholds::Thresholds;
+use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::scene::{frustums, random_instance, world_grid, WORLD};
 use lipac_test_support::synthetic::{Owed, SyntheticDevice};
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
@@ -330,6 +330,23 @@ impl Case {
             n_d: 4,
             ..Thresholds::paper()
         };
+        if rng.chance_percent(50) {
+            config.culling.thresholds =
+                config
+                    .culling
+                    .thresholds
+                    .with_rule(DecisionRule::Decayed(DecayedRule {
+                        shift: 2,
+                        rise_shift: 1,
+                        activate: 8 * RATE_ONE,
+                        deactivate: 2 * RATE_ONE,
+                        instance_activate: 4 * RATE_ONE,
+                        instance_omit: RATE_ONE,
+                        per_shared: 0,
+                        per_unique: 0,
+                    }));
+        }
+        config.culling.warm_start_hold = rng.below(6) as u32;
         config.culling.command_capacity = 4 + rng.below(30) as u32;
         config.culling.readback_latency = latency;
         config.culling.registry.quarantine_frames = latency + 1 + rng.below(3) as u32;
@@ -337,6 +354,7 @@ impl Case {
         config.culling.latency_mitigation = rng.chance_percent(60).then_some(ActivationHeuristic {
             max_distance: 60.0,
             min_projected_size: 0.0,
+            surround_radius: 0.0,
         });
         config.scheduler = SchedulerConfig {
             cache: CacheConfig {
@@ -583,7 +601,27 @@ impl Case {
                 } else {
                     eye
                 };
-                (self.m.mitigate_latency(eye, &fr).map(|_| ()), false)
+                if self.rng.chance_percent(50) {
+                    (self.m.mitigate_latency(eye, &fr).map(|_| ()), false)
+                } else {
+                    // A warm start, held or not (config), around the camera
+                    // or not, now and then with a bad heuristic.
+                    let h = ActivationHeuristic {
+                        max_distance: if self.rng.chance_percent(50) {
+                            f32::INFINITY
+                        } else {
+                            30.0
+                        },
+                        min_projected_size: 0.0,
+                        surround_radius: match self.rng.below(4) {
+                            0 => 0.0,
+                            1 => 20.0,
+                            2 => 1.0e6,
+                            _ => f32::NAN,
+                        },
+                    };
+                    (self.m.warm_start(eye, &fr, h).map(|_| ()), false)
+                }
             }
             // ---- garbage -----------------------------------------------
             88..=90 => {

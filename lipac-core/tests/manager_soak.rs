@@ -118,6 +118,7 @@ fn soak(seed: u64, frames: u64) -> (SchedulerStats, u64, u64, usize) {
     config.culling.latency_mitigation = Some(ActivationHeuristic {
         max_distance: 60.0,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     });
     config.scheduler = SchedulerConfig {
         cache: CacheConfig {

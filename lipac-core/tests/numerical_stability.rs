@@ -796,6 +796,7 @@ fn camera_inside_instances_and_hitboxes_far_from_the_origin() {
         cfg.latency_mitigation = Some(ActivationHeuristic {
             max_distance: 30.0,
             min_projected_size: 0.1,
+            surround_radius: 0.0,
         });
         let mut culling = Culling::new(g.clone(), cfg).unwrap();
         let o = origin as f32;

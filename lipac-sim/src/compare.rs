@@ -115,6 +115,9 @@ pub struct CompareConfig {
     /// LiPaC warm-starts at every camera cut too
     /// ([`LipacConfig::warm_start_at_cuts`]).
     pub lipac_warm_start_at_cuts: bool,
+    /// Frames LiPaC holds what a warm start activates
+    /// ([`LipacConfig::warm_start_hold`]; `None`: as configured, 0).
+    pub lipac_warm_start_hold: Option<u32>,
 }
 
 /// How LiPaC starts in a comparison ([`LipacConfig::warm_start`]).
@@ -130,10 +133,21 @@ pub enum LipacStart {
 }
 
 impl LipacStart {
+    /// Sets `config`'s [`LipacConfig::warm_start`] to this start
+    /// ([`LipacStart::Default`] leaves it as configured).
+    pub fn apply(&self, config: &mut LipacConfig) {
+        match *self {
+            Self::Default => {}
+            Self::Cold => config.warm_start = None,
+            Self::Warm(h) => config.warm_start = Some(h),
+        }
+    }
+
     /// From the command line's `--warm-start` value: `off` (the paper's
-    /// cold start) or `DIST:SIZE` (a warm start accepting what is in view
-    /// within `DIST` metres or of projected size at least `SIZE`; `inf:0`
-    /// takes the whole view).
+    /// cold start) or `DIST:SIZE[:RADIUS]` (a warm start accepting what is
+    /// in view within `DIST` metres or of projected size at least `SIZE`;
+    /// `inf:0` takes the whole view; in view: in the frustum or within
+    /// `RADIUS` metres in any direction).
     ///
     /// ```
     /// use lipac_sim::compare::LipacStart;
@@ -170,6 +184,7 @@ impl Default for CompareConfig {
             lipac_rise_shift: None,
             lipac_start: LipacStart::Default,
             lipac_warm_start_at_cuts: false,
+            lipac_warm_start_hold: None,
         }
     }
 }
@@ -348,12 +363,11 @@ pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, Sim
         };
         lipac_config = lipac_config.with_decayed_rule(&settings, rays_per_frame)?;
     }
-    match config.lipac_start {
-        LipacStart::Default => {}
-        LipacStart::Cold => lipac_config.warm_start = None,
-        LipacStart::Warm(h) => lipac_config.warm_start = Some(h),
-    }
+    config.lipac_start.apply(&mut lipac_config);
     lipac_config.warm_start_at_cuts = config.lipac_warm_start_at_cuts;
+    if let Some(frames) = config.lipac_warm_start_hold {
+        lipac_config.warm_start_hold = frames;
+    }
     Ok(lipac_config)
 }
 

@@ -140,6 +140,7 @@ impl<H: HitboxIndex> CpuBackend<H> {
             latency_mitigation: config.latency,
             readback_latency: config.readback_latency,
             adaptive_hitboxes: config.adaptive_hitboxes,
+            warm_start_hold: config.warm_start_hold,
             ..CullingConfig::new(unit_cube)
         };
         let counting = CountingBoxes::default();

@@ -98,6 +98,9 @@ pub struct ReplayConfig {
     /// ([`crate::camera::FlyCamera::is_cut_from`]: traces do not mark
     /// them).
     pub warm_start_at_cuts: bool,
+    /// Frames LiPaC holds what a warm start activates
+    /// ([`CompareConfig::lipac_warm_start_hold`]).
+    pub warm_start_hold: Option<u32>,
     /// Further LiPaC configurations run beside `strategies`, each under
     /// its report name (geometry mode; `lipac sweep --trace` puts its
     /// LiPaC variants here). Names must differ from each other and from
@@ -127,6 +130,7 @@ impl ReplayConfig {
             lipac_rise_shift: None,
             lipac_start: self.lipac_start,
             lipac_warm_start_at_cuts: self.warm_start_at_cuts,
+            lipac_warm_start_hold: self.warm_start_hold,
         }
     }
 
@@ -159,6 +163,7 @@ impl Default for ReplayConfig {
             snapshots: Vec::new(),
             lipac_start: LipacStart::Default,
             warm_start_at_cuts: false,
+            warm_start_hold: None,
             lipac_variants: Vec::new(),
         }
     }
@@ -397,6 +402,13 @@ pub fn replay_with_snapshots<R: Read>(
              the recorded hits"
                 .into(),
         )),
+        ReplayMode::HitsOnly if config.warm_start_hold.is_some_and(|f| f > 0) => {
+            Err(SimError::Replay(
+                "a held warm start needs geometry mode: a hits-only replay's LiPaC follows \
+                 the recorded hits"
+                    .into(),
+            ))
+        }
         ReplayMode::HitsOnly if !config.lipac_variants.is_empty() => Err(SimError::Replay(
             "LiPaC variants need geometry mode: a hits-only replay runs LiPaC's own \
              configuration against the recorded hits"

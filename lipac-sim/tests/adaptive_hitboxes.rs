@@ -177,6 +177,7 @@ fn compare_with_adaptive_hitboxes_decides_alike_with_fewer_boxes() {
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
+            lipac_warm_start_hold: None,
         };
         run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
     };

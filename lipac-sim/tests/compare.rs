@@ -23,6 +23,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -107,6 +108,7 @@ fn config(frames: u32) -> CompareConfig {
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     }
 }
 
@@ -372,6 +374,7 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
             lipac_rise_shift: rise_shift,
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
+            lipac_warm_start_hold: None,
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
     };
@@ -467,10 +470,85 @@ fn a_warm_start_traces_the_view_from_frame_0_and_feedback_culls_it() {
     let none = with(LipacStart::Warm(lipac_core::latency::ActivationHeuristic {
         max_distance: 0.0,
         min_projected_size: f32::INFINITY,
+        surround_radius: 0.0,
     }));
     let n0 = none.strategies[0].frames[0].tlas_instances;
     assert!(4 * n0 < w[0].tlas_instances, "{n0} {}", w[0].tlas_instances);
     assert!(none.strategies[0].frames[0].error > 0.3);
+}
+
+/// The default warm start takes what is within 800 m of the camera off
+/// screen too (`ActivationHeuristic::surround_radius`): at frame 0 it
+/// traces more than the frustum alone and its error is lower. A hold of 4
+/// frames (`--warm-start-hold`, `LipacConfig::warm_start_hold`) keeps that
+/// set through the feedback of frames 0–3, which culls it without one:
+/// frame 0 is the same bit for bit, frames 1–4 trace more at less than
+/// half the error, and at frame 5 feedback culls it down.
+#[test]
+fn a_warm_start_around_the_camera_and_held_keeps_the_view() {
+    use lipac_core::latency::ActivationHeuristic;
+    use lipac_sim::compare::LipacStart;
+    let with = |start: LipacStart, hold: Option<u32>| {
+        let config = CompareConfig {
+            frames: Some(14),
+            width: 64,
+            height: 36,
+            strategies: vec![StrategyKind::Lipac],
+            threads: 2,
+            lipac_start: start,
+            lipac_warm_start_hold: hold,
+            ..CompareConfig::default()
+        };
+        run_choice(SceneChoice::Mirror, None, &config, &mut |_, _| {}).expect("comparison")
+    };
+    let frustum_only = with(
+        LipacStart::Warm(ActivationHeuristic {
+            max_distance: f32::INFINITY,
+            min_projected_size: 0.0,
+            surround_radius: 0.0,
+        }),
+        None,
+    );
+    let around = with(LipacStart::Default, None);
+    let held = with(LipacStart::Default, Some(4));
+    let (f, a, h) = (
+        &frustum_only.strategies[0].frames,
+        &around.strategies[0].frames,
+        &held.strategies[0].frames,
+    );
+    assert!(
+        a[0].tlas_instances > f[0].tlas_instances && a[0].error < f[0].error,
+        "frame 0: around {} records, error {}; frustum {} records, error {}",
+        a[0].tlas_instances,
+        a[0].error,
+        f[0].tlas_instances,
+        f[0].error
+    );
+    assert_eq!(h[0].tlas_instances, a[0].tlas_instances);
+    assert_eq!(h[0].error.to_bits(), a[0].error.to_bits());
+    let sum = |fr: &[lipac_sim::metrics::FrameMetrics], r: std::ops::Range<usize>| -> f64 {
+        fr[r].iter().map(|x| x.error).sum()
+    };
+    for i in 1..=4 {
+        assert!(
+            h[i].tlas_instances > a[i].tlas_instances,
+            "frame {i}: held {} against {}",
+            h[i].tlas_instances,
+            a[i].tlas_instances
+        );
+    }
+    assert!(
+        sum(h, 1..5) < 0.5 * sum(a, 1..5),
+        "held {} against {}",
+        sum(h, 1..5),
+        sum(a, 1..5)
+    );
+    assert!(
+        (h[5].tlas_instances as f64) < 0.8 * h[4].tlas_instances as f64,
+        "not culled after the hold: {} at frame 5, {} at frame 4",
+        h[5].tlas_instances,
+        h[4].tlas_instances
+    );
 }
 
 /// `--warm-start-at-cuts` (`LipacConfig::warm_start_at_cuts`): LiPaC makes
@@ -488,6 +566,7 @@ fn a_warm_start_at_the_cut_activates_the_new_view() {
             strategies: vec![StrategyKind::Lipac],
             threads: 2,
             lipac_warm_start_at_cuts: cuts,
+            lipac_warm_start_hold: None,
             ..CompareConfig::default()
         };
         let mut scene =

@@ -5,6 +5,7 @@
 //! decision.
 
 use glam::{Affine3A, Vec3};
+use lipac_core::latency::ActivationHeuristic;
 use lipac_core::manager::{RecorderOptions, TraceRecorder};
 use lipac_core::trace::{Camera, TraceFormat};
 use lipac_core::TlasInstance;
@@ -12,6 +13,7 @@ use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, InstanceDesc, Manager,
     ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
 };
+use lipac_sim::compare::LipacStart;
 use lipac_sim::cpu_backend::CpuBackend;
 use lipac_sim::memory::mesh_lod;
 use lipac_sim::record::from_trace_camera;
@@ -162,17 +164,32 @@ fn a_trace_recorded_from_the_manager_replays_hits_only() {
 /// builds, refits (what its activation and deactivation decisions produce).
 type Decisions = Vec<(u64, u64, u64, u64)>;
 
+/// The hits-only replay of these tests with a warm start of the frustum
+/// alone: the default one's 800 m around the camera would take the whole
+/// 128 m world at once, and nothing would be culled.
+fn replay_config(strategies: Vec<StrategyKind>) -> ReplayConfig {
+    ReplayConfig {
+        mode: Some(ReplayMode::HitsOnly),
+        strategies,
+        lipac_start: LipacStart::Warm(ActivationHeuristic {
+            max_distance: f32::INFINITY,
+            min_projected_size: 0.0,
+            surround_radius: 0.0,
+        }),
+        ..ReplayConfig::default()
+    }
+}
+
 /// The recorded run on the same [`CpuBackend`] the hits-only replay drives
 /// (same configuration, same frame order: feedback of the previous frame,
 /// the engine's changes, the frame), so that the replay must reproduce its
 /// decisions exactly.
 fn record_on_the_replays_backend(frames: u32) -> (Vec<u8>, Decisions) {
-    let config = ReplayConfig {
-        mode: Some(ReplayMode::HitsOnly),
-        ..ReplayConfig::default()
-    };
-    let lipac = LipacConfig::for_rays_per_frame(u64::from(config.width) * u64::from(config.height))
-        .unwrap();
+    let config = replay_config(Vec::new());
+    let mut lipac =
+        LipacConfig::for_rays_per_frame(u64::from(config.width) * u64::from(config.height))
+            .unwrap();
+    config.lipac_start.apply(&mut lipac);
     // The replay's catalog: its estimates from the header's triangle counts.
     let mut catalog = MeshCatalog::new();
     catalog
@@ -276,11 +293,7 @@ fn a_hits_only_replay_makes_the_recorded_runs_decisions() {
     assert!(distinct.len() > 3, "{original:?}");
     assert!(original.iter().map(|d| d.2).sum::<u64>() > 0);
     let mut input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();
-    let config = ReplayConfig {
-        mode: Some(ReplayMode::HitsOnly),
-        strategies: vec![StrategyKind::Lipac],
-        ..ReplayConfig::default()
-    };
+    let config = replay_config(vec![StrategyKind::Lipac]);
     let report = replay_hits(&mut input, &config, &mut |_| {}).expect("hits-only replay");
     let lipac = report.strategy("lipac").expect("the LiPaC run");
     let replayed: Decisions = lipac

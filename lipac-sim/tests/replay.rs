@@ -110,6 +110,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             lipac_rise_shift: None,
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
+            lipac_warm_start_hold: None,
         },
         &mut |_, _| {},
     )
@@ -632,6 +633,7 @@ fn a_replay_finds_the_cut_and_warm_starts_there() {
             height: H,
             threads: 2,
             warm_start_at_cuts: at_cuts,
+            warm_start_hold: None,
             ..ReplayConfig::default()
         };
         let input = TraceInput::new(TraceFormat::Binary, bytes.as_slice()).unwrap();

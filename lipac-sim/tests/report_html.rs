@@ -101,6 +101,7 @@ fn report_html_renders_in_headless_chromium() {
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     let (r, snaps) =
         run_choice_with_snapshots(SceneChoice::Small, None, &config, &[0, 3], &mut |_, _| {})

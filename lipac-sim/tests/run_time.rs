@@ -20,6 +20,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;

@@ -36,6 +36,7 @@ fn run(frames: u32, snapshots: &[u32]) -> (lipac_sim::compare::CompareReport, Ve
         // The paper's cold start: every hitbox inactive at frame 0.
         lipac_start: lipac_sim::compare::LipacStart::Cold,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     run_choice_with_snapshots(SceneChoice::Small, None, &config, snapshots, &mut |_, _| {}).unwrap()
 }

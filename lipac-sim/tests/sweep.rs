@@ -26,6 +26,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         trace: None,
         trace_options: Default::default(),
         warm_start_at_cuts: false,
+        warm_start_hold: None,
     }
 }
 
@@ -187,6 +188,7 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         lipac_rise_shift: None,
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     let c = run_choice(SceneChoice::Small, None, &compare, &mut |_, _| {}).unwrap();
     for (swept, compared) in [("lipac ×1", "lipac"), ("lipac-latency", "lipac-latency")] {
@@ -415,6 +417,7 @@ fn a_trace_sweep_warm_starts_at_the_cut_as_the_replay_does() {
             factors: vec![1.0],
             latency: Vec::new(),
             warm_start_at_cuts: at_cuts,
+            warm_start_hold: None,
             ..on_trace(&file)
         };
         let r = sweep::run(&config, &mut |_, _, _, _| {}).unwrap();
@@ -432,6 +435,7 @@ fn a_trace_sweep_warm_starts_at_the_cut_as_the_replay_does() {
             height: h,
             threads: 2,
             warm_start_at_cuts: true,
+            warm_start_hold: None,
             ..ReplayConfig::default()
         },
         &mut |_| {},

@@ -53,6 +53,7 @@ fn infinite_errors_survive_merge_and_replot() {
         trace: None,
         trace_options: Default::default(),
         warm_start_at_cuts: false,
+        warm_start_hold: None,
     };
     let mut shard = run_shard(&config, Shard::new(1, 1).unwrap(), &mut |_, _, _, _| {}).unwrap();
     assert!(shard.points.len() >= 2, "{} points", shard.points.len());

@@ -29,6 +29,7 @@ fn tiny(frames: u32) -> SweepConfig {
         trace: None,
         trace_options: Default::default(),
         warm_start_at_cuts: false,
+        warm_start_hold: None,
     }
 }
 

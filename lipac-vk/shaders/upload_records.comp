@@ -3,16 +3,18 @@
 // scatters CPU-written instance records (staged joined, 96 B each) into the
 // GPU's three instance arrays (hot, heights, cold) WITHOUT overwriting the
 // state bits of the GPU's hot record (Algorithm 2 owns them), then applies
-// the CPU's explicit state overrides and hitbox active overrides.
+// the CPU's explicit state overrides and hitbox active overrides, and raises
+// decayed rates to the CPU's rate floors (a held warm start).
 // lipac_vk::RecordUploader records it twice:
 //   pass 0: one thread per staged record (hot: hitbox, packed with the
 //           destination's LIPAC_INSTANCE_STATE_MASK bits kept; heights:
 //           the AABB's y words; cold: the other 22 words), then one per
 //           hitbox override (active bit set, streak zeroed, hits and heights
-//           kept);
+//           kept), one per hitbox rate floor (rate = max(rate, floor)) and
+//           one per instance rate floor (the slot's rate likewise);
 //   pass 1 (after a barrier): one thread per state override.
 // The host removes duplicate slots/indices (the last override wins, as on the
-// CPU), so no two threads of a pass write the same word.
+// CPU; the largest floor), so no two threads of a pass write the same word.
 #extension GL_GOOGLE_include_directive : require
 #include "lipac_layout.glsl"
 
@@ -34,6 +36,9 @@ layout(std430, set = 0, binding = 4) readonly buffer StateOverrides { uvec2 stat
 layout(std430, set = 0, binding = 5) readonly buffer HitboxOverrides { uvec2 hitboxOverrides[]; };
 layout(std430, set = 0, binding = 6) writeonly buffer InstancesHeights { uint heightsWords[]; };
 layout(std430, set = 0, binding = 7) writeonly buffer InstancesCold { uint coldWords[]; };
+layout(std430, set = 0, binding = 8) buffer InstanceRates { uint instanceRates[]; };
+layout(std430, set = 0, binding = 9) readonly buffer HitboxRateFloors { uvec2 hitboxFloors[]; };
+layout(std430, set = 0, binding = 10) readonly buffer InstanceRateFloors { uvec2 instanceFloors[]; };
 
 layout(push_constant) uniform UploadPush {
     uint pass;
@@ -42,12 +47,17 @@ layout(push_constant) uniform UploadPush {
     uint hitboxCount;
     uint slotCapacity;
     uint hitboxCapacity;
+    uint hitboxFloorCount;
+    uint instanceFloorCount;
 } pc;
 
 void main() {
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     if (pc.pass == 0u) {
-        for (uint i = gl_GlobalInvocationID.x; i < pc.recordCount + pc.hitboxCount; i += stride) {
+        uint hitboxesEnd = pc.recordCount + pc.hitboxCount;
+        uint hitboxFloorsEnd = hitboxesEnd + pc.hitboxFloorCount;
+        uint end = hitboxFloorsEnd + pc.instanceFloorCount;
+        for (uint i = gl_GlobalInvocationID.x; i < end; i += stride) {
             if (i < pc.recordCount) {
                 uint slot = stagedSlots[i];
                 if (slot >= pc.slotCapacity) {
@@ -73,13 +83,25 @@ void main() {
                     coldWords[cold + 16u + w] = stagedWords[src + 12u + w];  // aabbMin
                     coldWords[cold + 19u + w] = stagedWords[src + 16u + w];  // aabbMax
                 }
-            } else {
+            } else if (i < hitboxesEnd) {
                 uvec2 o = hitboxOverrides[i - pc.recordCount];
                 if (o.x >= pc.hitboxCapacity) {
                     continue;
                 }
                 uint keep = ~((LIPAC_HITBOX_STREAK_MAX << LIPAC_HITBOX_STREAK_SHIFT) | LIPAC_HITBOX_ACTIVE);
                 hitboxes[o.x].packed = (hitboxes[o.x].packed & keep) | (o.y != 0u ? LIPAC_HITBOX_ACTIVE : 0u);
+            } else if (i < hitboxFloorsEnd) {
+                uvec2 f = hitboxFloors[i - hitboxesEnd];
+                if (f.x >= pc.hitboxCapacity) {
+                    continue;
+                }
+                hitboxes[f.x].rate = max(hitboxes[f.x].rate, f.y);
+            } else {
+                uvec2 f = instanceFloors[i - hitboxFloorsEnd];
+                if (f.x >= pc.slotCapacity) {
+                    continue;
+                }
+                instanceRates[f.x] = max(instanceRates[f.x], f.y);
             }
         }
     } else {

@@ -886,6 +886,7 @@ impl LipacVk {
                 let bindings = self.uploader.bind(&UploadTargets {
                     instances: tables.instance_buffers(),
                     hitboxes: self.hitbox.records(),
+                    instance_rates: &tables.instance_rates,
                 })?;
                 tables.uploads.push(UploadSet {
                     bindings,

@@ -3,7 +3,8 @@
 //! instance records (joined, 96 bytes each) and scatters them into the GPU's
 //! three instance arrays ([`InstanceBuffers`]: hot, heights, cold) **keeping
 //! the state bits** of the GPU's hot records (Algorithm 2 owns them), then
-//! applies the CPU's explicit state overrides and hitbox active overrides.
+//! applies the CPU's explicit state overrides and hitbox active overrides
+//! and raises decayed rates to the CPU's rate floors (a held warm start).
 
 use crate::accel::same_context;
 use crate::assembly::InstanceBuffers;
@@ -18,7 +19,7 @@ use bytemuck::{Pod, Zeroable};
 use lipac_core::culling::Uploads;
 use lipac_core::layout::{HitboxRecord, InstanceArrays, InstanceRecord};
 
-const BINDINGS: u32 = 8;
+const BINDINGS: u32 = 11;
 const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
 
 /// Push constants of `upload_records.comp`.
@@ -31,6 +32,8 @@ struct UploadPush {
     hitbox_count: u32,
     slot_capacity: u32,
     hitbox_capacity: u32,
+    hitbox_floor_count: u32,
+    instance_floor_count: u32,
 }
 
 /// The GPU buffers an upload writes (all need `STORAGE_BUFFER` usage; any
@@ -41,6 +44,9 @@ pub struct UploadTargets<'a> {
     pub instances: InstanceBuffers<'a>,
     /// The GPU's [`HitboxRecord`]s.
     pub hitboxes: &'a Buffer,
+    /// The GPU's per-slot decayed hit rates (one `u32` per slot, at least
+    /// as many as the instance arrays hold).
+    pub instance_rates: &'a Buffer,
 }
 
 /// A descriptor set bound to one [`UploadTargets`], with its own host-visible
@@ -55,6 +61,8 @@ pub struct UploadBindings {
     slots: Buffer,
     state_overrides: Buffer,
     hitbox_overrides: Buffer,
+    hitbox_floors: Buffer,
+    instance_floors: Buffer,
     slot_capacity: u32,
     hitbox_capacity: u32,
 }
@@ -74,6 +82,8 @@ impl UploadBindings {
             + self.slots.size()
             + self.state_overrides.size()
             + self.hitbox_overrides.size()
+            + self.hitbox_floors.size()
+            + self.instance_floors.size()
     }
 }
 
@@ -86,6 +96,9 @@ pub struct UploadStats {
     pub state_overrides: u32,
     /// Hitbox overrides applied (distinct hitboxes, inside the buffer).
     pub hitbox_overrides: u32,
+    /// Rate floors applied, hitboxes' and instances' (distinct indices and
+    /// slots, inside the buffers).
+    pub rate_floors: u32,
 }
 
 /// The GPU version of [`lipac_core::culling::apply_uploads`]
@@ -99,11 +112,13 @@ pub struct UploadStats {
 /// 1. every record of `uploads.records` (clamped to `records.len()`) is
 ///    copied word for word, except that the two state bits of `packed` stay
 ///    those of the GPU copy; every hitbox override sets the active bit and
-///    zeroes the streak, keeping the hit count and heights;
+///    zeroes the streak, keeping the hit count and heights; every rate
+///    floor raises a hitbox's or a slot's rate to at least its value;
 /// 2. every state override replaces the two state bits.
 ///
 /// Duplicates are removed on the host (overrides: the last one wins, as in
-/// the CPU's sequential loop), so no two threads write the same word.
+/// the CPU's sequential loop; floors: the largest), so no two threads
+/// write the same word.
 /// Overrides past the buffers are ignored, as on the CPU.
 ///
 /// See also `docs/VULKAN.md`.
@@ -134,12 +149,19 @@ impl RecordUploader {
     ///
     /// [`VkError::MissingUsage`] without `STORAGE_BUFFER`,
     /// [`VkError::InvalidArgument`] when a buffer holds no record or more
-    /// than 2^24, [`VkError::WrongContext`], [`VkError::Vulkan`],
+    /// than 2^24, or fewer rates than instance slots,
+    /// [`VkError::WrongContext`], [`VkError::Vulkan`],
     /// [`VkError::NoMemoryType`].
     pub fn bind(&self, targets: &UploadTargets<'_>) -> Result<UploadBindings> {
         let ctx = self.kernels.context();
         let i = &targets.instances;
-        for b in [i.hot, i.heights, i.cold, targets.hitboxes] {
+        for b in [
+            i.hot,
+            i.heights,
+            i.cold,
+            targets.hitboxes,
+            targets.instance_rates,
+        ] {
             same_context(ctx, b.context())?;
         }
         let slots = u64::from(i.slot_capacity()?);
@@ -154,12 +176,20 @@ impl RecordUploader {
                 "{hitboxes} hitboxes exceed 2^24"
             )));
         }
+        let rates = targets.instance_rates.size() / 4;
+        if rates < slots {
+            return Err(VkError::InvalidArgument(format!(
+                "{rates} instance rates for {slots} instance slots"
+            )));
+        }
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let staging = |bytes: u64| Buffer::new(ctx, bytes, storage, MemoryLocation::CpuToGpu);
         let records = staging(slots * RECORD_BYTES)?;
         let slot_list = staging(slots * 4)?;
         let state_overrides = staging(slots * 8)?;
         let hitbox_overrides = staging(hitboxes * 8)?;
+        let hitbox_floors = staging(hitboxes * 8)?;
+        let instance_floors = staging(slots * 8)?;
         let set = self.kernels.bind(
             &[
                 i.hot,
@@ -170,6 +200,9 @@ impl RecordUploader {
                 &hitbox_overrides,
                 i.heights,
                 i.cold,
+                targets.instance_rates,
+                &hitbox_floors,
+                &instance_floors,
             ],
             "STORAGE_BUFFER on an upload target",
         )?;
@@ -179,6 +212,8 @@ impl RecordUploader {
             slots: slot_list,
             state_overrides,
             hitbox_overrides,
+            hitbox_floors,
+            instance_floors,
             slot_capacity: slots as u32,
             hitbox_capacity: hitboxes as u32,
         })
@@ -228,6 +263,14 @@ impl RecordUploader {
         if !hitboxes.is_empty() {
             bindings.hitbox_overrides.write(0, &hitboxes)?;
         }
+        let hitbox_floors = max_wins(&uploads.hitbox_rate_floors, bindings.hitbox_capacity);
+        let instance_floors = max_wins(&uploads.instance_rate_floors, bindings.slot_capacity);
+        if !hitbox_floors.is_empty() {
+            bindings.hitbox_floors.write(0, &hitbox_floors)?;
+        }
+        if !instance_floors.is_empty() {
+            bindings.instance_floors.write(0, &instance_floors)?;
+        }
         let mut push = UploadPush {
             pass: 0,
             record_count: slots.len() as u32,
@@ -235,6 +278,8 @@ impl RecordUploader {
             hitbox_count: hitboxes.len() as u32,
             slot_capacity: bindings.slot_capacity,
             hitbox_capacity: bindings.hitbox_capacity,
+            hitbox_floor_count: hitbox_floors.len() as u32,
+            instance_floor_count: instance_floors.len() as u32,
         };
         rec.memory_barrier(
             vk::PipelineStageFlags2::ALL_COMMANDS,
@@ -248,7 +293,10 @@ impl RecordUploader {
             set,
             0,
             bytemuck::bytes_of(&push),
-            push.record_count + push.hitbox_count,
+            push.record_count
+                + push.hitbox_count
+                + push.hitbox_floor_count
+                + push.instance_floor_count,
         )?;
         compute_to_compute(rec, false);
         push.pass = 1;
@@ -259,6 +307,7 @@ impl RecordUploader {
             records: push.record_count,
             state_overrides: push.state_count,
             hitbox_overrides: push.hitbox_count,
+            rate_floors: push.hitbox_floor_count + push.instance_floor_count,
         })
     }
 }
@@ -305,6 +354,26 @@ fn last_wins(pairs: impl Iterator<Item = [u32; 2]>, capacity: u32) -> Vec<[u32; 
     for p in v {
         match out.last_mut() {
             Some(last) if last[0] == p[0] => *last = p,
+            _ => out.push(p),
+        }
+    }
+    out
+}
+
+/// `(key, floor)` pairs with keys below `capacity`, one per key (the
+/// largest floor: applying them one by one as `max` gives the same), by
+/// ascending key.
+fn max_wins(pairs: &[(u32, u32)], capacity: u32) -> Vec<[u32; 2]> {
+    let mut v: Vec<[u32; 2]> = pairs
+        .iter()
+        .filter(|p| p.0 < capacity)
+        .map(|&(k, f)| [k, f])
+        .collect();
+    v.sort_unstable();
+    let mut out: Vec<[u32; 2]> = Vec::with_capacity(v.len());
+    for p in v {
+        match out.last_mut() {
+            Some(last) if last[0] == p[0] => last[1] = last[1].max(p[1]),
             _ => out.push(p),
         }
     }

@@ -113,6 +113,7 @@ fn grow_and_match(name: &str, warm: bool) {
             let all = ActivationHeuristic {
                 max_distance: f32::INFINITY,
                 min_projected_size: 0.0,
+                surround_radius: 0.0,
             };
             let out = manager.warm_start(eye, &frustum, all).unwrap();
             assert_eq!(out.requests.len(), 2, "both instances in view");

@@ -9,7 +9,8 @@
 //! their TLAS record multisets, command streams, plans and escape-fraction
 //! sums (summed on the GPU, read back in the ring slot, handed over by
 //! `Polled::deliver`) are equal every frame, under a random camera per
-//! frame. Serial frames (each waited for): the frames-in-flight loop is
+//! frame; in one run both also warm-start, held, at some frames (the
+//! rate floors uploaded to the GPU). Serial frames (each waited for): the frames-in-flight loop is
 //! `tests/vk_city.rs`'s.
 
 mod common;
@@ -22,6 +23,7 @@ use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
+use lipac_core::latency::{ActivationHeuristic, Frustum};
 use lipac_core::layout::tlas_multiset;
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog};
 use lipac_core::registry::InstanceHandle;
@@ -175,6 +177,7 @@ fn manager(
     catalog: &MeshCatalog,
     commands: u32,
     thresholds: Thresholds,
+    warm_start_hold: u32,
 ) -> Manager<HashedHitboxes> {
     let index = HashedHitboxes::new(HashedConfig {
         cell_size: f64::from(CELL),
@@ -187,6 +190,7 @@ fn manager(
     mc.culling.latency_mitigation = None;
     mc.culling.command_capacity = commands;
     mc.culling.thresholds = thresholds;
+    mc.culling.warm_start_hold = warm_start_hold;
     mc.scheduler = SchedulerConfig {
         scratch_alignment: align,
         ..SchedulerConfig::default()
@@ -197,15 +201,34 @@ fn manager(
 #[test]
 fn hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule() {
     if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule") {
-        gpu_equals_cpu(&h, paper(), false);
+        gpu_equals_cpu(&h, paper(), false, None);
     }
 }
 
 #[test]
 fn hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule() {
     if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule") {
-        gpu_equals_cpu(&h, decayed(), false);
+        gpu_equals_cpu(&h, decayed(), false, None);
     }
+}
+
+/// Warm starts at some frames, held for 3 frames without hits: the GPU
+/// gets the rate floors through the upload and decides as the CPU does.
+#[test]
+fn held_warm_starts_on_the_gpu_equal_the_cpu_backend() {
+    if let Some(h) = headless("held_warm_starts_on_the_gpu_equal_the_cpu_backend") {
+        gpu_equals_cpu(&h, decayed(), false, Some(3));
+    }
+}
+
+/// The frustum of `view` (as the camera tracer shoots its rays).
+fn frustum_of(view: &CameraView) -> Frustum {
+    let origin = Vec3::from(view.origin);
+    let v = glam::camera::rh::view::look_to_mat4(origin, Vec3::from(view.forward), Vec3::Y);
+    let half = Vec3::from(view.up).length().atan();
+    let aspect = Vec3::from(view.right).length() / Vec3::from(view.up).length();
+    let p = glam::camera::rh::proj::vulkan::perspective(2.0 * half, aspect, 0.1, view.t_max);
+    Frustum::from_view_projection(p * v).unwrap()
 }
 
 /// The escape sums with random per-slot hit counts up to `u32::MAX`
@@ -213,7 +236,7 @@ fn hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule() {
 #[test]
 fn escape_sums_equal_the_cpu_for_random_large_hit_counts() {
     if let Some(h) = headless("escape_sums_equal_the_cpu_for_random_large_hit_counts") {
-        gpu_equals_cpu(&h, paper(), true);
+        gpu_equals_cpu(&h, paper(), true, None);
     }
 }
 
@@ -265,7 +288,14 @@ fn overwrite_hits(rec: &mut lipac_vk::Recorder<'_>, staging: &Buffer, dst: &Buff
     );
 }
 
-fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool) {
+/// `warm_start_hold`: both managers warm-start at frames 4, 9 and 15 (the
+/// view's frustum and 30 m around the camera), held that many frames.
+fn gpu_equals_cpu(
+    h: &HeadlessContext,
+    thresholds: Thresholds,
+    large_hits: bool,
+    warm_start_hold: Option<u32>,
+) {
     let ctx = h.context();
     let (mesh, catalog) = common::one_mesh_catalog(h, DATA_BYTES);
     let commands = 512;
@@ -282,8 +312,10 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
     let mut lipac = LipacVk::new(ctx, &empty, config).unwrap();
     assert_eq!(lipac.hitbox_capacity(), 1);
     let (cube, align) = (lipac.unit_cube_address(), lipac.scratch_alignment());
-    let mut gpu = manager(cube, align, &catalog, commands, thresholds);
-    let mut cpu = manager(cube, align, &catalog, commands, thresholds);
+    let hold = warm_start_hold.unwrap_or(0);
+    let mut gpu = manager(cube, align, &catalog, commands, thresholds, hold);
+    let mut cpu = manager(cube, align, &catalog, commands, thresholds, hold);
+    let mut warm_activations = 0;
     let (mut gpu_scene, mut cpu_scene) = (Scene::new(), Scene::new());
 
     let tracer = CameraTracer::new(ctx, lipac.counting()).unwrap();
@@ -317,6 +349,19 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
         // The Vulkan backend: the previous frame's results, plan, record,
         // trace, Algorithm 2, read-back.
         gpu.begin_frame(f).unwrap();
+        let view = random_view(&mut cameras, f);
+        let warm = warm_start_hold.is_some() && [4, 9, 15].contains(&f);
+        let heuristic = ActivationHeuristic {
+            max_distance: f32::INFINITY,
+            min_projected_size: 0.0,
+            surround_radius: 30.0,
+        };
+        if warm {
+            let out = gpu
+                .warm_start(Vec3::from(view.origin), &frustum_of(&view), heuristic)
+                .unwrap();
+            warm_activations += out.summary.accepted;
+        }
         let evicted = gpu.registry().evicted_hitboxes().to_vec();
         evictions += evicted.len();
         let acks = last.as_ref().map(|p| p.acks.clone()).unwrap_or_default();
@@ -324,7 +369,10 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
             p.deliver(&mut gpu).unwrap();
         }
         let plan = gpu.plan(&FrameBudgets::default()).unwrap();
-        let view = random_view(&mut cameras, f);
+        if warm {
+            let floors = plan.uploads.hitbox_rate_floors.len();
+            assert!(floors > 0, "frame {f}: the hold's floors are uploaded");
+        }
         let value = lipac.next_frame_value();
         let staging = large_hits.then(|| {
             let hits = random_hits(&mut cameras, gpu.slot_count());
@@ -389,6 +437,10 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
         // The CPU backend, the same frame: the same acknowledgements, its
         // own commands of the last frame.
         cpu.begin_frame(f).unwrap();
+        if warm {
+            cpu.warm_start(Vec3::from(view.origin), &frustum_of(&view), heuristic)
+                .unwrap();
+        }
         assert_eq!(cpu.registry().evicted_hitboxes(), &evicted[..], "frame {f}");
         for ack in acks {
             cpu.handle_ack(ack).unwrap();
@@ -454,6 +506,9 @@ fn gpu_equals_cpu(h: &HeadlessContext, thresholds: Thresholds, large_hits: bool)
     assert!(growths.len() >= 3, "the hitbox tables grew at {growths:?}");
     assert!(evictions > 0 && reused_at_same_len > 0);
     assert!(total_commands > 0, "instances were activated");
+    if warm_start_hold.is_some() {
+        assert!(warm_activations > 0, "the warm starts activated instances");
+    }
     assert!(box_hits > 0 && traced_hits > 0, "both sums were exercised");
     if large_hits {
         assert!(

@@ -1,6 +1,7 @@
 //! `RecordUploader` (upload_records.comp) equals
 //! `lipac_core::culling::apply_uploads` bit for bit on random records,
-//! ranges and overrides, over several rounds on the same GPU buffers.
+//! ranges, overrides and rate floors, over several rounds on the same GPU
+//! buffers.
 
 mod common;
 
@@ -55,10 +56,21 @@ fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
     let hitbox_overrides = (0..n_hitboxes)
         .map(|_| (rng.below_u32(hitboxes + 4), rng.below_u32(2) == 1))
         .collect();
+    // Floors of any size (a GPU rate above or below them), duplicates and
+    // keys past the buffers.
+    let mut floors = |n: u32, keys: u32| -> Vec<(u32, u32)> {
+        (0..rng.below_u32(n + 1))
+            .map(|_| (rng.below_u32(keys + 4), rng.next_u64() as u32))
+            .collect()
+    };
+    let hitbox_rate_floors = floors(hitboxes, hitboxes);
+    let instance_rate_floors = floors(slots / 2, slots);
     Uploads {
         records,
         state_overrides,
         hitbox_overrides,
+        hitbox_rate_floors,
+        instance_rate_floors,
     }
 }
 
@@ -82,12 +94,14 @@ fn gpu_upload_equals_apply_uploads() {
         )
         .unwrap();
         let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);
+        let mut gpu_rates: Vec<u32> = random_records(&mut rng, n);
         let host =
             |data: &[u8]| Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, data).unwrap();
         let hot = host(bytemuck::cast_slice(gpu_copy.hot()));
         let heights = host(bytemuck::cast_slice(gpu_copy.heights()));
         let cold = host(bytemuck::cast_slice(gpu_copy.cold()));
         let hitbox_buf = host(bytemuck::cast_slice(&gpu_hitboxes));
+        let rates_buf = host(bytemuck::cast_slice(&gpu_rates));
         let mut bindings = uploader
             .bind(&UploadTargets {
                 instances: InstanceBuffers {
@@ -96,6 +110,7 @@ fn gpu_upload_equals_apply_uploads() {
                     cold: &cold,
                 },
                 hitboxes: &hitbox_buf,
+                instance_rates: &rates_buf,
             })
             .unwrap();
         assert_eq!(
@@ -113,7 +128,13 @@ fn gpu_upload_equals_apply_uploads() {
                 random_uploads(&mut rng, slots, hitboxes)
             };
             let before = gpu_copy.clone();
-            apply_uploads(&uploads, &cpu_records, &mut gpu_copy, &mut gpu_hitboxes);
+            apply_uploads(
+                &uploads,
+                &cpu_records,
+                &mut gpu_copy,
+                &mut gpu_rates,
+                &mut gpu_hitboxes,
+            );
             let stats = one_shot
                 .run(|rec| uploader.record(rec, &mut bindings, &uploads, &cpu_records))
                 .unwrap();
@@ -124,6 +145,7 @@ fn gpu_upload_equals_apply_uploads() {
             )
             .unwrap();
             let got_hitboxes: Vec<HitboxRecord> = hitbox_buf.read(0, hitboxes as usize).unwrap();
+            let got_rates: Vec<u32> = rates_buf.read(0, n).unwrap();
             let what = format!("{slots} slots, {hitboxes} hitboxes, round {round}");
             for (i, (g, w)) in got.hot().iter().zip(gpu_copy.hot()).enumerate() {
                 assert_eq!(g, w, "{what}: hot {i}");
@@ -149,6 +171,7 @@ fn gpu_upload_equals_apply_uploads() {
                     "{what}: hitbox {i}"
                 );
             }
+            assert_eq!(got_rates, gpu_rates, "{what}: rates");
             // The uploads did something, and the state bits were kept where
             // no override names the slot.
             if round < 3 && slots > 1 {
@@ -187,6 +210,21 @@ fn upload_targets_are_checked() {
     let hitboxes = Buffer::new(ctx, 120, storage, MemoryLocation::GpuOnly).unwrap();
     let slots10 = |b| Buffer::new(ctx, b, storage, MemoryLocation::GpuOnly).unwrap();
     let (hot, heights, cold) = (slots10(80), slots10(80), slots10(880));
+    let rates = slots10(40);
+    // 36 bytes hold 9 rates, not the 10 slots' rates.
+    let few_rates = slots10(36);
+    assert!(matches!(
+        uploader.bind(&UploadTargets {
+            instances: InstanceBuffers {
+                hot: &hot,
+                heights: &heights,
+                cold: &cold,
+            },
+            hitboxes: &hitboxes,
+            instance_rates: &few_rates,
+        }),
+        Err(lipac_vk::VkError::InvalidArgument(_))
+    ));
     // 64 bytes hold no 88-byte cold record.
     assert!(uploader
         .bind(&UploadTargets {
@@ -196,6 +234,7 @@ fn upload_targets_are_checked() {
                 cold: &small,
             },
             hitboxes: &hitboxes,
+            instance_rates: &rates,
         })
         .is_err());
     let no_storage = Buffer::new(
@@ -213,6 +252,7 @@ fn upload_targets_are_checked() {
                 cold: &cold,
             },
             hitboxes: &hitboxes,
+            instance_rates: &rates,
         }),
         Err(lipac_vk::VkError::MissingUsage(_))
     ));
@@ -225,6 +265,7 @@ fn upload_targets_are_checked() {
                 cold: &cold,
             },
             hitboxes: &hitboxes,
+            instance_rates: &rates,
         })
         .unwrap();
     assert_eq!(bindings.slot_capacity(), 10);
@@ -239,6 +280,6 @@ fn upload_targets_are_checked() {
         refused,
         Err(lipac_vk::VkError::InvalidArgument(_))
     ));
-    drop((bindings, hot, heights, cold));
+    drop((bindings, hot, heights, cold, rates, few_rates));
     assert_no_validation_errors(&h);
 }

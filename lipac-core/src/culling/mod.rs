@@ -60,12 +60,14 @@ use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
 use crate::latency::{ActivationHeuristic, Frustum, LatencyMitigation, LatencySummary};
-use crate::layout::{hitbox_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS};
+use crate::layout::{
+    hitbox_bits, instance_bits, HitboxRecord, InstanceState, TlasInstance, MAX_SLOTS,
+};
 use crate::math::Aabb;
 use crate::memory::MemoryUsage;
 use crate::registry::{InstanceHandle, InstanceRegistry, RegistryConfig, RemovedInstance};
 use crate::slot_table::SlotTable;
-use crate::thresholds::Thresholds;
+use crate::thresholds::{DecisionRule, Thresholds};
 
 /// Settings of a [`Culling`]; checked by [`CullingConfig::validate`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,6 +98,15 @@ pub struct CullingConfig {
     /// ([`crate::hitbox_tree`]); off by default (one box per inactive
     /// hitbox, the paper's rule). Dense grids only.
     pub adaptive_hitboxes: AdaptiveHitboxes,
+    /// Frames of Algorithm 2 without a hit that what a warm start
+    /// ([`Culling::warm_start`]) activates survives, under the decayed rule:
+    /// its hitboxes' rates and its unique-BLAS instances' rates are raised
+    /// to [`crate::thresholds::DecayedRule::hold_rate`] of the deactivation
+    /// and omit thresholds, so that hit feedback culls the view down only
+    /// after that many frames of evidence, not after the first frame's few
+    /// rays. 0 (the default): no hold, the first feedback decides. The
+    /// paper's rule has no rates; there it changes nothing.
+    pub warm_start_hold: u32,
 }
 
 /// Who decides which instances are active ([`CullingConfig::selection`]).
@@ -132,6 +143,7 @@ impl CullingConfig {
             readback_latency: 2,
             selection: Selection::HitFeedback,
             adaptive_hitboxes: AdaptiveHitboxes::OFF,
+            warm_start_hold: 0,
         }
     }
 
@@ -388,6 +400,10 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     latency: Option<LatencyMitigation>,
     state_overrides: StateOverrides,
     hitbox_overrides: HashMap<u32, bool>,
+    /// Rate floors of a held warm start ([`CullingConfig::warm_start_hold`])
+    /// not yet taken for the GPU: by hitbox index and by slot.
+    hitbox_rate_floors: HashMap<u32, u32>,
+    instance_rate_floors: HashMap<u32, u32>,
     scratch: Vec<u32>,
     /// Adaptive hitboxes' quadtree (`None`: off).
     tree: Option<HitboxTree>,
@@ -432,6 +448,8 @@ impl<H: HitboxIndex> Culling<H> {
             latency,
             state_overrides: StateOverrides::default(),
             hitbox_overrides,
+            hitbox_rate_floors: HashMap::new(),
+            instance_rate_floors: HashMap::new(),
             scratch: Vec::new(),
             tree,
             config,
@@ -569,7 +587,10 @@ impl<H: HitboxIndex> Culling<H> {
             hitboxes: vec_bytes::<HitboxRecord>(self.hitboxes.capacity()),
             command_buffer: self.commands.heap_bytes(),
             command_queue: self.queue.heap_bytes(),
-            overrides: self.state_overrides.heap_bytes() + hash_map_bytes(&self.hitbox_overrides),
+            overrides: self.state_overrides.heap_bytes()
+                + hash_map_bytes(&self.hitbox_overrides)
+                + hash_map_bytes(&self.hitbox_rate_floors)
+                + hash_map_bytes(&self.instance_rate_floors),
             scratch: vec_bytes::<u32>(self.scratch.capacity()),
         }
     }
@@ -630,6 +651,8 @@ impl<H: HitboxIndex> Culling<H> {
         }
         self.instance_hits[slot as usize] = 0;
         self.instance_rates[slot as usize] = 0;
+        // A floor for the slot's previous occupant is not this one's.
+        self.instance_rate_floors.remove(&slot);
         // The Manager's decision at this frame: inactive, no BLAS promised.
         // (Field by field: a pending state override of the slot stays
         // listed, see `StateOverrides`.)
@@ -800,6 +823,7 @@ impl<H: HitboxIndex> Culling<H> {
             if let Some(h) = self.hitboxes.get_mut(index as usize) {
                 *h = HitboxRecord::default();
                 self.hitbox_overrides.insert(index, false);
+                self.hitbox_rate_floors.remove(&index);
             }
         }
         self.instance_hits.fill(0);
@@ -821,7 +845,7 @@ impl<H: HitboxIndex> Culling<H> {
         let Some(mut lm) = self.latency.take() else {
             return Ok(LatencyOutcome::default());
         };
-        let out = self.activate_newly_visible(&mut lm, camera, frustum);
+        let out = self.activate_newly_visible(&mut lm, camera, frustum, None);
         self.latency = Some(lm);
         out
     }
@@ -836,8 +860,13 @@ impl<H: HitboxIndex> Culling<H> {
     /// the read-back latency, what the paths do not reach: LiPaC starts
     /// from the view and culls down instead of starting from nothing.
     /// `ActivationHeuristic { max_distance: f32::INFINITY, .. }` takes the
-    /// whole frustum. Fails for a non-finite camera or a heuristic with NaN
-    /// or negative values, changing nothing.
+    /// whole frustum, a [`ActivationHeuristic::surround_radius`] also what
+    /// is near the camera off screen. Under the decayed rule
+    /// [`CullingConfig::warm_start_hold`] holds what it activates for that
+    /// many frames without hits (their rates raised on the CPU records now
+    /// and on the GPU's through [`Uploads::hitbox_rate_floors`] and
+    /// [`Uploads::instance_rate_floors`]). Fails for a non-finite camera or
+    /// a heuristic with NaN or negative values, changing nothing.
     pub fn warm_start(
         &mut self,
         camera: Vec3,
@@ -846,16 +875,25 @@ impl<H: HitboxIndex> Culling<H> {
     ) -> Result<LatencyOutcome, CoreError> {
         // A fresh tracker has seen nothing: everything in view is new to it.
         let mut once = LatencyMitigation::new(heuristic)?;
-        self.activate_newly_visible(&mut once, camera, frustum)
+        let hold = match &self.config.thresholds.rule {
+            DecisionRule::Decayed(r) if self.config.warm_start_hold > 0 => Some((
+                r.hold_rate(r.deactivate, self.config.warm_start_hold),
+                r.hold_rate(r.instance_omit, self.config.warm_start_hold),
+            )),
+            _ => None,
+        };
+        self.activate_newly_visible(&mut once, camera, frustum, hold)
     }
 
     /// `tracker`'s newly visible instances ([`LatencyMitigation::update_with`],
-    /// judged by the commanded state) made active now ([`Culling::activate_now`]).
+    /// judged by the commanded state) made active now
+    /// ([`Culling::activate_now`], with `hold`'s rate floors).
     fn activate_newly_visible(
         &mut self,
         tracker: &mut LatencyMitigation,
         camera: Vec3,
         frustum: &Frustum,
+        hold: Option<(u32, u32)>,
     ) -> Result<LatencyOutcome, CoreError> {
         let mut activate = std::mem::take(&mut self.scratch);
         let registry = &self.registry;
@@ -871,7 +909,7 @@ impl<H: HitboxIndex> Culling<H> {
             },
             &mut activate,
         );
-        let out = summary.and_then(|summary| self.activate_now(&activate, summary));
+        let out = summary.and_then(|summary| self.activate_now(&activate, summary, hold));
         self.scratch = activate;
         out
     }
@@ -879,11 +917,14 @@ impl<H: HitboxIndex> Culling<H> {
     /// Makes the instances in `activate` (live slots the loop decided to
     /// activate on the CPU: latency mitigation, a warm start) active now,
     /// with their hitboxes, and returns the BLAS requests of those without
-    /// one.
+    /// one. `hold` (a held warm start): the least rates of their hitboxes
+    /// and of their unique-BLAS instances, raised to on the CPU records
+    /// now and on the GPU's through the upload's rate floors.
     fn activate_now(
         &mut self,
         activate: &[u32],
         summary: LatencySummary,
+        hold: Option<(u32, u32)>,
     ) -> Result<LatencyOutcome, CoreError> {
         let frame = self.registry.frame();
         let mut out = LatencyOutcome {
@@ -913,6 +954,21 @@ impl<H: HitboxIndex> Culling<H> {
                     | hitbox_bits::ACTIVE;
                 if self.hitbox_overrides.insert(record.hitbox, true) != Some(true) {
                     out.hitboxes_activated += 1;
+                }
+                if let Some((hitbox_floor, _)) = hold {
+                    h.rate = h.rate.max(hitbox_floor);
+                    let floor = self.hitbox_rate_floors.entry(record.hitbox).or_insert(0);
+                    *floor = (*floor).max(hitbox_floor);
+                }
+            }
+            if let Some((_, instance_floor)) = hold {
+                // Only a unique-BLAS instance's rate decides (the others' are 0).
+                if record.packed & instance_bits::UNIQUE_BLAS != 0 {
+                    if let Some(r) = self.instance_rates.get_mut(slot as usize) {
+                        *r = (*r).max(instance_floor);
+                    }
+                    let floor = self.instance_rate_floors.entry(slot).or_insert(0);
+                    *floor = (*floor).max(instance_floor);
                 }
             }
             if record.blas != 0 || self.registry.table()[slot as usize].view.awaiting {
@@ -1066,10 +1122,17 @@ impl<H: HitboxIndex> Culling<H> {
         let state_overrides = self.state_overrides.take(self.registry.table_mut());
         let mut hitbox_overrides: Vec<(u32, bool)> = self.hitbox_overrides.drain().collect();
         hitbox_overrides.sort_unstable_by_key(|&(i, _)| i);
+        let floors = |map: &mut HashMap<u32, u32>| {
+            let mut v: Vec<(u32, u32)> = map.drain().collect();
+            v.sort_unstable_by_key(|&(i, _)| i);
+            v
+        };
         Uploads {
             records: self.registry.take_dirty(),
             state_overrides,
             hitbox_overrides,
+            hitbox_rate_floors: floors(&mut self.hitbox_rate_floors),
+            instance_rate_floors: floors(&mut self.instance_rate_floors),
         }
     }
 

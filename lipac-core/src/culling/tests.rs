@@ -153,6 +153,7 @@ fn config_validation_names_the_field() {
                 latency_mitigation: Some(ActivationHeuristic {
                     max_distance: f32::NAN,
                     min_projected_size: 0.1,
+                    surround_radius: 0.0,
                 }),
                 ..ok
             },
@@ -174,6 +175,7 @@ fn latency_mitigation_activates_instance_and_hitbox_and_it_survives_feedback() {
     cfg.latency_mitigation = Some(ActivationHeuristic {
         max_distance: f32::INFINITY,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     });
     let mut c = Culling::new(grid(), cfg).unwrap();
     let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
@@ -270,6 +272,7 @@ fn latency_mitigation_in_inactive_hitbox_adds_the_other_instances() {
     cfg.latency_mitigation = Some(ActivationHeuristic {
         max_distance: 0.0,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     });
     let mut c = Culling::new(grid(), cfg).unwrap();
     let (camera, away) = frustum_away();
@@ -317,6 +320,7 @@ fn warm_start_activates_the_view_without_latency_mitigation_and_feedback_culls_i
     let all = ActivationHeuristic {
         max_distance: f32::INFINITY,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     };
     assert!(c
         .warm_start(cam_away, &away, all)
@@ -327,6 +331,7 @@ fn warm_start_activates_the_view_without_latency_mitigation_and_feedback_culls_i
     let nan = ActivationHeuristic {
         max_distance: f32::NAN,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     };
     assert!(c.warm_start(camera, &f, nan).is_err());
     assert!(c.warm_start(Vec3::NAN, &f, all).is_err());
@@ -336,6 +341,7 @@ fn warm_start_activates_the_view_without_latency_mitigation_and_feedback_culls_i
     let h = ActivationHeuristic {
         max_distance: 50.0,
         min_projected_size: 0.5,
+        surround_radius: 0.0,
     };
     let out = c.warm_start(camera, &f, h).unwrap();
     let requested: Vec<InstanceHandle> = out.requests.iter().map(|r| r.handle).collect();
@@ -585,16 +591,19 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     cfg.latency_mitigation = Some(ActivationHeuristic {
         max_distance: f32::INFINITY,
         min_projected_size: 0.0,
+        surround_radius: 0.0,
     });
     let mut c = Culling::new(grid(), cfg).unwrap();
     let a = c.register(desc(8.0, 8.0, 1, false)).unwrap();
     let b = c.register(desc(40.0, 40.0, 1, false)).unwrap();
     let mut gpu = crate::layout::InstanceArrays::new();
+    let mut gpu_rates = Vec::new();
     let mut gpu_hitboxes = c.hitboxes().to_vec();
     apply_uploads(
         &c.take_uploads(),
         c.registry().records(),
         &mut gpu,
+        &mut gpu_rates,
         &mut gpu_hitboxes,
     );
     assert_eq!(&gpu, c.registry().records());
@@ -609,7 +618,13 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     assert_eq!(out.requests.len(), 2);
     let up = c.take_uploads();
     assert_eq!(up.records, vec![0..2]);
-    apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
+    apply_uploads(
+        &up,
+        c.registry().records(),
+        &mut gpu,
+        &mut gpu_rates,
+        &mut gpu_hitboxes,
+    );
     assert_eq!(&gpu, c.registry().records());
     assert_eq!(gpu.hot()[1].state(), InstanceState::Active); // override applied
     let hb_a = c.registry().record(a).unwrap().hitbox as usize;
@@ -619,7 +634,176 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     c.set_transform(b, Affine3A::IDENTITY, moved(38.0)).unwrap();
     let up = c.take_uploads();
     assert!(up.state_overrides.is_empty() && up.hitbox_overrides.is_empty());
-    apply_uploads(&up, c.registry().records(), &mut gpu, &mut gpu_hitboxes);
+    apply_uploads(
+        &up,
+        c.registry().records(),
+        &mut gpu,
+        &mut gpu_rates,
+        &mut gpu_hitboxes,
+    );
     assert_eq!(gpu.hot()[1].state(), InstanceState::Omitted);
     assert_eq!(gpu.cold()[1].aabb_min, [38.0, 0.0, 39.0]);
+}
+
+/// A held warm start ([`CullingConfig::warm_start_hold`]) keeps what it
+/// activates through that many frames of feedback without a hit, on the CPU
+/// records and, through the upload's rate floors, on a GPU's; without a
+/// hold the first feedback culls it.
+#[test]
+fn a_held_warm_start_survives_frames_without_hits() {
+    use crate::thresholds::DecayedSettings;
+    let rule = DecayedSettings {
+        half_life_frames: 5.0,
+        activate: 100.0,
+        deactivate: 0.2,
+        instance_activate: 100.0,
+        instance_omit: 0.2,
+        per_shared: 0.0,
+        per_unique: 0.0,
+        rise_shift: Some(1),
+    }
+    .rule_for_rays_per_frame(9216.0)
+    .unwrap();
+    let (camera, f) = frustum_over_world();
+    let all = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+        surround_radius: 0.0,
+    };
+    // Frames of feedback without hits after the warm start until the
+    // shared instance's hitbox is inactive and the unique instance is no
+    // longer active (omitted, or inactive with its hitbox).
+    let run = |hold: u32| -> (u32, u32, Uploads) {
+        let mut cfg = config();
+        cfg.thresholds.rule = DecisionRule::Decayed(rule);
+        cfg.warm_start_hold = hold;
+        let mut c = Culling::new(grid(), cfg).unwrap();
+        let shared = c.register(desc(8.0, 8.0, 1, false)).unwrap();
+        let unique = c.register(desc(40.0, 40.0, 2, true)).unwrap();
+        c.take_uploads();
+        c.begin_frame(0).unwrap();
+        let out = c.warm_start(camera, &f, all).unwrap();
+        for r in &out.requests {
+            c.set_blas(r.handle, 0x100 + u64::from(r.slot)).unwrap();
+        }
+        let uploads = c.take_uploads();
+        let hb = c.registry().record(shared).unwrap().hitbox as usize;
+        let (mut hitbox_frames, mut unique_frames) = (None, None);
+        for frame in 0..40u32 {
+            if frame > 0 {
+                c.begin_frame(u64::from(frame)).unwrap();
+            }
+            c.process_feedback().unwrap();
+            c.take_commands().unwrap();
+            if hitbox_frames.is_none() && !c.hitboxes()[hb].is_active() {
+                hitbox_frames = Some(frame);
+            }
+            if unique_frames.is_none()
+                && c.registry().state(unique).unwrap() != InstanceState::Active
+            {
+                unique_frames = Some(frame);
+            }
+        }
+        (hitbox_frames.unwrap(), unique_frames.unwrap(), uploads)
+    };
+    let (h0, u0, up0) = run(0);
+    assert_eq!((h0, u0), (0, 0), "no hold: the first feedback culls");
+    assert!(up0.hitbox_rate_floors.is_empty() && up0.instance_rate_floors.is_empty());
+    for hold in [1, 4, 8] {
+        let (h, u, up) = run(hold);
+        assert_eq!((h, u), (hold, hold), "hold {hold}");
+        // The GPU gets the same floors: one per activated hitbox (two) and
+        // one for the unique-BLAS instance (slot 1).
+        let hitbox_floor = rule.hold_rate(rule.deactivate, hold);
+        assert_eq!(up.hitbox_rate_floors.len(), 2);
+        assert!(up
+            .hitbox_rate_floors
+            .iter()
+            .all(|&(_, r)| r == hitbox_floor));
+        assert_eq!(
+            up.instance_rate_floors,
+            vec![(1, rule.hold_rate(rule.instance_omit, hold))]
+        );
+    }
+    // The paper's rule has no rates: a hold changes nothing.
+    let mut cfg = config();
+    cfg.warm_start_hold = 8;
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    c.register(desc(8.0, 8.0, 1, true)).unwrap();
+    c.begin_frame(0).unwrap();
+    c.warm_start(camera, &f, all).unwrap();
+    let up = c.take_uploads();
+    assert!(up.hitbox_rate_floors.is_empty() && up.instance_rate_floors.is_empty());
+}
+
+/// Rate floors raise a GPU copy's rates, never lower them, and those of a
+/// reused slot's previous occupant are dropped.
+#[test]
+fn rate_floors_raise_the_gpu_rates_and_skip_reused_slots() {
+    let mut cfg = config();
+    cfg.thresholds.rule = DecisionRule::Decayed(
+        crate::thresholds::DecayedSettings {
+            half_life_frames: 5.0,
+            activate: 100.0,
+            deactivate: 0.2,
+            instance_activate: 100.0,
+            instance_omit: 0.2,
+            per_shared: 0.0,
+            per_unique: 0.0,
+            rise_shift: Some(1),
+        }
+        .rule_for_rays_per_frame(9216.0)
+        .unwrap(),
+    );
+    cfg.warm_start_hold = 6;
+    cfg.registry.quarantine_frames = 2;
+    let mut c = Culling::new(grid(), cfg).unwrap();
+    let a = c.register(desc(8.0, 8.0, 1, true)).unwrap();
+    let b = c.register(desc(40.0, 40.0, 2, true)).unwrap();
+    let mut gpu = crate::layout::InstanceArrays::new();
+    let mut gpu_rates = Vec::new();
+    let mut gpu_hitboxes = c.hitboxes().to_vec();
+    let records = c.registry().records().clone();
+    apply_uploads(
+        &c.take_uploads(),
+        &records,
+        &mut gpu,
+        &mut gpu_rates,
+        &mut gpu_hitboxes,
+    );
+    assert_eq!(gpu_rates, vec![0, 0]);
+    c.begin_frame(0).unwrap();
+    let (camera, f) = frustum_over_world();
+    let all = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+        surround_radius: 0.0,
+    };
+    c.warm_start(camera, &f, all).unwrap();
+    // The GPU's rate of b is already above the floor: kept.
+    let high = u32::MAX / 2;
+    gpu_rates[1] = high;
+    let hb_b = c.registry().record(b).unwrap().hitbox as usize;
+    gpu_hitboxes[hb_b].rate = high;
+    let up = c.take_uploads();
+    let records = c.registry().records().clone();
+    apply_uploads(&up, &records, &mut gpu, &mut gpu_rates, &mut gpu_hitboxes);
+    let floor = up.instance_rate_floors[0].1;
+    assert!(floor > 0 && floor < high);
+    assert_eq!(gpu_rates, vec![floor, high]);
+    let hb_a = c.registry().record(a).unwrap().hitbox as usize;
+    assert_eq!(gpu_hitboxes[hb_a].rate, c.hitboxes()[hb_a].rate);
+    assert_eq!(gpu_hitboxes[hb_b].rate, high);
+    // A removed instance's floor, not yet taken, is not its slot's next
+    // occupant's.
+    let d = c.register(desc(24.0, 8.0, 4, true)).unwrap();
+    let slot_d = c.registry().slot(d).unwrap();
+    c.warm_start(camera, &f, all).unwrap();
+    c.remove(d).unwrap();
+    for frame in 1..=3 {
+        c.begin_frame(frame).unwrap();
+    }
+    let fresh = c.register(desc(8.0, 8.0, 3, true)).unwrap();
+    assert_eq!(c.registry().slot(fresh).unwrap(), slot_d);
+    assert!(c.take_uploads().instance_rate_floors.is_empty());
 }

@@ -7,8 +7,10 @@
 //! [`InstanceArrays`]: hot, heights, cold) *keeping* the state bits of the
 //! GPU copy's hot record (bits [`instance_bits::STATE_MASK`]), then apply
 //! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
-//! exactly the CPU's writes since the last take. Why: `docs/ARCHITECTURE.md`,
-//! "Who owns the state bits".
+//! exactly the CPU's writes since the last take, and raise the decayed
+//! rates to [`Uploads::hitbox_rate_floors`] and
+//! [`Uploads::instance_rate_floors`] (a held warm start). Why:
+//! `docs/ARCHITECTURE.md`, "Who owns the state bits".
 
 use std::ops::Range;
 
@@ -33,21 +35,35 @@ pub struct Uploads {
     /// `(index, active)`: set the active bit and zero the streak, keeping the
     /// hit count and heights.
     pub hitbox_overrides: Vec<(u32, bool)>,
+    /// Least decayed rates of hitboxes, by ascending index, as `(index,
+    /// rate)`: a held warm start ([`super::CullingConfig::warm_start_hold`]).
+    /// Raise the GPU record's `rate` to at least `rate` (the GPU's rate is
+    /// Algorithm 2's: a floor, not a value).
+    pub hitbox_rate_floors: Vec<(u32, u32)>,
+    /// Least decayed rates of unique-BLAS instances, by ascending slot, as
+    /// `(slot, rate)`: raise the GPU's per-slot rate to at least `rate`.
+    pub instance_rate_floors: Vec<(u32, u32)>,
 }
 
-/// Writes `uploads` into a GPU-side copy of the instance arrays and hitbox
-/// buffer the way a GPU backend must: the slots of the record ranges (hot,
-/// heights, cold) without their state bits, then the overrides. `records` is
-/// the CPU's instance buffer; `gpu_instances` is grown to its length. Used by
-/// tests and as the specification of the scatter shader.
+/// Writes `uploads` into a GPU-side copy of the instance arrays, the
+/// per-slot rates and the hitbox buffer the way a GPU backend must: the
+/// slots of the record ranges (hot, heights, cold) without their state
+/// bits, then the overrides, then the rate floors. `records` is the CPU's
+/// instance buffer; `gpu_instances` and `gpu_rates` are grown to its length
+/// (new rates 0). Entries past the buffers are ignored. Used by tests and
+/// as the specification of the scatter shader.
 pub fn apply_uploads(
     uploads: &Uploads,
     records: &InstanceArrays,
     gpu_instances: &mut InstanceArrays,
+    gpu_rates: &mut Vec<u32>,
     gpu_hitboxes: &mut [HitboxRecord],
 ) {
     if gpu_instances.len() < records.len() {
         gpu_instances.resize(records.len());
+    }
+    if gpu_rates.len() < gpu_instances.len() {
+        gpu_rates.resize(gpu_instances.len(), 0);
     }
     for range in &uploads.records {
         let (lo, hi) = (
@@ -72,6 +88,16 @@ pub fn apply_uploads(
             h.packed &=
                 !((hitbox_bits::STREAK_MAX << hitbox_bits::STREAK_SHIFT) | hitbox_bits::ACTIVE);
             h.packed |= u32::from(active);
+        }
+    }
+    for &(index, rate) in &uploads.hitbox_rate_floors {
+        if let Some(h) = gpu_hitboxes.get_mut(index as usize) {
+            h.rate = h.rate.max(rate);
+        }
+    }
+    for &(slot, rate) in &uploads.instance_rate_floors {
+        if let Some(r) = gpu_rates.get_mut(slot as usize) {
+            *r = (*r).max(rate);
         }
     }
 }

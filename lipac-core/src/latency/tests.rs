@@ -224,6 +224,7 @@ fn heuristic_accepts_near_or_large() {
     let strict = ActivationHeuristic {
         max_distance: 0.0,
         min_projected_size: f32::INFINITY,
+        surround_radius: 0.0,
     };
     assert!(strict.accepts(cam, &cube(Vec3::new(0.5, 0.0, 0.0), 1.0)));
     assert!(!strict.accepts(cam, &cube(Vec3::new(5.0, 0.0, 0.0), 1.0)));
@@ -238,6 +239,14 @@ fn invalid_heuristics_are_rejected() {
         },
         ActivationHeuristic {
             min_projected_size: -0.1,
+            ..Default::default()
+        },
+        ActivationHeuristic {
+            surround_radius: f32::NAN,
+            ..Default::default()
+        },
+        ActivationHeuristic {
+            surround_radius: -1.0,
             ..Default::default()
         },
     ] {
@@ -307,6 +316,60 @@ fn newly_visible_across_frames() {
         .update(&r, Vec3::splat(f32::NAN), &looking(Vec3::NEG_Z), &mut out)
         .is_err());
     assert_eq!(out, vec![4, 42]);
+}
+
+#[test]
+fn a_surround_radius_makes_instances_near_the_camera_visible_in_any_direction() {
+    let mut r = registry(4);
+    cube(&mut r, Vec3::new(0.0, 0.0, 20.0), 1.0); // slot 0: behind, face at 19 m
+    cube(&mut r, Vec3::new(0.0, 0.0, 60.0), 1.0); // slot 1: behind, face at 59 m
+    cube(&mut r, Vec3::new(0.0, 0.0, -60.0), 1.0); // slot 2: ahead, face at 59 m
+    let all = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+        surround_radius: 0.0,
+    };
+    let cam = Vec3::ZERO;
+    let ahead = looking(Vec3::NEG_Z);
+    let mut out = Vec::new();
+
+    // The frustum alone: only the one ahead.
+    let mut lm = LatencyMitigation::new(all).unwrap();
+    lm.update(&r, cam, &ahead, &mut out).unwrap();
+    assert_eq!(out, vec![2]);
+
+    // Within 20 m in any direction: the near one behind too, not the far one;
+    // the radius is to the box, not to its centre (the face is at 19 m).
+    let mut lm = LatencyMitigation::new(ActivationHeuristic {
+        surround_radius: 19.5,
+        ..all
+    })
+    .unwrap();
+    let s = lm.update(&r, cam, &ahead, &mut out).unwrap();
+    assert_eq!(out, vec![0, 2]);
+    assert_eq!((s.in_frustum, s.newly_visible), (2, 2));
+    assert!(lm.was_visible(0) && !lm.was_visible(1));
+    // Still within the radius next frame: not new.
+    lm.update(&r, cam, &ahead, &mut out).unwrap();
+    assert!(out.is_empty());
+    // Moving towards slot 1 brings it within the radius: new.
+    let s = lm
+        .update(&r, Vec3::new(0.0, 0.0, 40.0), &ahead, &mut out)
+        .unwrap();
+    assert_eq!(out, vec![1]);
+    assert_eq!(s.newly_visible, 1);
+
+    // The heuristic still decides: surrounding but far and small is refused.
+    let strict = ActivationHeuristic {
+        max_distance: 10.0,
+        min_projected_size: 1.0,
+        surround_radius: 100.0,
+    };
+    assert!(strict.surrounds(cam, &Aabb::new(Vec3::splat(49.0), Vec3::splat(50.0))));
+    let mut lm = LatencyMitigation::new(strict).unwrap();
+    let s = lm.update(&r, cam, &ahead, &mut out).unwrap();
+    assert!(out.is_empty());
+    assert_eq!((s.in_frustum, s.accepted), (3, 0));
 }
 
 #[test]

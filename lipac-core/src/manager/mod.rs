@@ -794,10 +794,13 @@ impl<H: HitboxIndex> Manager<H> {
     }
 
     /// A warm start ([`Culling::warm_start`]), at a level load or a camera
-    /// cut: every instance in `frustum` that `heuristic` accepts from
-    /// `camera` becomes active now, and its BLAS is requested from the
-    /// scheduler at once (in the frustum: high priority); hit feedback culls
-    /// the set down after the read-back latency. Call it between
+    /// cut: every instance in `frustum` (or within the heuristic's
+    /// `surround_radius`) that `heuristic` accepts from `camera` becomes
+    /// active now, and its BLAS is requested from the scheduler at once (in
+    /// the frustum: high priority); hit feedback culls the set down from
+    /// this frame's Algorithm 2 on, under the decayed rule only after
+    /// [`crate::culling::CullingConfig::warm_start_hold`] frames without a
+    /// hit. Call it between
     /// [`Manager::begin_frame`] and [`Manager::plan`], and give that frame's
     /// plan the build budget of a load (the builds of the whole view) if
     /// the view should be traced from this frame on. A cached BLAS is in

@@ -144,6 +144,47 @@ mod decay {
         }
     }
 
+    fn rule_with_shift(k: u32) -> DecayedRule {
+        DecayedRule {
+            shift: k,
+            rise_shift: 1,
+            activate: 1000,
+            deactivate: 1 << k,
+            instance_activate: 1000,
+            instance_omit: 1 << k,
+            per_shared: 0,
+            per_unique: 0,
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// `hold_rate(t, n)` survives `n` frames without hits at `t` or
+        /// above, and is the least rate that does.
+        #[test]
+        fn hold_rate_is_the_least_rate_that_survives(
+            t in prop_oneof![1u32..1000, any::<u32>()],
+            n in 0u32..40,
+            k in 1u32..=MAX_DECAY_SHIFT,
+        ) {
+            let rule = rule_with_shift(k);
+            let after = |r: u32| (0..n).fold(r, |r, _| rule.update_rate(r, 0));
+            let h = rule.hold_rate(t, n);
+            prop_assert!(h >= t);
+            if h < u32::MAX {
+                prop_assert!(after(h) >= t, "hold {} after {} frames: {}", h, n, after(h));
+                if h > t {
+                    prop_assert!(after(h - 1) < t, "{} is not the least", h);
+                }
+            } else {
+                // Saturated: no smaller rate survives (u32::MAX is the least
+                // that does, or none does).
+                prop_assert!(after(u32::MAX - 1) < t);
+            }
+        }
+    }
+
     /// [`rise_decay_rate`] in exact 64-bit arithmetic, from its definition.
     fn rise_reference(rate: u32, hits: u32, k: u32, k_up: u32) -> u64 {
         let target = u64::from(hits.min(RATE_HITS_MAX)) << 16;

@@ -121,10 +121,12 @@ struct Common {
     #[arg(long)]
     rise_shift: Option<u32>,
     /// LiPaC's start: `off` for the paper's cold start (nothing traced but
-    /// the pinned instances until the first read-back), or `DIST:SIZE` for
-    /// a warm start at the level load that activates what is in view within
-    /// DIST metres or of projected size at least SIZE (`inf:0`: the whole
-    /// view), its builds unbudgeted. Default: LiPaC's configured start.
+    /// the pinned instances until the first read-back), or
+    /// `DIST:SIZE[:RADIUS]` for a warm start at the level load that
+    /// activates what is in view within DIST metres or of projected size
+    /// at least SIZE (`inf:0`: the whole view), in view meaning in the
+    /// frustum or within RADIUS metres in any direction, its builds
+    /// unbudgeted. Default: LiPaC's configured start (`inf:0:800`).
     /// docs/EVALUATION.md "Cold start, and the levers together".
     #[arg(long)]
     warm_start: Option<String>,
@@ -132,6 +134,12 @@ struct Common {
     /// the load (its builds unbudgeted); off by default (its memory peak).
     #[arg(long)]
     warm_start_at_cuts: bool,
+    /// Frames without a hit that LiPaC holds what a warm start activates
+    /// before hit feedback culls it (decayed rule). Default: 0, the first
+    /// frame's feedback decides. docs/EVALUATION.md "A warm start around
+    /// the camera, held".
+    #[arg(long)]
+    warm_start_hold: Option<u32>,
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
@@ -239,8 +247,9 @@ struct SweepArgs {
     /// Further streak lengths `n_a:n_d` (LiPaC at factor 1).
     #[arg(long, value_delimiter = ',', default_value = "1:15,4:30")]
     streaks: Vec<String>,
-    /// Latency-mitigation heuristics `max_distance:min_projected_size`
-    /// (LiPaC + latency mitigation at factor 1).
+    /// Latency-mitigation heuristics `max_distance:min_projected_size`,
+    /// optionally `:surround_radius` (LiPaC + latency mitigation at factor
+    /// 1).
     #[arg(long, value_delimiter = ',', default_value = "50:0.1,100:0.05")]
     latency: Vec<String>,
     /// Further decayed-rule settings (LiPaC at factor 1), each
@@ -252,7 +261,7 @@ struct SweepArgs {
     /// write `--decayed=-:100/20` when the first one starts with `-`. A
     /// setting may end in `@CELL` (its own hitbox cell size in metres),
     /// then `%LEVELS` (adaptive hitboxes' merge levels, 0..=4, as
-    /// `compare --adaptive-levels`), then `+DIST/SIZE` (latency
+    /// `compare --adaptive-levels`), then `+DIST/SIZE[/RADIUS]` (latency
     /// mitigation, as `--latency`) and then `!` (the terrain not pinned:
     /// culled like any instance), e.g. `1:5/1:5/1@32%3+100/0.05` or
     /// `-:2400/480:2400/480!`.
@@ -283,6 +292,11 @@ struct SweepArgs {
     /// scenes' fly-throughs have none.
     #[arg(long)]
     warm_start_at_cuts: bool,
+    /// Frames every LiPaC configuration holds what a warm start activates
+    /// (as `lipac compare --warm-start-hold`); named in each
+    /// configuration ("held N").
+    #[arg(long)]
+    warm_start_hold: Option<u32>,
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -405,6 +419,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             trace_options: trace_cmds::trace_scene_options(&a.trace_scene)
                 .map_err(|e| e.to_string())?,
             warm_start_at_cuts: a.warm_start_at_cuts,
+            warm_start_hold: a.warm_start_hold,
         })
     })();
     let config = match parsed.and_then(|c| {
@@ -528,6 +543,7 @@ fn main() -> ExitCode {
         lipac_rise_shift: common.rise_shift,
         lipac_start,
         lipac_warm_start_at_cuts: common.warm_start_at_cuts,
+        lipac_warm_start_hold: common.warm_start_hold,
     };
     // Hidden when stderr is not a terminal (CI, pipes): indicatif's default.
     let bar = ProgressBar::new(0);

@@ -100,8 +100,9 @@ pub struct ReplayArgs {
     #[arg(long)]
     keep_frames: bool,
     /// LiPaC's start (geometry mode): `off` for the paper's cold start, or
-    /// `DIST:SIZE` for a warm start at the first frame (as `lipac compare
-    /// --warm-start`). Default: LiPaC's configured start (the whole view).
+    /// `DIST:SIZE[:RADIUS]` for a warm start at the first frame (as `lipac
+    /// compare --warm-start`). Default: LiPaC's configured start (the whole
+    /// view and 800 m around the camera).
     #[arg(long)]
     warm_start: Option<String>,
     /// Geometry mode: LiPaC warm-starts again at each camera cut (as
@@ -110,6 +111,10 @@ pub struct ReplayArgs {
     /// than 90° since the last one is taken for a cut.
     #[arg(long)]
     warm_start_at_cuts: bool,
+    /// Geometry mode: frames without a hit that LiPaC holds what a warm
+    /// start activates (as `lipac compare --warm-start-hold`).
+    #[arg(long)]
+    warm_start_hold: Option<u32>,
     #[command(flatten)]
     scene: TraceSceneArgs,
 }
@@ -220,6 +225,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
             Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
         },
         warm_start_at_cuts: a.warm_start_at_cuts,
+        warm_start_hold: a.warm_start_hold,
         lipac_variants: Vec::new(),
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());

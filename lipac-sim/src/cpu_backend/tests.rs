@@ -16,9 +16,16 @@ fn backend(latency: u32) -> CpuBackend {
     catalog
         .insert(MeshId(1), vec![mesh_lod(100), mesh_lod(10)])
         .unwrap();
+    // A cold start: what is active, hits activated (the default warm
+    // start takes both instances, within 800 m of the camera); one
+    // counting box per hitbox (`frame` heats the hitbox boxes, not merged
+    // ones).
     let config = LipacConfig {
         readback_latency: latency,
-        ..LipacConfig::for_rays_per_frame(1000).unwrap()
+        warm_start: None,
+        ..LipacConfig::for_rays_per_frame(1000)
+            .unwrap()
+            .with_adaptive_hitboxes(0)
     };
     CpuBackend::new(grid, &config, catalog).unwrap()
 }

@@ -279,7 +279,8 @@ pub fn replay_hits_with<R: Read>(
     // Leaf hitboxes only: the recorded hits already name the instance or
     // cell a path met, so merged counting boxes would decide nothing
     // differently, and the hashed index of an unbounded world is leaf-only.
-    let lipac_config = LipacConfig::for_rays_per_frame(rays(config))?.with_adaptive_hitboxes(0);
+    let mut lipac_config = LipacConfig::for_rays_per_frame(rays(config))?.with_adaptive_hitboxes(0);
+    config.lipac_start.apply(&mut lipac_config);
     // A bounded world's grid, or the hashed grid of an unbounded one (the
     // readers checked the grid's size).
     let grid = WorldHitboxes::for_world(&header.world, u64::MAX).map_err(core)?;

@@ -87,6 +87,13 @@ pub struct LipacConfig {
     /// lowers the error after the cut but adds a peak of memory and builds
     /// (docs/EVALUATION.md, "Cold start, and the levers together").
     pub warm_start_at_cuts: bool,
+    /// Frames without a hit that what a warm start activates is held
+    /// ([`lipac_core::culling::CullingConfig::warm_start_hold`]): hit
+    /// feedback culls the view down only after that many frames of
+    /// evidence. 0 (the default): the first frame's feedback decides; a
+    /// hold lowers the error after a load or cut for memory over those
+    /// frames (docs/EVALUATION.md, "A warm start around the camera, held").
+    pub warm_start_hold: u32,
     /// Register the scene's pinned instances (the terrain tiles) pinned:
     /// always traced, never culled, never a counting box (the paper's
     /// choice; on by default). `false` culls them like any other
@@ -142,12 +149,15 @@ impl LipacConfig {
     };
 
     /// The default warm start ([`LipacConfig::warm_start`]): the whole view
-    /// at the level load, culled down by hit feedback from the first
+    /// and everything within 800 m of the camera (the frustum + radius
+    /// baseline's set: off-screen geometry shadows and reflects into the
+    /// view) at the level load, culled down by hit feedback from the first
     /// read-back on (docs/EVALUATION.md, "Cold start, and the levers
-    /// together").
+    /// together", "A warm start around the camera, held").
     pub const DEFAULT_WARM_START: ActivationHeuristic = ActivationHeuristic {
         max_distance: f32::INFINITY,
         min_projected_size: 0.0,
+        surround_radius: crate::strategy::FrustumRadius::DEFAULT_RADIUS,
     };
 
     /// Settings for `rays_per_frame` camera rays: the paper's thresholds
@@ -188,6 +198,7 @@ impl LipacConfig {
             adaptive_hitboxes: AdaptiveHitboxes::with_levels(Self::DEFAULT_ADAPTIVE_LEVELS),
             warm_start: Some(Self::DEFAULT_WARM_START),
             warm_start_at_cuts: false,
+            warm_start_hold: 0,
             honour_pins: true,
         })
     }

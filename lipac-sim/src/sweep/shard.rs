@@ -271,6 +271,7 @@ pub fn run_shard(
         lipac_rise_shift: None,
         lipac_start: LipacStart::Default,
         lipac_warm_start_at_cuts: false,
+        lipac_warm_start_hold: None,
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();

@@ -107,6 +107,9 @@ pub struct SweepConfig {
     /// replay finds ([`crate::camera::FlyCamera::is_cut_from`]); the
     /// scenes' fly-throughs have none.
     pub warm_start_at_cuts: bool,
+    /// Frames every LiPaC configuration holds what a warm start activates
+    /// ([`LipacConfig::warm_start_hold`]; `None`: as configured, 0).
+    pub warm_start_hold: Option<u32>,
 }
 
 impl Default for SweepConfig {
@@ -134,6 +137,7 @@ impl Default for SweepConfig {
                 ActivationHeuristic {
                     max_distance: 100.0,
                     min_projected_size: 0.05,
+                    surround_radius: 0.0,
                 },
             ],
             cell_sizes: vec![16.0, 64.0],
@@ -143,6 +147,7 @@ impl Default for SweepConfig {
             trace: None,
             trace_options: TraceSceneOptions::default(),
             warm_start_at_cuts: false,
+            warm_start_hold: None,
         }
     }
 }
@@ -265,12 +270,12 @@ pub struct DecayedVariant {
     pub unpinned: bool,
 }
 
-/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE][!]`:
+/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE[/RADIUS]][!]`:
 /// `RULE` as [`parse_decayed_spec`] reads it, then optionally `@` and a
 /// hitbox cell size in metres, then optionally `%` and the merge levels of
 /// adaptive hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `+` and a
 /// latency-mitigation heuristic (maximum distance in metres / minimum
-/// projected size), then optionally `!`: the scene's pinned instances
+/// projected size / optional surround radius in metres), then optionally `!`: the scene's pinned instances
 /// (terrain) culled like any other ([`DecayedVariant::unpinned`]).
 ///
 /// ```
@@ -380,10 +385,13 @@ impl SweepConfig {
         if rays == 0 {
             return Err(SimError::BadConfig("image size must be positive"));
         }
-        let base = LipacConfig {
+        let mut base = LipacConfig {
             warm_start_at_cuts: self.warm_start_at_cuts,
             ..LipacConfig::for_rays_per_frame(rays)?
         };
+        if let Some(frames) = self.warm_start_hold {
+            base.warm_start_hold = frames;
+        }
         let mut all = Vec::new();
         for &k in &self.baselines {
             if matches!(k, StrategyKind::Lipac | StrategyKind::LipacLatency) {
@@ -506,10 +514,13 @@ impl SweepConfig {
             }
             all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
-        if self.warm_start_at_cuts {
-            // Said in every LiPaC name, so the report says it too.
-            for v in all.iter_mut().filter(|v| v.lipac.is_some()) {
+        // Said in every LiPaC name, so the report says it too.
+        for v in all.iter_mut().filter(|v| v.lipac.is_some()) {
+            if self.warm_start_at_cuts {
                 v.name.push_str(" + warm start at cuts");
+            }
+            if let Some(frames) = self.warm_start_hold {
+                v.name.push_str(&format!(" held {frames}"));
             }
         }
         let mut kept: Vec<Variant> = Vec::new();

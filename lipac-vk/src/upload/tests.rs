@@ -11,6 +11,16 @@ fn last_wins_keeps_the_last_override_per_key() {
 }
 
 #[test]
+fn max_wins_keeps_the_largest_floor_per_key() {
+    let pairs = [(5, 1), (2, 7), (5, 9), (9, 1), (2, 3), (5, 0)];
+    assert_eq!(
+        max_wins(&pairs, 9),
+        vec![[2, 7], [5, 9]],
+        "key 9 is outside the capacity"
+    );
+}
+
+#[test]
 fn staged_slots_are_distinct_and_clamped() {
     let records = InstanceArrays::from_records(&[InstanceRecord::default(); 10]);
     #[allow(clippy::reversed_empty_ranges)] // apply_uploads treats it as empty
