@@ -645,14 +645,10 @@ fn uploads_scatter_keeps_gpu_state_bits() {
     assert_eq!(gpu.cold()[1].aabb_min, [38.0, 0.0, 39.0]);
 }
 
-/// A held warm start ([`CullingConfig::warm_start_hold`]) keeps what it
-/// activates through that many frames of feedback without a hit, on the CPU
-/// records and, through the upload's rate floors, on a GPU's; without a
-/// hold the first feedback culls it.
-#[test]
-fn a_held_warm_start_survives_frames_without_hits() {
-    use crate::thresholds::DecayedSettings;
-    let rule = DecayedSettings {
+/// lipac-sim's default decayed rule at its 9,216 rays per frame (a single
+/// hit activates; the deactivation and omit rates at the floor `2^k`).
+fn sim_default_rule() -> crate::thresholds::DecayedRule {
+    crate::thresholds::DecayedSettings {
         half_life_frames: 5.0,
         activate: 100.0,
         deactivate: 0.2,
@@ -663,7 +659,16 @@ fn a_held_warm_start_survives_frames_without_hits() {
         rise_shift: Some(1),
     }
     .rule_for_rays_per_frame(9216.0)
-    .unwrap();
+    .unwrap()
+}
+
+/// A held warm start ([`CullingConfig::warm_start_hold`]) keeps what it
+/// activates through that many frames of feedback without a hit, on the CPU
+/// records and, through the upload's rate floors, on a GPU's; without a
+/// hold the first feedback culls it.
+#[test]
+fn a_held_warm_start_survives_frames_without_hits() {
+    let rule = sim_default_rule();
     let (camera, f) = frustum_over_world();
     let all = ActivationHeuristic {
         max_distance: f32::INFINITY,
@@ -741,20 +746,7 @@ fn a_held_warm_start_survives_frames_without_hits() {
 #[test]
 fn rate_floors_raise_the_gpu_rates_and_skip_reused_slots() {
     let mut cfg = config();
-    cfg.thresholds.rule = DecisionRule::Decayed(
-        crate::thresholds::DecayedSettings {
-            half_life_frames: 5.0,
-            activate: 100.0,
-            deactivate: 0.2,
-            instance_activate: 100.0,
-            instance_omit: 0.2,
-            per_shared: 0.0,
-            per_unique: 0.0,
-            rise_shift: Some(1),
-        }
-        .rule_for_rays_per_frame(9216.0)
-        .unwrap(),
-    );
+    cfg.thresholds.rule = DecisionRule::Decayed(sim_default_rule());
     cfg.warm_start_hold = 6;
     cfg.registry.quarantine_frames = 2;
     let mut c = Culling::new(grid(), cfg).unwrap();
