@@ -205,7 +205,8 @@ impl DecayedRule {
     /// exactly): a hitbox given it (`threshold` = [`DecayedRule::deactivate`])
     /// or a unique-BLAS instance (`threshold` =
     /// [`DecayedRule::instance_omit`]) stays active through that many
-    /// frames of Algorithm 2 that do not hit it. Saturates at `u32::MAX`.
+    /// frames of Algorithm 2 that do not hit it. Saturates at `u32::MAX`;
+    /// takes at most a few thousand steps whatever `frames` is.
     ///
     /// ```
     /// use lipac_core::thresholds::DecayedRule;
@@ -223,6 +224,9 @@ impl DecayedRule {
     /// assert_eq!(rule.hold_rate(8, 1), 9); // 9 - 9/8 = 8
     /// assert_eq!(rule.hold_rate(8, 3), 11); // 11 → 10 → 9 → 8
     /// assert_eq!(rule.hold_rate(u32::MAX, 1), u32::MAX);
+    /// // Below 2^shift a rate does not decay: it holds for ever, at once.
+    /// assert_eq!(rule.hold_rate(5, u32::MAX), 5);
+    /// assert_eq!(rule.hold_rate(8, u32::MAX), u32::MAX);
     /// ```
     pub fn hold_rate(&self, threshold: u32, frames: u32) -> u32 {
         let mut rate = threshold;
@@ -243,6 +247,11 @@ impl DecayedRule {
                 } else {
                     lo = mid + 1;
                 }
+            }
+            if lo == u64::from(rate) {
+                // A rate too small to decay (below 2^shift) stays: so do
+                // all further frames.
+                break;
             }
             rate = lo as u32;
         }
