@@ -2,7 +2,7 @@
 //! and shared ground truth giving exactly the errors of `lipac compare`.
 
 use lipac_core::latency::ActivationHeuristic;
-use lipac_sim::compare::{run_choice, CompareConfig, SceneChoice};
+use lipac_sim::compare::{run_choice, CompareConfig, LipacStart, SceneChoice};
 use lipac_sim::strategy::StrategyKind;
 use lipac_sim::sweep::{self, SweepConfig, SweepReport, SWEEP_CSV_HEADER, SWEEP_FILES};
 
@@ -27,6 +27,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         trace_options: Default::default(),
         warm_start_at_cuts: false,
         warm_start_hold: None,
+        lipac_start: LipacStart::Default,
     }
 }
 
@@ -206,6 +207,73 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         x16.frame_errors,
         r.point("small", "lipac ×1").unwrap().frame_errors
     );
+}
+
+/// `lipac sweep --warm-start` (`SweepConfig::lipac_start`) starts every
+/// LiPaC configuration as `lipac compare --warm-start` does, and says so
+/// in its name: a cold sweep gives the cold comparison's errors bit for
+/// bit, and they differ from the warm default's.
+#[test]
+fn a_sweep_starts_lipac_as_asked() {
+    let frames = 6;
+    let cold = SweepConfig {
+        lipac_start: LipacStart::Cold,
+        factors: vec![1.0],
+        latency: Vec::new(),
+        ..tiny(vec![SceneChoice::Small], frames)
+    };
+    let (variants, _) = cold.variants().unwrap();
+    let lipac: Vec<&str> = variants
+        .iter()
+        .filter(|v| v.lipac.is_some())
+        .map(|v| v.name.as_str())
+        .collect();
+    assert_eq!(lipac, ["lipac ×1 + cold start"]);
+    assert!(variants
+        .iter()
+        .filter_map(|v| v.lipac.as_ref())
+        .all(|c| c.warm_start.is_none()));
+    let r = sweep::run(&cold, &mut |_, _, _, _| {}).unwrap();
+    let compare = |start| CompareConfig {
+        frames: Some(frames),
+        width: 64,
+        height: 36,
+        strategies: vec![StrategyKind::Lipac],
+        threads: 2,
+        lipac_start: start,
+        ..CompareConfig::default()
+    };
+    let errors = |c: &lipac_sim::compare::CompareReport| -> Vec<u64> {
+        c.strategy("lipac")
+            .unwrap()
+            .frames
+            .iter()
+            .map(|m| m.error.to_bits())
+            .collect()
+    };
+    let swept: Vec<u64> = r
+        .point("small", "lipac ×1 + cold start")
+        .unwrap()
+        .frame_errors
+        .iter()
+        .map(|e| e.to_bits())
+        .collect();
+    let c = run_choice(
+        SceneChoice::Small,
+        None,
+        &compare(LipacStart::Cold),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(swept, errors(&c));
+    let w = run_choice(
+        SceneChoice::Small,
+        None,
+        &compare(LipacStart::Default),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_ne!(swept, errors(&w), "the cold start changes the run");
 }
 
 #[test]

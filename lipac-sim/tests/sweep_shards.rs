@@ -30,6 +30,7 @@ fn tiny(frames: u32) -> SweepConfig {
         trace_options: Default::default(),
         warm_start_at_cuts: false,
         warm_start_hold: None,
+        lipac_start: Default::default(),
     }
 }
 

@@ -297,6 +297,12 @@ struct SweepArgs {
     /// configuration ("held N").
     #[arg(long)]
     warm_start_hold: Option<u32>,
+    /// How every LiPaC configuration starts: `off` (the paper's cold
+    /// start) or `DIST:SIZE[:RADIUS]` (as `lipac compare --warm-start`);
+    /// named in each configuration. Default: LiPaC's configured start
+    /// (`inf:0:800`).
+    #[arg(long)]
+    warm_start: Option<String>,
     /// Render threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -420,6 +426,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 .map_err(|e| e.to_string())?,
             warm_start_at_cuts: a.warm_start_at_cuts,
             warm_start_hold: a.warm_start_hold,
+            lipac_start: match a.warm_start.as_deref() {
+                None => LipacStart::Default,
+                Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
+            },
         })
     })();
     let config = match parsed.and_then(|c| {

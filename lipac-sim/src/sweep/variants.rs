@@ -10,7 +10,7 @@ use lipac_core::latency::ActivationHeuristic;
 use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use serde::{Deserialize, Serialize};
 
-use crate::compare::{make_strategy, Contender, SceneChoice};
+use crate::compare::{make_strategy, Contender, LipacStart, SceneChoice};
 use crate::error::SimError;
 use crate::scene::Scene;
 use crate::strategy::lipac::{Lipac, LipacConfig};
@@ -110,6 +110,10 @@ pub struct SweepConfig {
     /// Frames every LiPaC configuration holds what a warm start activates
     /// ([`LipacConfig::warm_start_hold`]; `None`: as configured, 0).
     pub warm_start_hold: Option<u32>,
+    /// How every LiPaC configuration starts ([`LipacStart`]: as
+    /// configured, cold, or warm with a heuristic); said in each
+    /// configuration's name unless it is the configured start.
+    pub lipac_start: LipacStart,
 }
 
 impl Default for SweepConfig {
@@ -148,6 +152,7 @@ impl Default for SweepConfig {
             trace_options: TraceSceneOptions::default(),
             warm_start_at_cuts: false,
             warm_start_hold: None,
+            lipac_start: LipacStart::Default,
         }
     }
 }
@@ -392,6 +397,7 @@ impl SweepConfig {
         if let Some(frames) = self.warm_start_hold {
             base.warm_start_hold = frames;
         }
+        self.lipac_start.apply(&mut base);
         let mut all = Vec::new();
         for &k in &self.baselines {
             if matches!(k, StrategyKind::Lipac | StrategyKind::LipacLatency) {
@@ -516,6 +522,14 @@ impl SweepConfig {
         }
         // Said in every LiPaC name, so the report says it too.
         for v in all.iter_mut().filter(|v| v.lipac.is_some()) {
+            match self.lipac_start {
+                LipacStart::Default => {}
+                LipacStart::Cold => v.name.push_str(" + cold start"),
+                LipacStart::Warm(h) => v.name.push_str(&format!(
+                    " + warm start {}:{}:{}",
+                    h.max_distance, h.min_projected_size, h.surround_radius
+                )),
+            }
             if self.warm_start_at_cuts {
                 v.name.push_str(" + warm start at cuts");
             }
