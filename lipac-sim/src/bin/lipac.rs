@@ -261,10 +261,11 @@ struct SweepArgs {
     /// write `--decayed=-:100/20` when the first one starts with `-`. A
     /// setting may end in `@CELL` (its own hitbox cell size in metres),
     /// then `%LEVELS` (adaptive hitboxes' merge levels, 0..=4, as
-    /// `compare --adaptive-levels`), then `+DIST/SIZE[/RADIUS]` (latency
+    /// `compare --adaptive-levels`), then `~HOLD` (its own
+    /// `--warm-start-hold`), then `+DIST/SIZE[/RADIUS]` (latency
     /// mitigation, as `--latency`) and then `!` (the terrain not pinned:
     /// culled like any instance), e.g. `1:5/1:5/1@32%3+100/0.05` or
-    /// `-:2400/480:2400/480!`.
+    /// `-:2400/480:2400/480!` or `1@256~14`.
     #[arg(long, value_delimiter = ',')]
     decayed: Vec<String>,
     /// Baseline strategies.

@@ -215,6 +215,48 @@ fn decayed_variants_carry_their_own_cells_and_latency_mitigation() {
     );
 }
 
+/// A setting's own warm-start hold (`~N`) beats the sweep's
+/// (`--warm-start-hold`), and each LiPaC name says the hold it runs with,
+/// once.
+#[test]
+fn decayed_variants_carry_their_own_warm_start_hold() {
+    let c = SweepConfig {
+        warm_start_hold: Some(3),
+        factors: vec![1.0],
+        latency: Vec::new(),
+        cell_sizes: Vec::new(),
+        streaks: Vec::new(),
+        baselines: Vec::new(),
+        ..with_decayed(&["1@256~14", "1@128~0!", "1@64"])
+    };
+    let (v, skipped) = c.variants().unwrap();
+    assert!(skipped.is_empty(), "{skipped:?}");
+    let holds: Vec<(&str, u32)> = v
+        .iter()
+        .map(|x| (x.name.as_str(), x.lipac.as_ref().unwrap().warm_start_hold))
+        .collect();
+    assert_eq!(
+        holds,
+        [
+            ("lipac ×1 held 3", 3),
+            ("lipac rise 1 100/0.2 100/0.2 256 m cells held 14", 14),
+            ("lipac rise 1 100/0.2 100/0.2 128 m cells unpinned held 0", 0),
+            ("lipac rise 1 100/0.2 100/0.2 64 m cells held 3", 3),
+        ]
+    );
+    // Without the sweep's hold, the settings without their own keep the
+    // configured one (0) and their names say nothing.
+    let c = SweepConfig {
+        warm_start_hold: None,
+        ..c
+    };
+    let (v, _) = c.variants().unwrap();
+    let names: Vec<&str> = v.iter().map(|x| x.name.as_str()).collect();
+    assert_eq!(names[0], "lipac ×1");
+    assert_eq!(names[3], "lipac rise 1 100/0.2 100/0.2 64 m cells");
+    assert_eq!(v[3].lipac.as_ref().unwrap().warm_start_hold, 0);
+}
+
 fn point(
     scene: &str,
     name: &str,

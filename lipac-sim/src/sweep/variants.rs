@@ -273,15 +273,22 @@ pub struct DecayedVariant {
     /// The scene's pinned instances (terrain) culled like any other
     /// ([`LipacConfig::honour_pins`] false): a trailing `!`.
     pub unpinned: bool,
+    /// Frames a warm start's activations are held without hits
+    /// ([`LipacConfig::warm_start_hold`]; `None`: the sweep's
+    /// [`SweepConfig::warm_start_hold`]).
+    pub warm_start_hold: Option<u32>,
 }
 
-/// A decayed-rule variant from `RULE[@CELL][%LEVELS][+DIST/SIZE[/RADIUS]][!]`:
-/// `RULE` as [`parse_decayed_spec`] reads it, then optionally `@` and a
-/// hitbox cell size in metres, then optionally `%` and the merge levels of
-/// adaptive hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `+` and a
-/// latency-mitigation heuristic (maximum distance in metres / minimum
-/// projected size / optional surround radius in metres), then optionally `!`: the scene's pinned instances
-/// (terrain) culled like any other ([`DecayedVariant::unpinned`]).
+/// A decayed-rule variant from
+/// `RULE[@CELL][%LEVELS][~HOLD][+DIST/SIZE[/RADIUS]][!]`: `RULE` as
+/// [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox cell
+/// size in metres, then optionally `%` and the merge levels of adaptive
+/// hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `~` and the frames
+/// a warm start is held ([`DecayedVariant::warm_start_hold`]), then
+/// optionally `+` and a latency-mitigation heuristic (maximum distance in
+/// metres / minimum projected size / optional surround radius in metres),
+/// then optionally `!`: the scene's pinned instances (terrain) culled like
+/// any other ([`DecayedVariant::unpinned`]).
 ///
 /// ```
 /// use lipac_sim::sweep::parse_decayed_variant;
@@ -299,6 +306,11 @@ pub struct DecayedVariant {
 /// assert!(!merged.unpinned);
 /// let free = parse_decayed_variant("-:2400/480:2400/480%3!", &base).unwrap();
 /// assert_eq!((free.adaptive_levels, free.unpinned), (Some(3), true));
+/// let held = parse_decayed_variant("1@256~14+100/0.05", &base).unwrap();
+/// assert_eq!((held.cell_size, held.warm_start_hold), (Some(256.0), Some(14)));
+/// assert_eq!(plain.warm_start_hold, None);
+/// assert!(parse_decayed_variant("1~-1", &base).is_err());
+/// assert!(parse_decayed_variant("1~x", &base).is_err());
 /// assert!(parse_decayed_variant("1!%3", &base).is_err());
 /// assert!(parse_decayed_variant("1%9", &base).is_err());
 /// assert!(parse_decayed_variant("1@-3", &base).is_err());
@@ -318,6 +330,14 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         }
         None => (rest, None),
     };
+    let (rest, warm_start_hold) = optional_suffix(
+        spec,
+        rest,
+        '~',
+        "warm-start hold",
+        |_: &u32| true,
+        "is not a frame count",
+    )?;
     let levels_ok = |l: &u8| *l <= MAX_MERGE_LEVELS;
     let levels_are = format!("are not 0..={MAX_MERGE_LEVELS}");
     let (rest, adaptive_levels) =
@@ -337,6 +357,7 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         latency,
         adaptive_levels,
         unpinned,
+        warm_start_hold,
     })
 }
 
@@ -493,6 +514,8 @@ impl SweepConfig {
                 1.0,
             ));
         }
+        // Variants (by index in `all`) that set their own hold.
+        let mut own_hold = Vec::new();
         for d in &self.decayed {
             let mut c = base.clone().with_decayed_rule(&d.settings, rays)?;
             let mut name = decayed_name(&d.settings);
@@ -509,6 +532,11 @@ impl SweepConfig {
                 c.honour_pins = false;
                 name.push_str(" unpinned");
             }
+            if let Some(frames) = d.warm_start_hold {
+                c.warm_start_hold = frames;
+                name.push_str(&format!(" held {frames}"));
+                own_hold.push(all.len());
+            }
             let mut kind = StrategyKind::Lipac;
             if let Some(h) = d.latency {
                 c.latency = Some(h);
@@ -521,7 +549,7 @@ impl SweepConfig {
             all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
         // Said in every LiPaC name, so the report says it too.
-        for v in all.iter_mut().filter(|v| v.lipac.is_some()) {
+        for (i, v) in all.iter_mut().enumerate().filter(|(_, v)| v.lipac.is_some()) {
             match self.lipac_start {
                 LipacStart::Default => {}
                 LipacStart::Cold => v.name.push_str(" + cold start"),
@@ -533,8 +561,11 @@ impl SweepConfig {
             if self.warm_start_at_cuts {
                 v.name.push_str(" + warm start at cuts");
             }
-            if let Some(frames) = self.warm_start_hold {
-                v.name.push_str(&format!(" held {frames}"));
+            match self.warm_start_hold {
+                Some(frames) if !own_hold.contains(&i) => {
+                    v.name.push_str(&format!(" held {frames}"));
+                }
+                _ => {}
             }
         }
         let mut kept: Vec<Variant> = Vec::new();
