@@ -240,7 +240,10 @@ fn decayed_variants_carry_their_own_warm_start_hold() {
         [
             ("lipac ×1 held 3", 3),
             ("lipac rise 1 100/0.2 100/0.2 256 m cells held 14", 14),
-            ("lipac rise 1 100/0.2 100/0.2 128 m cells unpinned held 0", 0),
+            (
+                "lipac rise 1 100/0.2 100/0.2 128 m cells unpinned held 0",
+                0
+            ),
             ("lipac rise 1 100/0.2 100/0.2 64 m cells held 3", 3),
         ]
     );

@@ -549,7 +549,11 @@ impl SweepConfig {
             all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
         // Said in every LiPaC name, so the report says it too.
-        for (i, v) in all.iter_mut().enumerate().filter(|(_, v)| v.lipac.is_some()) {
+        for (i, v) in all
+            .iter_mut()
+            .enumerate()
+            .filter(|(_, v)| v.lipac.is_some())
+        {
             match self.lipac_start {
                 LipacStart::Default => {}
                 LipacStart::Cold => v.name.push_str(" + cold start"),
