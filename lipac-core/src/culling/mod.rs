@@ -856,9 +856,10 @@ impl<H: HitboxIndex> Culling<H> {
     /// active now, as [`Culling::mitigate_latency`] activates the newly
     /// visible ones (hitboxes too; the BLAS requests are returned), whether
     /// or not latency mitigation is configured and without touching its
-    /// memory of what was visible. Hit feedback then deactivates, after
-    /// the read-back latency, what the paths do not reach: LiPaC starts
-    /// from the view and culls down instead of starting from nothing.
+    /// memory of what was visible. Hit feedback then deactivates what the
+    /// paths do not reach (Algorithm 2 from this frame on; the BLASes go
+    /// after the read-back latency): LiPaC starts from the view and culls
+    /// down instead of starting from nothing.
     /// `ActivationHeuristic { max_distance: f32::INFINITY, .. }` takes the
     /// whole frustum, a [`ActivationHeuristic::surround_radius`] also what
     /// is near the camera off screen. Under the decayed rule
