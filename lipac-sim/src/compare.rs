@@ -248,6 +248,10 @@ pub struct CompareReport {
     /// the paper's thresholds above, or the decayed rule's rates.
     #[serde(default)]
     pub rule: String,
+    /// How LiPaC starts, in words ([`crate::report::start_description`]):
+    /// cold, or the warm start's set, hold and cuts.
+    #[serde(default)]
+    pub start: String,
 }
 
 impl CompareReport {
@@ -909,6 +913,7 @@ impl Comparison {
             strategies,
             camera_cuts: self.cuts.clone(),
             rule: crate::report::rule_description(&th),
+            start: crate::report::start_description(&self.lipac_config),
         };
         Ok((report, self.snapshots))
     }

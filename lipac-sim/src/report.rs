@@ -126,7 +126,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     let _ = writeln!(
         s,
         "Scene `{}` ({} instances), {} frames of the fly-through at {}x{} ({} camera rays per frame; \
-         LiPaC decides with {}). Wall time {:.1} s.\n",
+         LiPaC decides with {}{}). Wall time {:.1} s.\n",
         r.scene,
         r.instances,
         r.frames,
@@ -134,6 +134,11 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
         r.height,
         r.rays_per_frame,
         if r.rule.is_empty() { &paper } else { &r.rule },
+        if r.start.is_empty() {
+            String::new()
+        } else {
+            format!("; it starts with {}", r.start)
+        },
         r.wall_s
     );
     if let Some(h) = headline(r) {
@@ -302,6 +307,52 @@ pub fn rule_description(t: &Thresholds) -> String {
             )
         }
     }
+}
+
+/// How LiPaC starts ([`LipacConfig::warm_start`], its hold and cuts), in
+/// words for the report's header.
+///
+/// ```
+/// use lipac_sim::report::start_description;
+/// use lipac_sim::strategy::lipac::LipacConfig;
+/// let mut c = LipacConfig::for_rays_per_frame(128 * 72).unwrap();
+/// assert_eq!(
+///     start_description(&c),
+///     "a warm start of everything in view and of everything within 800 m of the camera"
+/// );
+/// c.warm_start_hold = 8;
+/// c.warm_start_at_cuts = true;
+/// assert!(start_description(&c).ends_with(", held 8 frames without hits, again at every camera cut"));
+/// c.warm_start = None;
+/// assert!(start_description(&c).starts_with("the paper's cold start"));
+/// ```
+pub fn start_description(c: &crate::strategy::lipac::LipacConfig) -> String {
+    let Some(h) = c.warm_start else {
+        return "the paper's cold start (nothing but the pinned instances until the first \
+                read-back)"
+            .into();
+    };
+    let mut s = if h.max_distance == f32::INFINITY || h.min_projected_size == 0.0 {
+        "a warm start of everything in view".to_string()
+    } else {
+        format!(
+            "a warm start of what in view is within {} m or of projected size at least {}",
+            h.max_distance, h.min_projected_size
+        )
+    };
+    if h.surround_radius > 0.0 {
+        s.push_str(&format!(
+            " and of everything within {} m of the camera",
+            h.surround_radius
+        ));
+    }
+    if c.warm_start_hold > 0 {
+        s.push_str(&format!(", held {} frames without hits", c.warm_start_hold));
+    }
+    if c.warm_start_at_cuts {
+        s.push_str(", again at every camera cut");
+    }
+    s
 }
 
 /// The sections "Where the memory goes" and "What is missing" of

@@ -543,6 +543,18 @@ fn a_warm_start_around_the_camera_and_held_keeps_the_view() {
         sum(h, 1..5),
         sum(a, 1..5)
     );
+    // The report says how LiPaC started.
+    let md = lipac_sim::report::markdown(&held, false);
+    assert!(
+        md.contains(
+            "it starts with a warm start of everything in view and of everything \
+             within 800 m of the camera, held 4 frames without hits"
+        ),
+        "{}",
+        md.lines().nth(2).unwrap_or("")
+    );
+    assert!(lipac_sim::report::markdown(&frustum_only, false)
+        .contains("it starts with a warm start of everything in view)"));
     assert!(
         (h[5].tlas_instances as f64) < 0.8 * h[4].tlas_instances as f64,
         "not culled after the hold: {} at frame 5, {} at frame 4",

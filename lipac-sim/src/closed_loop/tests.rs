@@ -72,6 +72,7 @@ fn report(strategies: Vec<StrategyRun>) -> CompareReport {
         strategies,
         camera_cuts: vec![100],
         rule: String::new(),
+        start: String::new(),
         blas_throughput: Default::default(),
         gpu_model: Default::default(),
     }

@@ -442,6 +442,7 @@ pub fn replay_hits_with<R: Read>(
                 th.theta_a, th.theta_d, th.sigma_a, th.sigma_o, th.n_a, th.n_d,
             ],
             rule: crate::report::rule_description(&th),
+            start: crate::report::start_description(&lipac_config),
             ground_truth_ms: 0.0,
             full_tlas_ms: 0.0,
             geometry_ms: 0.0,
