@@ -105,10 +105,10 @@ pub struct CullingConfig {
     /// and omit thresholds, so that hit feedback culls the view down only
     /// after that many frames of evidence, not after the first frame's few
     /// rays. 0 (the default): no hold, the first feedback decides. The
-    /// paper's rule has no rates; there it changes nothing. Under a memory
-    /// target (the manager's closed loop) what a hold keeps counts like
-    /// anything active, but raised thresholds do not cull it before the
-    /// hold ends: expect the target to be overrun for those frames.
+    /// paper's rule has no rates; there it changes nothing. The rates are
+    /// computed from the thresholds at the warm start: thresholds the
+    /// manager's closed loop raises afterwards (a memory target) shorten
+    /// the hold, lowered ones lengthen it.
     pub warm_start_hold: u32,
 }
 
