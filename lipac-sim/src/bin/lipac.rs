@@ -262,7 +262,8 @@ struct SweepArgs {
     /// setting may end in `@CELL` (its own hitbox cell size in metres),
     /// then `%LEVELS` (adaptive hitboxes' merge levels, 0..=4, as
     /// `compare --adaptive-levels`), then `~HOLD` (its own
-    /// `--warm-start-hold`), then `+DIST/SIZE[/RADIUS]` (latency
+    /// `--warm-start-hold`), then `^off` or `^DIST/SIZE[/RADIUS]` (its own
+    /// `--warm-start`), then `+DIST/SIZE[/RADIUS]` (latency
     /// mitigation, as `--latency`) and then `!` (the terrain not pinned:
     /// culled like any instance), e.g. `1:5/1:5/1@32%3+100/0.05` or
     /// `-:2400/480:2400/480!` or `1@256~14`.

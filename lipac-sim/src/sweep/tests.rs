@@ -260,6 +260,56 @@ fn decayed_variants_carry_their_own_warm_start_hold() {
     assert_eq!(v[3].lipac.as_ref().unwrap().warm_start_hold, 0);
 }
 
+/// A setting's own start (`^off`, `^DIST/SIZE[/RADIUS]`) beats the
+/// sweep's (`--warm-start`), and each LiPaC name says its start once.
+#[test]
+fn decayed_variants_carry_their_own_start() {
+    use crate::compare::LipacStart;
+    use lipac_core::latency::ActivationHeuristic;
+    let frustum_only = ActivationHeuristic {
+        max_distance: f32::INFINITY,
+        min_projected_size: 0.0,
+        surround_radius: 0.0,
+    };
+    let c = SweepConfig {
+        lipac_start: LipacStart::Warm(frustum_only),
+        factors: vec![1.0],
+        latency: Vec::new(),
+        cell_sizes: Vec::new(),
+        streaks: Vec::new(),
+        baselines: Vec::new(),
+        ..with_decayed(&["1@256~14^inf/0/800", "1@64^off!", "1@128"])
+    };
+    let (v, skipped) = c.variants().unwrap();
+    assert!(skipped.is_empty(), "{skipped:?}");
+    let starts: Vec<(&str, Option<ActivationHeuristic>)> = v
+        .iter()
+        .map(|x| (x.name.as_str(), x.lipac.as_ref().unwrap().warm_start))
+        .collect();
+    let around = ActivationHeuristic {
+        surround_radius: 800.0,
+        ..frustum_only
+    };
+    assert_eq!(
+        starts,
+        [
+            ("lipac ×1 + warm start inf:0:0", Some(frustum_only)),
+            (
+                "lipac rise 1 100/0.2 100/0.2 256 m cells held 14 + warm start inf:0:800",
+                Some(around)
+            ),
+            (
+                "lipac rise 1 100/0.2 100/0.2 64 m cells unpinned + cold start",
+                None
+            ),
+            (
+                "lipac rise 1 100/0.2 100/0.2 128 m cells + warm start inf:0:0",
+                Some(frustum_only)
+            ),
+        ]
+    );
+}
+
 fn point(
     scene: &str,
     name: &str,

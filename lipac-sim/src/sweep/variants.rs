@@ -277,20 +277,26 @@ pub struct DecayedVariant {
     /// ([`LipacConfig::warm_start_hold`]; `None`: the sweep's
     /// [`SweepConfig::warm_start_hold`]).
     pub warm_start_hold: Option<u32>,
+    /// How this setting starts (`None`: the sweep's
+    /// [`SweepConfig::lipac_start`]).
+    pub start: Option<LipacStart>,
 }
 
 /// A decayed-rule variant from
-/// `RULE[@CELL][%LEVELS][~HOLD][+DIST/SIZE[/RADIUS]][!]`: `RULE` as
+/// `RULE[@CELL][%LEVELS][~HOLD][^START][+DIST/SIZE[/RADIUS]][!]`: `RULE` as
 /// [`parse_decayed_spec`] reads it, then optionally `@` and a hitbox cell
 /// size in metres, then optionally `%` and the merge levels of adaptive
 /// hitboxes (0..=[`MAX_MERGE_LEVELS`]), then optionally `~` and the frames
 /// a warm start is held ([`DecayedVariant::warm_start_hold`]), then
+/// optionally `^` and how it starts (`off`, or a warm start's
+/// `DIST/SIZE[/RADIUS]`: [`DecayedVariant::start`]), then
 /// optionally `+` and a latency-mitigation heuristic (maximum distance in
 /// metres / minimum projected size / optional surround radius in metres),
 /// then optionally `!`: the scene's pinned instances (terrain) culled like
 /// any other ([`DecayedVariant::unpinned`]).
 ///
 /// ```
+/// use lipac_sim::compare::LipacStart;
 /// use lipac_sim::sweep::parse_decayed_variant;
 /// use lipac_sim::strategy::lipac::LipacConfig;
 /// let base = LipacConfig::DEFAULT_DECAYED;
@@ -310,6 +316,13 @@ pub struct DecayedVariant {
 /// assert_eq!((held.cell_size, held.warm_start_hold), (Some(256.0), Some(14)));
 /// assert_eq!(plain.warm_start_hold, None);
 /// assert!(parse_decayed_variant("1~-1", &base).is_err());
+/// let cold = parse_decayed_variant("-:600/120:600/120@64%4^off!", &base).unwrap();
+/// assert_eq!((cold.start, cold.unpinned), (Some(LipacStart::Cold), true));
+/// let near = parse_decayed_variant("1~8^inf/0/200", &base).unwrap();
+/// let Some(LipacStart::Warm(h)) = near.start else { panic!() };
+/// assert_eq!((near.warm_start_hold, h.surround_radius), (Some(8), 200.0));
+/// assert!(parse_decayed_variant("1^", &base).is_err());
+/// assert!(parse_decayed_variant("1^on", &base).is_err());
 /// assert!(parse_decayed_variant("1~x", &base).is_err());
 /// assert!(parse_decayed_variant("1!%3", &base).is_err());
 /// assert!(parse_decayed_variant("1%9", &base).is_err());
@@ -327,6 +340,19 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
             let heuristic = crate::heuristic_arg::parse_heuristic(h, '/')
                 .map_err(|e| format!("decayed variant `{spec}`: latency mitigation {e}"))?;
             (rest, Some(heuristic))
+        }
+        None => (rest, None),
+    };
+    let (rest, start) = match rest.split_once('^') {
+        Some((rest, s)) => {
+            let start = if s.trim() == "off" {
+                LipacStart::Cold
+            } else {
+                LipacStart::Warm(crate::heuristic_arg::parse_heuristic(s, '/').map_err(|e| {
+                    format!("decayed variant `{spec}`: start `off` or a warm start {e}")
+                })?)
+            };
+            (rest, Some(start))
         }
         None => (rest, None),
     };
@@ -358,7 +384,21 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
         adaptive_levels,
         unpinned,
         warm_start_hold,
+        start,
     })
+}
+
+/// What a LiPaC configuration's name says of its start: nothing for the
+/// configured one.
+fn start_name(start: LipacStart) -> String {
+    match start {
+        LipacStart::Default => String::new(),
+        LipacStart::Cold => " + cold start".into(),
+        LipacStart::Warm(h) => format!(
+            " + warm start {}:{}:{}",
+            h.max_distance, h.min_projected_size, h.surround_radius
+        ),
+    }
 }
 
 /// `text` split at `sep` into the rest and a value (`None` without
@@ -514,8 +554,8 @@ impl SweepConfig {
                 1.0,
             ));
         }
-        // Variants (by index in `all`) that set their own hold.
-        let mut own_hold = Vec::new();
+        // Variants (by index in `all`) that set their own hold or start.
+        let (mut own_hold, mut own_start) = (Vec::new(), Vec::new());
         for d in &self.decayed {
             let mut c = base.clone().with_decayed_rule(&d.settings, rays)?;
             let mut name = decayed_name(&d.settings);
@@ -537,6 +577,11 @@ impl SweepConfig {
                 name.push_str(&format!(" held {frames}"));
                 own_hold.push(all.len());
             }
+            if let Some(start) = d.start {
+                start.apply(&mut c);
+                name.push_str(&start_name(start));
+                own_start.push(all.len());
+            }
             let mut kind = StrategyKind::Lipac;
             if let Some(h) = d.latency {
                 c.latency = Some(h);
@@ -554,13 +599,8 @@ impl SweepConfig {
             .enumerate()
             .filter(|(_, v)| v.lipac.is_some())
         {
-            match self.lipac_start {
-                LipacStart::Default => {}
-                LipacStart::Cold => v.name.push_str(" + cold start"),
-                LipacStart::Warm(h) => v.name.push_str(&format!(
-                    " + warm start {}:{}:{}",
-                    h.max_distance, h.min_projected_size, h.surround_radius
-                )),
+            if !own_start.contains(&i) {
+                v.name.push_str(&start_name(self.lipac_start));
             }
             if self.warm_start_at_cuts {
                 v.name.push_str(" + warm start at cuts");
