@@ -348,32 +348,29 @@ fn stage_records(
 /// `(key, value)` pairs with keys below `capacity`, one per key (the last
 /// one given, as a sequential loop would leave it), by ascending key.
 fn last_wins(pairs: impl Iterator<Item = [u32; 2]>, capacity: u32) -> Vec<[u32; 2]> {
-    let mut v: Vec<[u32; 2]> = pairs.filter(|p| p[0] < capacity).collect();
-    v.sort_by_key(|p| p[0]); // stable: equal keys keep their order
-    let mut out: Vec<[u32; 2]> = Vec::with_capacity(v.len());
-    for p in v {
-        match out.last_mut() {
-            Some(last) if last[0] == p[0] => *last = p,
-            _ => out.push(p),
-        }
-    }
-    out
+    one_per_key(pairs, capacity, |_, new| new)
 }
 
 /// `(key, floor)` pairs with keys below `capacity`, one per key (the
 /// largest floor: applying them one by one as `max` gives the same), by
 /// ascending key.
 fn max_wins(pairs: &[(u32, u32)], capacity: u32) -> Vec<[u32; 2]> {
-    let mut v: Vec<[u32; 2]> = pairs
-        .iter()
-        .filter(|p| p.0 < capacity)
-        .map(|&(k, f)| [k, f])
-        .collect();
-    v.sort_unstable();
+    one_per_key(pairs.iter().map(|&(k, f)| [k, f]), capacity, u32::max)
+}
+
+/// `(key, value)` pairs with keys below `capacity`, by ascending key, the
+/// values of equal keys folded in the order given: `merge(earlier, later)`.
+fn one_per_key(
+    pairs: impl Iterator<Item = [u32; 2]>,
+    capacity: u32,
+    merge: impl Fn(u32, u32) -> u32,
+) -> Vec<[u32; 2]> {
+    let mut v: Vec<[u32; 2]> = pairs.filter(|p| p[0] < capacity).collect();
+    v.sort_by_key(|p| p[0]); // stable: equal keys keep their order
     let mut out: Vec<[u32; 2]> = Vec::with_capacity(v.len());
     for p in v {
         match out.last_mut() {
-            Some(last) if last[0] == p[0] => last[1] = last[1].max(p[1]),
+            Some(last) if last[0] == p[0] => last[1] = merge(last[1], p[1]),
             _ => out.push(p),
         }
     }
