@@ -310,6 +310,46 @@ fn decayed_variants_carry_their_own_start() {
     );
 }
 
+/// Latency-mitigation heuristics that differ only in their surround
+/// radius are two configurations with two names (not "two sweep variants
+/// share a name").
+#[test]
+fn latency_names_say_the_surround_radius() {
+    use crate::heuristic_arg::parse_heuristic;
+    let c = SweepConfig {
+        factors: vec![1.0],
+        cell_sizes: Vec::new(),
+        streaks: Vec::new(),
+        baselines: Vec::new(),
+        latency: vec![
+            parse_heuristic("100:0.05", ':').unwrap(),
+            parse_heuristic("100:0.05:200", ':').unwrap(),
+        ],
+        ..with_decayed(&["1+100/0.05/50"])
+    };
+    let (v, skipped) = c.variants().unwrap();
+    assert!(skipped.is_empty(), "{skipped:?}");
+    let names: Vec<&str> = v.iter().map(|x| x.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "lipac ×1",
+            "lipac-latency 100 m / 0.05",
+            "lipac-latency 100 m / 0.05 / 200 m around",
+            "lipac rise 1 100/0.2 100/0.2 + latency 100 m / 0.05 / 50 m around",
+        ]
+    );
+    assert_eq!(
+        v[2].lipac
+            .as_ref()
+            .unwrap()
+            .latency
+            .unwrap()
+            .surround_radius,
+        200.0
+    );
+}
+
 fn point(
     scene: &str,
     name: &str,

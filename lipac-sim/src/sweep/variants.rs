@@ -388,6 +388,16 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
     })
 }
 
+/// A latency-mitigation heuristic in a configuration's name: ` D m / S`,
+/// then ` / R m around` for a surround radius.
+fn latency_words(h: &ActivationHeuristic) -> String {
+    let mut s = format!(" {} m / {}", h.max_distance, h.min_projected_size);
+    if h.surround_radius > 0.0 {
+        s.push_str(&format!(" / {} m around", h.surround_radius));
+    }
+    s
+}
+
 /// What a LiPaC configuration's name says of its start: nothing for the
 /// configured one.
 fn start_name(start: LipacStart) -> String {
@@ -508,10 +518,7 @@ impl SweepConfig {
             let name = if i == 0 && *h == ActivationHeuristic::default() {
                 "lipac-latency".to_string()
             } else {
-                format!(
-                    "lipac-latency {} m / {}",
-                    h.max_distance, h.min_projected_size
-                )
+                format!("lipac-latency{}", latency_words(h))
             };
             all.push(lipac(
                 name,
@@ -586,10 +593,7 @@ impl SweepConfig {
             if let Some(h) = d.latency {
                 c.latency = Some(h);
                 kind = StrategyKind::LipacLatency;
-                name.push_str(&format!(
-                    " + latency {} m / {}",
-                    h.max_distance, h.min_projected_size
-                ));
+                name.push_str(&format!(" + latency{}", latency_words(&h)));
             }
             all.push(lipac(name, Family::Decayed, kind, c, 1.0));
         }
