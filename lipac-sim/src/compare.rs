@@ -159,11 +159,17 @@ impl LipacStart {
     /// }
     /// ```
     pub fn parse(spec: &str) -> Result<Self, String> {
+        Self::parse_with(spec, ':')
+    }
+
+    /// [`LipacStart::parse`] with the heuristic's values split by `sep`
+    /// (a sweep setting's `^DIST/SIZE[/RADIUS]` takes `/`).
+    pub fn parse_with(spec: &str, sep: char) -> Result<Self, String> {
         let spec = spec.trim();
         if spec == "off" {
             return Ok(Self::Cold);
         }
-        crate::heuristic_arg::parse_heuristic(spec, ':')
+        crate::heuristic_arg::parse_heuristic(spec, sep)
             .map(Self::Warm)
             .map_err(|e| format!("warm start {e}, or `off`"))
     }

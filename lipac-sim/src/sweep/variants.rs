@@ -345,13 +345,8 @@ pub fn parse_decayed_variant(spec: &str, base: &DecayedSettings) -> Result<Decay
     };
     let (rest, start) = match rest.split_once('^') {
         Some((rest, s)) => {
-            let start = if s.trim() == "off" {
-                LipacStart::Cold
-            } else {
-                LipacStart::Warm(crate::heuristic_arg::parse_heuristic(s, '/').map_err(|e| {
-                    format!("decayed variant `{spec}`: start `off` or a warm start {e}")
-                })?)
-            };
+            let start = LipacStart::parse_with(s, '/')
+                .map_err(|e| format!("decayed variant `{spec}`: {e}"))?;
             (rest, Some(start))
         }
         None => (rest, None),
