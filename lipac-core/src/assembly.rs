@@ -41,7 +41,7 @@ use crate::layout::{
     VK_INSTANCE_FORCE_OPAQUE,
 };
 
-mod height_keys;
+pub(crate) mod height_keys;
 
 /// Instance flags of every counting box.
 pub const COUNTING_BOX_FLAGS: u8 = VK_INSTANCE_FORCE_OPAQUE | VK_INSTANCE_CULL_DISABLE;

@@ -57,6 +57,7 @@ pub mod error;
 pub mod feedback;
 pub mod grid;
 pub mod hashed_hitboxes;
+pub mod hitbox_extents;
 pub mod hitbox_index;
 pub mod hitbox_tree;
 pub mod instance;

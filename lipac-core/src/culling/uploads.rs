@@ -9,11 +9,14 @@
 //! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
 //! exactly the CPU's writes since the last take, and raise the decayed
 //! rates to [`Uploads::hitbox_rate_floors`] and
-//! [`Uploads::instance_rate_floors`] (a held warm start). Why:
+//! [`Uploads::instance_rate_floors`] (a held warm start). The hitbox
+//! extents ([`Uploads::hitbox_extents`]: a hitbox's counting-box heights and
+//! cost word) are the CPU's alone and are written as they are. Why:
 //! `docs/ARCHITECTURE.md`, "Who owns the state bits".
 
 use std::ops::Range;
 
+use crate::hitbox_extents::HitboxExtent;
 use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceState};
 
 #[cfg(doc)]
@@ -43,12 +46,19 @@ pub struct Uploads {
     /// Least decayed rates of unique-BLAS instances, by ascending slot, as
     /// `(slot, rate)`: raise the GPU's per-slot rate to at least `rate`.
     pub instance_rate_floors: Vec<(u32, u32)>,
+    /// Hitbox extents that changed since the last take (the counting box's
+    /// y range and the cost word, [`crate::hitbox_extents`]), by ascending
+    /// index, each index once, as `(index, extent)`: write the record's
+    /// `min_y`, `max_y` and `cost`, nothing else. A record no extent was
+    /// ever uploaded for must hold [`HitboxRecord::default`]'s (the empty
+    /// extent), not zeros.
+    pub hitbox_extents: Vec<(u32, HitboxExtent)>,
 }
 
 /// Writes `uploads` into a GPU-side copy of the instance arrays, the
 /// per-slot rates and the hitbox buffer the way a GPU backend must: the
 /// slots of the record ranges (hot, heights, cold) without their state
-/// bits, then the overrides, then the rate floors. `records` is the CPU's
+/// bits, then the overrides, then the rate floors, then the hitbox extents. `records` is the CPU's
 /// instance buffer; `gpu_instances` and `gpu_rates` are grown to its length
 /// (new rates 0). Entries past the buffers are ignored. Used by tests and
 /// as the specification of the scatter shader.
@@ -98,6 +108,11 @@ pub fn apply_uploads(
     for &(slot, rate) in &uploads.instance_rate_floors {
         if let Some(r) = gpu_rates.get_mut(slot as usize) {
             *r = (*r).max(rate);
+        }
+    }
+    for (index, extent) in &uploads.hitbox_extents {
+        if let Some(h) = gpu_hitboxes.get_mut(*index as usize) {
+            extent.write_to(h);
         }
     }
 }
