@@ -27,6 +27,7 @@ use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::command::CommandBuffer;
 use lipac_core::feedback::{process_feedback, process_feedback_with_rates};
+use lipac_core::hitbox_extents::write_extents;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
     hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState,
@@ -193,7 +194,17 @@ fn bench(c: &mut Criterion) {
             })
         });
 
+        // The hitbox extents are the CPU's, kept where instances change
+        // (`hitbox_extents`); the frame's records are unchanged, so they
+        // are computed once. `write_extents` is what recomputing all of
+        // them costs (the per-slot reduction Algorithm 1 did before).
         let mut hitboxes = s.hitboxes.clone();
+        write_extents(&s.arrays, &mut hitboxes);
+        let mut extents_out = hitboxes.clone();
+        group.bench_function(BenchmarkId::new("write_extents", n), |b| {
+            b.iter(|| write_extents(black_box(&s.arrays), &mut extents_out))
+        });
+        drop(extents_out);
         let mut out = Vec::with_capacity(n);
         group.bench_function(BenchmarkId::new("assemble_tlas", n), |b| {
             b.iter(|| {
@@ -383,6 +394,7 @@ fn bench(c: &mut Criterion) {
         let mut c2 = CommandBuffer::new(n as u32);
         let fs = process_feedback(&mut i2, &s.hits, &mut h2, &th, &mut c2).unwrap();
         let mut h3 = s.hitboxes.clone();
+        write_extents(&s.arrays, &mut h3);
         let as_ = assemble_tlas(&s.arrays, &mut h3, &s.grid, &cfg, &mut Vec::new()).unwrap();
         let (mut i4, mut h4, mut r4) = (
             start_hot.clone(),

@@ -4,25 +4,31 @@
 //! Runs once per frame before the TLAS build, over exactly the buffers a GPU
 //! backend holds: the instance arrays ([`InstanceArrays`]: hot, heights and
 //! cold, one of each per slot), the hitbox records and the output array of
-//! [`TlasInstance`]s. Every slot's hot part is read; an inactive slot's
-//! heights; the cold part only of a slot that emits a record (its transform,
-//! BLAS and SBT offset when active, its AABB when omitted). The GPU version appends with an
-//! atomic counter, so its output order is arbitrary; compare with
+//! [`TlasInstance`]s. Every slot's hot part is read; the cold part only of
+//! a slot that emits a record (its transform, BLAS and SBT offset when
+//! active, its AABB when omitted). The GPU version appends with an atomic
+//! counter, so its output order is arbitrary; compare with
 //! [`sort_canonical`] applied to both sides.
 //!
-//! The passes, in short: [`begin_frame`] resets every hitbox's height bounds
-//! and hit count (active bit and streak kept); then every live *active*
+//! The hitbox records' **extents** — the counting box's height range and the
+//! cost word — are an input: the CPU keeps them where instances change
+//! ([`crate::hitbox_extents`]; [`crate::culling::Culling`] does, a caller
+//! with its own arrays runs [`crate::hitbox_extents::write_extents`] after
+//! changing records). Algorithm 1 no longer reduces them over the slots.
+//!
+//! The passes, in short: [`begin_frame`] resets every hitbox's hit count
+//! (active bit, streak, rate and extent kept); then every live *active*
 //! instance with a BLAS gets its own TLAS record (custom index = slot; active
 //! without a BLAS yet is left out and counted), every *omitted* one a
-//! unit-cube counting box onto its AABB, and every *inactive* one widens its
-//! hitbox's height range; finally every **inactive** hitbox with an inactive
-//! instance gets a counting box (custom index = hitbox index). An active or
-//! omitted instance in an inactive hitbox counts as inactive
-//! ([`AssemblyStats::in_inactive_hitbox`]). A *pinned* instance
-//! ([`crate::layout::instance_bits::PINNED`]) counts as active whatever its
-//! state bits and its hitbox: its own record once its BLAS exists, never a
-//! counting box, never in a hitbox's height range. The backend clears the
-//! per-instance hit buffer before tracing.
+//! unit-cube counting box onto its AABB, and an *inactive* one nothing;
+//! finally every **inactive** hitbox with a non-empty extent gets a
+//! counting box over its cell and the extent's heights (custom index =
+//! hitbox index). An active or omitted instance in an inactive hitbox
+//! counts as inactive ([`AssemblyStats::in_inactive_hitbox`]). A *pinned*
+//! instance ([`crate::layout::instance_bits::PINNED`]) counts as active
+//! whatever its state bits and its hitbox: its own record once its BLAS
+//! exists, never a counting box, never in a hitbox's extent. The backend
+//! clears the per-instance hit buffer before tracing.
 //!
 //! Counting boxes contain their target box in f32 at any distance from the
 //! origin ([`unit_cube_transform`]; bounds in `docs/PRECISION.md`). Every pass
@@ -36,12 +42,9 @@ use glam::Vec3;
 use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::HitboxTree;
 use crate::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights,
-    InstanceHot, InstanceState, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE,
-    VK_INSTANCE_FORCE_OPAQUE,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHot,
+    InstanceState, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
 };
-
-pub(crate) mod height_keys;
 
 /// Instance flags of every counting box.
 pub const COUNTING_BOX_FLAGS: u8 = VK_INSTANCE_FORCE_OPAQUE | VK_INSTANCE_CULL_DISABLE;
@@ -91,11 +94,12 @@ pub struct AssemblyStats {
     pub active_without_blas: u32,
     /// Omitted instances emitted as counting boxes.
     pub omitted_boxes: u32,
-    /// Instances reduced into their hitbox's height range (inactive ones and
-    /// those counted in [`AssemblyStats::in_inactive_hitbox`]).
+    /// Live instances that count as inactive (inactive ones and those
+    /// counted in [`AssemblyStats::in_inactive_hitbox`]): their hitbox's
+    /// counting box stands for them.
     pub inactive: u32,
     /// Active or omitted instances whose hitbox is inactive, treated as
-    /// inactive (not emitted, reduced into the hitbox's counting box).
+    /// inactive (not emitted: the hitbox's counting box stands for them).
     pub in_inactive_hitbox: u32,
     /// Counting boxes emitted for inactive hitboxes.
     pub hitbox_boxes: u32,
@@ -166,27 +170,13 @@ impl fmt::Display for AssemblyError {
 
 impl std::error::Error for AssemblyError {}
 
-/// Pass 0: resets every hitbox's height range to `(+∞, −∞)`, its hit count
-/// and its cost word to 0, keeping the active bit, streak and rate.
-/// [`assemble_tlas`] calls it first.
+/// Pass 0: resets every hitbox's hit count to 0, keeping the active bit,
+/// streak, rate and extent (heights and cost word: the CPU's,
+/// [`crate::hitbox_extents`]). [`assemble_tlas`] calls it first.
 pub fn begin_frame(hitboxes: &mut [HitboxRecord]) {
-    reset_hitboxes(
-        hitboxes,
-        f32::INFINITY.to_bits(),
-        f32::NEG_INFINITY.to_bits(),
-    );
-}
-
-/// Pass 0 with the bits `(min_bits, max_bits)` in the height range (floats,
-/// or [`height_keys`] during [`assemble_tlas_adaptive`]'s pass 1): hit count
-/// and cost word to 0, the active bit, streak and rate kept.
-fn reset_hitboxes(hitboxes: &mut [HitboxRecord], min_bits: u32, max_bits: u32) {
     const KEEP: u32 = (1 << hitbox_bits::HITS_SHIFT) - 1;
     for h in hitboxes {
-        h.min_y = f32::from_bits(min_bits);
-        h.max_y = f32::from_bits(max_bits);
         h.packed &= KEEP;
-        h.cost = 0;
     }
 }
 
@@ -304,12 +294,15 @@ pub(crate) fn unit_cube_transform_general(
 }
 
 /// Algorithm 1: fills `out` (cleared first) with this frame's TLAS instance
-/// records, in slot order then hitbox index order, and rebuilds the hitboxes'
-/// height ranges. See the [module docs](self) for the passes and deviations.
+/// records, in slot order then hitbox index order, and resets the hitboxes'
+/// hit counts. The hitboxes' extents must be current
+/// ([`crate::hitbox_extents::write_extents`]). See the [module docs](self)
+/// for the passes and deviations.
 ///
 /// ```
 /// use glam::{Vec2, Vec3};
 /// use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
+/// use lipac_core::hitbox_extents::write_extents;
 /// use lipac_core::hitbox_index::HitboxIndex;
 /// use lipac_core::layout::{instance_bits, HitboxRecord, InstanceArrays, InstanceRecord, InstanceState};
 ///
@@ -329,6 +322,7 @@ pub(crate) fn unit_cube_transform_general(
 /// let mut hitboxes = [HitboxRecord::default()];
 /// let mut out = Vec::new();
 /// let instances = InstanceArrays::from_records(&[inst]);
+/// write_extents(&instances, &mut hitboxes); // the box's heights: 0 to 5
 /// let stats = assemble_tlas(&instances, &mut hitboxes, &OneCell, &AssemblyConfig::new(7), &mut out).unwrap();
 /// assert_eq!((stats.inactive, stats.hitbox_boxes, out.len()), (1, 1, 1));
 /// assert_eq!((hitboxes[0].min_y, hitboxes[0].max_y), (0.0, 5.0));
@@ -374,39 +368,32 @@ pub fn assemble_tlas_adaptive(
         return Err(AssemblyError::TooManySlots(instances.len()));
     }
     out.clear();
-    begin_frame_keys(hitboxes);
+    begin_frame(hitboxes);
     let mut stats = AssemblyStats::default();
 
-    // Pass 1: one GPU thread per slot, over the hot array. The arrays have
-    // equal lengths (InstanceArrays); cut to it, indexing needs no check.
-    // The hitboxes' height fields hold reduction keys until pass 2.
+    // Pass 1: one GPU thread per slot, over the hot array. An instance that
+    // counts as inactive does nothing: its hitbox's extent (the counting
+    // box's heights, the cost word) is the CPU's, kept where instances
+    // change (crate::hitbox_extents), not reduced here.
     //
-    // In two sweeps over the slots. First, per chunk of slots, the reduction
-    // of the instances that count as inactive (three quarters of the slots
-    // on a typical frame), in a tight loop that only notes the slots that
-    // emit a record; the noted slots of all chunks are collected. Then
-    // those slots' records, appended to `out` in slot order (reserved
-    // once). The same records in the same order, the same bits as one
-    // loop. Two whole sweeps rather than the records after each chunk: at
-    // 1M slots, where the arrays do not fit in the cache, the first sweep
-    // then streams only the hot records, the heights and the hitboxes, the
-    // second only the cold records and `out` (paired runs at 1M: 7-25 %
-    // less time; `docs/HOT_COLD.md`, "Algorithm 1 in two sweeps").
+    // In two sweeps over the slots. First, per chunk of slots, the
+    // classification of every slot, noting the slots that emit a record;
+    // the noted slots of all chunks are collected. Then those slots'
+    // records, appended to `out` in slot order (reserved once). The same
+    // records in the same order, the same bits as one loop. Two whole
+    // sweeps rather than the records after each chunk: at 1M slots, where
+    // the arrays do not fit in the cache, the first sweep then streams only
+    // the hot records, the second only the cold records and `out`
+    // (`docs/HOT_COLD.md`, "Algorithm 1 in two sweeps").
     let hot = instances.hot();
     let n = hot.len();
-    let (heights, cold) = (&instances.heights()[..n], &instances.cold()[..n]);
+    let cold = &instances.cold()[..n];
     let mut counts = Pass1Counts::default();
     let mut emit = [0u32; PASS1_CHUNK];
     let mut emitted: Vec<u32> = Vec::new();
     for start in (0..n).step_by(PASS1_CHUNK) {
         let end = n.min(start + PASS1_CHUNK);
-        let emitting = reduce_chunk(
-            &hot[start..end],
-            &heights[start..end],
-            hitboxes,
-            &mut emit,
-            &mut counts,
-        );
+        let emitting = classify_chunk(&hot[start..end], hitboxes, &mut emit, &mut counts);
         // n <= MAX_SLOTS: slot numbers fit in u32.
         let base = start as u32;
         emitted.extend(emit[..emitting].iter().map(|&offset| base + offset));
@@ -428,15 +415,11 @@ pub fn assemble_tlas_adaptive(
     stats.invalid_instances = invalid;
 
     // Pass 2: one GPU thread per hitbox (adaptive: see `crate::hitbox_tree`),
-    // on the heights decoded from the keys (assemble_hitboxes.comp does too).
+    // on the extents the CPU keeps.
     match tree {
-        Some(tree) => {
-            hitboxes.iter_mut().for_each(decode_heights);
-            tree.emit_boxes(hitboxes, index, cfg, out, &mut stats);
-        }
+        Some(tree) => tree.emit_boxes(hitboxes, index, cfg, out, &mut stats),
         None => {
-            for (i, h) in hitboxes.iter_mut().enumerate() {
-                decode_heights(h);
+            for (i, h) in hitboxes.iter().enumerate() {
                 emit_leaf_box(i as u32, h, index, cfg, out, &mut stats);
             }
         }
@@ -460,41 +443,28 @@ struct Pass1Counts {
 }
 
 /// Pass 1, first sweep, for one chunk of at most [`PASS1_CHUNK`] slots:
-/// reduces every live instance that counts as inactive into its hitbox and
-/// notes the offsets (within the chunk) of the others, the slots that emit a
-/// record (or are left out: active without a BLAS, non-finite omitted
-/// AABB), in `emit`; returns how many. Dead slots are skipped.
+/// counts every live instance that counts as inactive and notes the offsets
+/// (within the chunk) of the others, the slots that emit a record (or are
+/// left out: active without a BLAS, non-finite omitted AABB), in `emit`;
+/// returns how many. Dead slots are skipped.
 #[inline(never)]
-fn reduce_chunk(
+fn classify_chunk(
     hot: &[InstanceHot],
-    heights: &[InstanceHeights],
-    hitboxes: &mut [HitboxRecord],
+    hitboxes: &[HitboxRecord],
     emit: &mut [u32; PASS1_CHUNK],
     counts: &mut Pass1Counts,
 ) -> usize {
-    let len = hot.len().min(heights.len()).min(PASS1_CHUNK);
-    // The chunk's height keys, both halves of the shader's key computed in
-    // one vectorisable loop: (min_key, max_key) per slot.
-    let mut keys = [0u32; 2 * PASS1_CHUNK];
-    let bits: &[u32] = bytemuck::cast_slice(&heights[..len]);
-    for (k, b) in keys.chunks_exact_mut(2).zip(bits.chunks_exact(2)) {
-        k[0] = height_keys::min_key(b[0]);
-        k[1] = height_keys::max_key(b[1]);
-    }
     let nh = hitboxes.len();
     let (mut inactive, mut folded, mut invalid) = (0u32, 0u32, 0u32);
     let mut emitting = 0;
-    let slots = hot[..len].iter().zip(keys.chunks_exact(2));
-    for (j, (m, k)) in (0u32..).zip(slots) {
+    for (j, m) in (0u32..).zip(&hot[..hot.len().min(PASS1_CHUNK)]) {
         let p = m.packed;
         let hb = m.hitbox as usize;
-        let (lo, hi) = (k[0], k[1]);
         let key = p & (instance_bits::ALIVE | instance_bits::PINNED | instance_bits::STATE_MASK);
         if key == instance_bits::ALIVE || key == instance_bits::ALIVE | 3 {
             // Live, not pinned, state bits 0 or 3 (Inactive, see
             // InstanceState::from_bits).
             if hb < nh {
-                reduce_into_hitbox(&mut hitboxes[hb], lo, hi, p);
                 inactive += 1;
             } else {
                 invalid += 1;
@@ -505,7 +475,6 @@ fn reduce_chunk(
             // an inactive hitbox"); a pinned one is active whatever its state
             // bits and hitbox say.
             if p & instance_bits::PINNED == 0 && hb < nh && !hitboxes[hb].is_active() {
-                reduce_into_hitbox(&mut hitboxes[hb], lo, hi, p);
                 inactive += 1;
                 folded += 1;
             } else {
@@ -583,43 +552,6 @@ fn build_records(
     counts.without_blas += without_blas;
     counts.omitted += omitted;
     counts.invalid += invalid;
-}
-
-/// [`begin_frame`] with the height range as the empty reduction's keys
-/// ([`height_keys`]) instead of `(+∞, −∞)`, as `hitbox_reset.comp` writes it.
-fn begin_frame_keys(hitboxes: &mut [HitboxRecord]) {
-    reset_hitboxes(
-        hitboxes,
-        height_keys::MIN_KEY_EMPTY,
-        height_keys::MAX_KEY_EMPTY,
-    );
-}
-
-/// Turns a hitbox's height keys back into f32 heights.
-#[inline(always)]
-fn decode_heights(h: &mut HitboxRecord) {
-    h.min_y = f32::from_bits(height_keys::from_min_key(h.min_y.to_bits()));
-    h.max_y = f32::from_bits(height_keys::from_max_key(h.max_y.to_bits()));
-}
-
-// The cost word's increment below reads the unique bit as bit 3.
-const _: () = assert!(instance_bits::UNIQUE_BLAS == 1 << 3);
-
-/// Reduces an inactive instance into its hitbox: `atomicMin` / `atomicMax`
-/// on the GPU, here `min`/`max` of the keys (NaN heights never win; −0 is
-/// below +0 as in the shader), and the cost word (`atomicAdd`: what
-/// activating the hitbox brings in, shared- or unique-BLAS).
-#[inline(always)]
-fn reduce_into_hitbox(h: &mut HitboxRecord, min_key: u32, max_key: u32, packed: u32) {
-    let lo = min_key.min(h.min_y.to_bits());
-    let hi = max_key.max(h.max_y.to_bits());
-    h.min_y = f32::from_bits(lo);
-    h.max_y = f32::from_bits(hi);
-    // UNIQUE_BLAS (bit 3): 1 + 0xFFFF = COST_UNIQUE, else COST_SHARED.
-    let unique = (packed >> 3) & 1;
-    h.cost = h.cost.wrapping_add(
-        hitbox_bits::COST_SHARED + unique * (hitbox_bits::COST_UNIQUE - hitbox_bits::COST_SHARED),
-    );
 }
 
 /// Pass 2 for one hitbox: a counting box for hitbox `i` if it is inactive

@@ -15,8 +15,8 @@
 //!
 //! * `min_y` / `max_y`: the lowest AABB minimum and highest AABB maximum
 //!   height of the members; NaN heights never win, −0 is below +0 (the
-//!   order of [`crate::assembly`]'s height keys, as the shaders' ordered
-//!   keys); `(+∞, −∞)` (empty, `min_y > max_y`) without members;
+//!   order of `height_keys`: the IEEE order on non-NaN floats, the order
+//!   GLSL's ordered-key `atomicMin`/`atomicMax` gave when the GPU reduced); `(+∞, −∞)` (empty, `min_y > max_y`) without members;
 //! * `cost`: per member [`hitbox_bits::COST_SHARED`] or
 //!   [`hitbox_bits::COST_UNIQUE`], summed wrapping.
 //!
@@ -29,7 +29,6 @@
 //! hitboxes' members; the extents that changed go to the GPU in
 //! [`crate::culling::Uploads::hitbox_extents`].
 
-use crate::assembly::height_keys;
 use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceHot};
 use crate::memory::vec_bytes;
 
@@ -320,6 +319,8 @@ impl ExtentTracker {
         self.dirty.clear();
     }
 }
+
+mod height_keys;
 
 #[cfg(test)]
 mod tests;

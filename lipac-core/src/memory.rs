@@ -49,6 +49,10 @@ pub struct MemoryUsage {
     pub overrides: u64,
     /// Scratch buffers.
     pub scratch: u64,
+    /// The hitboxes' member lists that keep their extents
+    /// ([`crate::hitbox_extents`]): 12 bytes per slot, 5 per hitbox, and
+    /// the extents not yet taken for the GPU.
+    pub extent_lists: u64,
 }
 
 impl MemoryUsage {
@@ -71,6 +75,7 @@ impl MemoryUsage {
             + self.command_queue
             + self.overrides
             + self.scratch
+            + self.extent_lists
     }
 }
 

@@ -222,6 +222,10 @@ pub struct InstanceRegistry<H: HitboxIndex = HitboxGrid> {
     frame: u64,
     registrations: u64,
     dirty: DirtySet,
+    /// The slots written since the last [`InstanceRegistry::take_touched`]:
+    /// the same marks as `dirty`, taken separately by the hitbox extents
+    /// ([`crate::hitbox_extents`]).
+    touched: DirtySet,
     /// Hitboxes the index evicted at the last [`InstanceRegistry::begin_frame`].
     evicted: Vec<u32>,
 }
@@ -357,6 +361,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             frame: 0,
             registrations: 0,
             dirty: DirtySet::default(),
+            touched: DirtySet::default(),
             evicted: Vec::new(),
         })
     }
@@ -388,7 +393,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         }
         for (slot, hitbox) in hitboxes {
             if self.records.set_hitbox(slot as usize, hitbox) != Some(hitbox) {
-                self.dirty.mark(slot);
+                self.touch(slot);
             }
         }
         Ok(std::mem::replace(&mut self.index, index))
@@ -426,6 +431,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         self.records.reserve_exact(new_slots);
         self.table.reserve_exact(new_slots);
         self.dirty.reserve(slots, additional);
+        self.touched.reserve(slots, additional);
         slots
     }
 
@@ -503,7 +509,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             mesh: desc.mesh,
         };
         self.registrations += 1;
-        self.dirty.mark(slot);
+        self.touch(slot);
         Ok(handle)
     }
 
@@ -535,7 +541,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         self.records
             .set(slot, &build_record(&desc, rows, hitbox, state, record.blas));
         occupant.mesh = desc.mesh;
-        self.dirty.mark(entry.slot);
+        self.touch(entry.slot);
         Ok(old)
     }
 
@@ -588,7 +594,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         self.index.vacate(record.hitbox);
         let mesh = self.table[slot as usize].occupant.mesh;
         self.table[slot as usize].occupant.handle = None;
-        self.dirty.mark(slot);
+        self.touch(slot);
         if self.config.quarantine_frames == 0 {
             self.free.push(Reverse(slot));
         } else {
@@ -802,7 +808,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             .set_state(slot as usize, state)
             .ok_or(CoreError::NoInstanceAtSlot { slot })?;
         if old != state {
-            self.dirty.mark(slot);
+            self.touch(slot);
         }
         Ok(old)
     }
@@ -829,7 +835,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     fn write_blas(&mut self, slot: u32, address: u64) -> u64 {
         let old = self.records.set_blas(slot as usize, address).unwrap_or(0);
         if old != address {
-            self.dirty.mark(slot);
+            self.touch(slot);
         }
         old
     }
@@ -849,6 +855,19 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// by at most `max_gap` clean slots.
     pub fn take_dirty_merged(&mut self, max_gap: u32) -> Vec<Range<u32>> {
         self.dirty.take_merged(max_gap)
+    }
+
+    /// Marks a written slot for the upload and for the hitbox extents.
+    fn touch(&mut self, slot: u32) {
+        self.dirty.mark(slot);
+        self.touched.mark(slot);
+    }
+
+    /// Takes the slots written since the last call (as
+    /// [`InstanceRegistry::take_dirty`], but a separate set: the hitbox
+    /// extents' input, [`crate::hitbox_extents`]).
+    pub(crate) fn take_touched(&mut self) -> Vec<Range<u32>> {
+        self.touched.take()
     }
 
     /// Whether any slot changed since the last take.
@@ -881,7 +900,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
             self.table.heap_bytes(),
             vec_bytes::<u32>(self.free.capacity())
                 + vec_bytes::<(u64, u32)>(self.quarantine.capacity()),
-            self.dirty.heap_bytes(),
+            self.dirty.heap_bytes() + self.touched.heap_bytes(),
         )
     }
 

@@ -15,10 +15,13 @@
 
 use glam::camera::rh::{proj, view};
 use glam::{Affine3A, Quat, Vec3};
-use lipac_core::assembly::{assemble_tlas, AssemblyConfig, COUNTING_BOX_FLAGS};
+use lipac_core::assembly::{
+    assemble_tlas, AssemblyConfig, AssemblyError, AssemblyStats, COUNTING_BOX_FLAGS,
+};
 use lipac_core::culling::{Culling, CullingConfig};
 use lipac_core::error::CoreError;
 use lipac_core::grid::{GridConfig, HitboxGrid};
+use lipac_core::hitbox_extents::write_extents;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::{ActivationHeuristic, Frustum};
@@ -29,6 +32,19 @@ use lipac_core::layout::{
 use lipac_core::math::{affine_to_rows, Aabb};
 use lipac_core::registry::{InstanceRegistry, RegistryConfig};
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
+
+/// Algorithm 1 on hand-made arrays: the hitbox extents first (the CPU's
+/// part, `write_extents`), then `assemble_tlas`.
+fn assemble_with_extents(
+    instances: &InstanceArrays,
+    hitboxes: &mut [HitboxRecord],
+    index: &impl HitboxIndex,
+    cfg: &AssemblyConfig,
+    out: &mut Vec<TlasInstance>,
+) -> Result<AssemblyStats, AssemblyError> {
+    write_extents(instances, hitboxes);
+    assemble_tlas(instances, hitboxes, index, cfg, out)
+}
 
 const CUBE: u64 = 0xC0BE;
 
@@ -222,7 +238,7 @@ fn omitted_boxes_contain_the_instance_aabb_in_every_regime() {
             cfg.min_box_extent = [0.0, 1e-3, 0.5][rng.below_u32(3) as usize];
             let rec = live(InstanceState::Omitted, 0, min, max);
             let mut hitboxes = [active_hitbox()];
-            let stats = assemble_tlas(
+            let stats = assemble_with_extents(
                 &InstanceArrays::from_records(&[rec]),
                 &mut hitboxes,
                 &index,
@@ -268,7 +284,7 @@ fn zero_extent_boxes_get_a_box_at_least_one_step_thick() {
             cfg.min_box_extent = pad;
             let mut out = Vec::new();
             let rec = live(InstanceState::Omitted, 0, pt, pt);
-            assemble_tlas(
+            assemble_with_extents(
                 &InstanceArrays::from_records(&[rec]),
                 &mut [active_hitbox()],
                 &index,
@@ -339,7 +355,7 @@ fn hitbox_boxes_contain_cell_and_height_range_in_every_regime() {
                 ));
             }
             let mut hitboxes = vec![HitboxRecord::default(); n as usize];
-            let stats = assemble_tlas(
+            let stats = assemble_with_extents(
                 &InstanceArrays::from_records(&records),
                 &mut hitboxes,
                 &g,
@@ -384,7 +400,7 @@ fn neighbouring_hitbox_boxes_leave_no_gap() {
             .collect();
         let mut hitboxes = vec![HitboxRecord::default(); n];
         let mut out = Vec::new();
-        let stats = assemble_tlas(
+        let stats = assemble_with_extents(
             &InstanceArrays::from_records(&records),
             &mut hitboxes,
             &g,
@@ -432,7 +448,7 @@ fn flat_hitbox_keeps_a_box_that_contains_its_height() {
             ];
             let mut hb = vec![HitboxRecord::default(); 16];
             let mut out = Vec::new();
-            let stats = assemble_tlas(
+            let stats = assemble_with_extents(
                 &InstanceArrays::from_records(&recs),
                 &mut hb,
                 &g,
@@ -636,7 +652,7 @@ fn registry_extent_limit_and_huge_boxes() {
     }
     let mut hb = vec![active_hitbox(); 16];
     let mut out = Vec::new();
-    let stats = assemble_tlas(
+    let stats = assemble_with_extents(
         &InstanceArrays::from_records(&records),
         &mut hb,
         reg.hitbox_index(),
@@ -739,7 +755,7 @@ fn tiny_and_huge_scales_and_rotations_round_trip_and_stay_enclosed() {
             omitted.set_state(InstanceState::Omitted);
             let mut hb = vec![active_hitbox(); reg.hitbox_index().len() as usize];
             let mut out: Vec<TlasInstance> = Vec::new();
-            assemble_tlas(
+            assemble_with_extents(
                 &InstanceArrays::from_records(&[active, omitted]),
                 &mut hb,
                 reg.hitbox_index(),

@@ -69,6 +69,7 @@ fn merged_boxes_count_what_leaf_boxes_count() {
                 h.packed |= hitbox_bits::ACTIVE;
             }
         }
+        lipac_core::hitbox_extents::write_extents(&instances, &mut hitboxes);
         let mut leaf_hb = hitboxes.clone();
         let (mut leaf_records, mut merged_records) = (Vec::new(), Vec::new());
         let a = assemble_tlas_adaptive(

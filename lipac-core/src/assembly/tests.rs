@@ -1,4 +1,5 @@
 use super::*;
+use crate::hitbox_extents::write_extents;
 use crate::layout::{hitbox_bits, instance_bits, InstanceRecord};
 use glam::Vec2;
 use lipac_test_support::{Rng64, XorShift64};
@@ -82,6 +83,7 @@ fn run(
     };
     let mut out = vec![TlasInstance::default(); 3]; // stale content must be cleared
     let instances = InstanceArrays::from_records(instances);
+    write_extents(&instances, hitboxes);
     let stats = assemble_tlas(&instances, hitboxes, &index, &cfg(), &mut out).unwrap();
     (stats, out)
 }
@@ -113,8 +115,9 @@ fn active_without_blas_is_left_out_and_counted() {
     let (stats, out) = run(&[m], &mut hb);
     assert_eq!((stats.active, stats.active_without_blas), (0, 1));
     assert!(out.is_empty());
-    // It does not feed the hitbox's height range either.
-    assert!(hb[0].min_y > hb[0].max_y);
+    // Its hitbox's extent counts it (a live, unpinned member), but an active
+    // hitbox emits no box.
+    assert_eq!((hb[0].min_y, hb[0].max_y), (0.0, 1.0));
 }
 
 #[test]
@@ -305,16 +308,13 @@ fn frame_reset_clears_hits_keeps_state() {
     hb[0].add_hits(1234);
     begin_frame(&mut hb);
     assert_eq!(hb[0].hits(), 0);
-    assert_eq!(
-        (hb[0].rate, hb[0].cost),
-        (0xDEAD, 0),
-        "rate kept, cost reset"
-    );
+    assert_eq!((hb[0].rate, hb[0].cost), (0xDEAD, 77), "rate and cost kept");
     assert!(hb[0].is_active());
     assert_eq!(hb[0].streak(), 5);
     assert_eq!(
         (hb[0].min_y, hb[0].max_y),
-        (f32::INFINITY, f32::NEG_INFINITY)
+        (1.0, 2.0),
+        "the extent is the CPU's"
     );
 }
 
@@ -605,23 +605,28 @@ fn split_arrays_give_the_records_output_bit_for_bit() {
         let (ref_stats, ref_out) =
             reference_assemble_records(&records, &mut ref_hb, &index, &cfg());
         let mut new_out = Vec::new();
-        let new_stats = assemble_tlas(
-            &InstanceArrays::from_records(&records),
-            &mut new_hb,
-            &index,
-            &cfg(),
-            &mut new_out,
-        )
-        .unwrap();
+        let arrays = InstanceArrays::from_records(&records);
+        write_extents(&arrays, &mut new_hb);
+        let new_stats = assemble_tlas(&arrays, &mut new_hb, &index, &cfg(), &mut new_out).unwrap();
         assert_eq!(new_stats, ref_stats, "round {round}");
         // Same order too (slot order, then hitbox order), bit for bit.
         let bits = |v: &[TlasInstance]| v.iter().map(TlasInstance::to_bits).collect::<Vec<_>>();
         assert_eq!(bits(&new_out), bits(&ref_out), "round {round}");
-        assert_eq!(
-            bytemuck::cast_slice::<_, u32>(&new_hb),
-            bytemuck::cast_slice::<_, u32>(&ref_hb),
-            "round {round}"
-        );
+        // The GPU-owned words alike; the extents of inactive hitboxes (the
+        // only ones read) alike: the reference reduces them per frame over
+        // the instances that count as inactive, `write_extents` over all
+        // live unpinned members, which in an inactive hitbox are the same.
+        for (i, (n, r)) in new_hb.iter().zip(&ref_hb).enumerate() {
+            assert_eq!(
+                (n.packed, n.rate),
+                (r.packed, r.rate),
+                "round {round} hitbox {i}"
+            );
+            if !r.is_active() {
+                let words = |h: &HitboxRecord| [h.min_y.to_bits(), h.max_y.to_bits(), h.cost];
+                assert_eq!(words(n), words(r), "round {round} hitbox {i}");
+            }
+        }
         assert!(ref_stats.active > 50 && ref_stats.omitted_boxes > 50 && ref_stats.inactive > 50);
         assert!(ref_stats.active_without_blas > 0 && ref_stats.hitbox_boxes > 0);
     }
@@ -687,8 +692,9 @@ fn unit_cube_transform_fast_path_gives_the_general_bits() {
     assert!(fast > 50_000, "the boxes should mostly be valid: {fast}");
 }
 
-/// Pass 1's height reduction as `assemble_instances.comp` does it:
-/// `atomicMin`/`atomicMax` on `lipacOrderedKey`, NaN heights skipped.
+/// The height reduction as `assemble_instances.comp` did it before the
+/// extents moved to the CPU: `atomicMin`/`atomicMax` on `lipacOrderedKey`,
+/// NaN heights skipped (the order `write_extents` keeps).
 fn shader_height_range(heights: &[(u32, u32)]) -> (u32, u32) {
     let key = |b: u32| {
         if b & 0x8000_0000 != 0 {
@@ -756,14 +762,9 @@ fn heights_reduce_with_the_shader_rule_for_signed_zeros_and_nan() {
         }
         let mut hitboxes = vec![HitboxRecord::default(); 7];
         let mut out = Vec::new();
-        let stats = assemble_tlas(
-            &InstanceArrays::from_records(&records),
-            &mut hitboxes,
-            &index,
-            &cfg(),
-            &mut out,
-        )
-        .unwrap();
+        let arrays = InstanceArrays::from_records(&records);
+        write_extents(&arrays, &mut hitboxes);
+        let stats = assemble_tlas(&arrays, &mut hitboxes, &index, &cfg(), &mut out).unwrap();
         assert_eq!(stats.inactive as usize, count, "round {round}");
         for (i, h) in hitboxes.iter().enumerate() {
             let want = shader_height_range(&per_hitbox[i]);
@@ -804,14 +805,9 @@ fn heights_reduce_with_the_shader_rule_for_signed_zeros_and_nan() {
             origin: 0.0,
         };
         let mut out = Vec::new();
-        assemble_tlas(
-            &InstanceArrays::from_records(&recs),
-            &mut hitboxes,
-            &index,
-            &cfg(),
-            &mut out,
-        )
-        .unwrap();
+        let arrays = InstanceArrays::from_records(&recs);
+        write_extents(&arrays, &mut hitboxes);
+        assemble_tlas(&arrays, &mut hitboxes, &index, &cfg(), &mut out).unwrap();
         assert_eq!(hitboxes[0].min_y.to_bits(), (-0.0f32).to_bits());
         assert_eq!(hitboxes[0].max_y.to_bits(), 0.0f32.to_bits());
     }

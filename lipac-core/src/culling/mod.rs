@@ -56,6 +56,7 @@ use crate::command::{Command, CommandBuffer, CommandKind, CommandQueue, IngestSu
 use crate::error::CoreError;
 use crate::feedback::{process_feedback_with_rates, FeedbackStats};
 use crate::grid::HitboxGrid;
+use crate::hitbox_extents::{ExtentTracker, HitboxExtent};
 use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::{AdaptiveHitboxes, HitboxTree};
 use crate::instance::{InstanceDesc, InstanceFlags, MeshId};
@@ -410,6 +411,12 @@ pub struct Culling<H: HitboxIndex = HitboxGrid> {
     scratch: Vec<u32>,
     /// Adaptive hitboxes' quadtree (`None`: off).
     tree: Option<HitboxTree>,
+    /// The hitboxes' member lists ([`crate::hitbox_extents`]).
+    extents: ExtentTracker,
+    /// Extents that changed and were not yet taken for the GPU, by index.
+    extent_uploads: HashMap<u32, HitboxExtent>,
+    /// Reused buffer of [`ExtentTracker::refresh`]'s changes.
+    extent_changes: Vec<(u32, HitboxExtent)>,
 }
 
 impl<H: HitboxIndex> Culling<H> {
@@ -455,6 +462,9 @@ impl<H: HitboxIndex> Culling<H> {
             instance_rate_floors: HashMap::new(),
             scratch: Vec::new(),
             tree,
+            extents: ExtentTracker::default(),
+            extent_uploads: HashMap::new(),
+            extent_changes: Vec::new(),
             config,
         })
     }
@@ -595,6 +605,9 @@ impl<H: HitboxIndex> Culling<H> {
                 + hash_map_bytes(&self.hitbox_rate_floors)
                 + hash_map_bytes(&self.instance_rate_floors),
             scratch: vec_bytes::<u32>(self.scratch.capacity()),
+            extent_lists: self.extents.heap_bytes()
+                + hash_map_bytes(&self.extent_uploads)
+                + vec_bytes::<(u32, HitboxExtent)>(self.extent_changes.capacity()),
         }
     }
 
@@ -636,6 +649,7 @@ impl<H: HitboxIndex> Culling<H> {
             .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
         // Each registration writes a state override (until the next take).
         self.state_overrides.reserve(additional.min(slots));
+        self.extents.reserve_slots(slots);
         slots
     }
 
@@ -1131,7 +1145,11 @@ impl<H: HitboxIndex> Culling<H> {
             v.sort_unstable_by_key(|&(i, _)| i);
             v
         };
+        self.refresh_extents();
+        let mut hitbox_extents: Vec<(u32, HitboxExtent)> = self.extent_uploads.drain().collect();
+        hitbox_extents.sort_unstable_by_key(|&(i, _)| i);
         Uploads {
+            hitbox_extents,
             records: self.registry.take_dirty(),
             state_overrides,
             hitbox_overrides,
@@ -1140,9 +1158,30 @@ impl<H: HitboxIndex> Culling<H> {
         }
     }
 
+    /// Brings the hitboxes' extents ([`crate::hitbox_extents`]) up to the
+    /// records written since the last call, noting the changed ones for the
+    /// GPU.
+    fn refresh_extents(&mut self) {
+        let touched = self.registry.take_touched();
+        if touched.is_empty() {
+            return;
+        }
+        self.sync_hitbox_count();
+        let mut changed = std::mem::take(&mut self.extent_changes);
+        self.extents.refresh(
+            self.registry.records(),
+            touched.into_iter().flatten(),
+            &mut self.hitboxes,
+            &mut changed,
+        );
+        self.extent_uploads.extend(changed.drain(..));
+        self.extent_changes = changed;
+    }
+
     /// Algorithm 1 ([`assemble_tlas_adaptive`]) over the registry's records: fills
     /// `out` (cleared first) with this frame's TLAS instances.
     pub fn assemble(&mut self, out: &mut Vec<TlasInstance>) -> Result<AssemblyStats, CoreError> {
+        self.refresh_extents();
         assemble_tlas_adaptive(
             self.registry.records(),
             &mut self.hitboxes,

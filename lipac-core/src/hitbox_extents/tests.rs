@@ -40,14 +40,28 @@ fn record(bits: u8, state: u8, hitbox: u32, lo: usize, hi: usize) -> InstanceRec
 }
 
 fn arb_record(hitboxes: u32) -> impl Strategy<Value = InstanceRecord> {
-    (any::<u8>(), any::<u8>(), 0..hitboxes + 2, 0..9usize, 0..9usize)
+    (
+        any::<u8>(),
+        any::<u8>(),
+        0..hitboxes + 2,
+        0..9usize,
+        0..9usize,
+    )
         .prop_map(|(b, s, h, lo, hi)| record(b, s, h, lo, hi))
 }
 
 fn words(hitboxes: &[HitboxRecord]) -> Vec<[u32; 5]> {
     hitboxes
         .iter()
-        .map(|h| [h.min_y.to_bits(), h.max_y.to_bits(), h.packed, h.rate, h.cost])
+        .map(|h| {
+            [
+                h.min_y.to_bits(),
+                h.max_y.to_bits(),
+                h.packed,
+                h.rate,
+                h.cost,
+            ]
+        })
         .collect()
 }
 
@@ -57,11 +71,11 @@ fn write_extents_reduces_live_unpinned_members_whatever_their_state() {
     active.set_state(InstanceState::Active);
     let rows = [
         active,
-        record(1, 0, 0, 6, 6),      // shared, 1 .. 1
-        record(1 | 2, 0, 0, 4, 3),  // pinned: not a member
-        record(0, 0, 0, 4, 3),      // dead: not a member
-        record(1, 0, 0, 0, 0),      // NaN heights: counted, never the range
-        record(1, 0, 9, 4, 3),      // hitbox out of range
+        record(1, 0, 0, 6, 6),     // shared, 1 .. 1
+        record(1 | 2, 0, 0, 4, 3), // pinned: not a member
+        record(0, 0, 0, 4, 3),     // dead: not a member
+        record(1, 0, 0, 0, 0),     // NaN heights: counted, never the range
+        record(1, 0, 9, 4, 3),     // hitbox out of range
     ];
     let instances = InstanceArrays::from_records(&rows);
     let mut hitboxes = [HitboxRecord {
@@ -72,8 +86,15 @@ fn write_extents_reduces_live_unpinned_members_whatever_their_state() {
     write_extents(&instances, &mut hitboxes);
     let h = hitboxes[0];
     assert_eq!((h.min_y, h.max_y), (-3.5, 1.0e30));
-    assert_eq!(h.cost, hitbox_bits::COST_UNIQUE + 2 * hitbox_bits::COST_SHARED);
-    assert_eq!((h.packed, h.rate), (0xABCD_EF01, 77), "GPU-owned words kept");
+    assert_eq!(
+        h.cost,
+        hitbox_bits::COST_UNIQUE + 2 * hitbox_bits::COST_SHARED
+    );
+    assert_eq!(
+        (h.packed, h.rate),
+        (0xABCD_EF01, 77),
+        "GPU-owned words kept"
+    );
 }
 
 #[test]
@@ -88,8 +109,7 @@ fn only_nan_heights_leave_the_extent_empty_but_counted() {
 
 #[test]
 fn negative_zero_is_below_positive_zero() {
-    let instances =
-        InstanceArrays::from_records(&[record(1, 0, 0, 2, 2), record(1, 0, 0, 1, 1)]);
+    let instances = InstanceArrays::from_records(&[record(1, 0, 0, 2, 2), record(1, 0, 0, 1, 1)]);
     let mut hitboxes = [HitboxRecord::default()];
     write_extents(&instances, &mut hitboxes);
     assert_eq!(hitboxes[0].min_y.to_bits(), (-0.0f32).to_bits());

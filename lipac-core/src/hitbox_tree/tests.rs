@@ -340,6 +340,7 @@ fn assemble_with_the_tree_changes_only_the_hitbox_boxes() {
         h.packed |= hitbox_bits::ACTIVE;
     }
     let instances = crate::layout::InstanceArrays::from_records(&instances);
+    crate::hitbox_extents::write_extents(&instances, &mut hb);
     let (mut a, mut b) = (Vec::new(), Vec::new());
     let mut ha = hb.clone();
     let mut hbb = hb.clone();

@@ -1,24 +1,23 @@
-//! Integer keys under which Algorithm 1 pass 1 reduces the heights of
-//! inactive instances into their hitbox, as the GPU does.
+//! Integer keys under which the hitbox extents reduce the heights of a
+//! hitbox's members ([`super`]): the order of the ordered keys the shaders
+//! reduced with before the extents moved to the CPU.
 //!
-//! The shader (`assemble_instances.comp`) reduces with `atomicMin` /
-//! `atomicMax` on `lipacOrderedKey(bits)` (`sign ? !bits : bits | 1 << 31`),
+//! That key, `lipacOrderedKey(bits)` (`sign ? !bits : bits | 1 << 31`), is
 //! an unsigned key that orders the non-NaN floats as `<` does and puts −0
-//! below +0, and skips NaN heights. The CPU uses the same order, shifted by
-//! a constant (mod 2³²) so that both NaN ranges land where the reduction
-//! never picks them, without a test:
+//! below +0. Here it is shifted by a constant (mod 2³²) so that both NaN
+//! ranges land where the reduction never picks them, without a test:
 //!
 //! * [`min_key`] = key − key(−∞): −∞ … +∞ map to `0 ..= 0xFF00_0001`, every
 //!   NaN above that, so a `min` starting at `min_key(+∞)` never takes one;
 //! * [`max_key`] = key − key(+∞) − 1 = key + key(−∞): every NaN maps below
 //!   `max_key(−∞)`, so a `max` starting at `max_key(−∞)` never takes one.
 //!
-//! Between −∞ and +∞ both are the shader's key plus a constant without
-//! wrapping, so the smallest (largest) key is the shader's smallest
-//! (largest) height, bit for bit. `f32::min`/`max`, used before, agree except
-//! that they leave open which of ±0 wins.
+//! Between −∞ and +∞ both are the ordered key plus a constant without
+//! wrapping, so the smallest (largest) key is the smallest (largest)
+//! height, bit for bit. `f32::min`/`max` agree except that they leave open
+//! which of ±0 wins.
 
-/// `lipacOrderedKey` of the shader: `!bits` for a set sign bit, else
+/// The ordered key (`lipacOrderedKey` of the shaders before): `!bits` for a set sign bit, else
 /// `bits | 1 << 31` (branch-free).
 #[inline(always)]
 fn ordered_key(bits: u32) -> u32 {
