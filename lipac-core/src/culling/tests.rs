@@ -799,3 +799,121 @@ fn rate_floors_raise_the_gpu_rates_and_skip_reused_slots() {
     assert_eq!(c.registry().slot(fresh).unwrap(), slot_d);
     assert!(c.take_uploads().instance_rate_floors.is_empty());
 }
+
+/// The hitbox extents (heights and cost word, `crate::hitbox_extents`)
+/// Culling keeps incrementally equal a full `write_extents` over its
+/// records after any mix of registrations, moves (across cells too),
+/// pin/unpin and kind changes, removals, BLAS writes and evictions of a
+/// hashed index; and a GPU copy fed only by the uploads (evicted records
+/// reset to the default, as lipac-vk's hitbox tables do) holds the same
+/// extents. Algorithm 1's boxes on the CPU then come from those extents.
+#[test]
+fn kept_extents_equal_a_full_recompute_and_reach_the_gpu() {
+    use crate::hashed_hitboxes::{HashedConfig, HashedHitboxes};
+    use crate::hitbox_extents::{write_extents, HitboxExtent};
+    use lipac_test_support::{Rng64, XorShift64};
+
+    let extents = |h: &[HitboxRecord]| -> Vec<[u32; 3]> {
+        h.iter().map(|r| HitboxExtent::of(r).to_words()).collect()
+    };
+    for seed in 0..6u64 {
+        let mut rng = XorShift64::new(0xE47E_0000 + seed);
+        let index = HashedHitboxes::new(HashedConfig {
+            evict_after_frames: 2,
+            ..HashedConfig::default()
+        })
+        .unwrap();
+        let mut c = Culling::new(index, config()).unwrap();
+        let mut live: Vec<InstanceHandle> = Vec::new();
+        let mut gpu = crate::layout::InstanceArrays::new();
+        let mut gpu_rates = Vec::new();
+        let mut gpu_hitboxes: Vec<HitboxRecord> = Vec::new();
+        let mut uploaded = 0usize;
+        let random_desc = |rng: &mut XorShift64| {
+            let (x, z) = (rng.below_u32(96) as f32, rng.below_u32(96) as f32);
+            let y = rng.below_u32(40) as f32 - 10.0;
+            let h = [0.0, 0.5, 3.0, 12.0][rng.below_u32(4) as usize];
+            let mut d = desc(x, z, rng.below_u32(5), rng.below_u32(3) == 0);
+            d.aabb = Aabb::new(
+                Vec3::new(x - 1.0, y, z - 1.0),
+                Vec3::new(x + 1.0, y + h, z + 1.0),
+            );
+            if rng.below_u32(6) == 0 {
+                d.flags |= InstanceFlags::PINNED;
+            }
+            d
+        };
+        for frame in 1..40u64 {
+            c.begin_frame(frame).unwrap();
+            // The GPU resets the records of evicted hitboxes to the default.
+            for &i in c.registry().evicted_hitboxes() {
+                if let Some(h) = gpu_hitboxes.get_mut(i as usize) {
+                    *h = HitboxRecord::default();
+                }
+            }
+            for _ in 0..rng.below_u32(12) {
+                match rng.below_u32(6) {
+                    0 | 1 => {
+                        let d = random_desc(&mut rng);
+                        if let Ok(h) = c.register(d) {
+                            live.push(h);
+                        }
+                    }
+                    2 if !live.is_empty() => {
+                        let h = live[rng.below_u32(live.len() as u32) as usize];
+                        let d = random_desc(&mut rng);
+                        let _ = c.set_transform(h, d.transform, d.aabb);
+                    }
+                    3 if !live.is_empty() => {
+                        let h = live[rng.below_u32(live.len() as u32) as usize];
+                        let _ = c.update(h, random_desc(&mut rng));
+                    }
+                    4 if !live.is_empty() => {
+                        let k = rng.below_u32(live.len() as u32) as usize;
+                        c.remove(live.swap_remove(k)).unwrap();
+                    }
+                    5 if !live.is_empty() => {
+                        let h = live[rng.below_u32(live.len() as u32) as usize];
+                        let _ = c.set_blas(h, 0xB000 + u64::from(rng.below_u32(4)));
+                    }
+                    _ => {}
+                }
+            }
+            let up = c.take_uploads();
+            uploaded += up.hitbox_extents.len();
+            let listed: Vec<u32> = up.hitbox_extents.iter().map(|&(i, _)| i).collect();
+            assert!(
+                listed.windows(2).all(|w| w[0] < w[1]),
+                "ascending, each once"
+            );
+            gpu_hitboxes.resize(c.hitboxes().len(), HitboxRecord::default());
+            apply_uploads(
+                &up,
+                c.registry().records(),
+                &mut gpu,
+                &mut gpu_rates,
+                &mut gpu_hitboxes,
+            );
+            let mut want = c.hitboxes().to_vec();
+            write_extents(c.registry().records(), &mut want);
+            assert_eq!(
+                extents(c.hitboxes()),
+                extents(&want),
+                "seed {seed} frame {frame}"
+            );
+            assert_eq!(
+                extents(&gpu_hitboxes),
+                extents(&want),
+                "seed {seed} frame {frame}: GPU"
+            );
+            let mut out = Vec::new();
+            c.assemble(&mut out).unwrap();
+            let _ = c.process_feedback().unwrap();
+            let _ = c.take_commands();
+        }
+        assert!(
+            uploaded > 20,
+            "seed {seed}: only {uploaded} extents uploaded"
+        );
+    }
+}
