@@ -8,14 +8,14 @@
 //! the bytes both algorithms touched at least once before the hot/cold
 //! split; the algorithms run over the split arrays ([`InstanceArrays`]:
 //! Algorithm 2 reads the 8-byte hot record and the hit counter, Algorithm 1
-//! the hot record, the heights of inactive slots and the cold record of
-//! emitted ones; `docs/HOT_COLD.md`). Algorithm 2's input is restored and a
+//! the hot record and the TLAS record (or, omitted, the bounds) of emitted
+//! slots; the counting boxes' heights are the CPU's hitbox extents, computed
+//! once (`write_extents`, also timed); `docs/HOT_COLD.md`). Algorithm 2's input is restored and a
 //! 64 MiB buffer streamed before each timed run ([`evict`]), so that it
 //! starts from memory, not from the cache the restore filled. The
 //! `floor_*` benches time what the algorithms cannot avoid, nothing
-//! decided: Algorithm 1's emitted records moved (as laid out, and from a
-//! TLAS-ready 64-byte array), Algorithm 2's line 4 (docs/BENCHMARKS.md,
-//! "Floors").
+//! decided: Algorithm 1's emitted TLAS records copied, Algorithm 2's line 4
+//! (docs/BENCHMARKS.md, "Floors").
 //!
 //! `cargo bench -p lipac-core --bench algorithms`
 
@@ -215,11 +215,10 @@ fn bench(c: &mut Criterion) {
             })
         });
 
-        // Floors: what the two algorithms cannot avoid, nothing decided
-        // (docs/BENCHMARKS.md, "Floors"). Algorithm 1: the emitted slots'
-        // cold records read and their TLAS records written, as laid out
-        // (`InstanceCold`, 88 B) and as a TLAS-ready 64 B array would
-        // hold them; the slot list is made outside the timing.
+        // Floor: what Algorithm 1 cannot avoid, nothing decided
+        // (docs/BENCHMARKS.md, "Floors"): the emitted slots' TLAS records
+        // copied as they are laid out (`InstanceTlas`, 64 B, one line each);
+        // the slot list is made outside the timing.
         let hot = s.arrays.hot();
         let emitted: Vec<u32> = (0u32..)
             .zip(hot)
@@ -228,45 +227,19 @@ fn bench(c: &mut Criterion) {
             })
             .map(|(slot, _)| slot)
             .collect();
-        let cold = s.arrays.cold();
+        let ready = s.arrays.tlas();
         let mut floor_out: Vec<TlasInstance> = Vec::with_capacity(emitted.len());
-        group.bench_function(BenchmarkId::new("floor_assemble_cold", n), |b| {
-            b.iter(|| {
-                floor_out.clear();
-                for &slot in black_box(&emitted) {
-                    let c = &cold[slot as usize];
-                    let transform = if hot[slot as usize].state() == InstanceState::Omitted {
-                        let (lo, hi) = (c.aabb_min, c.aabb_max);
-                        [
-                            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                        ]
-                    } else {
-                        c.transform
-                    };
-                    floor_out.push(TlasInstance::new(
-                        transform,
-                        slot,
-                        0xFF,
-                        c.sbt_offset,
-                        0,
-                        c.blas,
-                    ));
-                }
-                black_box(floor_out.len())
-            })
-        });
-        let ready: Vec<TlasInstance> = (0u32..)
-            .zip(cold)
-            .map(|(slot, c)| TlasInstance::new(c.transform, slot, 0xFF, c.sbt_offset, 0, c.blas))
-            .collect();
         group.bench_function(BenchmarkId::new("floor_assemble_ready", n), |b| {
             b.iter(|| {
                 floor_out.clear();
-                floor_out.extend(black_box(&emitted).iter().map(|&slot| ready[slot as usize]));
+                floor_out.extend(
+                    black_box(&emitted)
+                        .iter()
+                        .map(|&slot| ready[slot as usize].record),
+                );
                 black_box(floor_out.len())
             })
         });
-        drop(ready);
 
         // Counting-box hits of the frame, on top of the reset hitboxes.
         let mut start_hitboxes = s.hitboxes.clone();

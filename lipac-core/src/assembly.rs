@@ -2,13 +2,13 @@
 //! reference.
 //!
 //! Runs once per frame before the TLAS build, over exactly the buffers a GPU
-//! backend holds: the instance arrays ([`InstanceArrays`]: hot, heights and
-//! cold, one of each per slot), the hitbox records and the output array of
-//! [`TlasInstance`]s. Every slot's hot part is read; the cold part only of
-//! a slot that emits a record (its transform, BLAS and SBT offset when
-//! active, its AABB when omitted). The GPU version appends with an atomic
-//! counter, so its output order is arbitrary; compare with
-//! [`sort_canonical`] applied to both sides.
+//! backend holds: the instance arrays ([`InstanceArrays`]: hot, heights,
+//! TLAS records and bounds, one of each per slot), the hitbox records and
+//! the output array of [`TlasInstance`]s. Every slot's hot part is read; an
+//! active slot's TLAS record (64 bytes, one cache line, copied as it is)
+//! and an omitted slot's bounds only where they are emitted. The GPU
+//! version appends with an atomic counter, so its output order is
+//! arbitrary; compare with [`sort_canonical`] applied to both sides.
 //!
 //! The hitbox records' **extents** — the counting box's height range and the
 //! cost word — are an input: the CPU keeps them where instances change
@@ -42,8 +42,9 @@ use glam::Vec3;
 use crate::hitbox_index::HitboxIndex;
 use crate::hitbox_tree::HitboxTree;
 use crate::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHot,
-    InstanceState, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHot,
+    InstanceState, InstanceTlas, TlasInstance, MAX_SLOTS, VK_INSTANCE_CULL_DISABLE,
+    VK_INSTANCE_FORCE_OPAQUE,
 };
 
 /// Instance flags of every counting box.
@@ -383,11 +384,12 @@ pub fn assemble_tlas_adaptive(
     // records in the same order, the same bits as one loop. Two whole
     // sweeps rather than the records after each chunk: at 1M slots, where
     // the arrays do not fit in the cache, the first sweep then streams only
-    // the hot records, the second only the cold records and `out`
+    // the hot records, the second only the emitted slots' TLAS records or
+    // bounds and `out`
     // (`docs/HOT_COLD.md`, "Algorithm 1 in two sweeps").
     let hot = instances.hot();
     let n = hot.len();
-    let cold = &instances.cold()[..n];
+    let (tlas, bounds) = (&instances.tlas()[..n], &instances.bounds()[..n]);
     let mut counts = Pass1Counts::default();
     let mut emit = [0u32; PASS1_CHUNK];
     let mut emitted: Vec<u32> = Vec::new();
@@ -398,7 +400,7 @@ pub fn assemble_tlas_adaptive(
         let base = start as u32;
         emitted.extend(emit[..emitting].iter().map(|&offset| base + offset));
     }
-    build_records(hot, cold, &emitted, cfg, out, &mut counts);
+    build_records(hot, tlas, bounds, &emitted, cfg, out, &mut counts);
     let Pass1Counts {
         active,
         without_blas,
@@ -497,7 +499,8 @@ fn classify_chunk(
 #[inline(never)]
 fn build_records(
     hot: &[InstanceHot],
-    cold: &[InstanceCold],
+    tlas: &[InstanceTlas],
+    bounds: &[InstanceBounds],
     slots: &[u32],
     cfg: &AssemblyConfig,
     out: &mut Vec<TlasInstance>,
@@ -516,18 +519,10 @@ fn build_records(
                 without_blas += 1;
                 continue;
             }
-            let c = &cold[s];
             active += 1;
-            TlasInstance::new(
-                c.transform,
-                slot,
-                m.mask(),
-                c.sbt_offset,
-                m.vk_flags(),
-                c.blas,
-            )
+            tlas[s].record
         } else {
-            let c = &cold[s];
+            let c = &bounds[s];
             let Some(transform) = unit_cube_transform(
                 Vec3::from_array(c.aabb_min),
                 Vec3::from_array(c.aabb_max),

@@ -353,7 +353,7 @@ impl LatencyMitigation {
         let records = registry.records();
         self.visible.resize(records.len().div_ceil(64), 0);
         let mut summary = LatencySummary::default();
-        for (slot, record) in (0u32..).zip(records.cold()) {
+        for (slot, record) in (0u32..).zip(records.bounds()) {
             let (word, bit) = ((slot / 64) as usize, 1u64 << (slot % 64));
             let was = self.visible[word] & bit != 0;
             self.visible[word] &= !bit;

@@ -156,8 +156,8 @@ pub mod instance_bits {
     /// large occluders, emitters); never culled, never a counting box, and
     /// skipped by Algorithm 2's decisions.
     pub const PINNED: u32 = 1 << 6;
-    /// Bit 7: the instance has a BLAS (its [`super::InstanceCold::blas`] is
-    /// nonzero). Kept by [`super::InstanceArrays`] from the BLAS address, so
+    /// Bit 7: the instance has a BLAS (its TLAS record's reference,
+    /// [`super::InstanceTlas`], is nonzero). Kept by [`super::InstanceArrays`] from the BLAS address, so
     /// that Algorithms 1 and 2 decide without reading the cold record.
     pub const HAS_BLAS: u32 = 1 << 7;
     /// Bits 8..16: the engine's TLAS visibility mask for this instance.
@@ -240,28 +240,41 @@ impl InstanceRecord {
             max_y: self.aabb_max[1],
         }
     }
-    /// The slot's cold part.
-    pub fn cold(&self) -> InstanceCold {
-        InstanceCold {
-            transform: self.transform,
-            blas: self.blas,
-            sbt_offset: self.sbt_offset,
-            lod: self.lod,
-            aabb_min: self.aabb_min,
-            aabb_max: self.aabb_max,
+    /// The slot's own TLAS record if it is in slot `slot`: custom index =
+    /// `slot`, the mask and instance flags of `packed`, the SBT offset (24
+    /// bits), the BLAS address.
+    pub fn tlas(&self, slot: u32) -> InstanceTlas {
+        InstanceTlas {
+            record: TlasInstance::new(
+                self.transform,
+                slot,
+                self.mask(),
+                self.sbt_offset,
+                self.vk_flags(),
+                self.blas,
+            ),
         }
     }
-    /// Joins a slot's hot and cold parts (the heights are the cold AABB's).
-    pub fn from_parts(hot: &InstanceHot, cold: &InstanceCold) -> Self {
+    /// The slot's AABB and LOD.
+    pub fn bounds(&self) -> InstanceBounds {
+        InstanceBounds {
+            aabb_min: self.aabb_min,
+            aabb_max: self.aabb_max,
+            lod: self.lod,
+        }
+    }
+    /// Joins a slot's parts (the heights are the AABB's; the mask and flags
+    /// are the hot record's).
+    pub fn from_parts(hot: &InstanceHot, tlas: &InstanceTlas, bounds: &InstanceBounds) -> Self {
         Self {
-            transform: cold.transform,
-            aabb_min: cold.aabb_min,
+            transform: tlas.record.transform,
+            aabb_min: bounds.aabb_min,
             hitbox: hot.hitbox,
-            aabb_max: cold.aabb_max,
+            aabb_max: bounds.aabb_max,
             packed: hot.packed,
-            blas: cold.blas,
-            sbt_offset: cold.sbt_offset,
-            lod: cold.lod,
+            blas: tlas.record.acceleration_structure_reference,
+            sbt_offset: tlas.record.sbt_offset(),
+            lod: bounds.lod,
         }
     }
 }
@@ -269,11 +282,15 @@ impl InstanceRecord {
 mod instance_arrays;
 
 /// Bytes of the instance arrays per slot on the GPU: [`InstanceHot`] +
-/// [`InstanceHeights`] + [`InstanceCold`] (8 + 8 + 88).
+/// [`InstanceHeights`] + [`InstanceTlas`] + [`InstanceBounds`]
+/// (8 + 8 + 64 + 28).
 pub const INSTANCE_SLOT_BYTES: u64 = (std::mem::size_of::<InstanceHot>()
     + std::mem::size_of::<InstanceHeights>()
-    + std::mem::size_of::<InstanceCold>()) as u64;
-pub use instance_arrays::{InstanceArrays, InstanceCold, InstanceHeights, InstanceHot, Records};
+    + std::mem::size_of::<InstanceTlas>()
+    + std::mem::size_of::<InstanceBounds>()) as u64;
+pub use instance_arrays::{
+    InstanceArrays, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, Records,
+};
 
 /// Bits of [`HitboxRecord::packed`].
 pub mod hitbox_bits {
@@ -370,7 +387,9 @@ const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 96);
 const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 20);
 const _: () = assert!(std::mem::size_of::<InstanceHot>() == 8);
 const _: () = assert!(std::mem::size_of::<InstanceHeights>() == 8);
-const _: () = assert!(std::mem::size_of::<InstanceCold>() == 88);
+const _: () = assert!(std::mem::size_of::<InstanceTlas>() == 64);
+const _: () = assert!(std::mem::align_of::<InstanceTlas>() == 64);
+const _: () = assert!(std::mem::size_of::<InstanceBounds>() == 28);
 
 #[cfg(test)]
 mod tests;

@@ -387,7 +387,7 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
         slots.sort_unstable();
         let mut hitboxes = Vec::with_capacity(slots.len());
         for slot in slots {
-            let r = &self.records.cold()[slot as usize];
+            let r = &self.records.bounds()[slot as usize];
             let aabb = Aabb::new(Vec3::from_array(r.aabb_min), Vec3::from_array(r.aabb_max));
             hitboxes.push((slot, index.occupy(&aabb)?));
         }

@@ -717,7 +717,9 @@ impl<H: HitboxIndex> Culling<H> {
         // The registry wrote the state (register / update of a pinned desc).
         self.state_overrides
             .insert(self.registry.table_mut(), slot, InstanceState::Active);
-        let blas = self.registry.records().cold()[slot as usize].blas;
+        let blas = self.registry.records().tlas()[slot as usize]
+            .record
+            .acceleration_structure_reference;
         let view = &mut self.registry.table_mut()[slot as usize].view;
         if !view.commanded_active {
             view.commanded_active = true;

@@ -642,7 +642,7 @@ fn uploads_scatter_keeps_gpu_state_bits() {
         &mut gpu_hitboxes,
     );
     assert_eq!(gpu.hot()[1].state(), InstanceState::Omitted);
-    assert_eq!(gpu.cold()[1].aabb_min, [38.0, 0.0, 39.0]);
+    assert_eq!(gpu.bounds()[1].aabb_min, [38.0, 0.0, 39.0]);
 }
 
 /// lipac-sim's default decayed rule at its 9,216 rays per frame (a single

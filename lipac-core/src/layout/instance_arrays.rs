@@ -1,14 +1,16 @@
-//! The instance buffer as three per-slot arrays (the hot/cold split,
+//! The instance buffer as four per-slot arrays (the hot/cold split,
 //! `docs/HOT_COLD.md`): [`InstanceHot`] (what Algorithms 1 and 2 decide on,
-//! every slot, every frame), [`InstanceHeights`] (what Algorithm 1 reduces
-//! into an inactive slot's hitbox) and [`InstanceCold`] (read only where
-//! Algorithm 1 emits a record). [`InstanceArrays`] holds them with equal
-//! lengths and keeps [`instance_bits::HAS_BLAS`] equal to `blas != 0`;
+//! every slot, every frame), [`InstanceHeights`] (what the hitbox extents
+//! reduce, [`crate::hitbox_extents`]), and the cold parts, read only where
+//! Algorithm 1 emits a record: [`InstanceTlas`] (the slot's TLAS record,
+//! ready to copy, for an active slot) and [`InstanceBounds`] (the AABB, for
+//! an omitted slot's counting box). [`InstanceArrays`] holds them with
+//! equal lengths and keeps [`instance_bits::HAS_BLAS`] equal to `blas != 0`;
 //! [`InstanceRecord`] is the joined view of one slot.
 
 use bytemuck::{Pod, Zeroable};
 
-use super::{instance_bits, InstanceRecord, InstanceState};
+use super::{instance_bits, InstanceRecord, InstanceState, TlasInstance};
 
 /// The hot part of a slot (8 bytes): its hitbox and its packed bits
 /// ([`instance_bits`]). Algorithm 2 reads only these (and the hit counter),
@@ -58,8 +60,8 @@ impl InstanceHot {
 }
 
 /// The AABB y range of a slot (8 bytes): copies of
-/// [`InstanceCold::aabb_min`]`[1]` and [`InstanceCold::aabb_max`]`[1]`, which
-/// Algorithm 1 reduces into an inactive instance's hitbox.
+/// [`InstanceBounds::aabb_min`]`[1]` and [`InstanceBounds::aabb_max`]`[1]`,
+/// which the hitbox extents reduce ([`crate::hitbox_extents`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct InstanceHeights {
@@ -69,32 +71,42 @@ pub struct InstanceHeights {
     pub max_y: f32,
 }
 
-/// The cold part of a slot (88 bytes, 8-byte aligned): read by Algorithm 1
-/// only for a slot that emits a TLAS record (the first 64 bytes for an
-/// active instance, the AABB for an omitted one).
+/// The slot's own TLAS record, ready to copy (64 bytes, 64-byte aligned:
+/// one cache line): what Algorithm 1 emits for an active instance with a
+/// BLAS, `VkAccelerationStructureInstanceKHR` exactly. Written by the CPU
+/// with the record: the transform, custom index = slot, the mask and
+/// instance flags of [`InstanceHot::packed`], the SBT offset (24 bits) and
+/// the BLAS address. Read by Algorithm 1 only for a slot it emits as
+/// active.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct InstanceTlas {
+    /// The record as Algorithm 1 emits it.
+    pub record: TlasInstance,
+}
+
+/// The AABB and LOD of a slot (28 bytes): read by Algorithm 1 only for an
+/// omitted slot (its counting box), and by the CPU (frustum tests, the
+/// hitbox index).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct InstanceCold {
-    /// Row-major 3x4 object-to-world matrix.
-    pub transform: [f32; 12],
-    /// Device address of the instance's BLAS (shared or unique); 0 = none yet.
-    pub blas: u64,
-    /// SBT record offset (hit group) of the instance, 24 bits.
-    pub sbt_offset: u32,
-    /// Mesh LOD currently selected (informational for backends).
-    pub lod: u32,
+pub struct InstanceBounds {
     /// World-space AABB minimum.
     pub aabb_min: [f32; 3],
     /// World-space AABB maximum.
     pub aabb_max: [f32; 3],
+    /// Mesh LOD currently selected (informational for backends).
+    pub lod: u32,
 }
 
-/// The CPU instance buffer: one [`InstanceHot`], [`InstanceHeights`] and
-/// [`InstanceCold`] per slot, always of equal lengths, with
-/// [`instance_bits::HAS_BLAS`] set exactly where the BLAS address is nonzero
-/// (every write goes through [`InstanceRecord::hot`] or
+/// The CPU instance buffer: one [`InstanceHot`], [`InstanceHeights`],
+/// [`InstanceTlas`] and [`InstanceBounds`] per slot, always of equal
+/// lengths, with [`instance_bits::HAS_BLAS`] set exactly where the BLAS
+/// address is nonzero and each TLAS record holding its slot, mask, flags,
+/// SBT offset and BLAS address (every write goes through
+/// [`InstanceArrays::set`], [`InstanceArrays::push`] or
 /// [`InstanceArrays::set_blas`]; [`InstanceArrays::hot_mut`] is for the
-/// state bits).
+/// state bits only).
 ///
 /// ```
 /// use lipac_core::layout::{instance_bits, InstanceArrays, InstanceRecord, InstanceState};
@@ -112,7 +124,8 @@ pub struct InstanceCold {
 pub struct InstanceArrays {
     hot: Vec<InstanceHot>,
     heights: Vec<InstanceHeights>,
-    cold: Vec<InstanceCold>,
+    tlas: Vec<InstanceTlas>,
+    bounds: Vec<InstanceBounds>,
 }
 
 impl InstanceArrays {
@@ -134,17 +147,20 @@ impl InstanceArrays {
 
     /// The arrays from their parts as a GPU buffer holds them (e.g. read
     /// back), or `None` when the lengths differ. Taken as they are: neither
-    /// the heights nor [`instance_bits::HAS_BLAS`] are checked against the
-    /// cold records.
+    /// the heights, [`instance_bits::HAS_BLAS`] nor the TLAS records are
+    /// checked against each other.
     pub fn from_parts(
         hot: Vec<InstanceHot>,
         heights: Vec<InstanceHeights>,
-        cold: Vec<InstanceCold>,
+        tlas: Vec<InstanceTlas>,
+        bounds: Vec<InstanceBounds>,
     ) -> Option<Self> {
-        (hot.len() == heights.len() && hot.len() == cold.len()).then_some(Self {
+        let n = hot.len();
+        (heights.len() == n && tlas.len() == n && bounds.len() == n).then_some(Self {
             hot,
             heights,
-            cold,
+            tlas,
+            bounds,
         })
     }
 
@@ -175,44 +191,60 @@ impl InstanceArrays {
         &self.heights
     }
 
-    /// The cold array, one per slot.
-    pub fn cold(&self) -> &[InstanceCold] {
-        &self.cold
+    /// The TLAS records, one per slot.
+    pub fn tlas(&self) -> &[InstanceTlas] {
+        &self.tlas
+    }
+
+    /// The AABBs and LODs, one per slot.
+    pub fn bounds(&self) -> &[InstanceBounds] {
+        &self.bounds
     }
 
     /// The joined record of `slot`, or `None` past the end.
     pub fn get(&self, slot: usize) -> Option<InstanceRecord> {
         Some(InstanceRecord::from_parts(
             self.hot.get(slot)?,
-            self.cold.get(slot)?,
+            self.tlas.get(slot)?,
+            self.bounds.get(slot)?,
         ))
     }
 
     /// Replaces the record of `slot` (its [`instance_bits::HAS_BLAS`]
-    /// derived from its BLAS address); `false` (nothing changed) past the
-    /// end.
+    /// derived from its BLAS address; its SBT offset kept to 24 bits);
+    /// `false` (nothing changed) past the end.
     pub fn set(&mut self, slot: usize, record: &InstanceRecord) -> bool {
         if slot >= self.len() {
             return false;
         }
         self.hot[slot] = record.hot();
         self.heights[slot] = record.heights();
-        self.cold[slot] = record.cold();
+        self.tlas[slot] = record.tlas(slot as u32);
+        self.bounds[slot] = record.bounds();
         true
     }
 
     /// Appends a slot holding `record`.
     pub fn push(&mut self, record: &InstanceRecord) {
+        let slot = self.len() as u32;
         self.hot.push(record.hot());
         self.heights.push(record.heights());
-        self.cold.push(record.cold());
+        self.tlas.push(record.tlas(slot));
+        self.bounds.push(record.bounds());
     }
 
-    /// Grows (with dead, zeroed slots) or shrinks the arrays to `len` slots.
+    /// Grows (with dead, zeroed slots: a dead record's TLAS record holds
+    /// its slot, as [`InstanceArrays::set`] writes it) or shrinks the
+    /// arrays to `len` slots.
     pub fn resize(&mut self, len: usize) {
+        let old = self.len();
         self.hot.resize(len, InstanceHot::default());
         self.heights.resize(len, InstanceHeights::default());
-        self.cold.resize(len, InstanceCold::default());
+        self.bounds.resize(len, InstanceBounds::default());
+        self.tlas.truncate(len);
+        let dead = InstanceRecord::default();
+        self.tlas
+            .extend((old..len).map(|slot| dead.tlas(slot as u32)));
     }
 
     /// Replaces `slot` by a dead (zeroed) record and returns the old one;
@@ -242,8 +274,8 @@ impl InstanceArrays {
     /// Sets the BLAS address of `slot` (and [`instance_bits::HAS_BLAS`]
     /// with it) and returns the old address; `None` past the end.
     pub fn set_blas(&mut self, slot: usize, blas: u64) -> Option<u64> {
-        let c = self.cold.get_mut(slot)?;
-        let old = std::mem::replace(&mut c.blas, blas);
+        let t = self.tlas.get_mut(slot)?;
+        let old = std::mem::replace(&mut t.record.acceleration_structure_reference, blas);
         let h = &mut self.hot[slot];
         h.packed &= !instance_bits::HAS_BLAS;
         if blas != 0 {
@@ -270,7 +302,8 @@ impl InstanceArrays {
     pub fn reserve_exact(&mut self, additional: usize) {
         self.hot.reserve_exact(additional);
         self.heights.reserve_exact(additional);
-        self.cold.reserve_exact(additional);
+        self.tlas.reserve_exact(additional);
+        self.bounds.reserve_exact(additional);
     }
 
     /// Slots the arrays hold without reallocating.
@@ -278,14 +311,16 @@ impl InstanceArrays {
         self.hot
             .capacity()
             .min(self.heights.capacity())
-            .min(self.cold.capacity())
+            .min(self.tlas.capacity())
+            .min(self.bounds.capacity())
     }
 
-    /// Heap bytes of the three arrays, from their capacities.
+    /// Heap bytes of the four arrays, from their capacities.
     pub fn heap_bytes(&self) -> u64 {
         (self.hot.capacity() * std::mem::size_of::<InstanceHot>()
             + self.heights.capacity() * std::mem::size_of::<InstanceHeights>()
-            + self.cold.capacity() * std::mem::size_of::<InstanceCold>()) as u64
+            + self.tlas.capacity() * std::mem::size_of::<InstanceTlas>()
+            + self.bounds.capacity() * std::mem::size_of::<InstanceBounds>()) as u64
     }
 }
 

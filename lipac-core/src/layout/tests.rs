@@ -85,7 +85,18 @@ fn instance_arrays_split_join_and_keep_has_blas_with_the_address() {
     assert_eq!(a.hot()[1].mask(), 0xAB);
     assert_eq!(a.hot()[1].state(), InstanceState::Active);
     assert_eq!((a.heights()[1].min_y, a.heights()[1].max_y), (-2.0, 5.0));
-    assert_eq!(a.cold()[1].aabb_min, rec.aabb_min);
+    assert_eq!(a.bounds()[1].aabb_min, rec.aabb_min);
+    // The slot's TLAS record, ready to copy: custom index = slot, the
+    // packed mask and flags, the SBT offset and the address.
+    let t = a.tlas()[1].record;
+    assert_eq!(
+        (t.custom_index(), t.mask(), t.sbt_offset(), t.flags()),
+        (1, 0xAB, 9, 0)
+    );
+    assert_eq!(
+        (t.transform, t.acceleration_structure_reference),
+        (rec.transform, 0)
+    );
     let joined = a.get(1).unwrap();
     assert_eq!(joined.packed, rec.packed & !instance_bits::HAS_BLAS);
     assert_eq!(
@@ -94,6 +105,7 @@ fn instance_arrays_split_join_and_keep_has_blas_with_the_address() {
     );
     assert_eq!(a.set_blas(1, 0x1000), Some(0));
     assert!(a.hot()[1].has_blas() && a.get(1).unwrap().blas == 0x1000);
+    assert_eq!(a.tlas()[1].record.acceleration_structure_reference, 0x1000);
     assert_eq!(
         a.set_state(1, InstanceState::Omitted),
         Some(InstanceState::Active)
@@ -112,9 +124,12 @@ fn instance_arrays_split_join_and_keep_has_blas_with_the_address() {
     );
     a.resize(4);
     assert_eq!(a.len(), 4);
+    // Grown dead slots hold their slot in the TLAS record, as `set` writes.
+    assert_eq!(a.tlas()[3], InstanceRecord::default().tlas(3));
+    assert_eq!(a.tlas()[3].record.custom_index(), 3);
     assert!(a.capacity() >= 4 && a.heap_bytes() >= 4 * INSTANCE_SLOT_BYTES);
     assert_eq!(
-        InstanceArrays::from_parts(vec![InstanceHot::default()], vec![], vec![]),
+        InstanceArrays::from_parts(vec![InstanceHot::default()], vec![], vec![], vec![]),
         None
     );
     let collected: InstanceArrays = a.iter().collect();
@@ -122,26 +137,37 @@ fn instance_arrays_split_join_and_keep_has_blas_with_the_address() {
 }
 
 #[test]
-fn instance_cold_has_the_glsl_offsets() {
-    // lipac_layout.glsl's LipacInstanceCold (std430 stride 88).
-    let c = InstanceCold {
-        transform: [0.0; 12],
+fn instance_tlas_and_bounds_have_the_glsl_offsets() {
+    // lipac_layout.glsl's LipacInstanceTlas (= LipacTlasInstance, std430
+    // stride 64) and LipacInstanceBounds (stride 28).
+    let t = InstanceRecord {
+        transform: [0.5; 12],
+        packed: (0x12 << instance_bits::MASK_SHIFT) | (0x34 << instance_bits::VK_FLAGS_SHIFT),
         blas: 0x0102_0304_0506_0708,
         sbt_offset: 0xAAAA,
-        lod: 0xBBBB,
+        ..Default::default()
+    }
+    .tlas(0x65_4321);
+    let w: &[u32] = bytemuck::cast_slice(bytemuck::bytes_of(&t));
+    assert_eq!(w.len(), 16);
+    assert_eq!(f32::from_bits(w[11]), 0.5);
+    assert_eq!(w[12], 0x1265_4321);
+    assert_eq!(w[13], 0x3400_AAAA);
+    assert_eq!((w[14], w[15]), (0x0506_0708, 0x0102_0304));
+    let b = InstanceBounds {
         aabb_min: [1.0, 2.0, 3.0],
         aabb_max: [4.0, 5.0, 6.0],
+        lod: 0xBBBB,
     };
-    let w: &[u32] = bytemuck::cast_slice(bytemuck::bytes_of(&c));
-    assert_eq!(w.len(), 22);
-    assert_eq!((w[12], w[13]), (0x0506_0708, 0x0102_0304));
-    assert_eq!((w[14], w[15]), (0xAAAA, 0xBBBB));
-    assert_eq!(f32::from_bits(w[16]), 1.0);
-    assert_eq!(f32::from_bits(w[21]), 6.0);
+    let w: &[u32] = bytemuck::cast_slice(bytemuck::bytes_of(&b));
+    assert_eq!(w.len(), 7);
+    assert_eq!(f32::from_bits(w[0]), 1.0);
+    assert_eq!(f32::from_bits(w[5]), 6.0);
+    assert_eq!(w[6], 0xBBBB);
     let h = InstanceHot {
         hitbox: 5,
         packed: 6,
     };
     assert_eq!(bytemuck::cast::<_, [u32; 2]>(h), [5, 6]);
-    assert_eq!(INSTANCE_SLOT_BYTES, 104);
+    assert_eq!(INSTANCE_SLOT_BYTES, 108);
 }

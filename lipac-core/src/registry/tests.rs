@@ -716,7 +716,7 @@ proptest! {
                     e.state,
                     e.blas,
                 );
-                prop_assert_eq!(rec, InstanceRecord::from_parts(&want.hot(), &want.cold()));
+                prop_assert_eq!(rec, InstanceRecord::from_parts(&want.hot(), &want.tlas(slot), &want.bounds()));
                 prop_assert_eq!(r.desc(h).unwrap(), e.desc);
             }
             prop_assert_eq!(seen.len(), live.len());
