@@ -233,18 +233,15 @@ impl InstanceArrays {
         self.bounds.push(record.bounds());
     }
 
-    /// Grows (with dead, zeroed slots: a dead record's TLAS record holds
-    /// its slot, as [`InstanceArrays::set`] writes it) or shrinks the
-    /// arrays to `len` slots.
+    /// Grows (with dead slots, every word zero, as a GPU buffer grows with
+    /// a fill) or shrinks the arrays to `len` slots. (A record written by
+    /// [`InstanceArrays::set`], a dead one too, holds its slot in its TLAS
+    /// record; a grown slot holds 0 until written.)
     pub fn resize(&mut self, len: usize) {
-        let old = self.len();
         self.hot.resize(len, InstanceHot::default());
         self.heights.resize(len, InstanceHeights::default());
+        self.tlas.resize(len, InstanceTlas::default());
         self.bounds.resize(len, InstanceBounds::default());
-        self.tlas.truncate(len);
-        let dead = InstanceRecord::default();
-        self.tlas
-            .extend((old..len).map(|slot| dead.tlas(slot as u32)));
     }
 
     /// Replaces `slot` by a dead (zeroed) record and returns the old one;
