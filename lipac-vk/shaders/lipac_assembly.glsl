@@ -15,10 +15,10 @@ layout(std430, set = 0, binding = 1) buffer Hitboxes { LipacHitboxRecord hitboxe
 layout(std430, set = 0, binding = 2) readonly buffer HitboxBounds { vec4 hitboxBounds[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer TlasOut { LipacTlasInstance tlasOut[]; };
 layout(std430, set = 0, binding = 4) buffer TlasCounter { uint tlasCounter; };
-// Read by assemble_instances.comp only: heights of inactive slots, cold
-// records of the slots that emit one.
-layout(std430, set = 0, binding = 5) readonly buffer InstancesHeights { LipacInstanceHeights instanceHeights[]; };
-layout(std430, set = 0, binding = 6) readonly buffer InstancesCold { LipacInstanceCold instanceCold[]; };
+// Read by assemble_instances.comp only: the bounds of omitted slots, the
+// TLAS records of active ones.
+layout(std430, set = 0, binding = 5) readonly buffer InstancesBounds { LipacInstanceBounds instanceBounds[]; };
+layout(std430, set = 0, binding = 6) readonly buffer InstancesTlas { LipacTlasInstance instanceTlas[]; };
 
 layout(push_constant) uniform AssemblyPush {
     uvec2 unitCube;          // device address of the unit-cube BLAS

@@ -15,10 +15,12 @@ struct LipacTlasInstance {
     uvec2 reference;            // 56: BLAS address; 0 = inactive record
 };
 
-// The instance buffer is three arrays indexed by slot (docs/HOT_COLD.md):
+// The instance buffer is four arrays indexed by slot (docs/HOT_COLD.md):
 // LipacInstanceHot (every slot, every frame: Algorithms 1 and 2),
-// LipacInstanceHeights (Algorithm 1, inactive slots) and LipacInstanceCold
-// (Algorithm 1, only slots that emit a TLAS record).
+// LipacInstanceHeights (the AABB's y range; uploaded, read by no pass: the
+// hitbox extents are the CPU's), the slot's own TLAS record as a
+// LipacTlasInstance (lipac_core::layout::InstanceTlas: Algorithm 1 copies it
+// for an active slot) and LipacInstanceBounds (Algorithm 1, omitted slots).
 
 // lipac_core::layout::InstanceHot (8 B).
 struct LipacInstanceHot {
@@ -32,14 +34,11 @@ struct LipacInstanceHeights {
     float maxY;                 // 4
 };
 
-// lipac_core::layout::InstanceCold (88 B; std430 stride 88, alignment 8).
-struct LipacInstanceCold {
-    float transform[12];        //  0: row-major 3x4
-    uvec2 blas;                 // 48: 0 = no BLAS yet (LIPAC_INSTANCE_HAS_BLAS clear)
-    uint sbtOffset;             // 56
-    uint lod;                   // 60
-    float aabbMin[3];           // 64
-    float aabbMax[3];           // 76
+// lipac_core::layout::InstanceBounds (28 B; std430 stride 28).
+struct LipacInstanceBounds {
+    float aabbMin[3];           //  0
+    float aabbMax[3];           // 12
+    uint lod;                   // 24
 };
 
 // lipac_core::layout::InstanceRecord (96 B): one slot joined, the staging
@@ -55,8 +54,9 @@ struct LipacInstanceRecord {
     uint lod;                   // 92
 };
 
-// lipac_core::layout::HitboxRecord (20 B). minY/maxY hold f32 bits (see
-// lipacOrderedKey for the form they take inside TLAS assembly).
+// lipac_core::layout::HitboxRecord (20 B). minY/maxY hold f32 bits; they
+// and cost are the hitbox's extent, the CPU's (lipac_core::hitbox_extents),
+// written only by upload_records.comp.
 struct LipacHitboxRecord {
     uint minY;                  // 0
     uint maxY;                  // 4
@@ -139,21 +139,8 @@ uint lipacInstanceState(uint packed) {
         }                                                                             \
     }
 
-// Order-preserving map of f32 bits to uint: for non-NaN a, b,
-// a < b (as floats, -0 < +0) iff key(a) < key(b) (as uints), so atomicMin /
-// atomicMax on keys reduce floats. lipacFromOrderedKey inverts it.
-uint lipacOrderedKey(uint bits) {
-    return (bits & 0x80000000u) != 0u ? ~bits : (bits | 0x80000000u);
-}
-uint lipacFromOrderedKey(uint key) {
-    return (key & 0x80000000u) != 0u ? (key & 0x7FFFFFFFu) : ~key;
-}
-
 bool lipacIsFiniteBits(uint bits) {
     return (bits & 0x7F800000u) != 0x7F800000u;
-}
-bool lipacIsNanBits(uint bits) {
-    return (bits & 0x7F800000u) == 0x7F800000u && (bits & 0x007FFFFFu) != 0u;
 }
 
 // f32::next_up for finite x (lipac_core::assembly::next_up), on bits so that

@@ -1,17 +1,23 @@
 #version 460
 // upload_records.comp -- the GPU version of lipac_core::culling::apply_uploads:
 // scatters CPU-written instance records (staged joined, 96 B each) into the
-// GPU's three instance arrays (hot, heights, cold) WITHOUT overwriting the
-// state bits of the GPU's hot record (Algorithm 2 owns them), then applies
-// the CPU's explicit state overrides and hitbox active overrides, and raises
-// decayed rates to the CPU's rate floors (a held warm start).
+// GPU's four instance arrays (hot, heights, the slot's TLAS record, bounds)
+// WITHOUT overwriting the state bits of the GPU's hot record (Algorithm 2
+// owns them), then applies the CPU's explicit state overrides and hitbox
+// active overrides, raises decayed rates to the CPU's rate floors (a held
+// warm start) and writes the hitbox extents that changed (minY, maxY, cost:
+// the CPU's, lipac_core::hitbox_extents).
 // lipac_vk::RecordUploader records it twice:
 //   pass 0: one thread per staged record (hot: hitbox, packed with the
 //           destination's LIPAC_INSTANCE_STATE_MASK bits kept; heights:
-//           the AABB's y words; cold: the other 22 words), then one per
-//           hitbox override (active bit set, streak zeroed, hits and heights
-//           kept), one per hitbox rate floor (rate = max(rate, floor)) and
-//           one per instance rate floor (the slot's rate likewise);
+//           the AABB's y words; TLAS record: transform, slot | mask << 24,
+//           SBT offset | flags << 24, BLAS address, as
+//           lipac_core::layout::InstanceRecord::tlas builds it; bounds: the
+//           AABB and the LOD), then one per hitbox override (active bit set,
+//           streak zeroed, hits and heights kept), one per hitbox rate floor
+//           (rate = max(rate, floor)), one per instance rate floor (the
+//           slot's rate likewise) and one per hitbox extent (minY, maxY and
+//           cost replaced);
 //   pass 1 (after a barrier): one thread per state override.
 // The host removes duplicate slots/indices (the last override wins, as on the
 // CPU; the largest floor), so no two threads of a pass write the same word.
@@ -25,8 +31,9 @@ layout(local_size_x = 64) in;
                           // aabbMax 16..19, packed 19, blas 20..22, sbtOffset 22, lod 23
 #define HOT_WORDS 2u      // InstanceHot: hitbox 0, packed 1
 #define HEIGHTS_WORDS 2u  // InstanceHeights: minY 0, maxY 1
-#define COLD_WORDS 22u    // InstanceCold: transform 0..12, blas 12..14, sbtOffset 14,
-                          // lod 15, aabbMin 16..19, aabbMax 19..22
+#define TLAS_WORDS 16u    // InstanceTlas: transform 0..12, customIndexAndMask 12,
+                          // sbtOffsetAndFlags 13, reference 14..16
+#define BOUNDS_WORDS 7u   // InstanceBounds: aabbMin 0..3, aabbMax 3..6, lod 6
 
 layout(std430, set = 0, binding = 0) buffer InstancesHot { uint hotWords[]; };
 layout(std430, set = 0, binding = 1) buffer Hitboxes { LipacHitboxRecord hitboxes[]; };
@@ -35,10 +42,13 @@ layout(std430, set = 0, binding = 3) readonly buffer StagedSlots { uint stagedSl
 layout(std430, set = 0, binding = 4) readonly buffer StateOverrides { uvec2 stateOverrides[]; };
 layout(std430, set = 0, binding = 5) readonly buffer HitboxOverrides { uvec2 hitboxOverrides[]; };
 layout(std430, set = 0, binding = 6) writeonly buffer InstancesHeights { uint heightsWords[]; };
-layout(std430, set = 0, binding = 7) writeonly buffer InstancesCold { uint coldWords[]; };
+layout(std430, set = 0, binding = 7) writeonly buffer InstancesTlas { uint tlasWords[]; };
 layout(std430, set = 0, binding = 8) buffer InstanceRates { uint instanceRates[]; };
 layout(std430, set = 0, binding = 9) readonly buffer HitboxRateFloors { uvec2 hitboxFloors[]; };
 layout(std430, set = 0, binding = 10) readonly buffer InstanceRateFloors { uvec2 instanceFloors[]; };
+layout(std430, set = 0, binding = 11) writeonly buffer InstancesBounds { uint boundsWords[]; };
+// x = hitbox index, y = minY bits, z = maxY bits, w = cost.
+layout(std430, set = 0, binding = 12) readonly buffer HitboxExtents { uvec4 extents[]; };
 
 layout(push_constant) uniform UploadPush {
     uint pass;
@@ -49,6 +59,7 @@ layout(push_constant) uniform UploadPush {
     uint hitboxCapacity;
     uint hitboxFloorCount;
     uint instanceFloorCount;
+    uint extentCount;
 } pc;
 
 void main() {
@@ -56,7 +67,8 @@ void main() {
     if (pc.pass == 0u) {
         uint hitboxesEnd = pc.recordCount + pc.hitboxCount;
         uint hitboxFloorsEnd = hitboxesEnd + pc.hitboxFloorCount;
-        uint end = hitboxFloorsEnd + pc.instanceFloorCount;
+        uint instanceFloorsEnd = hitboxFloorsEnd + pc.instanceFloorCount;
+        uint end = instanceFloorsEnd + pc.extentCount;
         for (uint i = gl_GlobalInvocationID.x; i < end; i += stride) {
             if (i < pc.recordCount) {
                 uint slot = stagedSlots[i];
@@ -71,18 +83,23 @@ void main() {
                 uint heights = slot * HEIGHTS_WORDS;
                 heightsWords[heights] = stagedWords[src + 13u];
                 heightsWords[heights + 1u] = stagedWords[src + 17u];
-                uint cold = slot * COLD_WORDS;
+                uint packed = stagedWords[src + 19u];
+                uint tlas = slot * TLAS_WORDS;
                 for (uint w = 0u; w < 12u; ++w) {
-                    coldWords[cold + w] = stagedWords[src + w];  // transform
+                    tlasWords[tlas + w] = stagedWords[src + w];  // transform
                 }
-                coldWords[cold + 12u] = stagedWords[src + 20u];  // blas (low)
-                coldWords[cold + 13u] = stagedWords[src + 21u];  // blas (high)
-                coldWords[cold + 14u] = stagedWords[src + 22u];  // sbtOffset
-                coldWords[cold + 15u] = stagedWords[src + 23u];  // lod
+                tlasWords[tlas + 12u] = (slot & 0xFFFFFFu) |
+                                        (((packed >> LIPAC_INSTANCE_MASK_SHIFT) & 0xFFu) << 24);
+                tlasWords[tlas + 13u] = (stagedWords[src + 22u] & 0xFFFFFFu) |
+                                        (((packed >> LIPAC_INSTANCE_VK_FLAGS_SHIFT) & 0xFFu) << 24);
+                tlasWords[tlas + 14u] = stagedWords[src + 20u];  // blas (low)
+                tlasWords[tlas + 15u] = stagedWords[src + 21u];  // blas (high)
+                uint bounds = slot * BOUNDS_WORDS;
                 for (uint w = 0u; w < 3u; ++w) {
-                    coldWords[cold + 16u + w] = stagedWords[src + 12u + w];  // aabbMin
-                    coldWords[cold + 19u + w] = stagedWords[src + 16u + w];  // aabbMax
+                    boundsWords[bounds + w] = stagedWords[src + 12u + w];       // aabbMin
+                    boundsWords[bounds + 3u + w] = stagedWords[src + 16u + w];  // aabbMax
                 }
+                boundsWords[bounds + 6u] = stagedWords[src + 23u];  // lod
             } else if (i < hitboxesEnd) {
                 uvec2 o = hitboxOverrides[i - pc.recordCount];
                 if (o.x >= pc.hitboxCapacity) {
@@ -96,12 +113,20 @@ void main() {
                     continue;
                 }
                 hitboxes[f.x].rate = max(hitboxes[f.x].rate, f.y);
-            } else {
+            } else if (i < instanceFloorsEnd) {
                 uvec2 f = instanceFloors[i - hitboxFloorsEnd];
                 if (f.x >= pc.slotCapacity) {
                     continue;
                 }
                 instanceRates[f.x] = max(instanceRates[f.x], f.y);
+            } else {
+                uvec4 e = extents[i - instanceFloorsEnd];
+                if (e.x >= pc.hitboxCapacity) {
+                    continue;
+                }
+                hitboxes[e.x].minY = e.y;
+                hitboxes[e.x].maxY = e.z;
+                hitboxes[e.x].cost = e.w;
             }
         }
     } else {

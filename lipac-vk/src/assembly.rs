@@ -7,15 +7,16 @@
 //!
 //! 1. zero the TLAS instance buffer and its counter (`vkCmdFillBuffer`);
 //!    `hitbox_reset.comp` = [`lipac_core::assembly::begin_frame`];
-//! 2. `assemble_instances.comp`: one thread per slot (active → own record,
-//!    omitted → counting box, inactive → `atomicMin`/`atomicMax` of its y
-//!    range into its hitbox on order-preserving keys), reading every slot's
-//!    hot record, an inactive slot's heights and the cold record only of a
-//!    slot that emits one ([`InstanceBuffers`]);
-//! 3. `assemble_hitboxes.comp`: one thread per hitbox (keys back to f32, a
-//!    counting box for each inactive hitbox with an inactive instance);
+//! 2. `assemble_instances.comp`: one thread per slot (active → its own TLAS
+//!    record, copied; omitted → counting box over its bounds; inactive →
+//!    nothing), reading every slot's hot record and the TLAS record or the
+//!    bounds only of a slot that emits one ([`InstanceBuffers`]);
+//! 3. `assemble_hitboxes.comp`: one thread per hitbox (a counting box for
+//!    each inactive hitbox with a non-empty extent; the extents, heights and
+//!    cost words, are the CPU's, [`lipac_core::hitbox_extents`], uploaded by
+//!    [`crate::RecordUploader`]);
 //! 4. with adaptive hitboxes only ([`AssemblyPipeline::record_adaptive`],
-//!    [`lipac_core::hitbox_tree`]): pass 3 only converts the heights and
+//!    [`lipac_core::hitbox_tree`]): pass 3 emits nothing and
 //!    `assemble_merged.comp` (one thread per hitbox) emits the boxes, merged
 //!    over cold quadtree nodes, matching
 //!    [`lipac_core::assembly::assemble_tlas_adaptive`].
@@ -40,7 +41,8 @@ use lipac_core::assembly::AssemblyConfig;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::hitbox_tree::HitboxTree;
 use lipac_core::layout::{
-    HitboxRecord, InstanceCold, InstanceHeights, InstanceHot, TlasInstance, MAX_SLOTS,
+    HitboxRecord, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, TlasInstance,
+    MAX_SLOTS,
 };
 
 const RESET: usize = 0;
@@ -99,7 +101,7 @@ pub fn hitbox_bounds(index: &impl HitboxIndex) -> Vec<HitboxBounds> {
         .collect()
 }
 
-/// The GPU instance buffer as three arrays indexed by slot (the hot/cold
+/// The GPU instance buffer as four arrays indexed by slot (the hot/cold
 /// split of [`lipac_core::layout::InstanceArrays`], `docs/HOT_COLD.md`), all
 /// with `STORAGE_BUFFER` usage.
 #[derive(Clone, Copy, Debug)]
@@ -107,16 +109,19 @@ pub struct InstanceBuffers<'a> {
     /// [`InstanceHot`]s (8 bytes per slot): read by Algorithms 1 and 2,
     /// whose state bits Algorithm 2 writes.
     pub hot: &'a Buffer,
-    /// [`InstanceHeights`]s (8 bytes per slot): read by Algorithm 1 for
-    /// inactive slots.
+    /// [`InstanceHeights`]s (8 bytes per slot): written by the upload,
+    /// read by no pass (the hitbox extents are the CPU's).
     pub heights: &'a Buffer,
-    /// [`InstanceCold`]s (88 bytes per slot): read by Algorithm 1 for slots
-    /// that emit a TLAS record.
-    pub cold: &'a Buffer,
+    /// [`InstanceTlas`]s (64 bytes per slot, the slot's own TLAS record):
+    /// copied by Algorithm 1 for a slot it emits as active.
+    pub tlas: &'a Buffer,
+    /// [`InstanceBounds`]s (28 bytes per slot): read by Algorithm 1 for an
+    /// omitted slot's counting box.
+    pub bounds: &'a Buffer,
 }
 
 impl InstanceBuffers<'_> {
-    /// Slots all three arrays hold (the fewest of the three).
+    /// Slots all four arrays hold (the fewest of the four).
     ///
     /// # Errors
     ///
@@ -124,7 +129,8 @@ impl InstanceBuffers<'_> {
     pub fn slot_capacity(&self) -> Result<u32> {
         let n = (self.hot.size() / std::mem::size_of::<InstanceHot>() as u64)
             .min(self.heights.size() / std::mem::size_of::<InstanceHeights>() as u64)
-            .min(self.cold.size() / std::mem::size_of::<InstanceCold>() as u64);
+            .min(self.tlas.size() / std::mem::size_of::<InstanceTlas>() as u64)
+            .min(self.bounds.size() / std::mem::size_of::<InstanceBounds>() as u64);
         u32::try_from(n)
             .ok()
             .filter(|&n| n <= MAX_SLOTS)
@@ -137,10 +143,10 @@ impl InstanceBuffers<'_> {
 /// Buffers Algorithm 1 reads and writes (all need `STORAGE_BUFFER` usage).
 #[derive(Clone, Copy, Debug)]
 pub struct AssemblyBuffers<'a> {
-    /// The instance arrays (read: every hot record, the heights of inactive
-    /// slots, the cold records of emitted ones).
+    /// The instance arrays (read: every hot record, the TLAS records or
+    /// bounds of emitted slots).
     pub instances: InstanceBuffers<'a>,
-    /// [`HitboxRecord`]s (height range rebuilt, hits zeroed, state kept).
+    /// [`HitboxRecord`]s (hits zeroed; state, rate and extent kept).
     pub hitboxes: &'a Buffer,
     /// [`HitboxBounds`], at least one per hitbox record (read).
     pub hitbox_bounds: &'a Buffer,
@@ -188,11 +194,10 @@ impl AssemblyBindings {
 ///
 /// 1. zero the TLAS instance buffer and its counter (`vkCmdFillBuffer`);
 ///    `hitbox_reset.comp` = [`lipac_core::assembly::begin_frame`];
-/// 2. `assemble_instances.comp`: one thread per slot (active → own record,
-///    omitted → counting box, inactive → `atomicMin`/`atomicMax` of its y
-///    range into its hitbox on order-preserving keys);
-/// 3. `assemble_hitboxes.comp`: one thread per hitbox (keys back to f32, a
-///    counting box for each inactive hitbox with an inactive instance).
+/// 2. `assemble_instances.comp`: one thread per slot (active → its own TLAS
+///    record, copied; omitted → counting box; inactive → nothing);
+/// 3. `assemble_hitboxes.comp`: one thread per hitbox (a counting box for
+///    each inactive hitbox with a non-empty extent, the CPU's).
 ///
 /// Records past the counter stay zero, i.e. inactive (reference 0), so the
 /// TLAS can be built over a fixed count (e.g. [`AssemblyBindings::tlas_capacity`])
@@ -274,8 +279,8 @@ impl AssemblyPipeline {
                 buffers.hitbox_bounds,
                 buffers.tlas_instances,
                 buffers.tlas_counter,
-                buffers.instances.heights,
-                buffers.instances.cold,
+                buffers.instances.bounds,
+                buffers.instances.tlas,
             ],
             "STORAGE_BUFFER on an assembly buffer",
         )?;

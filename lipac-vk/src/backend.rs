@@ -21,13 +21,16 @@ use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
 use lipac_core::controller::EscapeSample;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::layout::{HitboxRecord, InstanceCold, InstanceHeights, InstanceHot, TlasInstance};
+use lipac_core::layout::{
+    HitboxRecord, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, TlasInstance,
+};
 use lipac_core::manager::{Ack, DataUpload, Manager, ManagerPlan};
 use lipac_core::thresholds::Thresholds;
 
 const HOT_BYTES: u64 = std::mem::size_of::<InstanceHot>() as u64;
 const HEIGHTS_BYTES: u64 = std::mem::size_of::<InstanceHeights>() as u64;
-const COLD_BYTES: u64 = std::mem::size_of::<InstanceCold>() as u64;
+const SLOT_TLAS_BYTES: u64 = std::mem::size_of::<InstanceTlas>() as u64;
+const BOUNDS_BYTES: u64 = std::mem::size_of::<InstanceBounds>() as u64;
 const HITBOX_BYTES: u64 = std::mem::size_of::<HitboxRecord>() as u64;
 const TLAS_RECORD_BYTES: u64 = std::mem::size_of::<TlasInstance>() as u64;
 /// Words of a read-back slot's counters before the hit counters: the TLAS
@@ -268,10 +271,11 @@ struct UploadSet {
 struct SlotTables {
     capacity: u32,
     /// The instance arrays ([`lipac_core::layout::InstanceArrays`] on the
-    /// GPU): hot, heights, cold.
+    /// GPU): hot, heights, TLAS records, bounds.
     hot: Buffer,
     heights: Buffer,
-    cold: Buffer,
+    tlas_records: Buffer,
+    bounds: Buffer,
     instance_hits: Buffer,
     /// The decayed rule's per-slot hit rates (kept across frames and growth).
     instance_rates: Buffer,
@@ -288,7 +292,8 @@ impl SlotTables {
         InstanceBuffers {
             hot: &self.hot,
             heights: &self.heights,
-            cold: &self.cold,
+            tlas: &self.tlas_records,
+            bounds: &self.bounds,
         }
     }
 }
@@ -621,7 +626,8 @@ impl LipacVk {
         if let Some(t) = &self.tables {
             table_bytes += t.hot.size()
                 + t.heights.size()
-                + t.cold.size()
+                + t.tlas_records.size()
+                + t.bounds.size()
                 + t.instance_hits.size()
                 + t.instance_rates.size()
                 + t.data_offsets.size()
@@ -820,7 +826,8 @@ impl LipacVk {
             let tables = self.make_tables(capacity)?;
             fill_zero(rec, &tables.hot);
             fill_zero(rec, &tables.heights);
-            fill_zero(rec, &tables.cold);
+            fill_zero(rec, &tables.tlas_records);
+            fill_zero(rec, &tables.bounds);
             fill_zero(rec, &tables.data_offsets);
             fill_zero(rec, &tables.instance_rates);
             if let Some(old) = self.tables.take() {
@@ -834,7 +841,8 @@ impl LipacVk {
                 for (from, to, per_slot) in [
                     (&old.hot, &tables.hot, HOT_BYTES),
                     (&old.heights, &tables.heights, HEIGHTS_BYTES),
-                    (&old.cold, &tables.cold, COLD_BYTES),
+                    (&old.tlas_records, &tables.tlas_records, SLOT_TLAS_BYTES),
+                    (&old.bounds, &tables.bounds, BOUNDS_BYTES),
                 ] {
                     copy(
                         rec,
@@ -1075,11 +1083,13 @@ impl LipacVk {
         let n = u64::from(capacity);
         let hot = buffer(ctx, n * HOT_BYTES, STORAGE | TRANSFER)?;
         let heights = buffer(ctx, n * HEIGHTS_BYTES, STORAGE | TRANSFER)?;
-        let cold = buffer(ctx, n * COLD_BYTES, STORAGE | TRANSFER)?;
+        let tlas_records = buffer(ctx, n * SLOT_TLAS_BYTES, STORAGE | TRANSFER)?;
+        let bounds = buffer(ctx, n * BOUNDS_BYTES, STORAGE | TRANSFER)?;
         let instances = InstanceBuffers {
             hot: &hot,
             heights: &heights,
-            cold: &cold,
+            tlas: &tlas_records,
+            bounds: &bounds,
         };
         let instance_hits = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
         let instance_rates = buffer(ctx, n * 4, STORAGE | TRANSFER)?;
@@ -1091,7 +1101,8 @@ impl LipacVk {
             capacity,
             hot,
             heights,
-            cold,
+            tlas_records,
+            bounds,
             instance_hits,
             instance_rates,
             data_offsets,

@@ -12,12 +12,15 @@
 //!   Algorithm 2's on the GPU, newer than anything the host has (frames in
 //!   flight). The bounds are re-uploaded whole from the index (the host is
 //!   their only source). The old buffers are retired by timeline value,
-//!   never waited for. Records past [`HitboxIndex::len`] stay zero: no
-//!   instance points at them, so Algorithms 1 and 2 leave them unchanged.
+//!   never waited for. The new records are written as
+//!   [`lipac_core::layout::HitboxRecord::default`] (the empty extent; a
+//!   zeroed record would be a counting box at height 0). Records past
+//!   [`HitboxIndex::len`] stay so: no instance points at them.
 //! * **resets**: the records of the hitboxes the index evicted at this
-//!   frame's start are zeroed, as the CPU resets them to
-//!   [`lipac_core::layout::HitboxRecord::default`] (Algorithm 1 then sets
-//!   the heights); the manager's override clears the active bit as before.
+//!   frame's start are reset to [`lipac_core::layout::HitboxRecord::default`],
+//!   as the CPU resets them (an evicted hitbox has no members, so its extent
+//!   is the empty one); the manager's override clears the active bit as
+//!   before.
 //! * **bounds**: the bounds of the indices in the index's change log
 //!   ([`HitboxIndex::bounds_changes`]) since the last frame, and of indices
 //!   new since, are staged and copied in (one region per run of indices);
@@ -26,7 +29,6 @@
 
 use crate::assembly::{hitbox_bounds, HitboxBounds};
 use crate::commands::Recorder;
-use crate::compute::record_zero;
 use crate::context::DeviceContext;
 use crate::error::{Result, VkError};
 use crate::lifetimes::Retirement;
@@ -53,7 +55,7 @@ pub(crate) struct HitboxFrame {
     pub grew: bool,
     /// Hitbox bounds written.
     pub bounds_written: u32,
-    /// Evicted hitbox records zeroed.
+    /// Evicted hitbox records reset to the default.
     pub records_reset: u32,
 }
 
@@ -69,8 +71,8 @@ pub(crate) struct HitboxTables {
     bounds_seen: Option<u64>,
     /// Indices `0..bounds_len` have had their bounds written.
     bounds_len: u32,
-    /// Whether the records have been zeroed (at the first frame).
-    zeroed: bool,
+    /// Whether the records have been initialised (at the first frame).
+    initialised: bool,
 }
 
 fn table(ctx: &DeviceContext, name: &str, bytes: u64) -> Result<Buffer> {
@@ -108,6 +110,45 @@ fn copy(rec: &mut Recorder<'_>, src: &Buffer, dst: &Buffer, regions: &[vk::Buffe
             .device()
             .cmd_copy_buffer(rec.raw(), src.raw(), dst.raw(), regions)
     };
+}
+
+/// Records copies of [`HitboxRecord::default`] into the runs `(first
+/// record, count)` of `records` (one staging buffer of the longest run,
+/// retired after `value`). The default, not zeros: its empty extent
+/// (`min_y = +inf`, `max_y = -inf`) means "no counting box", a zeroed one
+/// would be a box at height 0 (the extents are the CPU's and arrive only
+/// where they change, [`lipac_core::culling::Uploads::hitbox_extents`]).
+fn write_defaults(
+    ctx: &DeviceContext,
+    rec: &mut Recorder<'_>,
+    records: &Buffer,
+    runs: &[(u64, u64)],
+    retirement: &mut Retirement,
+    value: u64,
+) -> Result<()> {
+    let longest = runs.iter().map(|r| r.1).max().unwrap_or(0);
+    if longest == 0 {
+        return Ok(());
+    }
+    let staged = vec![HitboxRecord::default(); longest as usize];
+    let staging = Buffer::with_data(
+        ctx,
+        vk::BufferUsageFlags::TRANSFER_SRC,
+        MemoryLocation::CpuToGpu,
+        &staged,
+    )?;
+    let regions: Vec<vk::BufferCopy> = runs
+        .iter()
+        .filter(|r| r.1 > 0)
+        .map(|&(first, count)| {
+            vk::BufferCopy::default()
+                .dst_offset(first * RECORD_BYTES)
+                .size(count * RECORD_BYTES)
+        })
+        .collect();
+    copy(rec, &staging, records, &regions);
+    retirement.retire(value, staging);
+    Ok(())
 }
 
 /// Sorted, distinct `indices` below `n` as runs `(first, count)`.
@@ -164,7 +205,7 @@ impl HitboxTables {
             )?,
             bounds_seen: None,
             bounds_len: 0,
-            zeroed: false,
+            initialised: false,
         })
     }
 
@@ -231,7 +272,7 @@ impl HitboxTables {
                 u64::from(capacity) * BOUNDS_BYTES,
             )?;
             all_to_transfer(rec);
-            let kept = if self.zeroed {
+            let kept = if self.initialised {
                 u64::from(self.capacity) * RECORD_BYTES
             } else {
                 0
@@ -244,12 +285,20 @@ impl HitboxTables {
                     &[vk::BufferCopy::default().size(kept)],
                 );
             }
-            record_zero(rec, records.raw(), kept, vk::WHOLE_SIZE);
+            let first = kept / RECORD_BYTES;
+            write_defaults(
+                ctx,
+                rec,
+                &records,
+                &[(first, u64::from(capacity) - first)],
+                retirement,
+                value,
+            )?;
             transfer_to_all(rec);
             retirement.retire(value, std::mem::replace(&mut self.records, records));
             retirement.retire(value, std::mem::replace(&mut self.bounds, bounds));
             self.capacity = capacity;
-            self.zeroed = true;
+            self.initialised = true;
             self.bounds_seen = None;
             self.bounds_len = 0;
             out.grew = true;
@@ -268,22 +317,20 @@ impl HitboxTables {
             None if n > 0 => vec![(0, n)],
             None => Vec::new(),
         };
-        let zero_all = !self.zeroed;
-        if zero_all || !resets.is_empty() || !writes.is_empty() {
+        let first_frame = !self.initialised;
+        if first_frame || !resets.is_empty() || !writes.is_empty() {
             all_to_transfer(rec);
-            if zero_all {
-                record_zero(rec, self.records.raw(), 0, vk::WHOLE_SIZE);
-                self.zeroed = true;
+            if first_frame {
+                let all = [(0, u64::from(self.capacity))];
+                write_defaults(ctx, rec, &self.records, &all, retirement, value)?;
+                self.initialised = true;
             } else {
-                for &(first, count) in &resets {
-                    record_zero(
-                        rec,
-                        self.records.raw(),
-                        u64::from(first) * RECORD_BYTES,
-                        u64::from(count) * RECORD_BYTES,
-                    );
-                    out.records_reset += count;
-                }
+                let runs: Vec<(u64, u64)> = resets
+                    .iter()
+                    .map(|&(first, count)| (u64::from(first), u64::from(count)))
+                    .collect();
+                write_defaults(ctx, rec, &self.records, &runs, retirement, value)?;
+                out.records_reset += resets.iter().map(|r| r.1).sum::<u32>();
             }
             if !writes.is_empty() {
                 let staged: Vec<HitboxBounds> = if changed.is_none() {

@@ -1,10 +1,12 @@
 //! The record upload scatter: [`RecordUploader`] is the GPU version of
 //! [`lipac_core::culling::apply_uploads`]. It stages the CPU's changed
 //! instance records (joined, 96 bytes each) and scatters them into the GPU's
-//! three instance arrays ([`InstanceBuffers`]: hot, heights, cold) **keeping
-//! the state bits** of the GPU's hot records (Algorithm 2 owns them), then
-//! applies the CPU's explicit state overrides and hitbox active overrides
-//! and raises decayed rates to the CPU's rate floors (a held warm start).
+//! four instance arrays ([`InstanceBuffers`]: hot, heights, TLAS records,
+//! bounds) **keeping the state bits** of the GPU's hot records (Algorithm 2
+//! owns them), then applies the CPU's explicit state overrides and hitbox
+//! active overrides, raises decayed rates to the CPU's rate floors (a held
+//! warm start) and writes the hitbox extents that changed (the counting
+//! boxes' heights and cost words, the CPU's).
 
 use crate::accel::same_context;
 use crate::assembly::InstanceBuffers;
@@ -17,9 +19,10 @@ use crate::shaders::UPLOAD_RECORDS_SPV;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 use lipac_core::culling::Uploads;
+use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::layout::{HitboxRecord, InstanceArrays, InstanceRecord};
 
-const BINDINGS: u32 = 11;
+const BINDINGS: u32 = 13;
 const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
 
 /// Push constants of `upload_records.comp`.
@@ -34,6 +37,7 @@ struct UploadPush {
     hitbox_capacity: u32,
     hitbox_floor_count: u32,
     instance_floor_count: u32,
+    extent_count: u32,
 }
 
 /// The GPU buffers an upload writes (all need `STORAGE_BUFFER` usage; any
@@ -63,6 +67,7 @@ pub struct UploadBindings {
     hitbox_overrides: Buffer,
     hitbox_floors: Buffer,
     instance_floors: Buffer,
+    extents: Buffer,
     slot_capacity: u32,
     hitbox_capacity: u32,
 }
@@ -84,6 +89,7 @@ impl UploadBindings {
             + self.hitbox_overrides.size()
             + self.hitbox_floors.size()
             + self.instance_floors.size()
+            + self.extents.size()
     }
 }
 
@@ -99,6 +105,8 @@ pub struct UploadStats {
     /// Rate floors applied, hitboxes' and instances' (distinct indices and
     /// slots, inside the buffers).
     pub rate_floors: u32,
+    /// Hitbox extents written (distinct indices, inside the buffer).
+    pub extents: u32,
 }
 
 /// The GPU version of [`lipac_core::culling::apply_uploads`]
@@ -113,7 +121,8 @@ pub struct UploadStats {
 ///    copied word for word, except that the two state bits of `packed` stay
 ///    those of the GPU copy; every hitbox override sets the active bit and
 ///    zeroes the streak, keeping the hit count and heights; every rate
-///    floor raises a hitbox's or a slot's rate to at least its value;
+///    floor raises a hitbox's or a slot's rate to at least its value; every
+///    hitbox extent replaces that record's `min_y`, `max_y` and `cost`;
 /// 2. every state override replaces the two state bits.
 ///
 /// Duplicates are removed on the host (overrides: the last one wins, as in
@@ -158,7 +167,8 @@ impl RecordUploader {
         for b in [
             i.hot,
             i.heights,
-            i.cold,
+            i.tlas,
+            i.bounds,
             targets.hitboxes,
             targets.instance_rates,
         ] {
@@ -190,6 +200,7 @@ impl RecordUploader {
         let hitbox_overrides = staging(hitboxes * 8)?;
         let hitbox_floors = staging(hitboxes * 8)?;
         let instance_floors = staging(slots * 8)?;
+        let extents = staging(hitboxes * 16)?;
         let set = self.kernels.bind(
             &[
                 i.hot,
@@ -199,10 +210,12 @@ impl RecordUploader {
                 &state_overrides,
                 &hitbox_overrides,
                 i.heights,
-                i.cold,
+                i.tlas,
                 targets.instance_rates,
                 &hitbox_floors,
                 &instance_floors,
+                i.bounds,
+                &extents,
             ],
             "STORAGE_BUFFER on an upload target",
         )?;
@@ -214,6 +227,7 @@ impl RecordUploader {
             hitbox_overrides,
             hitbox_floors,
             instance_floors,
+            extents,
             slot_capacity: slots as u32,
             hitbox_capacity: hitboxes as u32,
         })
@@ -271,6 +285,10 @@ impl RecordUploader {
         if !instance_floors.is_empty() {
             bindings.instance_floors.write(0, &instance_floors)?;
         }
+        let extents = extent_words(&uploads.hitbox_extents, bindings.hitbox_capacity);
+        if !extents.is_empty() {
+            bindings.extents.write(0, &extents)?;
+        }
         let mut push = UploadPush {
             pass: 0,
             record_count: slots.len() as u32,
@@ -280,6 +298,7 @@ impl RecordUploader {
             hitbox_capacity: bindings.hitbox_capacity,
             hitbox_floor_count: hitbox_floors.len() as u32,
             instance_floor_count: instance_floors.len() as u32,
+            extent_count: extents.len() as u32,
         };
         rec.memory_barrier(
             vk::PipelineStageFlags2::ALL_COMMANDS,
@@ -296,7 +315,8 @@ impl RecordUploader {
             push.record_count
                 + push.hitbox_count
                 + push.hitbox_floor_count
-                + push.instance_floor_count,
+                + push.instance_floor_count
+                + push.extent_count,
         )?;
         compute_to_compute(rec, false);
         push.pass = 1;
@@ -308,6 +328,7 @@ impl RecordUploader {
             state_overrides: push.state_count,
             hitbox_overrides: push.hitbox_count,
             rate_floors: push.hitbox_floor_count + push.instance_floor_count,
+            extents: push.extent_count,
         })
     }
 }
@@ -343,6 +364,26 @@ fn stage_records(
         .filter_map(|&s| records.get(s as usize))
         .collect();
     Ok((slots, staged))
+}
+
+/// The staged words of hitbox extents, `[index, min_y bits, max_y bits,
+/// cost]`, indices below `capacity`, one per index (the last one given, as
+/// `apply_uploads`' loop leaves it), by ascending index.
+fn extent_words(extents: &[(u32, HitboxExtent)], capacity: u32) -> Vec<[u32; 4]> {
+    let mut v: Vec<(u32, [u32; 3])> = extents
+        .iter()
+        .filter(|e| e.0 < capacity)
+        .map(|(i, e)| (*i, e.to_words()))
+        .collect();
+    v.sort_by_key(|e| e.0); // stable: equal indices keep their order
+    let mut out: Vec<[u32; 4]> = Vec::with_capacity(v.len());
+    for (i, [lo, hi, cost]) in v {
+        match out.last_mut() {
+            Some(last) if last[0] == i => *last = [i, lo, hi, cost],
+            _ => out.push([i, lo, hi, cost]),
+        }
+    }
+    out
 }
 
 /// `(key, value)` pairs with keys below `capacity`, one per key (the last

@@ -150,9 +150,12 @@ fn merged_assembly_matches_cpu_reference() {
             .write(0, &vec![0xA5A5_A5A5u32; tlas_capacity * 16])
             .unwrap();
         let instances = lipac_core::layout::InstanceArrays::from_records(&instances);
+        // The extents are the CPU's: computed here, uploaded with the records.
+        lipac_core::hitbox_extents::write_extents(&instances, &mut hitboxes);
         let hot = Buffer::with_data(ctx, STORAGE, host, instances.hot()).unwrap();
         let heights = Buffer::with_data(ctx, STORAGE, host, instances.heights()).unwrap();
-        let cold = Buffer::with_data(ctx, STORAGE, host, instances.cold()).unwrap();
+        let slot_tlas = Buffer::with_data(ctx, STORAGE, host, instances.tlas()).unwrap();
+        let slot_bounds = Buffer::with_data(ctx, STORAGE, host, instances.bounds()).unwrap();
         let hitbox_buf = Buffer::with_data(ctx, STORAGE, host, &hitboxes).unwrap();
         let bounds = Buffer::with_data(ctx, STORAGE, host, &hitbox_bounds(&grid)).unwrap();
         let counter = Buffer::with_data(ctx, STORAGE | xfer, host, &[7u32]).unwrap();
@@ -161,7 +164,8 @@ fn merged_assembly_matches_cpu_reference() {
                 instances: lipac_vk::InstanceBuffers {
                     hot: &hot,
                     heights: &heights,
-                    cold: &cold,
+                    tlas: &slot_tlas,
+                    bounds: &slot_bounds,
                 },
                 hitboxes: &hitbox_buf,
                 hitbox_bounds: &bounds,

@@ -20,10 +20,11 @@ use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
 use lipac_core::feedback::{FeedbackError, FeedbackStats};
+use lipac_core::hitbox_extents::write_extents;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights,
-    InstanceHot, InstanceRecord, InstanceState, TlasInstance,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHeights,
+    InstanceHot, InstanceRecord, InstanceState, InstanceTlas, TlasInstance,
 };
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
@@ -127,7 +128,7 @@ fn arrays(records: &[InstanceRecord]) -> InstanceArrays {
 
 /// `record` as the instance arrays hold it (`HAS_BLAS` from its BLAS).
 fn normalized(record: &InstanceRecord) -> InstanceRecord {
-    InstanceRecord::from_parts(&record.hot(), &record.cold())
+    InstanceRecord::from_parts(&record.hot(), &record.tlas(0), &record.bounds())
 }
 
 /// The CPU's Algorithm 2 on the hot parts of `records`, writing the packed
@@ -274,7 +275,8 @@ fn scene_buffers(scene: &Scene) -> FeedbackBuffers<'_> {
 struct Scene {
     hot: Buffer,
     heights: Buffer,
-    cold: Buffer,
+    slot_tlas: Buffer,
+    slot_bounds: Buffer,
     instance_hits: Buffer,
     hitboxes: Buffer,
     bounds: Buffer,
@@ -312,7 +314,8 @@ impl Scene {
         Self {
             hot: Buffer::with_data(ctx, STORAGE, host, split.hot()).unwrap(),
             heights: Buffer::with_data(ctx, STORAGE, host, split.heights()).unwrap(),
-            cold: Buffer::with_data(ctx, STORAGE, host, split.cold()).unwrap(),
+            slot_tlas: Buffer::with_data(ctx, STORAGE, host, split.tlas()).unwrap(),
+            slot_bounds: Buffer::with_data(ctx, STORAGE, host, split.bounds()).unwrap(),
             instance_hits: Buffer::with_data(ctx, STORAGE | xfer, host, hits).unwrap(),
             hitboxes: Buffer::with_data(ctx, STORAGE, host, hitboxes).unwrap(),
             bounds: Buffer::with_data(ctx, STORAGE, host, &hitbox_bounds(index)).unwrap(),
@@ -330,7 +333,8 @@ impl Scene {
         InstanceBuffers {
             hot: &self.hot,
             heights: &self.heights,
-            cold: &self.cold,
+            tlas: &self.slot_tlas,
+            bounds: &self.slot_bounds,
         }
     }
 
@@ -358,21 +362,30 @@ impl Scene {
     }
 
     /// The GPU's instance arrays joined per slot; asserts that the heights
-    /// array holds the cold AABB's y words.
+    /// array holds the AABB's y words and each TLAS record its slot and the
+    /// hot record's mask and flags.
     fn read_instances(&self, n: usize) -> Vec<InstanceRecord> {
         let hot: Vec<InstanceHot> = self.hot.read(0, n).unwrap();
         let heights: Vec<InstanceHeights> = self.heights.read(0, n).unwrap();
-        let cold: Vec<InstanceCold> = self.cold.read(0, n).unwrap();
-        for (slot, (y, c)) in heights.iter().zip(&cold).enumerate() {
+        let tlas: Vec<InstanceTlas> = self.slot_tlas.read(0, n).unwrap();
+        let bounds: Vec<InstanceBounds> = self.slot_bounds.read(0, n).unwrap();
+        for (slot, (y, b)) in heights.iter().zip(&bounds).enumerate() {
             assert_eq!(
                 (y.min_y.to_bits(), y.max_y.to_bits()),
-                (c.aabb_min[1].to_bits(), c.aabb_max[1].to_bits()),
+                (b.aabb_min[1].to_bits(), b.aabb_max[1].to_bits()),
                 "slot {slot}: heights"
+            );
+            let (t, h) = (&tlas[slot].record, &hot[slot]);
+            assert_eq!(
+                (t.custom_index(), t.mask(), t.flags()),
+                (slot as u32, h.mask(), h.vk_flags()),
+                "slot {slot}: TLAS record"
             );
         }
         hot.iter()
-            .zip(&cold)
-            .map(|(h, c)| InstanceRecord::from_parts(h, c))
+            .zip(&tlas)
+            .zip(&bounds)
+            .map(|((h, t), b)| InstanceRecord::from_parts(h, t, b))
             .collect()
     }
     fn read_hitboxes(&self, n: usize) -> Vec<HitboxRecord> {
@@ -487,6 +500,8 @@ fn assembly_matches_cpu_reference() {
         };
         let what = format!("seed {seed}");
         let hits = vec![0u32; instances.len()];
+        // The extents are the CPU's; the GPU gets them with the records.
+        write_extents(&arrays(&instances), &mut hitboxes);
         let scene = Scene::new(ctx, &instances, &hits, &hitboxes, &index, 1);
         let bindings = scene.assembly_bindings(&pipeline);
         assert_eq!(
@@ -592,6 +607,8 @@ fn assembly_signed_zero_and_nan_heights_match_cpu() {
     let mut hitboxes = vec![HitboxRecord::default(); n_hitboxes as usize];
     let cfg = AssemblyConfig::new(0xC0BE);
     let hits = vec![0u32; instances.len()];
+    // The extents are the CPU's; the GPU gets them with the records.
+    write_extents(&arrays(&instances), &mut hitboxes);
     let scene = Scene::new(ctx, &instances, &hits, &hitboxes, &index, 1);
     let bindings = scene.assembly_bindings(&pipeline);
     let mut cpu_out = Vec::new();
@@ -642,6 +659,8 @@ fn assembly_slot_count_and_small_tlas_buffer() {
     let instances: Vec<InstanceRecord> = (0..500).map(|_| random_instance(&mut rng, 16)).collect();
     let mut hitboxes: Vec<HitboxRecord> = (0..16).map(|_| random_hitbox(&mut rng, &th)).collect();
     let cfg = AssemblyConfig::new(0xC0BE);
+    // The extents are the CPU's; the GPU gets them with the records.
+    write_extents(&arrays(&instances), &mut hitboxes);
     let scene = Scene::new(ctx, &instances, &[0; 500], &hitboxes, &index, 1);
     // Processing only the first 200 slots equals the CPU on those 200.
     let mut cpu_out = Vec::new();
@@ -782,6 +801,8 @@ fn frames_match_cpu_reference_without_overflow() {
             .map(|_| random_hitbox(&mut rng, &th))
             .collect();
         let capacity = n as u32; // at most one command per slot: never full
+                                 // The extents are the CPU's; the GPU gets them with the records.
+        write_extents(&arrays(&instances), &mut hitboxes);
         let mut scene = Scene::new(ctx, &instances, &vec![0; n], &hitboxes, &index, capacity);
         let ab = scene.assembly_bindings(&assembly);
         let fb = scene.feedback_bindings(&feedback);
@@ -1436,7 +1457,9 @@ fn assembled_tlas_builds_and_counts_boxes() {
         packed: hitbox_bits::ACTIVE,
         ..Default::default()
     };
-    let hitboxes = [active, active, HitboxRecord::default(), active];
+    let mut hitboxes = [active, active, HitboxRecord::default(), active];
+    // The extents are the CPU's; the GPU gets them with the records.
+    write_extents(&arrays(&instances), &mut hitboxes);
     let counting = CountingBoxConfig::default();
     let cfg = AssemblyConfig {
         unit_cube_blas: cube_blas.device_address(),

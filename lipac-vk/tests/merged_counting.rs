@@ -90,6 +90,8 @@ fn merged_boxes_count_on_the_gpu_what_leaf_boxes_count() {
             hb.packed |= hitbox_bits::ACTIVE;
         }
     }
+    // The extents are the CPU's (uploaded with the records on a backend).
+    lipac_core::hitbox_extents::write_extents(&instances, &mut hitboxes);
     let mut leaf_hb = hitboxes.clone();
     let (mut leaf_records, mut merged_records) = (Vec::new(), Vec::new());
     assemble_tlas_adaptive(

@@ -1,16 +1,17 @@
 //! `RecordUploader` (upload_records.comp) equals
 //! `lipac_core::culling::apply_uploads` bit for bit on random records,
-//! ranges, overrides and rate floors, over several rounds on the same GPU
-//! buffers.
+//! ranges, overrides, rate floors and hitbox extents, over several rounds
+//! on the same GPU buffers.
 
 mod common;
 
 use ash::vk;
 use common::*;
 use lipac_core::culling::{apply_uploads, Uploads};
+use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::layout::{
-    instance_bits, HitboxRecord, InstanceArrays, InstanceCold, InstanceHeights, InstanceHot,
-    InstanceRecord, InstanceState,
+    instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHeights, InstanceHot,
+    InstanceRecord, InstanceState, InstanceTlas,
 };
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
 use lipac_vk::{
@@ -20,9 +21,11 @@ use lipac_vk::{
 /// Records of random bits: every state value incl. 3, NaN/inf floats, any
 /// BLAS address.
 fn random_records<T: bytemuck::Pod>(rng: &mut Rng, n: usize) -> Vec<T> {
-    let words = n * std::mem::size_of::<T>() / 4;
-    let words: Vec<u32> = (0..words).map(|_| rng.next_u64() as u32).collect();
-    bytemuck::cast_slice(&words).to_vec()
+    let mut v = vec![T::zeroed(); n];
+    for w in bytemuck::cast_slice_mut::<T, u32>(&mut v) {
+        *w = rng.next_u64() as u32;
+    }
+    v
 }
 
 fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
@@ -65,7 +68,28 @@ fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
     };
     let hitbox_rate_floors = floors(hitboxes, hitboxes);
     let instance_rate_floors = floors(slots / 2, slots);
+    // Extents: odd heights (±0, ±inf, ordinary; the CPU never stores NaN),
+    // any cost word, duplicates (the last wins) and indices past the buffer.
+    let heights = [
+        0.0,
+        -0.0,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        -3.5,
+        1.0e30,
+        7.25,
+    ];
+    let hitbox_extents = (0..rng.below_u32(hitboxes + 1))
+        .map(|_| {
+            let mut h = || heights[rng.below_u32(heights.len() as u32) as usize];
+            let (min_y, max_y) = (h(), h());
+            let index = rng.below_u32(hitboxes + 4);
+            let cost = rng.next_u64() as u32;
+            (index, HitboxExtent { min_y, max_y, cost })
+        })
+        .collect();
     Uploads {
+        hitbox_extents,
         records,
         state_overrides,
         hitbox_overrides,
@@ -91,6 +115,7 @@ fn gpu_upload_equals_apply_uploads() {
             random_records(&mut rng, n),
             random_records(&mut rng, n),
             random_records(&mut rng, n),
+            random_records(&mut rng, n),
         )
         .unwrap();
         let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);
@@ -99,7 +124,8 @@ fn gpu_upload_equals_apply_uploads() {
             |data: &[u8]| Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, data).unwrap();
         let hot = host(bytemuck::cast_slice(gpu_copy.hot()));
         let heights = host(bytemuck::cast_slice(gpu_copy.heights()));
-        let cold = host(bytemuck::cast_slice(gpu_copy.cold()));
+        let tlas = host(bytemuck::cast_slice(gpu_copy.tlas()));
+        let bounds = host(bytemuck::cast_slice(gpu_copy.bounds()));
         let hitbox_buf = host(bytemuck::cast_slice(&gpu_hitboxes));
         let rates_buf = host(bytemuck::cast_slice(&gpu_rates));
         let mut bindings = uploader
@@ -107,7 +133,8 @@ fn gpu_upload_equals_apply_uploads() {
                 instances: InstanceBuffers {
                     hot: &hot,
                     heights: &heights,
-                    cold: &cold,
+                    tlas: &tlas,
+                    bounds: &bounds,
                 },
                 hitboxes: &hitbox_buf,
                 instance_rates: &rates_buf,
@@ -141,7 +168,8 @@ fn gpu_upload_equals_apply_uploads() {
             let got = InstanceArrays::from_parts(
                 hot.read::<InstanceHot>(0, n).unwrap(),
                 heights.read::<InstanceHeights>(0, n).unwrap(),
-                cold.read::<InstanceCold>(0, n).unwrap(),
+                tlas.read::<InstanceTlas>(0, n).unwrap(),
+                bounds.read::<InstanceBounds>(0, n).unwrap(),
             )
             .unwrap();
             let got_hitboxes: Vec<HitboxRecord> = hitbox_buf.read(0, hitboxes as usize).unwrap();
@@ -157,11 +185,18 @@ fn gpu_upload_equals_apply_uploads() {
                     "{what}: heights {i}"
                 );
             }
-            for (i, (g, w)) in got.cold().iter().zip(gpu_copy.cold()).enumerate() {
+            for (i, (g, w)) in got.tlas().iter().zip(gpu_copy.tlas()).enumerate() {
                 assert_eq!(
                     bytemuck::bytes_of(g),
                     bytemuck::bytes_of(w),
-                    "{what}: cold {i}: {g:?} vs {w:?}"
+                    "{what}: TLAS record {i}: {g:?} vs {w:?}"
+                );
+            }
+            for (i, (g, w)) in got.bounds().iter().zip(gpu_copy.bounds()).enumerate() {
+                assert_eq!(
+                    bytemuck::bytes_of(g),
+                    bytemuck::bytes_of(w),
+                    "{what}: bounds {i}: {g:?} vs {w:?}"
                 );
             }
             for (i, (g, w)) in got_hitboxes.iter().zip(&gpu_hitboxes).enumerate() {
@@ -176,6 +211,13 @@ fn gpu_upload_equals_apply_uploads() {
             // no override names the slot.
             if round < 3 && slots > 1 {
                 assert!(stats.records > 0, "{what}");
+                let in_range: std::collections::HashSet<u32> = uploads
+                    .hitbox_extents
+                    .iter()
+                    .map(|e| e.0)
+                    .filter(|&i| i < hitboxes)
+                    .collect();
+                assert_eq!(stats.extents as usize, in_range.len(), "{what}: extents");
                 let overridden: std::collections::HashSet<u32> =
                     uploads.state_overrides.iter().map(|o| o.0).collect();
                 let mut kept = 0;
@@ -206,10 +248,10 @@ fn upload_targets_are_checked() {
     let ctx = h.context();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let uploader = RecordUploader::new(ctx).unwrap();
-    let small = Buffer::new(ctx, 64, storage, MemoryLocation::GpuOnly).unwrap();
+    let small = Buffer::new(ctx, 16, storage, MemoryLocation::GpuOnly).unwrap();
     let hitboxes = Buffer::new(ctx, 120, storage, MemoryLocation::GpuOnly).unwrap();
     let slots10 = |b| Buffer::new(ctx, b, storage, MemoryLocation::GpuOnly).unwrap();
-    let (hot, heights, cold) = (slots10(80), slots10(80), slots10(880));
+    let (hot, heights, tlas, bounds) = (slots10(80), slots10(80), slots10(640), slots10(280));
     let rates = slots10(40);
     // 36 bytes hold 9 rates, not the 10 slots' rates.
     let few_rates = slots10(36);
@@ -218,20 +260,22 @@ fn upload_targets_are_checked() {
             instances: InstanceBuffers {
                 hot: &hot,
                 heights: &heights,
-                cold: &cold,
+                tlas: &tlas,
+                bounds: &bounds,
             },
             hitboxes: &hitboxes,
             instance_rates: &few_rates,
         }),
         Err(lipac_vk::VkError::InvalidArgument(_))
     ));
-    // 64 bytes hold no 88-byte cold record.
+    // 16 bytes hold no 64-byte TLAS record.
     assert!(uploader
         .bind(&UploadTargets {
             instances: InstanceBuffers {
                 hot: &hot,
                 heights: &heights,
-                cold: &small,
+                tlas: &small,
+                bounds: &bounds,
             },
             hitboxes: &hitboxes,
             instance_rates: &rates,
@@ -249,7 +293,8 @@ fn upload_targets_are_checked() {
             instances: InstanceBuffers {
                 hot: &hot,
                 heights: &no_storage,
-                cold: &cold,
+                tlas: &tlas,
+                bounds: &bounds,
             },
             hitboxes: &hitboxes,
             instance_rates: &rates,
@@ -262,7 +307,8 @@ fn upload_targets_are_checked() {
             instances: InstanceBuffers {
                 hot: &hot,
                 heights: &heights,
-                cold: &cold,
+                tlas: &tlas,
+                bounds: &bounds,
             },
             hitboxes: &hitboxes,
             instance_rates: &rates,
@@ -280,6 +326,6 @@ fn upload_targets_are_checked() {
         refused,
         Err(lipac_vk::VkError::InvalidArgument(_))
     ));
-    drop((bindings, hot, heights, cold, rates, few_rates));
+    drop((bindings, hot, heights, tlas, bounds, rates, few_rates));
     assert_no_validation_errors(&h);
 }
