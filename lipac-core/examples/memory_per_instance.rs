@@ -77,7 +77,7 @@ fn build(n: u32, reserve: bool) -> (Culling, f64) {
 fn row(label: &str, n: u32, registration: f64, m: &MemoryUsage) {
     let per = |b: u64| b as f64 / f64::from(n);
     println!(
-        "| {label} | {n} | {registration:.3} s | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} MB | {:.1} MB |",
+        "| {label} | {n} | {registration:.3} s | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} MB | {:.1} MB |",
         per(m.records),
         per(m.handles),
         per(m.slot_occupants),
@@ -87,6 +87,7 @@ fn row(label: &str, n: u32, registration: f64, m: &MemoryUsage) {
         per(m.command_queue),
         per(m.overrides),
         per(m.scratch),
+        per(m.extent_lists),
         per(m.per_slot()),
         m.per_slot() as f64 / 1e6,
         (m.hitboxes + m.command_buffer) as f64 / 1e6,
@@ -100,8 +101,8 @@ fn main() {
         .unwrap_or(1_000_000);
     println!("CPU bytes per instance (from capacities; see lipac_core::memory)");
     println!();
-    println!("| registration, when | instances | registration time | records | handles | occupants | free + dirty | hits + awaiting | latency bits | queue | overrides | scratch | **per instance** | per-slot total | hitboxes + command buffer |");
-    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+    println!("| registration, when | instances | registration time | records | handles | occupants | free + dirty | hits + awaiting | latency bits | queue | overrides | scratch | extent lists | **per instance** | per-slot total | hitboxes + command buffer |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     let mut n = 10_000u32;
     while n <= max {
         for (reserve, how) in [(false, "one by one"), (true, "reserve(n) first")] {
