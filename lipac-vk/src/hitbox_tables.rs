@@ -112,6 +112,16 @@ fn copy(rec: &mut Recorder<'_>, src: &Buffer, dst: &Buffer, regions: &[vk::Buffe
     };
 }
 
+/// A host-visible copy source holding `data`, for the transfers below.
+fn staging<T: bytemuck::Pod>(ctx: &DeviceContext, data: &[T]) -> Result<Buffer> {
+    Buffer::with_data(
+        ctx,
+        vk::BufferUsageFlags::TRANSFER_SRC,
+        MemoryLocation::CpuToGpu,
+        data,
+    )
+}
+
 /// Records copies of [`HitboxRecord::default`] into the runs `(first
 /// record, count)` of `records` (one staging buffer of the longest run,
 /// retired after `value`). The default, not zeros: its empty extent
@@ -130,13 +140,7 @@ fn write_defaults(
     if longest == 0 {
         return Ok(());
     }
-    let staged = vec![HitboxRecord::default(); longest as usize];
-    let staging = Buffer::with_data(
-        ctx,
-        vk::BufferUsageFlags::TRANSFER_SRC,
-        MemoryLocation::CpuToGpu,
-        &staged,
-    )?;
+    let staging = staging(ctx, &vec![HitboxRecord::default(); longest as usize])?;
     let regions: Vec<vk::BufferCopy> = runs
         .iter()
         .filter(|r| r.1 > 0)
@@ -342,12 +346,7 @@ impl HitboxTables {
                         .map(|i| bounds_of(index, i))
                         .collect()
                 };
-                let staging = Buffer::with_data(
-                    ctx,
-                    vk::BufferUsageFlags::TRANSFER_SRC,
-                    MemoryLocation::CpuToGpu,
-                    &staged,
-                )?;
+                let staging = staging(ctx, &staged)?;
                 let mut at = 0u64;
                 let regions: Vec<vk::BufferCopy> = writes
                     .iter()
