@@ -9,7 +9,10 @@
 //! their TLAS record multisets, command streams, plans and escape-fraction
 //! sums (summed on the GPU, read back in the ring slot, handed over by
 //! `Polled::deliver`) are equal every frame, under a random camera per
-//! frame; in one run both also warm-start, held, at some frames (the
+//! frame. Every frame the GPU's whole hitbox table is read back: each
+//! record's extent (heights, cost word) is the Vulkan manager's, uploaded
+//! (evicted and reused indices included), and every spare record past the
+//! index (first frame, growth) is `HitboxRecord::default()` bit for bit; in one run both also warm-start, held, at some frames (the
 //! rate floors uploaded to the GPU). Serial frames (each waited for): the frames-in-flight loop is
 //! `tests/vk_city.rs`'s.
 
@@ -21,10 +24,11 @@ use glam::Vec3;
 use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::SchedulerConfig;
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
+use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
 use lipac_core::latency::{ActivationHeuristic, Frustum};
-use lipac_core::layout::tlas_multiset;
+use lipac_core::layout::{tlas_multiset, HitboxRecord};
 use lipac_core::manager::{DataUpload, FrameBudgets, Manager, ManagerConfig, MeshCatalog};
 use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
@@ -252,24 +256,35 @@ fn random_hits(rng: &mut SplitMix64, slots: u32) -> Vec<u32> {
         .collect()
 }
 
+/// Records a global memory barrier.
+fn barrier(
+    rec: &mut lipac_vk::Recorder<'_>,
+    src: vk::PipelineStageFlags2,
+    src_access: vk::AccessFlags2,
+    dst: vk::PipelineStageFlags2,
+    dst_access: vk::AccessFlags2,
+) {
+    let b = [vk::MemoryBarrier2::default()
+        .src_stage_mask(src)
+        .src_access_mask(src_access)
+        .dst_stage_mask(dst)
+        .dst_access_mask(dst_access)];
+    let dep = vk::DependencyInfo::default().memory_barriers(&b);
+    // SAFETY: recording on this device; the headless context enables
+    // synchronization2.
+    unsafe {
+        rec.context()
+            .device()
+            .cmd_pipeline_barrier2(rec.raw(), &dep)
+    };
+}
+
 /// Records a copy of `hits` over the first counters of `dst` after the
 /// trace's writes (and before Algorithm 2 reads them); `staging` is kept
 /// alive by the caller until the frame has run.
 fn overwrite_hits(rec: &mut lipac_vk::Recorder<'_>, staging: &Buffer, dst: &Buffer) {
-    let device = rec.context().device().clone();
-    let barrier =
-        |src: vk::PipelineStageFlags2, src_access, dst: vk::PipelineStageFlags2, dst_access| {
-            let b = [vk::MemoryBarrier2::default()
-                .src_stage_mask(src)
-                .src_access_mask(src_access)
-                .dst_stage_mask(dst)
-                .dst_access_mask(dst_access)];
-            let dep = vk::DependencyInfo::default().memory_barriers(&b);
-            // SAFETY: recording on this device; the headless context enables
-            // synchronization2.
-            unsafe { device.cmd_pipeline_barrier2(rec.raw(), &dep) };
-        };
     barrier(
+        rec,
         vk::PipelineStageFlags2::ALL_COMMANDS,
         vk::AccessFlags2::MEMORY_WRITE,
         vk::PipelineStageFlags2::TRANSFER,
@@ -279,13 +294,54 @@ fn overwrite_hits(rec: &mut lipac_vk::Recorder<'_>, staging: &Buffer, dst: &Buff
     // SAFETY: recording on this device; `staging` (TRANSFER_SRC) and `dst`
     // (the hit counters, TRANSFER_DST) are live, and the region lies inside
     // both (at most one counter per slot of the tables).
-    unsafe { device.cmd_copy_buffer(rec.raw(), staging.raw(), dst.raw(), &region) };
+    unsafe {
+        rec.context()
+            .device()
+            .cmd_copy_buffer(rec.raw(), staging.raw(), dst.raw(), &region)
+    };
     barrier(
+        rec,
         vk::PipelineStageFlags2::TRANSFER,
         vk::AccessFlags2::TRANSFER_WRITE,
         vk::PipelineStageFlags2::ALL_COMMANDS,
         vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE,
     );
+}
+
+/// Records a copy of the whole of `src` (`TRANSFER_SRC`) into a new
+/// host-readable buffer after every earlier command, and returns that
+/// buffer (read it once the frame has run).
+fn read_back_whole(rec: &mut lipac_vk::Recorder<'_>, src: &Buffer) -> lipac_vk::Result<Buffer> {
+    let dst = Buffer::new(
+        rec.context(),
+        src.size(),
+        vk::BufferUsageFlags::TRANSFER_DST,
+        MemoryLocation::GpuToCpu,
+    )?;
+    barrier(
+        rec,
+        vk::PipelineStageFlags2::ALL_COMMANDS,
+        vk::AccessFlags2::MEMORY_WRITE,
+        vk::PipelineStageFlags2::TRANSFER,
+        vk::AccessFlags2::TRANSFER_READ,
+    );
+    let region = [vk::BufferCopy::default().size(src.size())];
+    // SAFETY: recording on this device; `src` (TRANSFER_SRC) and `dst`
+    // (TRANSFER_DST, as large) are live until the frame has run (the
+    // caller waits for it).
+    unsafe {
+        rec.context()
+            .device()
+            .cmd_copy_buffer(rec.raw(), src.raw(), dst.raw(), &region)
+    };
+    barrier(
+        rec,
+        vk::PipelineStageFlags2::TRANSFER,
+        vk::AccessFlags2::TRANSFER_WRITE,
+        vk::PipelineStageFlags2::HOST,
+        vk::AccessFlags2::HOST_READ,
+    );
+    Ok(dst)
 }
 
 /// `warm_start_hold`: both managers warm-start at frames 4, 9 and 15 (the
@@ -337,6 +393,7 @@ fn gpu_equals_cpu(
     let mut last: Option<Polled> = None;
     let mut cpu_commands = None;
     let (mut growths, mut evictions, mut reused_at_same_len) = (Vec::new(), 0, 0);
+    let (mut emptied_indices, mut spare_records) = (0, 0);
     let (mut total_commands, mut box_hits, mut traced_hits) = (0usize, 0u64, 0u64);
     for f in 1..=FRAMES {
         let len_before = gpu.registry().hitbox_index().len();
@@ -403,9 +460,12 @@ fn gpu_equals_cpu(
                 }
                 lipac.retire_after_frame(bindings);
                 lipac.record_feedback(rec)?;
-                Ok(r)
+                // Every hitbox record of the tables, spare capacity included.
+                let records = read_back_whole(rec, lipac.hitbox_records())?;
+                Ok((r, records))
             })
             .unwrap();
+        let (recorded, gpu_records) = recorded;
         let index = gpu.registry().hitbox_index();
         assert!(lipac.hitbox_capacity() >= index.len());
         if recorded.hitbox_tables_grew {
@@ -429,6 +489,31 @@ fn gpu_equals_cpu(
         while timeline.value().unwrap() < value {
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
+        // The GPU's hitbox extents are the manager's (uploaded), evicted and
+        // reused indices included; every record past the index (grown, never
+        // used) is the default, empty extent, not zeros.
+        let capacity = lipac.hitbox_capacity() as usize;
+        let gpu_hitboxes: Vec<HitboxRecord> = gpu_records.read(0, capacity).unwrap();
+        let cpu_hitboxes = gpu.hitboxes();
+        for (i, (g, c)) in gpu_hitboxes.iter().zip(cpu_hitboxes).enumerate() {
+            assert_eq!(
+                HitboxExtent::of(g).to_words(),
+                HitboxExtent::of(c).to_words(),
+                "frame {f}: hitbox {i}'s extent"
+            );
+            if index.cell(i as u32).is_none() {
+                assert!(HitboxExtent::of(g).is_empty(), "frame {f}: hitbox {i}");
+                emptied_indices += 1;
+            }
+        }
+        for (i, g) in gpu_hitboxes.iter().enumerate().skip(cpu_hitboxes.len()) {
+            assert!(
+                bytemuck::bytes_of(g) == bytemuck::bytes_of(&HitboxRecord::default()),
+                "frame {f}: spare hitbox record {i} (of {capacity}): {g:?}"
+            );
+            spare_records += 1;
+        }
+        drop(gpu_records);
         let polled = lipac.poll().unwrap();
         assert_eq!(polled.readbacks.len(), 1, "frame {f}");
         let r = &polled.readbacks[0];
@@ -505,6 +590,10 @@ fn gpu_equals_cpu(
     );
     assert!(growths.len() >= 3, "the hitbox tables grew at {growths:?}");
     assert!(evictions > 0 && reused_at_same_len > 0);
+    assert!(
+        emptied_indices > 0 && spare_records > 0,
+        "{emptied_indices} indices without a cell, {spare_records} spare records checked"
+    );
     assert!(total_commands > 0, "instances were activated");
     if warm_start_hold.is_some() {
         assert!(warm_activations > 0, "the warm starts activated instances");
