@@ -4,6 +4,7 @@
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use glam::camera::rh::{proj, view};
 use glam::{Affine3A, Vec3};
+use lipac_core::culling::{Culling, CullingConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::instance::{InstanceDesc, MeshId};
@@ -69,6 +70,45 @@ fn benches(c: &mut Criterion) {
             black_box(reg.take_dirty()).len()
         })
     });
+
+    // The same moves through a Culling, whose take_uploads also brings the
+    // moved instances' hitbox extents up to date (hitbox_extents): each
+    // move lifts an instance by 0 or 1 m in turn, so every extent changes.
+    let grid = HitboxGrid::new(GridConfig::default()).unwrap();
+    let mut culling = Culling::new(grid, CullingConfig::new(1)).unwrap();
+    let handles: Vec<_> = (0u32..)
+        .zip(&ps)
+        .map(|(i, &p)| culling.register(desc(p, i)).unwrap())
+        .collect();
+    culling.take_uploads();
+    let mut lift = 0.0;
+    c.bench_function("culling/set_transform_10k_and_take_uploads", |b| {
+        b.iter(|| {
+            lift = 1.0 - lift;
+            for (k, &h) in handles.iter().step_by(10).enumerate() {
+                let p = ps[k * 10] + Vec3::Y * lift;
+                culling
+                    .set_transform(h, Affine3A::from_translation(p), desc(p, 0).aabb)
+                    .unwrap();
+            }
+            black_box(culling.take_uploads()).records.len()
+        })
+    });
+    // Ground units: the moves keep their heights (0.5 m along x and back).
+    let mut shift = 0.0;
+    c.bench_function("culling/set_transform_10k_level_and_take_uploads", |b| {
+        b.iter(|| {
+            shift = 0.5 - shift;
+            for (k, &h) in handles.iter().step_by(10).enumerate() {
+                let p = ps[k * 10] + Vec3::X * shift;
+                culling
+                    .set_transform(h, Affine3A::from_translation(p), desc(p, 0).aabb)
+                    .unwrap();
+            }
+            black_box(culling.take_uploads()).records.len()
+        })
+    });
+    drop(culling);
 
     let grid = HitboxGrid::new(GridConfig::default()).unwrap();
     c.bench_function("grid/hitbox_at_100k", |b| {

@@ -80,11 +80,6 @@ impl HitboxExtent {
     pub fn to_words(&self) -> [u32; 3] {
         [self.min_y.to_bits(), self.max_y.to_bits(), self.cost]
     }
-
-    /// Bitwise equality (the heights compared as bits, so −0 ≠ +0).
-    fn same_bits(&self, other: &Self) -> bool {
-        self.to_words() == other.to_words()
-    }
 }
 
 impl Default for HitboxExtent {
@@ -175,36 +170,73 @@ pub fn write_extents(instances: &InstanceArrays, hitboxes: &mut [HitboxRecord]) 
 /// "No slot" / "no hitbox" in the member lists.
 const NONE: u32 = u32::MAX;
 
-/// The hitboxes' member lists, kept in step with the instance arrays: the
-/// incremental form of [`write_extents`] that [`crate::culling::Culling`]
-/// runs (see the [module docs](self)).
+/// Bit of [`ExtentTracker`]'s per-slot hitbox word: the member counts as
+/// unique-BLAS in its hitbox's cost word (hitbox indices stay below 2^24).
+const UNIQUE: u32 = 1 << 31;
+
+/// The cost word's share of one member.
+#[inline(always)]
+fn cost_of(unique: bool) -> u32 {
+    if unique {
+        hitbox_bits::COST_UNIQUE
+    } else {
+        hitbox_bits::COST_SHARED
+    }
+}
+
+/// What a refresh did to a hitbox it touched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Touch {
+    /// Not touched yet.
+    No,
+    /// Updated in place: members added (the range widened) or removed from
+    /// inside the range (only the cost word changed).
+    InPlace,
+    /// A removed member was on the range's edge: recompute over the list.
+    Recompute,
+}
+
+/// The hitboxes' member lists and each member's contribution, kept in step
+/// with the instance arrays: the incremental form of [`write_extents`]
+/// that [`crate::culling::Culling`] runs (see the [module docs](self)).
 ///
-/// Memory: 12 bytes per slot (the hitbox a slot is linked into, and its
-/// neighbours in that list) and 5 bytes per hitbox (list head, dirty mark),
-/// CPU only ([`ExtentTracker::heap_bytes`]).
+/// A written slot whose hitbox, heights and kind did not change costs a
+/// comparison; one that joins a hitbox or grows its range, an update in
+/// place; one that leaves a hitbox or shrinks from the edge of its range, a
+/// walk over that hitbox's members' cached contributions.
+///
+/// Memory: 20 bytes per slot (its hitbox and kind, its height keys, its
+/// neighbours in the list) and 5 bytes per hitbox (list head, mark), CPU
+/// only ([`ExtentTracker::heap_bytes`]).
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ExtentTracker {
-    /// Per slot: the hitbox whose list holds it, or [`NONE`].
+    /// Per slot: the hitbox whose list holds it (with [`UNIQUE`]), or
+    /// [`NONE`].
     linked: Vec<u32>,
+    /// Per slot: its height keys `(min_key, max_key)` while linked.
+    keys: Vec<[u32; 2]>,
     /// Per slot: next and previous slot in its hitbox's list.
     next: Vec<u32>,
     prev: Vec<u32>,
     /// Per hitbox: first slot of its list.
     head: Vec<u32>,
-    /// Hitboxes whose extent must be recomputed, each once.
-    dirty: Vec<u32>,
-    is_dirty: Vec<bool>,
+    /// Per hitbox: what the running refresh did to it.
+    touch: Vec<Touch>,
+    /// The hitboxes the running refresh touched, with their extent's words
+    /// before it.
+    touched: Vec<(u32, [u32; 3])>,
 }
 
 impl ExtentTracker {
     /// Heap bytes held.
     pub(crate) fn heap_bytes(&self) -> u64 {
         vec_bytes::<u32>(self.linked.capacity())
+            + vec_bytes::<[u32; 2]>(self.keys.capacity())
             + vec_bytes::<u32>(self.next.capacity())
             + vec_bytes::<u32>(self.prev.capacity())
             + vec_bytes::<u32>(self.head.capacity())
-            + vec_bytes::<u32>(self.dirty.capacity())
-            + vec_bytes::<bool>(self.is_dirty.capacity())
+            + vec_bytes::<Touch>(self.touch.capacity())
+            + vec_bytes::<(u32, [u32; 3])>(self.touched.capacity())
     }
 
     /// Reserves room for `slots` slots in all.
@@ -212,36 +244,36 @@ impl ExtentTracker {
         for v in [&mut self.linked, &mut self.next, &mut self.prev] {
             v.reserve_exact(slots.saturating_sub(v.len()));
         }
+        self.keys
+            .reserve_exact(slots.saturating_sub(self.keys.len()));
     }
 
-    fn mark(&mut self, hitbox: u32) {
+    /// Notes that the refresh changes `hitbox` (its words before, once).
+    fn touch(&mut self, hitbox: u32, record: &HitboxRecord) {
         let h = hitbox as usize;
-        if h >= self.is_dirty.len() {
-            self.is_dirty.resize(h + 1, false);
+        if h >= self.touch.len() {
+            self.touch.resize(h + 1, Touch::No);
         }
-        if !self.is_dirty[h] {
-            self.is_dirty[h] = true;
-            self.dirty.push(hitbox);
+        if self.touch[h] == Touch::No {
+            self.touch[h] = Touch::InPlace;
+            self.touched
+                .push((hitbox, HitboxExtent::of(record).to_words()));
         }
     }
 
-    fn unlink(&mut self, slot: u32) {
+    fn unlink(&mut self, slot: u32, hitbox: u32) {
         let s = slot as usize;
-        let hitbox = self.linked[s];
-        if hitbox == NONE {
-            return;
-        }
         let (next, prev) = (self.next[s], self.prev[s]);
         if prev == NONE {
-            self.head[hitbox as usize] = next;
+            if let Some(head) = self.head.get_mut(hitbox as usize) {
+                *head = next;
+            }
         } else {
             self.next[prev as usize] = next;
         }
         if next != NONE {
             self.prev[next as usize] = prev;
         }
-        self.linked[s] = NONE;
-        self.mark(hitbox);
     }
 
     fn link(&mut self, slot: u32, hitbox: u32) {
@@ -256,17 +288,15 @@ impl ExtentTracker {
             self.prev[first as usize] = slot;
         }
         self.head[h] = slot;
-        self.linked[s] = hitbox;
-        self.mark(hitbox);
     }
 
     /// Takes the slots in `touched` (every slot whose record the CPU wrote
     /// since the last call; others are assumed unchanged, so a slot whose
     /// hitbox index was out of range stays no member until it is written
     /// again, as the registry does when it places it) into the lists,
-    /// recomputes the extents of the hitboxes they left or are in, writes
-    /// those into `hitboxes` and appends each that changed (bitwise) to
-    /// `changed` as `(hitbox, extent)`, in no particular order.
+    /// updates the extents of the hitboxes they left or are in, in
+    /// `hitboxes`, and appends each that changed (bitwise) to `changed` as
+    /// `(hitbox, extent)`, each once, in no particular order.
     pub(crate) fn refresh(
         &mut self,
         instances: &InstanceArrays,
@@ -277,46 +307,148 @@ impl ExtentTracker {
         let slots = instances.len();
         if self.linked.len() < slots {
             self.linked.resize(slots, NONE);
+            self.keys.resize(slots, [0; 2]);
             self.next.resize(slots, NONE);
             self.prev.resize(slots, NONE);
         }
         let hitbox_count = hitboxes.len();
         for slot in touched {
             let s = slot as usize;
-            let Some(m) = instances.hot().get(s) else {
+            let (Some(m), Some(h)) = (instances.hot().get(s), instances.heights().get(s)) else {
                 continue;
             };
-            let now = member_of(m, hitbox_count).unwrap_or(NONE);
+            let now = match member_of(m, hitbox_count) {
+                Some(hitbox) if m.packed & instance_bits::UNIQUE_BLAS != 0 => hitbox | UNIQUE,
+                Some(hitbox) => hitbox,
+                None => NONE,
+            };
+            let keys = [
+                height_keys::min_key(h.min_y.to_bits()),
+                height_keys::max_key(h.max_y.to_bits()),
+            ];
             let before = self.linked[s];
-            if now != before {
-                self.unlink(slot);
-                if now != NONE {
-                    self.link(slot, now);
-                }
-            } else if now != NONE {
-                // Same hitbox: its heights or kind may have changed.
-                self.mark(now);
+            if before == now && (now == NONE || self.keys[s] == keys) {
+                continue; // nothing this hitbox's extent depends on changed
             }
+            let (old, new) = (before & !UNIQUE, now & !UNIQUE);
+            if before != NONE && now != NONE && old == new {
+                // The same hitbox: its heights or its kind changed.
+                self.replace(new, [before, now], [self.keys[s], keys], hitboxes);
+                self.keys[s] = keys;
+                self.linked[s] = now;
+                continue;
+            }
+            if before != NONE {
+                self.remove(old, before & UNIQUE != 0, self.keys[s], hitboxes);
+                if new != old {
+                    self.unlink(slot, old);
+                }
+            }
+            if now != NONE {
+                if before == NONE || new != old {
+                    self.link(slot, new);
+                }
+                self.add(new, now & UNIQUE != 0, keys, hitboxes);
+                self.keys[s] = keys;
+            }
+            self.linked[s] = now;
         }
-        for i in 0..self.dirty.len() {
-            let hitbox = self.dirty[i];
-            self.is_dirty[hitbox as usize] = false;
-            let Some(record) = hitboxes.get_mut(hitbox as usize) else {
+        for i in 0..self.touched.len() {
+            let (hitbox, before) = self.touched[i];
+            let h = hitbox as usize;
+            let how = std::mem::replace(&mut self.touch[h], Touch::No);
+            let Some(record) = hitboxes.get_mut(h) else {
                 continue;
             };
-            let mut r = Reduction::EMPTY;
-            let mut slot = self.head.get(hitbox as usize).copied().unwrap_or(NONE);
-            while slot != NONE {
-                r.add(instances, slot as usize);
-                slot = self.next[slot as usize];
+            if how == Touch::Recompute {
+                self.recompute(hitbox).write_to(record);
             }
-            let extent = r.extent();
-            if !extent.same_bits(&HitboxExtent::of(record)) {
-                extent.write_to(record);
+            let extent = HitboxExtent::of(record);
+            if extent.to_words() != before {
                 changed.push((hitbox, extent));
             }
         }
-        self.dirty.clear();
+        self.touched.clear();
+    }
+
+    /// Takes a member with `keys` (unique-BLAS or not) out of `hitbox`'s
+    /// extent: its cost share in place; its range only by a recompute, and
+    /// only if it was on an edge of the range.
+    fn remove(&mut self, hitbox: u32, unique: bool, keys: [u32; 2], hitboxes: &mut [HitboxRecord]) {
+        let Some(record) = hitboxes.get_mut(hitbox as usize) else {
+            return;
+        };
+        self.touch(hitbox, record);
+        record.cost = record.cost.wrapping_sub(cost_of(unique));
+        let on_edge = keys[0] == height_keys::min_key(record.min_y.to_bits())
+            || keys[1] == height_keys::max_key(record.max_y.to_bits());
+        if on_edge {
+            self.touch[hitbox as usize] = Touch::Recompute;
+        }
+    }
+
+    /// Replaces a member's contribution to `hitbox` (its hitbox words
+    /// `[before, now]`, its keys `[old, new]`): the cost share in place; the
+    /// range in place unless the old keys were on an edge the new ones do
+    /// not reach, which needs a recompute.
+    fn replace(
+        &mut self,
+        hitbox: u32,
+        words: [u32; 2],
+        keys: [[u32; 2]; 2],
+        hitboxes: &mut [HitboxRecord],
+    ) {
+        let Some(record) = hitboxes.get_mut(hitbox as usize) else {
+            return;
+        };
+        self.touch(hitbox, record);
+        record.cost = record
+            .cost
+            .wrapping_sub(cost_of(words[0] & UNIQUE != 0))
+            .wrapping_add(cost_of(words[1] & UNIQUE != 0));
+        if self.touch[hitbox as usize] != Touch::InPlace {
+            return;
+        }
+        let [old, new] = keys;
+        let lo = height_keys::min_key(record.min_y.to_bits());
+        let hi = height_keys::max_key(record.max_y.to_bits());
+        if (old[0] == lo && new[0] > lo) || (old[1] == hi && new[1] < hi) {
+            self.touch[hitbox as usize] = Touch::Recompute;
+            return;
+        }
+        record.min_y = f32::from_bits(height_keys::from_min_key(lo.min(new[0])));
+        record.max_y = f32::from_bits(height_keys::from_max_key(hi.max(new[1])));
+    }
+
+    /// Adds a member with `keys` to `hitbox`'s extent in place (a hitbox
+    /// marked for a recompute gets its range there).
+    fn add(&mut self, hitbox: u32, unique: bool, keys: [u32; 2], hitboxes: &mut [HitboxRecord]) {
+        let Some(record) = hitboxes.get_mut(hitbox as usize) else {
+            return;
+        };
+        self.touch(hitbox, record);
+        record.cost = record.cost.wrapping_add(cost_of(unique));
+        if self.touch[hitbox as usize] == Touch::InPlace {
+            let lo = keys[0].min(height_keys::min_key(record.min_y.to_bits()));
+            let hi = keys[1].max(height_keys::max_key(record.max_y.to_bits()));
+            record.min_y = f32::from_bits(height_keys::from_min_key(lo));
+            record.max_y = f32::from_bits(height_keys::from_max_key(hi));
+        }
+    }
+
+    /// `hitbox`'s extent from its members' cached contributions.
+    fn recompute(&self, hitbox: u32) -> HitboxExtent {
+        let mut r = Reduction::EMPTY;
+        let mut slot = self.head.get(hitbox as usize).copied().unwrap_or(NONE);
+        while slot != NONE {
+            let s = slot as usize;
+            let [lo, hi] = self.keys[s];
+            r.min_key = r.min_key.min(lo);
+            r.max_key = r.max_key.max(hi);
+            r.cost = r.cost.wrapping_add(cost_of(self.linked[s] & UNIQUE != 0));
+            slot = self.next[s];
+        }
+        r.extent()
     }
 }
 
