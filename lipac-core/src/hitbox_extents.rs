@@ -115,11 +115,15 @@ impl Reduction {
     /// Folds in the member in slot `slot` of `instances`.
     #[inline(always)]
     fn add(&mut self, instances: &InstanceArrays, slot: usize) {
-        let (Some(m), Some(h)) = (instances.hot().get(slot), instances.heights().get(slot)) else {
+        let (Some(m), Some(b)) = (instances.hot().get(slot), instances.bounds().get(slot)) else {
             return;
         };
-        self.min_key = self.min_key.min(height_keys::min_key(h.min_y.to_bits()));
-        self.max_key = self.max_key.max(height_keys::max_key(h.max_y.to_bits()));
+        self.min_key = self
+            .min_key
+            .min(height_keys::min_key(b.aabb_min[1].to_bits()));
+        self.max_key = self
+            .max_key
+            .max(height_keys::max_key(b.aabb_max[1].to_bits()));
         let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
         self.cost = self.cost.wrapping_add(if unique {
             hitbox_bits::COST_UNIQUE
@@ -314,7 +318,7 @@ impl ExtentTracker {
         let hitbox_count = hitboxes.len();
         for slot in touched {
             let s = slot as usize;
-            let (Some(m), Some(h)) = (instances.hot().get(s), instances.heights().get(s)) else {
+            let (Some(m), Some(b)) = (instances.hot().get(s), instances.bounds().get(s)) else {
                 continue;
             };
             let now = match member_of(m, hitbox_count) {
@@ -323,8 +327,8 @@ impl ExtentTracker {
                 None => NONE,
             };
             let keys = [
-                height_keys::min_key(h.min_y.to_bits()),
-                height_keys::max_key(h.max_y.to_bits()),
+                height_keys::min_key(b.aabb_min[1].to_bits()),
+                height_keys::max_key(b.aabb_max[1].to_bits()),
             ];
             let before = self.linked[s];
             if before == now && (now == NONE || self.keys[s] == keys) {

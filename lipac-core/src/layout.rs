@@ -11,16 +11,16 @@
 //! | [`TlasInstance`] | 64 | `VkAccelerationStructureInstanceKHR` |
 //! | [`InstanceRecord`] | 96 | per-instance state, one slot's view (and the upload staging format) |
 //! | [`InstanceHot`] | 8 | per slot: hitbox and packed bits, read by Algorithms 1 and 2 every frame |
-//! | [`InstanceHeights`] | 8 | per slot: AABB y range, read by Algorithm 1 for inactive slots |
-//! | [`InstanceCold`] | 88 | per slot: transform, AABB, BLAS, SBT offset, LOD, read only where a record is emitted |
+//! | [`InstanceTlas`] | 64 | per slot: its own TLAS record, copied by Algorithm 1 for an active slot |
+//! | [`InstanceBounds`] | 28 | per slot: AABB and LOD, read by Algorithm 1 for an omitted slot |
 //! | [`HitboxRecord`] | 20 | per-hitbox state (the paper's 12 bytes, a decayed hit rate and a cost word) |
 //! | hit counter | 4 | one `u32` per instance slot (the paper's 4 bytes) |
 //! | instance rate | 4 | one `u32` per slot: decayed hit rate (16.16) of a unique-BLAS instance |
 //!
 //! The instance buffer is held as three arrays indexed by slot
-//! ([`InstanceArrays`]: hot, heights, cold), so that the per-frame decisions
-//! touch 8–16 bytes per slot instead of 96; an [`InstanceRecord`] is the
-//! joined view of one slot. Bytes per pass: `docs/HOT_COLD.md`.
+//! ([`InstanceArrays`]: hot, TLAS records, bounds), so that the per-frame
+//! decisions touch 8 bytes per slot instead of 96; an [`InstanceRecord`] is
+//! the joined view of one slot. Bytes per pass: `docs/HOT_COLD.md`.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -233,13 +233,6 @@ impl InstanceRecord {
             packed: (self.packed & !instance_bits::HAS_BLAS) | has,
         }
     }
-    /// The slot's AABB y range.
-    pub fn heights(&self) -> InstanceHeights {
-        InstanceHeights {
-            min_y: self.aabb_min[1],
-            max_y: self.aabb_max[1],
-        }
-    }
     /// The slot's own TLAS record if it is in slot `slot`: custom index =
     /// `slot`, the mask and instance flags of `packed`, the SBT offset (24
     /// bits), the BLAS address.
@@ -263,8 +256,7 @@ impl InstanceRecord {
             lod: self.lod,
         }
     }
-    /// Joins a slot's parts (the heights are the AABB's; the mask and flags
-    /// are the hot record's).
+    /// Joins a slot's parts (the mask and flags are the hot record's).
     pub fn from_parts(hot: &InstanceHot, tlas: &InstanceTlas, bounds: &InstanceBounds) -> Self {
         Self {
             transform: tlas.record.transform,
@@ -282,15 +274,11 @@ impl InstanceRecord {
 mod instance_arrays;
 
 /// Bytes of the instance arrays per slot on the GPU: [`InstanceHot`] +
-/// [`InstanceHeights`] + [`InstanceTlas`] + [`InstanceBounds`]
-/// (8 + 8 + 64 + 28).
+/// [`InstanceTlas`] + [`InstanceBounds`] (8 + 64 + 28).
 pub const INSTANCE_SLOT_BYTES: u64 = (std::mem::size_of::<InstanceHot>()
-    + std::mem::size_of::<InstanceHeights>()
     + std::mem::size_of::<InstanceTlas>()
     + std::mem::size_of::<InstanceBounds>()) as u64;
-pub use instance_arrays::{
-    InstanceArrays, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, Records,
-};
+pub use instance_arrays::{InstanceArrays, InstanceBounds, InstanceHot, InstanceTlas, Records};
 
 /// Bits of [`HitboxRecord::packed`].
 pub mod hitbox_bits {
@@ -386,7 +374,6 @@ const _: () = assert!(std::mem::size_of::<TlasInstance>() == 64);
 const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 96);
 const _: () = assert!(std::mem::size_of::<HitboxRecord>() == 20);
 const _: () = assert!(std::mem::size_of::<InstanceHot>() == 8);
-const _: () = assert!(std::mem::size_of::<InstanceHeights>() == 8);
 const _: () = assert!(std::mem::size_of::<InstanceTlas>() == 64);
 const _: () = assert!(std::mem::align_of::<InstanceTlas>() == 64);
 const _: () = assert!(std::mem::size_of::<InstanceBounds>() == 28);

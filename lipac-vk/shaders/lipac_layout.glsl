@@ -15,23 +15,17 @@ struct LipacTlasInstance {
     uvec2 reference;            // 56: BLAS address; 0 = inactive record
 };
 
-// The instance buffer is four arrays indexed by slot (docs/HOT_COLD.md):
-// LipacInstanceHot (every slot, every frame: Algorithms 1 and 2),
-// LipacInstanceHeights (the AABB's y range; uploaded, read by no pass: the
-// hitbox extents are the CPU's), the slot's own TLAS record as a
-// LipacTlasInstance (lipac_core::layout::InstanceTlas: Algorithm 1 copies it
-// for an active slot) and LipacInstanceBounds (Algorithm 1, omitted slots).
+// The instance buffer is three arrays indexed by slot (docs/HOT_COLD.md):
+// LipacInstanceHot (every slot, every frame: Algorithms 1 and 2), the slot's
+// own TLAS record as a LipacTlasInstance (lipac_core::layout::InstanceTlas:
+// Algorithm 1 copies it for an active slot) and LipacInstanceBounds
+// (Algorithm 1, omitted slots). The counting boxes' heights are the CPU's
+// hitbox extents, uploaded into the hitbox records.
 
 // lipac_core::layout::InstanceHot (8 B).
 struct LipacInstanceHot {
     uint hitbox;                // 0
     uint packed;                // 4: see LIPAC_INSTANCE_*
-};
-
-// lipac_core::layout::InstanceHeights (8 B): the AABB's y range.
-struct LipacInstanceHeights {
-    float minY;                 // 0
-    float maxY;                 // 4
 };
 
 // lipac_core::layout::InstanceBounds (28 B; std430 stride 28).

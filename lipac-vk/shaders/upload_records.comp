@@ -1,7 +1,7 @@
 #version 460
 // upload_records.comp -- the GPU version of lipac_core::culling::apply_uploads:
 // scatters CPU-written instance records (staged joined, 96 B each) into the
-// GPU's four instance arrays (hot, heights, the slot's TLAS record, bounds)
+// GPU's three instance arrays (hot, the slot's TLAS record, bounds)
 // WITHOUT overwriting the state bits of the GPU's hot record (Algorithm 2
 // owns them), then applies the CPU's explicit state overrides and hitbox
 // active overrides, raises decayed rates to the CPU's rate floors (a held
@@ -9,12 +9,12 @@
 // the CPU's, lipac_core::hitbox_extents).
 // lipac_vk::RecordUploader records it twice:
 //   pass 0: one thread per staged record (hot: hitbox, packed with the
-//           destination's LIPAC_INSTANCE_STATE_MASK bits kept; heights:
-//           the AABB's y words; TLAS record: transform, slot | mask << 24,
+//           destination's LIPAC_INSTANCE_STATE_MASK bits kept; TLAS
+//           record: transform, slot | mask << 24,
 //           SBT offset | flags << 24, BLAS address, as
 //           lipac_core::layout::InstanceRecord::tlas builds it; bounds: the
 //           AABB and the LOD), then one per hitbox override (active bit set,
-//           streak zeroed, hits and heights kept), one per hitbox rate floor
+//           streak zeroed, hits and extent kept), one per hitbox rate floor
 //           (rate = max(rate, floor)), one per instance rate floor (the
 //           slot's rate likewise) and one per hitbox extent (minY, maxY and
 //           cost replaced);
@@ -30,7 +30,6 @@ layout(local_size_x = 64) in;
 #define RECORD_WORDS 24u  // InstanceRecord: transform 0..12, aabbMin 12..15, hitbox 15,
                           // aabbMax 16..19, packed 19, blas 20..22, sbtOffset 22, lod 23
 #define HOT_WORDS 2u      // InstanceHot: hitbox 0, packed 1
-#define HEIGHTS_WORDS 2u  // InstanceHeights: minY 0, maxY 1
 #define TLAS_WORDS 16u    // InstanceTlas: transform 0..12, customIndexAndMask 12,
                           // sbtOffsetAndFlags 13, reference 14..16
 #define BOUNDS_WORDS 7u   // InstanceBounds: aabbMin 0..3, aabbMax 3..6, lod 6
@@ -41,14 +40,13 @@ layout(std430, set = 0, binding = 2) readonly buffer StagedRecords { uint staged
 layout(std430, set = 0, binding = 3) readonly buffer StagedSlots { uint stagedSlots[]; };
 layout(std430, set = 0, binding = 4) readonly buffer StateOverrides { uvec2 stateOverrides[]; };
 layout(std430, set = 0, binding = 5) readonly buffer HitboxOverrides { uvec2 hitboxOverrides[]; };
-layout(std430, set = 0, binding = 6) writeonly buffer InstancesHeights { uint heightsWords[]; };
-layout(std430, set = 0, binding = 7) writeonly buffer InstancesTlas { uint tlasWords[]; };
-layout(std430, set = 0, binding = 8) buffer InstanceRates { uint instanceRates[]; };
-layout(std430, set = 0, binding = 9) readonly buffer HitboxRateFloors { uvec2 hitboxFloors[]; };
-layout(std430, set = 0, binding = 10) readonly buffer InstanceRateFloors { uvec2 instanceFloors[]; };
-layout(std430, set = 0, binding = 11) writeonly buffer InstancesBounds { uint boundsWords[]; };
+layout(std430, set = 0, binding = 6) writeonly buffer InstancesTlas { uint tlasWords[]; };
+layout(std430, set = 0, binding = 7) buffer InstanceRates { uint instanceRates[]; };
+layout(std430, set = 0, binding = 8) readonly buffer HitboxRateFloors { uvec2 hitboxFloors[]; };
+layout(std430, set = 0, binding = 9) readonly buffer InstanceRateFloors { uvec2 instanceFloors[]; };
+layout(std430, set = 0, binding = 10) writeonly buffer InstancesBounds { uint boundsWords[]; };
 // x = hitbox index, y = minY bits, z = maxY bits, w = cost.
-layout(std430, set = 0, binding = 12) readonly buffer HitboxExtents { uvec4 extents[]; };
+layout(std430, set = 0, binding = 11) readonly buffer HitboxExtents { uvec4 extents[]; };
 
 layout(push_constant) uniform UploadPush {
     uint pass;
@@ -80,9 +78,6 @@ void main() {
                 uint state = hotWords[hot + 1u] & LIPAC_INSTANCE_STATE_MASK;
                 hotWords[hot] = stagedWords[src + 15u];
                 hotWords[hot + 1u] = (stagedWords[src + 19u] & ~LIPAC_INSTANCE_STATE_MASK) | state;
-                uint heights = slot * HEIGHTS_WORDS;
-                heightsWords[heights] = stagedWords[src + 13u];
-                heightsWords[heights + 1u] = stagedWords[src + 17u];
                 uint packed = stagedWords[src + 19u];
                 uint tlas = slot * TLAS_WORDS;
                 for (uint w = 0u; w < 12u; ++w) {

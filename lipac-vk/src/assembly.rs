@@ -41,8 +41,7 @@ use lipac_core::assembly::AssemblyConfig;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::hitbox_tree::HitboxTree;
 use lipac_core::layout::{
-    HitboxRecord, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, TlasInstance,
-    MAX_SLOTS,
+    HitboxRecord, InstanceBounds, InstanceHot, InstanceTlas, TlasInstance, MAX_SLOTS,
 };
 
 const RESET: usize = 0;
@@ -101,7 +100,7 @@ pub fn hitbox_bounds(index: &impl HitboxIndex) -> Vec<HitboxBounds> {
         .collect()
 }
 
-/// The GPU instance buffer as four arrays indexed by slot (the hot/cold
+/// The GPU instance buffer as three arrays indexed by slot (the hot/cold
 /// split of [`lipac_core::layout::InstanceArrays`], `docs/HOT_COLD.md`), all
 /// with `STORAGE_BUFFER` usage.
 #[derive(Clone, Copy, Debug)]
@@ -109,9 +108,6 @@ pub struct InstanceBuffers<'a> {
     /// [`InstanceHot`]s (8 bytes per slot): read by Algorithms 1 and 2,
     /// whose state bits Algorithm 2 writes.
     pub hot: &'a Buffer,
-    /// [`InstanceHeights`]s (8 bytes per slot): written by the upload,
-    /// read by no pass (the hitbox extents are the CPU's).
-    pub heights: &'a Buffer,
     /// [`InstanceTlas`]s (64 bytes per slot, the slot's own TLAS record):
     /// copied by Algorithm 1 for a slot it emits as active.
     pub tlas: &'a Buffer,
@@ -121,14 +117,13 @@ pub struct InstanceBuffers<'a> {
 }
 
 impl InstanceBuffers<'_> {
-    /// Slots all four arrays hold (the fewest of the four).
+    /// Slots all three arrays hold (the fewest of the three).
     ///
     /// # Errors
     ///
     /// [`VkError::InvalidArgument`] when they hold more than 2^24 slots.
     pub fn slot_capacity(&self) -> Result<u32> {
         let n = (self.hot.size() / std::mem::size_of::<InstanceHot>() as u64)
-            .min(self.heights.size() / std::mem::size_of::<InstanceHeights>() as u64)
             .min(self.tlas.size() / std::mem::size_of::<InstanceTlas>() as u64)
             .min(self.bounds.size() / std::mem::size_of::<InstanceBounds>() as u64);
         u32::try_from(n)

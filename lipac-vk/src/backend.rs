@@ -21,14 +21,11 @@ use crate::upload::{RecordUploader, UploadBindings, UploadTargets};
 use ash::vk;
 use lipac_core::controller::EscapeSample;
 use lipac_core::hitbox_index::HitboxIndex;
-use lipac_core::layout::{
-    HitboxRecord, InstanceBounds, InstanceHeights, InstanceHot, InstanceTlas, TlasInstance,
-};
+use lipac_core::layout::{HitboxRecord, InstanceBounds, InstanceHot, InstanceTlas, TlasInstance};
 use lipac_core::manager::{Ack, DataUpload, Manager, ManagerPlan};
 use lipac_core::thresholds::Thresholds;
 
 const HOT_BYTES: u64 = std::mem::size_of::<InstanceHot>() as u64;
-const HEIGHTS_BYTES: u64 = std::mem::size_of::<InstanceHeights>() as u64;
 const SLOT_TLAS_BYTES: u64 = std::mem::size_of::<InstanceTlas>() as u64;
 const BOUNDS_BYTES: u64 = std::mem::size_of::<InstanceBounds>() as u64;
 const HITBOX_BYTES: u64 = std::mem::size_of::<HitboxRecord>() as u64;
@@ -271,9 +268,8 @@ struct UploadSet {
 struct SlotTables {
     capacity: u32,
     /// The instance arrays ([`lipac_core::layout::InstanceArrays`] on the
-    /// GPU): hot, heights, TLAS records, bounds.
+    /// GPU): hot, TLAS records, bounds.
     hot: Buffer,
-    heights: Buffer,
     tlas_records: Buffer,
     bounds: Buffer,
     instance_hits: Buffer,
@@ -291,7 +287,6 @@ impl SlotTables {
     fn instance_buffers(&self) -> InstanceBuffers<'_> {
         InstanceBuffers {
             hot: &self.hot,
-            heights: &self.heights,
             tlas: &self.tlas_records,
             bounds: &self.bounds,
         }
@@ -625,7 +620,6 @@ impl LipacVk {
             + self.tlas_counter.size();
         if let Some(t) = &self.tables {
             table_bytes += t.hot.size()
-                + t.heights.size()
                 + t.tlas_records.size()
                 + t.bounds.size()
                 + t.instance_hits.size()
@@ -825,7 +819,6 @@ impl LipacVk {
                 .max(old_capacity.saturating_mul(2));
             let tables = self.make_tables(capacity)?;
             fill_zero(rec, &tables.hot);
-            fill_zero(rec, &tables.heights);
             fill_zero(rec, &tables.tlas_records);
             fill_zero(rec, &tables.bounds);
             fill_zero(rec, &tables.data_offsets);
@@ -840,7 +833,6 @@ impl LipacVk {
                 let bytes = u64::from(old.capacity);
                 for (from, to, per_slot) in [
                     (&old.hot, &tables.hot, HOT_BYTES),
-                    (&old.heights, &tables.heights, HEIGHTS_BYTES),
                     (&old.tlas_records, &tables.tlas_records, SLOT_TLAS_BYTES),
                     (&old.bounds, &tables.bounds, BOUNDS_BYTES),
                 ] {
@@ -1082,12 +1074,10 @@ impl LipacVk {
         let ctx = &self.ctx;
         let n = u64::from(capacity);
         let hot = buffer(ctx, n * HOT_BYTES, STORAGE | TRANSFER)?;
-        let heights = buffer(ctx, n * HEIGHTS_BYTES, STORAGE | TRANSFER)?;
         let tlas_records = buffer(ctx, n * SLOT_TLAS_BYTES, STORAGE | TRANSFER)?;
         let bounds = buffer(ctx, n * BOUNDS_BYTES, STORAGE | TRANSFER)?;
         let instances = InstanceBuffers {
             hot: &hot,
-            heights: &heights,
             tlas: &tlas_records,
             bounds: &bounds,
         };
@@ -1100,7 +1090,6 @@ impl LipacVk {
         Ok(SlotTables {
             capacity,
             hot,
-            heights,
             tlas_records,
             bounds,
             instance_hits,

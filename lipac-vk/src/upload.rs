@@ -1,8 +1,7 @@
 //! The record upload scatter: [`RecordUploader`] is the GPU version of
 //! [`lipac_core::culling::apply_uploads`]. It stages the CPU's changed
 //! instance records (joined, 96 bytes each) and scatters them into the GPU's
-//! four instance arrays ([`InstanceBuffers`]: hot, heights, TLAS records,
-//! bounds) **keeping the state bits** of the GPU's hot records (Algorithm 2
+//! three instance arrays ([`InstanceBuffers`]: hot, TLAS records, bounds) **keeping the state bits** of the GPU's hot records (Algorithm 2
 //! owns them), then applies the CPU's explicit state overrides and hitbox
 //! active overrides, raises decayed rates to the CPU's rate floors (a held
 //! warm start) and writes the hitbox extents that changed (the counting
@@ -22,7 +21,7 @@ use lipac_core::culling::Uploads;
 use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::layout::{HitboxRecord, InstanceArrays, InstanceRecord};
 
-const BINDINGS: u32 = 13;
+const BINDINGS: u32 = 12;
 const RECORD_BYTES: u64 = std::mem::size_of::<InstanceRecord>() as u64;
 
 /// Push constants of `upload_records.comp`.
@@ -166,7 +165,6 @@ impl RecordUploader {
         let i = &targets.instances;
         for b in [
             i.hot,
-            i.heights,
             i.tlas,
             i.bounds,
             targets.hitboxes,
@@ -209,7 +207,6 @@ impl RecordUploader {
                 &slot_list,
                 &state_overrides,
                 &hitbox_overrides,
-                i.heights,
                 i.tlas,
                 targets.instance_rates,
                 &hitbox_floors,

@@ -153,7 +153,6 @@ fn merged_assembly_matches_cpu_reference() {
         // The extents are the CPU's: computed here, uploaded with the records.
         lipac_core::hitbox_extents::write_extents(&instances, &mut hitboxes);
         let hot = Buffer::with_data(ctx, STORAGE, host, instances.hot()).unwrap();
-        let heights = Buffer::with_data(ctx, STORAGE, host, instances.heights()).unwrap();
         let slot_tlas = Buffer::with_data(ctx, STORAGE, host, instances.tlas()).unwrap();
         let slot_bounds = Buffer::with_data(ctx, STORAGE, host, instances.bounds()).unwrap();
         let hitbox_buf = Buffer::with_data(ctx, STORAGE, host, &hitboxes).unwrap();
@@ -163,7 +162,6 @@ fn merged_assembly_matches_cpu_reference() {
             .bind(&AssemblyBuffers {
                 instances: lipac_vk::InstanceBuffers {
                     hot: &hot,
-                    heights: &heights,
                     tlas: &slot_tlas,
                     bounds: &slot_bounds,
                 },

@@ -8,7 +8,7 @@
 //! requests get a slot depends on GPU thread order, so the test checks the
 //! invariants that make it safe instead (see `feedback_overflow_invariants`).
 //!
-//! The GPU holds the instance arrays split (hot, heights, cold); the CPU runs
+//! The GPU holds the instance arrays split (hot, TLAS records, bounds); the CPU runs
 //! on `InstanceArrays` built from the same records, and the GPU's arrays are
 //! compared with the CPU's word for word.
 
@@ -23,8 +23,8 @@ use lipac_core::feedback::{FeedbackError, FeedbackStats};
 use lipac_core::hitbox_extents::write_extents;
 use lipac_core::hitbox_index::HitboxIndex;
 use lipac_core::layout::{
-    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHeights,
-    InstanceHot, InstanceRecord, InstanceState, InstanceTlas, TlasInstance,
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHot,
+    InstanceRecord, InstanceState, InstanceTlas, TlasInstance,
 };
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, XorShift64Star as Rng};
@@ -274,7 +274,6 @@ fn scene_buffers(scene: &Scene) -> FeedbackBuffers<'_> {
 /// GPU-side buffers of one test scene.
 struct Scene {
     hot: Buffer,
-    heights: Buffer,
     slot_tlas: Buffer,
     slot_bounds: Buffer,
     instance_hits: Buffer,
@@ -313,7 +312,6 @@ impl Scene {
         let split = arrays(instances);
         Self {
             hot: Buffer::with_data(ctx, STORAGE, host, split.hot()).unwrap(),
-            heights: Buffer::with_data(ctx, STORAGE, host, split.heights()).unwrap(),
             slot_tlas: Buffer::with_data(ctx, STORAGE, host, split.tlas()).unwrap(),
             slot_bounds: Buffer::with_data(ctx, STORAGE, host, split.bounds()).unwrap(),
             instance_hits: Buffer::with_data(ctx, STORAGE | xfer, host, hits).unwrap(),
@@ -332,7 +330,6 @@ impl Scene {
     fn instance_buffers(&self) -> InstanceBuffers<'_> {
         InstanceBuffers {
             hot: &self.hot,
-            heights: &self.heights,
             tlas: &self.slot_tlas,
             bounds: &self.slot_bounds,
         }
@@ -361,21 +358,14 @@ impl Scene {
         .unwrap()
     }
 
-    /// The GPU's instance arrays joined per slot; asserts that the heights
-    /// array holds the AABB's y words and each TLAS record its slot and the
-    /// hot record's mask and flags.
+    /// The GPU's instance arrays joined per slot; asserts that each TLAS
+    /// record holds its slot and the hot record's mask and flags.
     fn read_instances(&self, n: usize) -> Vec<InstanceRecord> {
         let hot: Vec<InstanceHot> = self.hot.read(0, n).unwrap();
-        let heights: Vec<InstanceHeights> = self.heights.read(0, n).unwrap();
         let tlas: Vec<InstanceTlas> = self.slot_tlas.read(0, n).unwrap();
         let bounds: Vec<InstanceBounds> = self.slot_bounds.read(0, n).unwrap();
-        for (slot, (y, b)) in heights.iter().zip(&bounds).enumerate() {
-            assert_eq!(
-                (y.min_y.to_bits(), y.max_y.to_bits()),
-                (b.aabb_min[1].to_bits(), b.aabb_max[1].to_bits()),
-                "slot {slot}: heights"
-            );
-            let (t, h) = (&tlas[slot].record, &hot[slot]);
+        for (slot, (t, h)) in tlas.iter().zip(&hot).enumerate() {
+            let t = &t.record;
             assert_eq!(
                 (t.custom_index(), t.mask(), t.flags()),
                 (slot as u32, h.mask(), h.vk_flags()),

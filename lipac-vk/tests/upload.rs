@@ -10,8 +10,8 @@ use common::*;
 use lipac_core::culling::{apply_uploads, Uploads};
 use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::layout::{
-    instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHeights, InstanceHot,
-    InstanceRecord, InstanceState, InstanceTlas,
+    instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHot, InstanceRecord,
+    InstanceState, InstanceTlas,
 };
 use lipac_test_support::{Rng64, SplitMix64 as Rng};
 use lipac_vk::{
@@ -115,7 +115,6 @@ fn gpu_upload_equals_apply_uploads() {
             random_records(&mut rng, n),
             random_records(&mut rng, n),
             random_records(&mut rng, n),
-            random_records(&mut rng, n),
         )
         .unwrap();
         let mut gpu_hitboxes: Vec<HitboxRecord> = random_records(&mut rng, hitboxes as usize);
@@ -123,7 +122,6 @@ fn gpu_upload_equals_apply_uploads() {
         let host =
             |data: &[u8]| Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, data).unwrap();
         let hot = host(bytemuck::cast_slice(gpu_copy.hot()));
-        let heights = host(bytemuck::cast_slice(gpu_copy.heights()));
         let tlas = host(bytemuck::cast_slice(gpu_copy.tlas()));
         let bounds = host(bytemuck::cast_slice(gpu_copy.bounds()));
         let hitbox_buf = host(bytemuck::cast_slice(&gpu_hitboxes));
@@ -132,7 +130,6 @@ fn gpu_upload_equals_apply_uploads() {
             .bind(&UploadTargets {
                 instances: InstanceBuffers {
                     hot: &hot,
-                    heights: &heights,
                     tlas: &tlas,
                     bounds: &bounds,
                 },
@@ -167,7 +164,6 @@ fn gpu_upload_equals_apply_uploads() {
                 .unwrap();
             let got = InstanceArrays::from_parts(
                 hot.read::<InstanceHot>(0, n).unwrap(),
-                heights.read::<InstanceHeights>(0, n).unwrap(),
                 tlas.read::<InstanceTlas>(0, n).unwrap(),
                 bounds.read::<InstanceBounds>(0, n).unwrap(),
             )
@@ -177,13 +173,6 @@ fn gpu_upload_equals_apply_uploads() {
             let what = format!("{slots} slots, {hitboxes} hitboxes, round {round}");
             for (i, (g, w)) in got.hot().iter().zip(gpu_copy.hot()).enumerate() {
                 assert_eq!(g, w, "{what}: hot {i}");
-            }
-            for (i, (g, w)) in got.heights().iter().zip(gpu_copy.heights()).enumerate() {
-                assert_eq!(
-                    bytemuck::bytes_of(g),
-                    bytemuck::bytes_of(w),
-                    "{what}: heights {i}"
-                );
             }
             for (i, (g, w)) in got.tlas().iter().zip(gpu_copy.tlas()).enumerate() {
                 assert_eq!(
@@ -251,7 +240,7 @@ fn upload_targets_are_checked() {
     let small = Buffer::new(ctx, 16, storage, MemoryLocation::GpuOnly).unwrap();
     let hitboxes = Buffer::new(ctx, 120, storage, MemoryLocation::GpuOnly).unwrap();
     let slots10 = |b| Buffer::new(ctx, b, storage, MemoryLocation::GpuOnly).unwrap();
-    let (hot, heights, tlas, bounds) = (slots10(80), slots10(80), slots10(640), slots10(280));
+    let (hot, tlas, bounds) = (slots10(80), slots10(640), slots10(280));
     let rates = slots10(40);
     // 36 bytes hold 9 rates, not the 10 slots' rates.
     let few_rates = slots10(36);
@@ -259,7 +248,6 @@ fn upload_targets_are_checked() {
         uploader.bind(&UploadTargets {
             instances: InstanceBuffers {
                 hot: &hot,
-                heights: &heights,
                 tlas: &tlas,
                 bounds: &bounds,
             },
@@ -273,7 +261,6 @@ fn upload_targets_are_checked() {
         .bind(&UploadTargets {
             instances: InstanceBuffers {
                 hot: &hot,
-                heights: &heights,
                 tlas: &small,
                 bounds: &bounds,
             },
@@ -292,9 +279,8 @@ fn upload_targets_are_checked() {
         uploader.bind(&UploadTargets {
             instances: InstanceBuffers {
                 hot: &hot,
-                heights: &no_storage,
                 tlas: &tlas,
-                bounds: &bounds,
+                bounds: &no_storage,
             },
             hitboxes: &hitboxes,
             instance_rates: &rates,
@@ -306,7 +292,6 @@ fn upload_targets_are_checked() {
         .bind(&UploadTargets {
             instances: InstanceBuffers {
                 hot: &hot,
-                heights: &heights,
                 tlas: &tlas,
                 bounds: &bounds,
             },
@@ -326,6 +311,6 @@ fn upload_targets_are_checked() {
         refused,
         Err(lipac_vk::VkError::InvalidArgument(_))
     ));
-    drop((bindings, hot, heights, tlas, bounds, rates, few_rates));
+    drop((bindings, hot, tlas, bounds, rates, few_rates));
     assert_no_validation_errors(&h);
 }

@@ -1,8 +1,7 @@
-//! The instance buffer as four per-slot arrays (the hot/cold split,
+//! The instance buffer as three per-slot arrays (the hot/cold split,
 //! `docs/HOT_COLD.md`): [`InstanceHot`] (what Algorithms 1 and 2 decide on,
-//! every slot, every frame), [`InstanceHeights`] (what the hitbox extents
-//! reduce, [`crate::hitbox_extents`]), and the cold parts, read only where
-//! Algorithm 1 emits a record: [`InstanceTlas`] (the slot's TLAS record,
+//! every slot, every frame) and the cold parts, read only where Algorithm 1
+//! emits a record: [`InstanceTlas`] (the slot's TLAS record,
 //! ready to copy, for an active slot) and [`InstanceBounds`] (the AABB, for
 //! an omitted slot's counting box). [`InstanceArrays`] holds them with
 //! equal lengths and keeps [`instance_bits::HAS_BLAS`] equal to `blas != 0`;
@@ -59,18 +58,6 @@ impl InstanceHot {
     }
 }
 
-/// The AABB y range of a slot (8 bytes): copies of
-/// [`InstanceBounds::aabb_min`]`[1]` and [`InstanceBounds::aabb_max`]`[1]`,
-/// which the hitbox extents reduce ([`crate::hitbox_extents`]).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct InstanceHeights {
-    /// World-space AABB minimum height.
-    pub min_y: f32,
-    /// World-space AABB maximum height.
-    pub max_y: f32,
-}
-
 /// The slot's own TLAS record, ready to copy (64 bytes, 64-byte aligned:
 /// one cache line): what Algorithm 1 emits for an active instance with a
 /// BLAS, `VkAccelerationStructureInstanceKHR` exactly. Written by the CPU
@@ -87,7 +74,7 @@ pub struct InstanceTlas {
 
 /// The AABB and LOD of a slot (28 bytes): read by Algorithm 1 only for an
 /// omitted slot (its counting box), and by the CPU (frustum tests, the
-/// hitbox index).
+/// hitbox index, the hitbox extents' heights).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct InstanceBounds {
@@ -99,8 +86,8 @@ pub struct InstanceBounds {
     pub lod: u32,
 }
 
-/// The CPU instance buffer: one [`InstanceHot`], [`InstanceHeights`],
-/// [`InstanceTlas`] and [`InstanceBounds`] per slot, always of equal
+/// The CPU instance buffer: one [`InstanceHot`], [`InstanceTlas`] and
+/// [`InstanceBounds`] per slot, always of equal
 /// lengths, with [`instance_bits::HAS_BLAS`] set exactly where the BLAS
 /// address is nonzero and each TLAS record holding its slot, mask, flags,
 /// SBT offset and BLAS address (every write goes through
@@ -123,7 +110,6 @@ pub struct InstanceBounds {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct InstanceArrays {
     hot: Vec<InstanceHot>,
-    heights: Vec<InstanceHeights>,
     tlas: Vec<InstanceTlas>,
     bounds: Vec<InstanceBounds>,
 }
@@ -147,21 +133,15 @@ impl InstanceArrays {
 
     /// The arrays from their parts as a GPU buffer holds them (e.g. read
     /// back), or `None` when the lengths differ. Taken as they are: neither
-    /// the heights, [`instance_bits::HAS_BLAS`] nor the TLAS records are
-    /// checked against each other.
+    /// [`instance_bits::HAS_BLAS`] nor the TLAS records are checked against
+    /// each other.
     pub fn from_parts(
         hot: Vec<InstanceHot>,
-        heights: Vec<InstanceHeights>,
         tlas: Vec<InstanceTlas>,
         bounds: Vec<InstanceBounds>,
     ) -> Option<Self> {
         let n = hot.len();
-        (heights.len() == n && tlas.len() == n && bounds.len() == n).then_some(Self {
-            hot,
-            heights,
-            tlas,
-            bounds,
-        })
+        (tlas.len() == n && bounds.len() == n).then_some(Self { hot, tlas, bounds })
     }
 
     /// Number of slots.
@@ -184,11 +164,6 @@ impl InstanceArrays {
     /// as [`InstanceArrays::set_blas`] leaves it.
     pub fn hot_mut(&mut self) -> &mut [InstanceHot] {
         &mut self.hot
-    }
-
-    /// The heights array, one per slot.
-    pub fn heights(&self) -> &[InstanceHeights] {
-        &self.heights
     }
 
     /// The TLAS records, one per slot.
@@ -218,7 +193,6 @@ impl InstanceArrays {
             return false;
         }
         self.hot[slot] = record.hot();
-        self.heights[slot] = record.heights();
         self.tlas[slot] = record.tlas(slot as u32);
         self.bounds[slot] = record.bounds();
         true
@@ -228,7 +202,6 @@ impl InstanceArrays {
     pub fn push(&mut self, record: &InstanceRecord) {
         let slot = self.len() as u32;
         self.hot.push(record.hot());
-        self.heights.push(record.heights());
         self.tlas.push(record.tlas(slot));
         self.bounds.push(record.bounds());
     }
@@ -239,7 +212,6 @@ impl InstanceArrays {
     /// record; a grown slot holds 0 until written.)
     pub fn resize(&mut self, len: usize) {
         self.hot.resize(len, InstanceHot::default());
-        self.heights.resize(len, InstanceHeights::default());
         self.tlas.resize(len, InstanceTlas::default());
         self.bounds.resize(len, InstanceBounds::default());
     }
@@ -298,7 +270,6 @@ impl InstanceArrays {
     /// Reserves room for `additional` more slots in each array.
     pub fn reserve_exact(&mut self, additional: usize) {
         self.hot.reserve_exact(additional);
-        self.heights.reserve_exact(additional);
         self.tlas.reserve_exact(additional);
         self.bounds.reserve_exact(additional);
     }
@@ -307,15 +278,13 @@ impl InstanceArrays {
     pub fn capacity(&self) -> usize {
         self.hot
             .capacity()
-            .min(self.heights.capacity())
             .min(self.tlas.capacity())
             .min(self.bounds.capacity())
     }
 
-    /// Heap bytes of the four arrays, from their capacities.
+    /// Heap bytes of the three arrays, from their capacities.
     pub fn heap_bytes(&self) -> u64 {
         (self.hot.capacity() * std::mem::size_of::<InstanceHot>()
-            + self.heights.capacity() * std::mem::size_of::<InstanceHeights>()
             + self.tlas.capacity() * std::mem::size_of::<InstanceTlas>()
             + self.bounds.capacity() * std::mem::size_of::<InstanceBounds>()) as u64
     }
