@@ -15,8 +15,8 @@
 //!    each inactive hitbox with a non-empty extent; the extents, heights and
 //!    cost words, are the CPU's, [`lipac_core::hitbox_extents`], uploaded by
 //!    [`crate::RecordUploader`]);
-//! 4. with adaptive hitboxes only ([`AssemblyPipeline::record_adaptive`],
-//!    [`lipac_core::hitbox_tree`]): pass 3 emits nothing and
+//! 4. with adaptive hitboxes ([`AssemblyPipeline::record_adaptive`],
+//!    [`lipac_core::hitbox_tree`]) in place of pass 3:
 //!    `assemble_merged.comp` (one thread per hitbox) emits the boxes, merged
 //!    over cold quadtree nodes, matching
 //!    [`lipac_core::assembly::assemble_tlas_adaptive`].
@@ -311,8 +311,9 @@ impl AssemblyPipeline {
 
     /// [`Self::record`] with adaptive hitboxes: with `tree`, the hitbox
     /// boxes are merged over cold quadtree nodes as
-    /// [`lipac_core::assembly::assemble_tlas_adaptive`] does (one more
-    /// pass, `assemble_merged.comp`) over the first `nx · nz` hitbox records
+    /// [`lipac_core::assembly::assemble_tlas_adaptive`] does
+    /// (`assemble_merged.comp` in place of `assemble_hitboxes.comp`) over
+    /// the first `nx · nz` hitbox records
     /// (the tree's grid; records beyond it, spare capacity, are left alone);
     /// `None` is [`Self::record`].
     ///
@@ -400,13 +401,15 @@ impl AssemblyPipeline {
         self.kernels
             .dispatch(rec, sets, INSTANCES, push, slot_count)?;
         compute_to_compute(rec, false);
+        // Pass 2: leaf boxes, or with adaptive hitboxes merged boxes over
+        // cold quadtree nodes (assemble_hitboxes.comp emits nothing then).
+        let pass2 = if adaptive_levels > 0 {
+            MERGED
+        } else {
+            HITBOXES
+        };
         self.kernels
-            .dispatch(rec, sets, HITBOXES, push, hitbox_count)?;
-        if adaptive_levels > 0 {
-            compute_to_compute(rec, false);
-            self.kernels
-                .dispatch(rec, sets, MERGED, push, hitbox_count)?;
-        }
+            .dispatch(rec, sets, pass2, push, hitbox_count)?;
         compute_to_everything(rec);
         Ok(())
     }
