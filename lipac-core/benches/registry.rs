@@ -81,17 +81,21 @@ fn benches(c: &mut Criterion) {
         .map(|(i, &p)| culling.register(desc(p, i)).unwrap())
         .collect();
     culling.take_uploads();
+    // Every 10th instance moved to its start plus `offset`, then the uploads.
+    let move_10k = |culling: &mut Culling, offset: Vec3| {
+        for (k, &h) in handles.iter().step_by(10).enumerate() {
+            let p = ps[k * 10] + offset;
+            culling
+                .set_transform(h, Affine3A::from_translation(p), desc(p, 0).aabb)
+                .unwrap();
+        }
+        black_box(culling.take_uploads()).records.len()
+    };
     let mut lift = 0.0;
     c.bench_function("culling/set_transform_10k_and_take_uploads", |b| {
         b.iter(|| {
             lift = 1.0 - lift;
-            for (k, &h) in handles.iter().step_by(10).enumerate() {
-                let p = ps[k * 10] + Vec3::Y * lift;
-                culling
-                    .set_transform(h, Affine3A::from_translation(p), desc(p, 0).aabb)
-                    .unwrap();
-            }
-            black_box(culling.take_uploads()).records.len()
+            move_10k(&mut culling, Vec3::Y * lift)
         })
     });
     // Ground units: the moves keep their heights (0.5 m along x and back).
@@ -99,13 +103,7 @@ fn benches(c: &mut Criterion) {
     c.bench_function("culling/set_transform_10k_level_and_take_uploads", |b| {
         b.iter(|| {
             shift = 0.5 - shift;
-            for (k, &h) in handles.iter().step_by(10).enumerate() {
-                let p = ps[k * 10] + Vec3::X * shift;
-                culling
-                    .set_transform(h, Affine3A::from_translation(p), desc(p, 0).aabb)
-                    .unwrap();
-            }
-            black_box(culling.take_uploads()).records.len()
+            move_10k(&mut culling, Vec3::X * shift)
         })
     });
     drop(culling);
