@@ -89,12 +89,14 @@ impl Default for HitboxExtent {
 }
 
 /// The hitbox a slot is a member of: live, unpinned, hitbox index below
-/// `hitbox_count`.
+/// `hitbox_count` (and below 2^31, which no buffer of hitbox records
+/// reaches: 43 GB; the tracker keeps a flag in the top bit).
 #[inline(always)]
 fn member_of(hot: &InstanceHot, hitbox_count: usize) -> Option<u32> {
     let p = hot.packed;
     let live_unpinned = p & (instance_bits::ALIVE | instance_bits::PINNED) == instance_bits::ALIVE;
-    (live_unpinned && (hot.hitbox as usize) < hitbox_count).then_some(hot.hitbox)
+    let in_range = (hot.hitbox as usize) < hitbox_count && hot.hitbox < UNIQUE;
+    (live_unpinned && in_range).then_some(hot.hitbox)
 }
 
 /// An extent being reduced: height keys ([`height_keys`]) and the cost word.
