@@ -16,7 +16,8 @@
 //! * `min_y` / `max_y`: the lowest AABB minimum and highest AABB maximum
 //!   height of the members; NaN heights never win, −0 is below +0 (the
 //!   order of `height_keys`: the IEEE order on non-NaN floats, the order
-//!   GLSL's ordered-key `atomicMin`/`atomicMax` gave when the GPU reduced); `(+∞, −∞)` (empty, `min_y > max_y`) without members;
+//!   GLSL's ordered-key `atomicMin`/`atomicMax` gave when the GPU
+//!   reduced); `(+∞, −∞)` (empty, `min_y > max_y`) without members;
 //! * `cost`: per member [`hitbox_bits::COST_SHARED`] or
 //!   [`hitbox_bits::COST_UNIQUE`], summed wrapping.
 //!
@@ -24,12 +25,15 @@
 //! in one pass (the specification, and what a caller of
 //! [`crate::assembly::assemble_tlas`] without a [`crate::culling::Culling`]
 //! runs after changing records). [`crate::culling::Culling`] keeps them
-//! incrementally ([`ExtentTracker`]): per hitbox a list of its members, so
-//! that a changed slot costs a relink and a walk over its old and new
-//! hitboxes' members; the extents that changed go to the GPU in
+//! incrementally ([`ExtentTracker`]: per hitbox a list of its members and
+//! each member's cached height keys, so that a written slot costs a
+//! comparison, an update in place, or a walk over a hitbox's members where
+//! one left the edge of its range); the extents that changed go to the GPU in
 //! [`crate::culling::Uploads::hitbox_extents`].
 
-use crate::layout::{hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceHot};
+use crate::layout::{
+    hitbox_bits, instance_bits, HitboxRecord, InstanceArrays, InstanceBounds, InstanceHot,
+};
 use crate::memory::vec_bytes;
 
 /// The CPU-owned part of a [`HitboxRecord`]: its counting box's y range and
@@ -99,6 +103,33 @@ fn member_of(hot: &InstanceHot, hitbox_count: usize) -> Option<u32> {
     (live_unpinned && in_range).then_some(hot.hitbox)
 }
 
+/// A member's height keys `(min_key, max_key)` ([`height_keys`]), from its
+/// AABB.
+#[inline(always)]
+fn member_keys(b: &InstanceBounds) -> [u32; 2] {
+    [
+        height_keys::min_key(b.aabb_min[1].to_bits()),
+        height_keys::max_key(b.aabb_max[1].to_bits()),
+    ]
+}
+
+/// A record's height range as keys (never a NaN's: a record holds a
+/// reduction's result).
+#[inline(always)]
+fn record_keys(record: &HitboxRecord) -> [u32; 2] {
+    [
+        height_keys::min_key(record.min_y.to_bits()),
+        height_keys::max_key(record.max_y.to_bits()),
+    ]
+}
+
+/// Writes the height range `[lo, hi]` (keys) into `record`.
+#[inline(always)]
+fn set_range(record: &mut HitboxRecord, [lo, hi]: [u32; 2]) {
+    record.min_y = f32::from_bits(height_keys::from_min_key(lo));
+    record.max_y = f32::from_bits(height_keys::from_max_key(hi));
+}
+
 /// An extent being reduced: height keys ([`height_keys`]) and the cost word.
 #[derive(Clone, Copy)]
 struct Reduction {
@@ -114,24 +145,12 @@ impl Reduction {
         cost: 0,
     };
 
-    /// Folds in the member in slot `slot` of `instances`.
+    /// Folds in a member with height keys `keys`, unique-BLAS or not.
     #[inline(always)]
-    fn add(&mut self, instances: &InstanceArrays, slot: usize) {
-        let (Some(m), Some(b)) = (instances.hot().get(slot), instances.bounds().get(slot)) else {
-            return;
-        };
-        self.min_key = self
-            .min_key
-            .min(height_keys::min_key(b.aabb_min[1].to_bits()));
-        self.max_key = self
-            .max_key
-            .max(height_keys::max_key(b.aabb_max[1].to_bits()));
-        let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
-        self.cost = self.cost.wrapping_add(if unique {
-            hitbox_bits::COST_UNIQUE
-        } else {
-            hitbox_bits::COST_SHARED
-        });
+    fn add(&mut self, [lo, hi]: [u32; 2], unique: bool) {
+        self.min_key = self.min_key.min(lo);
+        self.max_key = self.max_key.max(hi);
+        self.cost = self.cost.wrapping_add(cost_of(unique));
     }
 
     fn extent(&self) -> HitboxExtent {
@@ -163,9 +182,10 @@ impl Reduction {
 /// ```
 pub fn write_extents(instances: &InstanceArrays, hitboxes: &mut [HitboxRecord]) {
     let mut acc = vec![Reduction::EMPTY; hitboxes.len()];
-    for (slot, m) in instances.hot().iter().enumerate() {
+    for (m, b) in instances.hot().iter().zip(instances.bounds()) {
         if let Some(h) = member_of(m, acc.len()) {
-            acc[h as usize].add(instances, slot);
+            let unique = m.packed & instance_bits::UNIQUE_BLAS != 0;
+            acc[h as usize].add(member_keys(b), unique);
         }
     }
     for (record, r) in hitboxes.iter_mut().zip(&acc) {
@@ -177,7 +197,8 @@ pub fn write_extents(instances: &InstanceArrays, hitboxes: &mut [HitboxRecord]) 
 const NONE: u32 = u32::MAX;
 
 /// Bit of [`ExtentTracker`]'s per-slot hitbox word: the member counts as
-/// unique-BLAS in its hitbox's cost word (hitbox indices stay below 2^24).
+/// unique-BLAS in its hitbox's cost word (members' hitbox indices are below
+/// it, [`member_of`]).
 const UNIQUE: u32 = 1 << 31;
 
 /// The cost word's share of one member.
@@ -328,10 +349,7 @@ impl ExtentTracker {
                 Some(hitbox) => hitbox,
                 None => NONE,
             };
-            let keys = [
-                height_keys::min_key(b.aabb_min[1].to_bits()),
-                height_keys::max_key(b.aabb_max[1].to_bits()),
-            ];
+            let keys = member_keys(b);
             let before = self.linked[s];
             if before == now && (now == NONE || self.keys[s] == keys) {
                 continue; // nothing this hitbox's extent depends on changed
@@ -386,9 +404,8 @@ impl ExtentTracker {
         };
         self.touch(hitbox, record);
         record.cost = record.cost.wrapping_sub(cost_of(unique));
-        let on_edge = keys[0] == height_keys::min_key(record.min_y.to_bits())
-            || keys[1] == height_keys::max_key(record.max_y.to_bits());
-        if on_edge {
+        let [lo, hi] = record_keys(record);
+        if keys[0] == lo || keys[1] == hi {
             self.touch[hitbox as usize] = Touch::Recompute;
         }
     }
@@ -416,14 +433,12 @@ impl ExtentTracker {
             return;
         }
         let [old, new] = keys;
-        let lo = height_keys::min_key(record.min_y.to_bits());
-        let hi = height_keys::max_key(record.max_y.to_bits());
+        let [lo, hi] = record_keys(record);
         if (old[0] == lo && new[0] > lo) || (old[1] == hi && new[1] < hi) {
             self.touch[hitbox as usize] = Touch::Recompute;
             return;
         }
-        record.min_y = f32::from_bits(height_keys::from_min_key(lo.min(new[0])));
-        record.max_y = f32::from_bits(height_keys::from_max_key(hi.max(new[1])));
+        set_range(record, [lo.min(new[0]), hi.max(new[1])]);
     }
 
     /// Adds a member with `keys` to `hitbox`'s extent in place (a hitbox
@@ -435,10 +450,8 @@ impl ExtentTracker {
         self.touch(hitbox, record);
         record.cost = record.cost.wrapping_add(cost_of(unique));
         if self.touch[hitbox as usize] == Touch::InPlace {
-            let lo = keys[0].min(height_keys::min_key(record.min_y.to_bits()));
-            let hi = keys[1].max(height_keys::max_key(record.max_y.to_bits()));
-            record.min_y = f32::from_bits(height_keys::from_min_key(lo));
-            record.max_y = f32::from_bits(height_keys::from_max_key(hi));
+            let [lo, hi] = record_keys(record);
+            set_range(record, [lo.min(keys[0]), hi.max(keys[1])]);
         }
     }
 
@@ -448,10 +461,7 @@ impl ExtentTracker {
         let mut slot = self.head.get(hitbox as usize).copied().unwrap_or(NONE);
         while slot != NONE {
             let s = slot as usize;
-            let [lo, hi] = self.keys[s];
-            r.min_key = r.min_key.min(lo);
-            r.max_key = r.max_key.max(hi);
-            r.cost = r.cost.wrapping_add(cost_of(self.linked[s] & UNIQUE != 0));
+            r.add(self.keys[s], self.linked[s] & UNIQUE != 0);
             slot = self.next[s];
         }
         r.extent()
