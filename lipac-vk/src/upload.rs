@@ -367,49 +367,47 @@ fn stage_records(
 /// cost]`, indices below `capacity`, one per index (the last one given, as
 /// `apply_uploads`' loop leaves it), by ascending index.
 fn extent_words(extents: &[(u32, HitboxExtent)], capacity: u32) -> Vec<[u32; 4]> {
-    let mut v: Vec<(u32, [u32; 3])> = extents
-        .iter()
-        .filter(|e| e.0 < capacity)
-        .map(|(i, e)| (*i, e.to_words()))
-        .collect();
-    v.sort_by_key(|e| e.0); // stable: equal indices keep their order
-    let mut out: Vec<[u32; 4]> = Vec::with_capacity(v.len());
-    for (i, [lo, hi, cost]) in v {
-        match out.last_mut() {
-            Some(last) if last[0] == i => *last = [i, lo, hi, cost],
-            _ => out.push([i, lo, hi, cost]),
-        }
-    }
-    out
+    let words = extents.iter().map(|(i, e)| (*i, e.to_words()));
+    one_per_key(words, capacity, |_, new| new)
+        .into_iter()
+        .map(|(i, [lo, hi, cost])| [i, lo, hi, cost])
+        .collect()
 }
 
 /// `(key, value)` pairs with keys below `capacity`, one per key (the last
 /// one given, as a sequential loop would leave it), by ascending key.
 fn last_wins(pairs: impl Iterator<Item = [u32; 2]>, capacity: u32) -> Vec<[u32; 2]> {
+    let pairs = pairs.map(|[k, v]| (k, v));
     one_per_key(pairs, capacity, |_, new| new)
+        .into_iter()
+        .map(|(k, v)| [k, v])
+        .collect()
 }
 
 /// `(key, floor)` pairs with keys below `capacity`, one per key (the
 /// largest floor: applying them one by one as `max` gives the same), by
 /// ascending key.
 fn max_wins(pairs: &[(u32, u32)], capacity: u32) -> Vec<[u32; 2]> {
-    one_per_key(pairs.iter().map(|&(k, f)| [k, f]), capacity, u32::max)
+    one_per_key(pairs.iter().copied(), capacity, u32::max)
+        .into_iter()
+        .map(|(k, v)| [k, v])
+        .collect()
 }
 
 /// `(key, value)` pairs with keys below `capacity`, by ascending key, the
 /// values of equal keys folded in the order given: `merge(earlier, later)`.
-fn one_per_key(
-    pairs: impl Iterator<Item = [u32; 2]>,
+fn one_per_key<V: Copy>(
+    pairs: impl Iterator<Item = (u32, V)>,
     capacity: u32,
-    merge: impl Fn(u32, u32) -> u32,
-) -> Vec<[u32; 2]> {
-    let mut v: Vec<[u32; 2]> = pairs.filter(|p| p[0] < capacity).collect();
-    v.sort_by_key(|p| p[0]); // stable: equal keys keep their order
-    let mut out: Vec<[u32; 2]> = Vec::with_capacity(v.len());
-    for p in v {
+    merge: impl Fn(V, V) -> V,
+) -> Vec<(u32, V)> {
+    let mut v: Vec<(u32, V)> = pairs.filter(|p| p.0 < capacity).collect();
+    v.sort_by_key(|p| p.0); // stable: equal keys keep their order
+    let mut out: Vec<(u32, V)> = Vec::with_capacity(v.len());
+    for (k, value) in v {
         match out.last_mut() {
-            Some(last) if last[0] == p[0] => last[1] = merge(last[1], p[1]),
-            _ => out.push(p),
+            Some(last) if last.0 == k => last.1 = merge(last.1, value),
+            _ => out.push((k, value)),
         }
     }
     out
