@@ -2,8 +2,8 @@
 //! reference.
 //!
 //! Runs once per frame before the TLAS build, over exactly the buffers a GPU
-//! backend holds: the instance arrays ([`InstanceArrays`]: hot, heights,
-//! TLAS records and bounds, one of each per slot), the hitbox records and
+//! backend holds: the instance arrays ([`InstanceArrays`]: hot, TLAS
+//! records and bounds, one of each per slot), the hitbox records and
 //! the output array of [`TlasInstance`]s. Every slot's hot part is read; an
 //! active slot's TLAS record (64 bytes, one cache line, copied as it is)
 //! and an omitted slot's bounds only where they are emitted. The GPU

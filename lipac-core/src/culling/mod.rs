@@ -822,7 +822,7 @@ impl<H: HitboxIndex> Culling<H> {
     // ---- the frame ------------------------------------------------------
 
     /// Starts frame `frame`: releases quarantined slots, resets the hitboxes'
-    /// hits and heights ([`crate::assembly::begin_frame`]) and clears the
+    /// hits ([`crate::assembly::begin_frame`]) and clears the
     /// instance hit counters. Fails if frames go backwards or the last
     /// frame's commands were not taken ([`Culling::take_commands`]).
     pub fn begin_frame(&mut self, frame: u64) -> Result<(), CoreError> {

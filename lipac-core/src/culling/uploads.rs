@@ -4,7 +4,7 @@
 //!
 //! The rule: the state bits of an instance record belong to Algorithm 2 (the
 //! GPU). Upload [`Uploads::records`] (all three arrays of
-//! [`InstanceArrays`]: hot, heights, cold) *keeping* the state bits of the
+//! [`InstanceArrays`]: hot, TLAS records, bounds) *keeping* the state bits of the
 //! GPU copy's hot record (bits [`instance_bits::STATE_MASK`]), then apply
 //! [`Uploads::state_overrides`] and [`Uploads::hitbox_overrides`], which are
 //! exactly the CPU's writes since the last take, and raise the decayed
@@ -27,7 +27,7 @@ use super::Culling;
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Uploads {
     /// Slot ranges whose records changed (sorted, disjoint): upload those
-    /// slots of `registry().records()` (hot, heights and cold), **keeping the
+    /// slots of `registry().records()` (hot, TLAS records and bounds), **keeping the
     /// state bits** of the GPU copy (see [`apply_uploads`]).
     pub records: Vec<Range<u32>>,
     /// The CPU's writes of state bits since the last take, by ascending slot
@@ -57,7 +57,7 @@ pub struct Uploads {
 
 /// Writes `uploads` into a GPU-side copy of the instance arrays, the
 /// per-slot rates and the hitbox buffer the way a GPU backend must: the
-/// slots of the record ranges (hot, heights, cold) without their state
+/// slots of the record ranges (hot, TLAS records, bounds) without their state
 /// bits, then the overrides, then the rate floors, then the hitbox extents. `records` is the CPU's
 /// instance buffer; `gpu_instances` and `gpu_rates` are grown to its length
 /// (new rates 0). Entries past the buffers are ignored. Used by tests and
