@@ -25,7 +25,7 @@
 //! in one pass (the specification, and what a caller of
 //! [`crate::assembly::assemble_tlas`] without a [`crate::culling::Culling`]
 //! runs after changing records). [`crate::culling::Culling`] keeps them
-//! incrementally ([`ExtentTracker`]: per hitbox a list of its members and
+//! incrementally (`ExtentTracker`: per hitbox a list of its members and
 //! each member's cached height keys, so that a written slot costs a
 //! comparison, an update in place, or a walk over a hitbox's members where
 //! one left the edge of its range); the extents that changed go to the GPU in
