@@ -37,6 +37,7 @@ use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
 use crate::snapshot::{Snapshot, StrategySnapshot};
+use crate::strategy::hindsight::Hindsight;
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::{
     FrameContext, FrustumRadius, Full, Heuristic, InstanceCatalog, Oracle, Strategy, StrategyKind,
@@ -182,7 +183,7 @@ impl Default for CompareConfig {
             frames: None,
             width: 128,
             height: 72,
-            strategies: StrategyKind::ALL.to_vec(),
+            strategies: StrategyKind::DEFAULT.to_vec(),
             share_ground_truth: true,
             threads: 0,
             adaptive_levels: None,
@@ -302,6 +303,7 @@ pub fn make_strategy(
             Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
         }
         StrategyKind::Oracle => Box::new(Oracle::new(scene)?),
+        StrategyKind::Hindsight => Box::new(Hindsight::new(scene, Hindsight::DEFAULT_FRAMES)?),
     })
 }
 

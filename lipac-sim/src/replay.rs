@@ -119,7 +119,7 @@ impl ReplayConfig {
             width: self.width,
             height: self.height,
             strategies: if self.strategies.is_empty() && self.lipac_variants.is_empty() {
-                StrategyKind::ALL.to_vec()
+                StrategyKind::DEFAULT.to_vec()
             } else {
                 self.strategies.clone()
             },

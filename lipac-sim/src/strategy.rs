@@ -13,6 +13,7 @@
 //! | [`Heuristic`] | instances near the camera or large on screen ([`ActivationHeuristic`]) |
 //! | [`lipac::Lipac`] | what LiPaC's hit feedback keeps, plus counting boxes; optionally with latency mitigation |
 //! | [`Oracle`] | exactly the instances the ground-truth paths hit this frame, and the pinned ones (terrain) |
+//! | [`hindsight::Hindsight`] | the instances the ground-truth paths hit in the last `k` frames, and the pinned ones (a reference, asked for by name) |
 //!
 //! # One loop: every strategy on the Manager
 //!
@@ -43,6 +44,7 @@
 //! error therefore measures culling alone. The BLAS work each strategy
 //! would pay is what its scheduler reports.
 
+pub mod hindsight;
 pub mod lipac;
 
 use std::collections::HashMap;
@@ -688,11 +690,26 @@ pub enum StrategyKind {
     LipacLatency,
     /// [`Oracle`].
     Oracle,
+    /// [`hindsight::Hindsight`] with
+    /// [`hindsight::Hindsight::DEFAULT_FRAMES`] (a reference: only when
+    /// named, not in [`StrategyKind::DEFAULT`]).
+    Hindsight,
 }
 
 impl StrategyKind {
-    /// All, in report order.
-    pub const ALL: [StrategyKind; 6] = [
+    /// Every kind, in report order.
+    pub const ALL: [StrategyKind; 7] = [
+        StrategyKind::Full,
+        StrategyKind::Frustum,
+        StrategyKind::Heuristic,
+        StrategyKind::Lipac,
+        StrategyKind::LipacLatency,
+        StrategyKind::Oracle,
+        StrategyKind::Hindsight,
+    ];
+    /// What a comparison runs when none are named, in report order: every
+    /// kind but the [`StrategyKind::Hindsight`] reference.
+    pub const DEFAULT: [StrategyKind; 6] = [
         StrategyKind::Full,
         StrategyKind::Frustum,
         StrategyKind::Heuristic,
@@ -700,6 +717,12 @@ impl StrategyKind {
         StrategyKind::LipacLatency,
         StrategyKind::Oracle,
     ];
+
+    /// Whether it reads the ground truth's hits (the oracle and hindsight):
+    /// a yardstick, never on a sweep's fronts.
+    pub fn is_reference(self) -> bool {
+        matches!(self, Self::Oracle | Self::Hindsight)
+    }
     /// The report name.
     pub fn name(self) -> &'static str {
         match self {
@@ -709,6 +732,7 @@ impl StrategyKind {
             Self::Lipac => "lipac",
             Self::LipacLatency => "lipac-latency",
             Self::Oracle => "oracle",
+            Self::Hindsight => "hindsight",
         }
     }
     /// The kind named `name`.

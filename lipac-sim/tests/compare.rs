@@ -4,11 +4,14 @@
 
 use glam::{Affine3A, Vec3};
 use lipac_sim::camera::{CameraPath, FlyCamera};
-use lipac_sim::compare::{run, run_choice, CompareConfig, CompareReport, SceneChoice};
+use lipac_sim::compare::{
+    run, run_choice, run_contenders, CompareConfig, CompareReport, Contender, SceneChoice,
+};
 use lipac_sim::mesh::{cuboid, material, mirror_block, MeshLibrary};
 use lipac_sim::report::{write_report, CSV_HEADER, PLOTS};
 use lipac_sim::scene::{flags, Scene, SceneConfig};
-use lipac_sim::strategy::StrategyKind;
+use lipac_sim::strategy::hindsight::Hindsight;
+use lipac_sim::strategy::{Oracle, StrategyKind};
 
 fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) -> CompareReport {
     let config = CompareConfig {
@@ -32,7 +35,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
 fn same_seed_gives_identical_metrics() {
     let a = small(5, 32, 18, &StrategyKind::ALL, true);
     let b = small(5, 32, 18, &StrategyKind::ALL, true);
-    assert_eq!(a.strategies.len(), 6);
+    assert_eq!(a.strategies.len(), StrategyKind::ALL.len());
     for (x, y) in a.strategies.iter().zip(&b.strategies) {
         assert_eq!(x.name, y.name);
         assert_eq!(x.last_geometry, y.last_geometry);
@@ -81,6 +84,73 @@ fn full_scene_is_exact_and_the_oracle_nearly() {
     assert!(oracle.summary.mean_instances < full.summary.mean_instances);
     // LiPaC starts cold (everything culled), so its error is not zero.
     assert!(r.strategy("lipac").unwrap().summary.max_error > 1e-3);
+}
+
+#[test]
+fn hindsight_traces_what_the_ground_truth_hit_in_its_window() {
+    // Each run of f + 1 frames gives frame f's sets: the oracle's (this
+    // frame's hits and the pinned terrain) and hindsight's over 2 frames.
+    const FRAMES: u32 = 7;
+    let (mut oracle, mut hindsight) = (Vec::new(), Vec::new());
+    let mut pinned = Vec::new();
+    for frames in 1..=FRAMES {
+        let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+        pinned = (0u32..)
+            .zip(scene.instances())
+            .filter(|(_, i)| i.is_pinned())
+            .map(|(s, _)| s)
+            .collect();
+        let path = CameraPath::flythrough(&scene, 48.0 / 27.0);
+        let contenders = vec![
+            Contender {
+                name: "oracle".into(),
+                strategy: Box::new(Oracle::new(&scene).unwrap()),
+            },
+            Contender {
+                name: "hindsight 2".into(),
+                strategy: Box::new(Hindsight::new(&scene, 2).unwrap()),
+            },
+        ];
+        let config = CompareConfig {
+            frames: Some(frames),
+            width: 48,
+            height: 27,
+            ..CompareConfig::default()
+        };
+        let r = run_contenders(
+            "small",
+            &mut scene,
+            &path,
+            &config,
+            contenders,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        oracle.push(r.strategy("oracle").unwrap().last_geometry.clone());
+        hindsight.push(r.strategy("hindsight 2").unwrap().last_geometry.clone());
+    }
+    let union = |sets: &[Vec<u32>]| {
+        let mut u: Vec<u32> = pinned
+            .iter()
+            .chain(sets.iter().flatten())
+            .copied()
+            .collect();
+        u.sort_unstable();
+        u.dedup();
+        u
+    };
+    for f in 0..FRAMES as usize {
+        let window = &oracle[f.saturating_sub(2)..f];
+        assert_eq!(hindsight[f], union(window), "frame {f}");
+    }
+    // The window matters: the last frame's set is not all the past hits.
+    let last = FRAMES as usize - 1;
+    assert_ne!(union(&oracle[..last]), union(&oracle[last - 2..last]));
+    assert!(Hindsight::new(
+        &Scene::generate(&SceneChoice::Small.config(None)).unwrap(),
+        0
+    )
+    .is_err());
 }
 
 fn ground(lib: &mut MeshLibrary) -> u32 {
@@ -256,7 +326,7 @@ fn report_files_are_well_formed() {
     let mut lines = csv.lines();
     assert_eq!(lines.next(), Some(CSV_HEADER));
     let rows: Vec<&str> = lines.collect();
-    assert_eq!(rows.len(), 4 * 6);
+    assert_eq!(rows.len(), 4 * StrategyKind::ALL.len());
     let columns = CSV_HEADER.split(',').count();
     assert!(rows.iter().all(|l| l.split(',').count() == columns));
 
@@ -281,12 +351,19 @@ fn report_files_are_well_formed() {
     }
     for plot in &PLOTS[..4] {
         let svg = std::fs::read_to_string(dir.join(plot)).unwrap();
-        assert!(svg.matches("<polyline").count() >= 6, "{plot}");
+        assert!(
+            svg.matches("<polyline").count() >= StrategyKind::ALL.len(),
+            "{plot}"
+        );
     }
     // One point per strategy plus its legend marker.
     for plot in &PLOTS[4..] {
         let scatter = std::fs::read_to_string(dir.join(plot)).unwrap();
-        assert_eq!(scatter.matches("<circle").count(), 2 * 6, "{plot}");
+        assert_eq!(
+            scatter.matches("<circle").count(),
+            2 * StrategyKind::ALL.len(),
+            "{plot}"
+        );
     }
 
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();

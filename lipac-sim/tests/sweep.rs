@@ -14,6 +14,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         width: 64,
         height: 36,
         baselines: vec![StrategyKind::Full, StrategyKind::Oracle],
+        hindsight: Vec::new(),
         // 2304 rays: ×1 gives θa = 2, ×16 gives θa = 18; the default
         // decayed rule's activation rate, 0.11 hits per frame here, at ×16
         // asks for more than one hit.

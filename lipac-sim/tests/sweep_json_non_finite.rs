@@ -44,6 +44,7 @@ fn infinite_errors_survive_merge_and_replot() {
         width: 32,
         height: 18,
         baselines: vec![StrategyKind::Full],
+        hindsight: Vec::new(),
         factors: vec![1.0],
         latency: vec![],
         cell_sizes: vec![],

@@ -19,6 +19,7 @@ fn tiny(frames: u32) -> SweepConfig {
         width: 64,
         height: 36,
         baselines: vec![StrategyKind::Full, StrategyKind::Frustum],
+        hindsight: Vec::new(),
         // 2304 rays: ×1 gives θa = 2, ×4 gives θa = 4.
         factors: vec![1.0, 4.0],
         latency: vec![ActivationHeuristic::default()],

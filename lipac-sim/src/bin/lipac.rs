@@ -68,6 +68,7 @@ enum StrategyArg {
     Lipac,
     LipacLatency,
     Oracle,
+    Hindsight,
 }
 
 impl From<StrategyArg> for StrategyKind {
@@ -79,6 +80,7 @@ impl From<StrategyArg> for StrategyKind {
             StrategyArg::Lipac => StrategyKind::Lipac,
             StrategyArg::LipacLatency => StrategyKind::LipacLatency,
             StrategyArg::Oracle => StrategyKind::Oracle,
+            StrategyArg::Hindsight => StrategyKind::Hindsight,
         }
     }
 }
@@ -277,6 +279,13 @@ struct SweepArgs {
         default_value = "full,frustum,heuristic,oracle"
     )]
     baselines: Vec<StrategyArg>,
+    /// Hindsight references beside the baselines, one per window in
+    /// frames, e.g. `1,2,4,8`: each traces what the ground truth hit in
+    /// that many past frames (and the pinned terrain), as a causal
+    /// predictor with perfect memory of past hits would; named
+    /// "hindsight K", never on a front.
+    #[arg(long, value_delimiter = ',')]
+    hindsight: Vec<u32>,
     /// Scene seed (default: each scene's own).
     #[arg(long)]
     seed: Option<u64>,
@@ -403,6 +412,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             width: a.width,
             height: a.height,
             baselines: a.baselines.iter().map(|&s| s.into()).collect(),
+            hindsight: a.hindsight.clone(),
             factors: a.factors.clone(),
             latency,
             cell_sizes: a
@@ -523,7 +533,7 @@ fn main() -> ExitCode {
         Command::Sweep(args) => return sweep_main(args),
     };
     let strategies: Vec<StrategyKind> = if strategies.is_empty() {
-        StrategyKind::ALL.to_vec()
+        StrategyKind::DEFAULT.to_vec()
     } else {
         strategies.into_iter().map(Into::into).collect()
     };

@@ -65,14 +65,15 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<bool> {
         .collect()
 }
 /// Recomputes the Pareto flags of every point, per scene (see the module
-/// docs; the oracle is never on a front).
+/// docs; the references, the oracle and hindsight, are never on a front).
 pub fn mark_fronts(report: &mut SweepReport) {
     let names: Vec<String> = report.scenes.iter().map(|s| s.name.clone()).collect();
     for name in names {
         let mut idx = Vec::new();
         let mut pts = Vec::new();
         for (i, p) in report.points.iter().enumerate() {
-            if p.scene == name && p.strategy != StrategyKind::Oracle.name() {
+            let reference = StrategyKind::from_name(&p.strategy).is_some_and(|k| k.is_reference());
+            if p.scene == name && !reference {
                 idx.push(i);
                 pts.push(p.clone());
             }

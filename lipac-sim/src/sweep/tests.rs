@@ -79,6 +79,33 @@ fn variants_follow_the_config_and_drop_duplicates() {
     assert!(bad.variants().is_err());
 }
 
+#[test]
+fn hindsight_windows_are_named_references_and_a_zero_window_is_refused() {
+    let c = SweepConfig {
+        baselines: vec![StrategyKind::Oracle, StrategyKind::Hindsight],
+        hindsight: vec![2, 8, 2],
+        factors: vec![1.0],
+        latency: Vec::new(),
+        cell_sizes: Vec::new(),
+        streaks: Vec::new(),
+        ..SweepConfig::default()
+    };
+    let (v, skipped) = c.variants().unwrap();
+    let refs: Vec<(&str, Option<u32>)> = v
+        .iter()
+        .filter(|x| x.kind == StrategyKind::Hindsight)
+        .map(|x| (x.name.as_str(), x.hindsight))
+        .collect();
+    // The baseline is the default window, 8, so "hindsight 8" repeats it.
+    assert_eq!(refs, [("hindsight", Some(8)), ("hindsight 2", Some(2))]);
+    assert_eq!(skipped, ["hindsight 8", "hindsight 2"]);
+    let bad = SweepConfig {
+        hindsight: vec![0],
+        ..c
+    };
+    assert!(bad.variants().is_err());
+}
+
 /// The default sweep with the decayed-rule variants `specs`.
 fn with_decayed(specs: &[&str]) -> SweepConfig {
     let base = crate::strategy::lipac::LipacConfig::DEFAULT_DECAYED;
@@ -410,6 +437,8 @@ fn time_fronts_of_a_hand_made_sweep() {
             point("a", "mid", "lipac", 20.0, 3.0, 0.1),
             point("a", "worse", "lipac", 30.0, 1.0, 0.1),
             point("a", "oracle", "oracle", 5.0, 0.1, 0.0),
+            // Hindsight reads the ground truth too: never on a front.
+            point("a", "hindsight 2", "hindsight", 5.0, 0.1, 0.05),
             // Scene b is its own front: its one point is on it although
             // scene a's cheap point would dominate it.
             point("b", "mid", "lipac", 50.0, 5.0, 0.3),
@@ -419,10 +448,13 @@ fn time_fronts_of_a_hand_made_sweep() {
     };
     mark_fronts(&mut r);
     let on = |f: fn(&SweepPoint) -> bool| -> Vec<bool> { r.points.iter().map(f).collect() };
-    assert_eq!(on(|p| p.front_time), [true, true, true, false, false, true]);
+    assert_eq!(
+        on(|p| p.front_time),
+        [true, true, true, false, false, false, true]
+    );
     assert_eq!(
         on(|p| p.front_gpu_time),
-        [true, true, false, true, false, true]
+        [true, true, false, true, false, false, true]
     );
     // The fronts follow COSTS' order: 0 is frame time, 1 modelled GPU time.
     assert_eq!(r.points[2].fronts(), [true, false, false, false]);

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::compare::{make_strategy, Contender, LipacStart, SceneChoice};
 use crate::error::SimError;
 use crate::scene::Scene;
+use crate::strategy::hindsight::Hindsight;
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::StrategyKind;
 use crate::trace_scene::TraceSceneOptions;
@@ -61,6 +62,8 @@ pub struct Variant {
     pub lipac: Option<LipacConfig>,
     /// Threshold factor (LiPaC variants).
     pub factor: Option<f64>,
+    /// The window of a [`StrategyKind::Hindsight`] reference, in frames.
+    pub hindsight: Option<u32>,
 }
 
 /// Settings of a sweep.
@@ -78,6 +81,10 @@ pub struct SweepConfig {
     pub height: u32,
     /// Baseline strategies.
     pub baselines: Vec<StrategyKind>,
+    /// Windows of [`crate::strategy::hindsight::Hindsight`] references
+    /// run beside the baselines, in frames (each at least 1; named
+    /// "hindsight K").
+    pub hindsight: Vec<u32>,
     /// Threshold factors of plain LiPaC (default cells, n_a = 4, n_d = 15).
     pub factors: Vec<f64>,
     /// Latency-mitigation heuristics, each run as LiPaC + latency
@@ -121,7 +128,8 @@ impl Default for SweepConfig {
     /// frustum, heuristic and oracle; factors 0.5, 1, 2, 4; latency
     /// mitigation with the default heuristic and a wider one (100 m, 0.05);
     /// 16 m and 64 m cells besides the default 32 m;
-    /// `(n_a, n_d)` = (1, 15) and (4, 30); no other decayed-rule settings.
+    /// `(n_a, n_d)` = (1, 15) and (4, 30); no other decayed-rule settings;
+    /// no hindsight references.
     fn default() -> Self {
         Self {
             scenes: vec![SceneChoice::City, SceneChoice::Mirror],
@@ -135,6 +143,7 @@ impl Default for SweepConfig {
                 StrategyKind::Heuristic,
                 StrategyKind::Oracle,
             ],
+            hindsight: Vec::new(),
             factors: vec![0.5, 1.0, 2.0, 4.0],
             latency: vec![
                 ActivationHeuristic::default(),
@@ -477,6 +486,22 @@ impl SweepConfig {
                 kind: k,
                 lipac: None,
                 factor: None,
+                hindsight: (k == StrategyKind::Hindsight).then_some(Hindsight::DEFAULT_FRAMES),
+            });
+        }
+        for &frames in &self.hindsight {
+            if frames == 0 {
+                return Err(SimError::BadConfig(
+                    "hindsight windows must be at least one frame",
+                ));
+            }
+            all.push(Variant {
+                name: format!("{} {frames}", StrategyKind::Hindsight.name()),
+                family: Family::Baseline,
+                kind: StrategyKind::Hindsight,
+                lipac: None,
+                factor: None,
+                hindsight: Some(frames),
             });
         }
         let lipac = |name: String, family, kind, config: LipacConfig, factor| Variant {
@@ -485,6 +510,7 @@ impl SweepConfig {
             kind,
             lipac: Some(config),
             factor: Some(factor),
+            hindsight: None,
         };
         for &f in &self.factors {
             // The paper's thresholds scaled as ever; the default decision
@@ -614,7 +640,10 @@ impl SweepConfig {
         let mut kept: Vec<Variant> = Vec::new();
         let mut skipped = Vec::new();
         for v in all {
-            if kept.iter().any(|k| k.kind == v.kind && k.lipac == v.lipac) {
+            if kept
+                .iter()
+                .any(|k| k.kind == v.kind && k.lipac == v.lipac && k.hindsight == v.hindsight)
+            {
                 skipped.push(v.name);
             } else if kept.iter().any(|k| k.name == v.name) {
                 return Err(SimError::BadConfig("two sweep variants share a name"));
@@ -645,9 +674,10 @@ pub(super) fn make_contender(
     scene: &Scene,
     base: &LipacConfig,
 ) -> Result<Contender, SimError> {
-    let strategy = match &v.lipac {
-        Some(c) => Box::new(Lipac::new(scene, c.clone())?) as _,
-        None => make_strategy(v.kind, scene, base)?,
+    let strategy = match (&v.lipac, v.hindsight) {
+        (Some(c), _) => Box::new(Lipac::new(scene, c.clone())?) as _,
+        (None, Some(frames)) => Box::new(Hindsight::new(scene, frames)?) as _,
+        (None, None) => make_strategy(v.kind, scene, base)?,
     };
     Ok(Contender {
         name: v.name.clone(),
