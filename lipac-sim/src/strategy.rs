@@ -662,17 +662,23 @@ impl Strategy for Oracle {
         _previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        let n = ctx.scene.instances().len();
-        if ctx.ground_truth_hits.len() != n {
-            return Err(SimError::SizeMismatch {
-                a: ctx.ground_truth_hits.len(),
-                b: n,
-            });
-        }
-        let hits = ctx.ground_truth_hits;
+        let hits = ground_truth_hits(ctx)?;
         self.0
             .run_selected(ctx, out, |slot, inst| hits[slot] > 0 || inst.is_pinned())
     }
+}
+
+/// This frame's ground-truth hits, one counter per scene instance (the
+/// references' input: [`Oracle`], [`hindsight::Hindsight`]).
+fn ground_truth_hits<'a>(ctx: &FrameContext<'a>) -> Result<&'a [u32], SimError> {
+    let n = ctx.scene.instances().len();
+    if ctx.ground_truth_hits.len() != n {
+        return Err(SimError::SizeMismatch {
+            a: ctx.ground_truth_hits.len(),
+            b: n,
+        });
+    }
+    Ok(ctx.ground_truth_hits)
 }
 
 /// The strategies the comparison knows.
@@ -697,16 +703,6 @@ pub enum StrategyKind {
 }
 
 impl StrategyKind {
-    /// Every kind, in report order.
-    pub const ALL: [StrategyKind; 7] = [
-        StrategyKind::Full,
-        StrategyKind::Frustum,
-        StrategyKind::Heuristic,
-        StrategyKind::Lipac,
-        StrategyKind::LipacLatency,
-        StrategyKind::Oracle,
-        StrategyKind::Hindsight,
-    ];
     /// What a comparison runs when none are named, in report order: every
     /// kind but the [`StrategyKind::Hindsight`] reference.
     pub const DEFAULT: [StrategyKind; 6] = [
@@ -717,6 +713,17 @@ impl StrategyKind {
         StrategyKind::LipacLatency,
         StrategyKind::Oracle,
     ];
+    /// Every kind, in report order: [`StrategyKind::DEFAULT`], then the
+    /// hindsight reference.
+    pub const ALL: [StrategyKind; 7] = {
+        let mut all = [StrategyKind::Hindsight; 7];
+        let mut i = 0;
+        while i < Self::DEFAULT.len() {
+            all[i] = Self::DEFAULT[i];
+            i += 1;
+        }
+        all
+    };
 
     /// Whether it reads the ground truth's hits (the oracle and hindsight):
     /// a yardstick, never on a sweep's fronts.

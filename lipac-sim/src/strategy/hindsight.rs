@@ -10,7 +10,7 @@
 //! asks for more than that (docs/EVALUATION.md, "Hindsight: what past hits
 //! allow"). Like the oracle it is a reference, never on a sweep's fronts.
 
-use super::{FrameContext, SetStrategy, Strategy, StrategyFrame};
+use super::{ground_truth_hits, FrameContext, SetStrategy, Strategy, StrategyFrame};
 use crate::error::SimError;
 use crate::scene::Scene;
 use crate::traversal::Counters;
@@ -62,11 +62,11 @@ impl Strategy for Hindsight {
         _previous: Option<&Counters>,
         out: &mut Vec<TlasInstance>,
     ) -> Result<StrategyFrame, SimError> {
-        let n = ctx.scene.instances().len();
-        if ctx.ground_truth_hits.len() != n || self.last_hit.len() != n {
+        let hits = ground_truth_hits(ctx)?;
+        if self.last_hit.len() != hits.len() {
             return Err(SimError::SizeMismatch {
-                a: ctx.ground_truth_hits.len(),
-                b: n,
+                a: self.last_hit.len(),
+                b: hits.len(),
             });
         }
         let (now, window, last_hit) = (ctx.frame, self.frames, &self.last_hit);
@@ -78,8 +78,8 @@ impl Strategy for Hindsight {
             inst.is_pinned() || last_hit[slot].is_some_and(recent)
         })?;
         // This frame's hits become the past only now.
-        for (last, &hits) in self.last_hit.iter_mut().zip(ctx.ground_truth_hits) {
-            if hits > 0 {
+        for (last, &h) in self.last_hit.iter_mut().zip(hits) {
+            if h > 0 {
                 *last = Some(now);
             }
         }
