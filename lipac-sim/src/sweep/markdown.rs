@@ -21,8 +21,8 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
          Wall time {:.1} s. Every configuration of a scene renders against the same ground \
          truth (rendered once per frame). Front columns: T = on the (frame time, error) Pareto \
          front (measured on the CPU), G = (modelled GPU frame time, error), M = (memory, error), \
-         B = (builds, error); the oracle (it reads the ground truth's \
-         hits) is a reference, never on a front.\n",
+         B = (builds, error); the oracle and hindsight (they read the ground truth's \
+         hits) are references, never on a front.\n",
         r.frames, r.width, r.height, r.rays_per_frame, r.wall_s
     );
     if !r.skipped.is_empty() {

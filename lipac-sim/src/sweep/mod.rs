@@ -19,9 +19,11 @@
 //! For each scene and each cost of [`COSTS`] (frame time measured on the
 //! CPU, modelled GPU frame time, memory, builds) the points not
 //! dominated in (cost, error) form the Pareto front ([`pareto_front`]). The
-//! oracle is plotted as a reference but kept off the fronts: it reads the
-//! ground truth's hits, no renderer can do that, and its zero error would
-//! dominate every costlier configuration.
+//! oracle and the hindsight references
+//! ([`crate::strategy::StrategyKind::is_reference`]) are plotted but kept
+//! off the fronts: they read the ground truth's hits, no renderer can do
+//! that, and the oracle's zero error would dominate every costlier
+//! configuration.
 //!
 //! **On many machines.** [`shard`] splits a sweep into disjoint parts
 //! (`lipac sweep --shard K/N`) and merges their results into the report of
