@@ -309,7 +309,7 @@ pub fn rule_description(t: &Thresholds) -> String {
     }
 }
 
-/// How LiPaC starts ([`LipacConfig::warm_start`], its hold and cuts), in
+/// How LiPaC starts ([`LipacConfig::warm_start`](crate::strategy::lipac::LipacConfig::warm_start), its hold and cuts), in
 /// words for the report's header.
 ///
 /// ```
