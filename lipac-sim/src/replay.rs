@@ -55,6 +55,7 @@ use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
 use crate::scene::Scene;
 use crate::snapshot::Snapshot;
+use crate::strategy::hindsight::Hindsight;
 use crate::strategy::lipac::{Lipac, LipacConfig};
 use crate::strategy::StrategyKind;
 
@@ -106,6 +107,11 @@ pub struct ReplayConfig {
     /// LiPaC variants here). Names must differ from each other and from
     /// the strategies'.
     pub lipac_variants: Vec<(String, LipacConfig)>,
+    /// Hindsight references run beside `strategies`, each under its report
+    /// name with its window in frames (geometry mode; `lipac sweep
+    /// --trace` puts its hindsight windows here). Names as for
+    /// `lipac_variants`.
+    pub hindsight_variants: Vec<(String, u32)>,
 }
 
 impl ReplayConfig {
@@ -118,7 +124,10 @@ impl ReplayConfig {
             frames: None,
             width: self.width,
             height: self.height,
-            strategies: if self.strategies.is_empty() && self.lipac_variants.is_empty() {
+            strategies: if self.strategies.is_empty()
+                && self.lipac_variants.is_empty()
+                && self.hindsight_variants.is_empty()
+            {
                 StrategyKind::DEFAULT.to_vec()
             } else {
                 self.strategies.clone()
@@ -136,7 +145,8 @@ impl ReplayConfig {
 
     /// The comparison of a geometry replay on `scene` named `name`: the
     /// strategies of [`ReplayConfig::compare_config`], then the
-    /// [`ReplayConfig::lipac_variants`].
+    /// [`ReplayConfig::lipac_variants`] and the
+    /// [`ReplayConfig::hindsight_variants`].
     pub(crate) fn comparison(&self, name: &str, scene: &Scene) -> Result<Comparison, SimError> {
         let cc = self.compare_config();
         let mut contenders = crate::compare::contenders_of(scene, &cc)?;
@@ -144,6 +154,12 @@ impl ReplayConfig {
             contenders.push(Contender {
                 name: variant.clone(),
                 strategy: Box::new(Lipac::new(scene, config.clone())?),
+            });
+        }
+        for (variant, frames) in &self.hindsight_variants {
+            contenders.push(Contender {
+                name: variant.clone(),
+                strategy: Box::new(Hindsight::new(scene, *frames)?),
             });
         }
         Comparison::with_contenders(name, scene, &cc, contenders)
@@ -165,6 +181,7 @@ impl Default for ReplayConfig {
             warm_start_at_cuts: false,
             warm_start_hold: None,
             lipac_variants: Vec::new(),
+            hindsight_variants: Vec::new(),
         }
     }
 }
@@ -409,6 +426,11 @@ pub fn replay_with_snapshots<R: Read>(
                     .into(),
             ))
         }
+        ReplayMode::HitsOnly if !config.hindsight_variants.is_empty() => Err(SimError::Replay(
+            "hindsight references need geometry mode: they read the ground truth's hits, \
+             which a hits-only replay does not render"
+                .into(),
+        )),
         ReplayMode::HitsOnly if !config.lipac_variants.is_empty() => Err(SimError::Replay(
             "LiPaC variants need geometry mode: a hits-only replay runs LiPaC's own \
              configuration against the recorded hits"

@@ -375,7 +375,65 @@ fn a_sweep_of_a_recorded_trace_gives_the_errors_of_its_replay() {
     };
     let e = sweep::run(&missing, &mut |_, _, _, _| {}).unwrap_err();
     assert!(e.to_string().contains("missing.bin"), "{e}");
+
+    // Hindsight references on the trace: each window under its own name,
+    // with the errors of a replay that runs the same window.
+    let references = SweepConfig {
+        baselines: vec![StrategyKind::Hindsight],
+        hindsight: vec![2],
+        factors: vec![],
+        latency: vec![],
+        ..config.clone()
+    };
+    let r = sweep::run(&references, &mut |_, _, _, _| {}).unwrap();
+    let names: Vec<&str> = r.points.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["hindsight", "hindsight 2"]);
+    let with_window = |mode| ReplayConfig {
+        strategies: vec![],
+        hindsight_variants: vec![("window 2".into(), 2)],
+        width: w,
+        height: h,
+        threads: 2,
+        mode,
+        ..ReplayConfig::default()
+    };
+    let replayed = replay(
+        TraceInput::open(&file).unwrap(),
+        &with_window(None),
+        &mut |_| {},
+    )
+    .unwrap();
+    let want: Vec<u64> = replayed
+        .strategy("window 2")
+        .unwrap()
+        .frames
+        .iter()
+        .map(|m| m.error.to_bits())
+        .collect();
+    let got: Vec<u64> = point_of(&r, "hindsight 2")
+        .frame_errors
+        .iter()
+        .map(|e| e.to_bits())
+        .collect();
+    assert_eq!(got, want);
+    // The two windows differ on this trace, so the names are not mixed up.
+    assert_ne!(
+        point_of(&r, "hindsight").frame_errors,
+        point_of(&r, "hindsight 2").frame_errors
+    );
+    // A hits-only replay renders no ground truth: refused.
+    let e = replay(
+        TraceInput::open(&file).unwrap(),
+        &with_window(Some(lipac_sim::replay::ReplayMode::HitsOnly)),
+        &mut |_| {},
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("hindsight"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+fn point_of<'a>(r: &'a SweepReport, name: &str) -> &'a lipac_sim::sweep::SweepPoint {
+    r.points.iter().find(|p| p.name == name).unwrap()
 }
 
 /// A trace of another scene (the small scene recorded with geometry,

@@ -227,6 +227,7 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
         warm_start_at_cuts: a.warm_start_at_cuts,
         warm_start_hold: a.warm_start_hold,
         lipac_variants: Vec::new(),
+        hindsight_variants: Vec::new(),
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());

@@ -361,7 +361,8 @@ pub fn run_shard(
 /// The variants `here` on the trace `file`, replayed in geometry mode
 /// (`lipac replay`'s choice of scene: built-in or the trace's own): the
 /// baselines as the replay's strategies, the LiPaC variants as its
-/// [`ReplayConfig::lipac_variants`]; the report's runs in the order of
+/// [`ReplayConfig::lipac_variants`], the hindsight references as its
+/// [`ReplayConfig::hindsight_variants`]; the report's runs in the order of
 /// `here`.
 fn replay_variants(
     file: &Path,
@@ -372,7 +373,7 @@ fn replay_variants(
     let replay = ReplayConfig {
         strategies: here
             .iter()
-            .filter(|v| v.lipac.is_none())
+            .filter(|v| v.lipac.is_none() && v.hindsight.is_none())
             .map(|v| v.kind)
             .collect(),
         width: config.width,
@@ -383,6 +384,10 @@ fn replay_variants(
         lipac_variants: here
             .iter()
             .filter_map(|v| v.lipac.clone().map(|c| (v.name.clone(), c)))
+            .collect(),
+        hindsight_variants: here
+            .iter()
+            .filter_map(|v| v.hindsight.map(|k| (v.name.clone(), k)))
             .collect(),
         ..ReplayConfig::default()
     };
