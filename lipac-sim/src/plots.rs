@@ -29,7 +29,8 @@ use plotters::style::Color as _;
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::metrics::{FrameMetrics, Summary};
-use crate::sweep::{SweepReport, COSTS};
+use crate::strategy::StrategyKind;
+use crate::sweep::{SweepPoint, SweepReport, COSTS};
 
 /// The palette series colours index into (cycled).
 pub const PALETTE: [(u8, u8, u8); 8] = [
@@ -567,8 +568,10 @@ pub fn scatter_plot(
 }
 
 /// The data of [`pareto_plot`]: per scene its points (filled circles, one
-/// colour per scene) and its front (dashed, through the front's points,
-/// which also get a black ring and their configuration's name).
+/// colour per scene), its references (the oracle and hindsight: hollow
+/// circles with their names, never on a front) and its front (dashed,
+/// through the front's points, which also get a black ring and their
+/// configuration's name).
 pub fn pareto_chart(r: &SweepReport, plot: usize) -> Plot {
     let (_, title, xlabel, cost) = COSTS[plot.min(COSTS.len() - 1)];
     let xs: Vec<f64> = r.points.iter().map(cost).collect();
@@ -592,23 +595,34 @@ pub fn pareto_chart(r: &SweepReport, plot: usize) -> Plot {
             color: Color::Palette(si),
             shape: Shape::Dashed(front),
         });
+        let at = |q: &SweepPoint| (cost(q), q.summary.mean_error);
         p.series.push(Series {
             name: Some(scene.name.clone()),
             color: Color::Palette(si),
             shape: Shape::Points {
-                at: of_scene()
-                    .map(|q| (cost(q), q.summary.mean_error))
-                    .collect(),
+                at: of_scene().filter(|q| !is_reference(q)).map(at).collect(),
                 r: 4,
                 filled: true,
             },
         });
+        let references: Vec<(f64, f64)> = of_scene().filter(|q| is_reference(q)).map(at).collect();
+        if !references.is_empty() {
+            p.series.push(Series {
+                name: Some(format!("{} references", scene.name)),
+                color: Color::Palette(si),
+                shape: Shape::Points {
+                    at: references,
+                    r: 4,
+                    filled: false,
+                },
+            });
+        }
         p.series.push(Series {
             name: None,
             color: Color::Palette(si),
             shape: Shape::Labels(
                 of_scene()
-                    .filter(|q| q.on_front(plot))
+                    .filter(|q| q.on_front(plot) || is_reference(q))
                     .map(|q| (cost(q), q.summary.mean_error, q.name.clone()))
                     .collect(),
             ),
@@ -624,6 +638,12 @@ pub fn pareto_chart(r: &SweepReport, plot: usize) -> Plot {
         },
     });
     p
+}
+
+/// Whether a sweep point is a reference that reads the ground truth
+/// ([`StrategyKind::is_reference`]).
+fn is_reference(q: &SweepPoint) -> bool {
+    StrategyKind::from_name(&q.strategy).is_some_and(StrategyKind::is_reference)
 }
 
 /// The scatter plot of cost `plot` (index into [`COSTS`]) against error

@@ -129,11 +129,12 @@ fn tiny_sweep_writes_well_formed_outputs() {
         let svg = std::fs::read_to_string(dir.join(file)).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
         let on_front: Vec<_> = r.points.iter().filter(|p| p.on_front(plot)).collect();
-        // One filled circle per point, one ring per front point, and the
-        // legend's markers (two scenes, the ring).
+        // One circle per point (the oracle's hollow), one ring per front
+        // point, and the legend's markers (two scenes, their references,
+        // the ring).
         assert_eq!(
             svg.matches("<circle").count(),
-            configs * 2 + on_front.len() + 3,
+            configs * 2 + on_front.len() + 5,
             "{file}"
         );
         let texts: Vec<String> = svg
@@ -143,10 +144,13 @@ fn tiny_sweep_writes_well_formed_outputs() {
             .filter_map(|(_, rest)| rest.split_once("</text>"))
             .map(|(s, _)| s.trim().to_string())
             .collect();
-        // Legend: each scene, its front and the ring, once each.
+        // Legend: each scene, its references, its front and the ring,
+        // once each.
         for entry in [
             "small",
             "city",
+            "small references",
+            "city references",
             "small Pareto front",
             "city Pareto front",
             "on a front",
@@ -157,10 +161,13 @@ fn tiny_sweep_writes_well_formed_outputs() {
                 "{file}: {entry} in {texts:?}"
             );
         }
-        // The front points carry their configuration's name.
+        // The front points carry their configuration's name, and so does
+        // the oracle, once per scene; the oracle is never on a front.
         for p in &on_front {
             assert!(texts.contains(&p.name), "{file}: {}", p.name);
         }
+        assert!(on_front.iter().all(|p| p.name != "oracle"), "{file}");
+        assert_eq!(texts.iter().filter(|t| *t == "oracle").count(), 2, "{file}");
     }
     let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
     for file in &SWEEP_FILES[2..] {

@@ -72,7 +72,8 @@ pub fn mark_fronts(report: &mut SweepReport) {
         let mut idx = Vec::new();
         let mut pts = Vec::new();
         for (i, p) in report.points.iter().enumerate() {
-            let reference = StrategyKind::from_name(&p.strategy).is_some_and(|k| k.is_reference());
+            let reference =
+                StrategyKind::from_name(&p.strategy).is_some_and(StrategyKind::is_reference);
             if p.scene == name && !reference {
                 idx.push(i);
                 pts.push(p.clone());
