@@ -229,6 +229,32 @@ impl BvhBlas {
         Ok(b)
     }
 
+    /// Refits to moved vertices ([`BlasStore::refit`]).
+    fn refit(&mut self, geom: &LodTriangles) -> Result<(), SimError> {
+        check_geometry(geom)?;
+        let expected = self.tris.len();
+        let Some(bvh2) = self.bvh2.as_mut() else {
+            return Err(SimError::BadConfig("BLAS was not built refittable"));
+        };
+        if geom.len() != expected {
+            return Err(SimError::RefitCountMismatch {
+                expected,
+                got: geom.len(),
+            });
+        }
+        if expected > 0 {
+            bvh2.init_primitives_to_nodes_if_uninit();
+            for (i, t) in geom.triangles.iter().enumerate() {
+                let node = bvh2.primitives_to_nodes[i] as usize;
+                bvh2.nodes[node].set_aabb(t.aabb());
+            }
+            bvh2.refit_all();
+            self.bvh = bvh2_to_cwbvh(bvh2, 3, true, false);
+        }
+        self.reorder(geom);
+        Ok(())
+    }
+
     /// Lays triangles and attributes out in BVH primitive order.
     fn reorder(&mut self, geom: &LodTriangles) {
         let order = &self.bvh.primitive_indices;
@@ -487,31 +513,64 @@ impl BlasStore {
     /// Refits `id` to moved vertices: same triangle count and order as the
     /// build; node bounds are recomputed, the tree topology is kept.
     pub fn refit(&mut self, id: BvhBlasId, geom: &LodTriangles) -> Result<(), SimError> {
-        check_geometry(geom)?;
-        let blas = self.get_mut(id)?;
-        let expected = blas.tris.len();
-        let Some(bvh2) = blas.bvh2.as_mut() else {
-            return Err(SimError::BadConfig("BLAS was not built refittable"));
-        };
-        if geom.len() != expected {
-            return Err(SimError::RefitCountMismatch {
-                expected,
-                got: geom.len(),
-            });
-        }
-        if expected > 0 {
-            bvh2.init_primitives_to_nodes_if_uninit();
-            for (i, t) in geom.triangles.iter().enumerate() {
-                let node = bvh2.primitives_to_nodes[i] as usize;
-                bvh2.nodes[node].set_aabb(t.aabb());
-            }
-            bvh2.refit_all();
-            blas.bvh = bvh2_to_cwbvh(bvh2, 3, true, false);
-        }
-        blas.reorder(geom);
+        self.get_mut(id)?.refit(geom)?;
         self.stats.refits += 1;
         self.stats.primitives_refit += geom.len() as u64;
         Ok(())
+    }
+    /// [`Self::refit`] of many BLASes at once, in parallel (in the current
+    /// rayon pool): `geometry(i, out)` writes the new geometry of `ids[i]`
+    /// into `out`. The same BLASes as refitting them one by one; on an
+    /// error (a stale or repeated id, a failed refit) the first error in
+    /// `ids` order, and the BLASes refit before it stay refit.
+    pub fn refit_many<F>(&mut self, ids: &[BvhBlasId], geometry: F) -> Result<(), SimError>
+    where
+        F: Fn(usize, &mut LodTriangles) -> Result<(), SimError> + Sync,
+    {
+        use rayon::prelude::*;
+        // Which of `ids` each store slot takes (disjoint mutable borrows).
+        let mut job = vec![u32::MAX; self.slots.len()];
+        for (i, id) in ids.iter().enumerate() {
+            self.get(*id)?;
+            let j = &mut job[id.index as usize];
+            if *j != u32::MAX {
+                return Err(SimError::BadConfig("a BLAS refit twice in one batch"));
+            }
+            *j = i as u32;
+        }
+        let done: Vec<(u32, Result<u64, SimError>)> = self
+            .slots
+            .par_iter_mut()
+            .zip(job.par_iter())
+            .filter(|(_, &i)| i != u32::MAX)
+            .map_init(LodTriangles::default, |geom, ((_, blas), &i)| {
+                let r = match blas {
+                    Some(blas) => geometry(i as usize, geom)
+                        .and_then(|()| blas.refit(geom))
+                        .map(|()| geom.len() as u64),
+                    None => Err(SimError::StaleBlas),
+                };
+                (i, r)
+            })
+            .collect();
+        let mut first: Option<(u32, SimError)> = None;
+        for (i, r) in done {
+            match r {
+                Ok(triangles) => {
+                    self.stats.refits += 1;
+                    self.stats.primitives_refit += triangles;
+                }
+                Err(e) => {
+                    if first.as_ref().is_none_or(|(j, _)| i < *j) {
+                        first = Some((i, e));
+                    }
+                }
+            }
+        }
+        match first {
+            Some((_, e)) => Err(e),
+            None => Ok(()),
+        }
     }
     /// Frees `id`; the handle becomes stale. The unit cube cannot be removed.
     pub fn remove(&mut self, id: BvhBlasId) -> Result<(), SimError> {

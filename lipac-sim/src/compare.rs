@@ -13,6 +13,17 @@
 //! [`CompareConfig::share_ground_truth`] its render is reused instead of
 //! traced again (its trace time is then the ground truth's).
 //!
+//! **Shared work.** What the renders of a frame have in common is done
+//! once: the primary hits (every render's primary rays trace the full TLAS,
+//! [`crate::pathtrace::PrimaryHits`]), and the render of a TLAS that an
+//! earlier strategy of the frame traces too (the same records, merged boxes
+//! and hit counters: LiPaC with latency mitigation where the mitigation
+//! changed nothing), whose figures, times included, are then that
+//! strategy's. The strategies of a frame run side by side, each with its
+//! own records and TLAS, and the rows of each render and the animated
+//! BLAS refits in parallel, all in one pool of [`CompareConfig::threads`]
+//! workers; the figures do not depend on the thread count (timings aside).
+//!
 //! **Run time.** Every strategy traces the comparison's one shared set of
 //! BLASes, so its own BLAS work is counted (triangles built and refit, from
 //! its plan) and charged at the obvhs build and refit throughput measured
@@ -33,7 +44,10 @@ use crate::camera::{CameraPath, FlyCamera};
 use crate::error::SimError;
 use crate::memory::tlas_bytes;
 use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, GpuModel, Summary, Tracker};
-use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
+use crate::pathtrace::{
+    primary_hits, relative_rmse, render_with_primary, worker_threads, FrameOutput, FrameScene,
+    PathTraceConfig,
+};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
 use crate::snapshot::{Snapshot, StrategySnapshot};
@@ -48,6 +62,7 @@ use crate::traversal::{Counters, SlotSet};
 use lipac_core::latency::ActivationHeuristic;
 use lipac_core::layout::TlasInstance;
 use lipac_core::thresholds::DecayedSettings;
+use rayon::prelude::*;
 
 /// Which scene to compare on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -96,7 +111,8 @@ pub struct CompareConfig {
     pub strategies: Vec<StrategyKind>,
     /// Reuse the ground truth's render for the full-scene strategy.
     pub share_ground_truth: bool,
-    /// Render threads (0 = all cores).
+    /// Worker threads of the comparison: strategies, image rows and BLAS
+    /// refits share them (0 = all cores).
     pub threads: usize,
     /// LiPaC's adaptive hitbox merge levels (`None`:
     /// [`LipacConfig::DEFAULT_ADAPTIVE_LEVELS`]; `Some(0)`: off, one
@@ -273,8 +289,8 @@ impl CompareReport {
 pub struct Contender {
     /// Report name (unique within a run).
     pub name: String,
-    /// The strategy.
-    pub strategy: Box<dyn Strategy>,
+    /// The strategy (contenders of a frame run in parallel).
+    pub strategy: Box<dyn Strategy + Send>,
 }
 
 impl std::fmt::Debug for Contender {
@@ -291,7 +307,7 @@ pub fn make_strategy(
     kind: StrategyKind,
     scene: &Scene,
     lipac: &LipacConfig,
-) -> Result<Box<dyn Strategy>, SimError> {
+) -> Result<Box<dyn Strategy + Send>, SimError> {
     Ok(match kind {
         StrategyKind::Full => Box::new(Full::new(scene)?),
         StrategyKind::Frustum => {
@@ -461,12 +477,8 @@ pub struct Comparison {
     pt: PathTraceConfig,
     n: usize,
     catalog: InstanceCatalog,
-    names: Vec<String>,
-    strategies: Vec<Box<dyn Strategy>>,
-    trackers: Vec<Tracker>,
-    metrics: Vec<Vec<FrameMetrics>>,
-    previous: Vec<Option<Counters>>,
-    last_geometry: Vec<Vec<u32>>,
+    lanes: Vec<Lane>,
+    pool: rayon::ThreadPool,
     policy: LodPolicy,
     counting: CountingBoxes,
     store: BlasStore,
@@ -474,8 +486,6 @@ pub struct Comparison {
     blases: SceneBlases,
     full_records: Vec<TlasInstance>,
     full_tlas: CpuTlas,
-    tlas: CpuTlas,
-    records: Vec<TlasInstance>,
     lods: Vec<u8>,
     all: SlotSet,
     gt_ms: f64,
@@ -488,6 +498,41 @@ pub struct Comparison {
     capture: Vec<u32>,
     cuts: Vec<u32>,
     snapshots: Vec<Snapshot>,
+}
+
+/// One contender in a [`Comparison`]: its strategy, its per-frame state and
+/// its own scratch (records, TLAS), so that the contenders of a frame run
+/// side by side.
+struct Lane {
+    name: String,
+    strategy: Box<dyn Strategy + Send>,
+    tracker: Tracker,
+    metrics: Vec<FrameMetrics>,
+    /// The hit counters its previous frame traced.
+    previous: Option<Counters>,
+    last_geometry: Vec<u32>,
+    records: Vec<TlasInstance>,
+    tlas: CpuTlas,
+}
+
+/// Where a lane's render of a frame comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RenderSource {
+    /// Its records are the full scene's: the ground truth's render.
+    GroundTruth,
+    /// Its own TLAS and render.
+    Own,
+    /// Lane `i` (earlier in the frame) traced exactly the same TLAS: its
+    /// render, which would be identical.
+    SameAs(usize),
+}
+
+/// What a lane's own render of a frame left.
+struct Rendered {
+    out: FrameOutput,
+    tlas_build_ms: f64,
+    tlas_len: usize,
+    box_count: usize,
 }
 
 impl std::fmt::Debug for Comparison {
@@ -558,9 +603,10 @@ impl Comparison {
         };
         let n = scene.instances().len();
         let catalog = InstanceCatalog::new(scene)?;
-        let (names, strategies): (Vec<String>, Vec<Box<dyn Strategy>>) =
-            contenders.into_iter().map(|c| (c.name, c.strategy)).unzip();
-        let k = strategies.len();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(worker_threads(config.threads))
+            .build()
+            .map_err(|e| SimError::BadValue(format!("comparison threads: {e}")))?;
         let store = BlasStore::new();
         let unit_cube = store.unit_cube().reference();
         let mut all = SlotSet::new();
@@ -571,6 +617,23 @@ impl Comparison {
             .flat_map(|m| m.lods.iter());
         let throughput = BuildThroughput::measure(meshes, THROUGHPUT_MEASURE_MS)?;
         let kinds = catalog.missing_kinds();
+        let lanes = contenders
+            .into_iter()
+            .map(|c| {
+                let mut tracker = Tracker::new(n);
+                tracker.set_kinds(kinds.clone());
+                Lane {
+                    name: c.name,
+                    strategy: c.strategy,
+                    tracker,
+                    metrics: Vec::new(),
+                    previous: None,
+                    last_geometry: Vec::new(),
+                    records: Vec::new(),
+                    tlas: CpuTlas::default(),
+                }
+            })
+            .collect();
         Ok(Self {
             start,
             scene_name: scene_name.to_string(),
@@ -580,18 +643,8 @@ impl Comparison {
             pt,
             n,
             catalog,
-            names,
-            strategies,
-            trackers: (0..k)
-                .map(|_| {
-                    let mut t = Tracker::new(n);
-                    t.set_kinds(kinds.clone());
-                    t
-                })
-                .collect(),
-            metrics: (0..k).map(|_| Vec::new()).collect(),
-            previous: (0..k).map(|_| None).collect(),
-            last_geometry: (0..k).map(|_| Vec::new()).collect(),
+            lanes,
+            pool,
             policy: LodPolicy::default(),
             counting: CountingBoxes::default(),
             store,
@@ -599,8 +652,6 @@ impl Comparison {
             blases: SceneBlases::new(),
             full_records: Vec::new(),
             full_tlas: CpuTlas::default(),
-            tlas: CpuTlas::default(),
-            records: Vec::new(),
             lods: vec![0u8; n],
             all,
             gt_ms: 0.0,
@@ -722,153 +773,175 @@ impl Comparison {
             }
         }
         let t = Instant::now();
-        full_scene_records_at(
-            scene,
+        // In the comparison's pool: the animated BLASes refit in parallel.
+        let (blases, store, lods, full_records) = (
             &mut self.blases,
             &mut self.store,
             &self.lods,
-            frame,
-            UniqueUpdate::Refit,
             &mut self.full_records,
-        )?;
+        );
+        self.pool.install(|| {
+            full_scene_records_at(
+                scene,
+                blases,
+                store,
+                lods,
+                frame,
+                UniqueUpdate::Refit,
+                full_records,
+            )
+        })?;
         self.geometry_ms += ms(t);
         let t = Instant::now();
         self.full_tlas
             .rebuild(&self.store, &self.full_records, &self.counting)?;
         let full_ms = ms(t);
         self.full_tlas_ms += full_ms;
-        let t = Instant::now();
-        let gt = render(
-            &FrameScene {
-                store: &self.store,
-                full: &self.full_tlas,
-                traced: &self.full_tlas,
-                traced_slots: &self.all,
-            },
-            camera,
-            frame,
-            &self.pt,
-            n,
-            0,
-        )?;
-        self.gt_ms += ms(t);
-        self.traced_rays += gt.rays.bounce + gt.rays.shadow;
-        let gt_trace_ms = gt.traced_ns as f64 * 1e-6;
-        let mut snapshot = self.capture.contains(&frame).then(|| Snapshot {
-            frame,
-            width: self.config.width,
-            height: self.config.height,
-            ground_truth: gt.indirect.clone(),
-            strategies: Vec::new(),
-        });
+        let Self {
+            pool,
+            lanes,
+            store,
+            full_tlas,
+            full_records,
+            all,
+            pt,
+            counting,
+            catalog,
+            lods,
+            throughput,
+            gpu,
+            config,
+            ..
+        } = self;
+        let (store, full_tlas, pt, counting) = (&*store, &*full_tlas, &*pt, &*counting);
+        let (throughput, gpu) = (&*throughput, &*gpu);
+        let capture = self.capture.contains(&frame);
         let ctx = FrameContext {
             frame,
             scene,
             camera,
-            catalog: &self.catalog,
-            lods: &self.lods,
-            full_records: &self.full_records,
+            catalog,
+            lods,
+            full_records,
             unit_cube: self.unit_cube,
             rays_per_frame: self.rays_per_frame,
-            ground_truth_hits: &gt.counters.instances,
+            ground_truth_hits: &[],
             camera_cut: self.cuts.contains(&frame),
         };
-        for (i, s) in self.strategies.iter_mut().enumerate() {
+        let share_ground_truth = config.share_ground_truth;
+        let (gt, gt_ms, snapshot) = pool.install(|| -> Result<_, SimError> {
+            // The primary hits trace the full TLAS: one set for every render.
             let t = Instant::now();
-            let sf = s.frame(&ctx, self.previous[i].as_ref(), &mut self.records)?;
-            let mut m = FrameMetrics {
+            let primary = primary_hits(full_tlas, store, camera, pt)?;
+            let gt = render_with_primary(
+                &FrameScene {
+                    store,
+                    full: full_tlas,
+                    traced: full_tlas,
+                    traced_slots: all,
+                },
+                camera,
                 frame,
-                strategy_ms: ms(t),
-                ..FrameMetrics::default()
+                pt,
+                n,
+                0,
+                &primary,
+            )?;
+            let gt_ms = ms(t);
+            let gt_rendered = Rendered {
+                out: gt,
+                tlas_build_ms: full_ms,
+                tlas_len: full_tlas.len(),
+                box_count: full_tlas.box_count(),
             };
-            apply_strategy_frame(&mut m, &sf);
-            let geometry = SlotSet::from_geometry_records(&self.records, &self.counting);
-            let (out, traced) = if s.is_full_scene() && self.config.share_ground_truth {
-                if self.records != self.full_records {
-                    return Err(SimError::BadConfig(
-                        "full-scene strategy's records differ from the ground truth's",
-                    ));
-                }
-                m.tlas_build_ms = full_ms;
-                m.trace_ms = gt_trace_ms;
-                m.traced_rays = gt.rays.bounce + gt.rays.shadow;
-                (None, &self.full_tlas)
-            } else {
-                let t = Instant::now();
-                self.tlas.rebuild_with(
-                    &self.store,
-                    &self.records,
-                    &self.counting,
-                    s.merged_boxes().as_deref(),
-                )?;
-                m.tlas_build_ms = ms(t);
-                let out = render(
-                    &FrameScene {
-                        store: &self.store,
-                        full: &self.full_tlas,
-                        traced: &self.tlas,
-                        traced_slots: &geometry,
-                    },
-                    camera,
-                    frame,
-                    &self.pt,
-                    n,
-                    s.hitboxes(),
-                )?;
-                m.trace_ms = out.traced_ns as f64 * 1e-6;
-                m.traced_rays = out.rays.bounce + out.rays.shadow;
-                (Some(out), &self.tlas)
+            let ctx = FrameContext {
+                ground_truth_hits: &gt_rendered.out.counters.instances,
+                ..ctx
             };
-            m.tlas_instances = traced.len() as u64;
-            m.counting_boxes = traced.box_count() as u64;
-            m.tlas_bytes = tlas_bytes(m.tlas_instances);
-            m.charge_time(&self.throughput, &self.gpu);
-            let geometry_slots = (0..n as u32).filter(|&s| geometry.contains(s));
-            self.trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
-            match out {
-                Some(out) => {
-                    m.error = relative_rmse(&out.indirect, &gt.indirect)?;
-                    self.previous[i] = Some(out.counters);
-                    if let Some(snap) = &mut snapshot {
-                        snap.strategies.push(StrategySnapshot {
-                            name: self.names[i].clone(),
-                            indirect: out.indirect,
-                            error: m.error,
-                            map: TlasMap::new(
-                                scene,
-                                &self.records,
-                                &self.counting,
-                                self.previous[i].as_ref().unwrap_or(&gt.counters),
-                                camera,
-                                s.hitbox_cells().as_deref(),
-                            )?,
-                        });
+            // Each strategy's records, side by side.
+            let planned: Vec<Result<FrameMetrics, SimError>> =
+                lanes.par_iter_mut().map(|lane| lane.plan(&ctx)).collect();
+            let mut metrics = planned.into_iter().collect::<Result<Vec<_>, _>>()?;
+            let sources = render_sources(lanes, full_records, counting, share_ground_truth)?;
+            // Each distinct TLAS built and rendered, side by side.
+            let rendered: Vec<Option<Rendered>> = lanes
+                .par_iter_mut()
+                .zip(&sources)
+                .map(|(lane, source)| {
+                    if *source != RenderSource::Own {
+                        return Ok(None);
                     }
-                }
-                None => {
-                    m.error = 0.0;
-                    self.previous[i] = Some(gt.counters.clone());
-                    if let Some(snap) = &mut snapshot {
-                        snap.strategies.push(StrategySnapshot {
-                            name: self.names[i].clone(),
-                            indirect: gt.indirect.clone(),
-                            error: 0.0,
-                            map: TlasMap::new(
-                                scene,
-                                &self.records,
-                                &self.counting,
-                                &gt.counters,
-                                camera,
-                                s.hitbox_cells().as_deref(),
-                            )?,
-                        });
-                    }
-                }
+                    let t = Instant::now();
+                    lane.tlas.rebuild_with(
+                        store,
+                        &lane.records,
+                        counting,
+                        lane.strategy.merged_boxes().as_deref(),
+                    )?;
+                    let tlas_build_ms = ms(t);
+                    let geometry = SlotSet::from_geometry_records(&lane.records, counting);
+                    let out = render_with_primary(
+                        &FrameScene {
+                            store,
+                            full: full_tlas,
+                            traced: &lane.tlas,
+                            traced_slots: &geometry,
+                        },
+                        camera,
+                        frame,
+                        pt,
+                        n,
+                        lane.strategy.hitboxes(),
+                        &primary,
+                    )?;
+                    Ok(Some(Rendered {
+                        out,
+                        tlas_build_ms,
+                        tlas_len: lane.tlas.len(),
+                        box_count: lane.tlas.box_count(),
+                    }))
+                })
+                .collect::<Result<_, SimError>>()?;
+            // Each lane's metrics against the ground truth.
+            let source_of = |i: usize| match sources[i] {
+                RenderSource::GroundTruth => &gt_rendered,
+                RenderSource::Own => rendered[i].as_ref().unwrap_or(&gt_rendered),
+                RenderSource::SameAs(j) => rendered[j].as_ref().unwrap_or(&gt_rendered),
+            };
+            let shots: Vec<Option<StrategySnapshot>> = lanes
+                .par_iter_mut()
+                .zip(&mut metrics)
+                .enumerate()
+                .map(|(i, (lane, m))| {
+                    let r = source_of(i);
+                    let shared = sources[i] == RenderSource::GroundTruth;
+                    lane.account(
+                        &ctx,
+                        r,
+                        shared,
+                        &gt_rendered.out,
+                        m,
+                        counting,
+                        throughput,
+                        gpu,
+                        capture,
+                    )
+                })
+                .collect::<Result<_, SimError>>()?;
+            for (lane, m) in lanes.iter_mut().zip(metrics) {
+                lane.metrics.push(m);
             }
-            self.last_geometry[i].clear();
-            self.last_geometry[i].extend((0..n as u32).filter(|&s| geometry.contains(s)));
-            self.metrics[i].push(m);
-        }
+            let snapshot = capture.then(|| Snapshot {
+                frame,
+                width: config.width,
+                height: config.height,
+                ground_truth: gt_rendered.out.indirect.clone(),
+                strategies: shots.into_iter().flatten().collect(),
+            });
+            Ok((gt_rendered.out, gt_ms, snapshot))
+        })?;
+        self.gt_ms += gt_ms;
+        self.traced_rays += gt.rays.bounce + gt.rays.shadow;
         self.snapshots.extend(snapshot);
         self.frames += 1;
         Ok(())
@@ -889,16 +962,13 @@ impl Comparison {
         let th = self.lipac_config.thresholds;
         let nf = f64::from(frames);
         let strategies = self
-            .names
-            .iter()
-            .zip(self.metrics)
-            .zip(self.trackers.iter())
-            .zip(self.last_geometry)
-            .map(|(((name, frames), tracker), last)| StrategyRun {
-                name: name.clone(),
-                summary: summarize(name, &frames, tracker),
-                frames,
-                last_geometry: last,
+            .lanes
+            .into_iter()
+            .map(|lane| StrategyRun {
+                summary: summarize(&lane.name, &lane.metrics, &lane.tracker),
+                name: lane.name,
+                frames: lane.metrics,
+                last_geometry: lane.last_geometry,
             })
             .collect();
         let report = CompareReport {
@@ -929,4 +999,148 @@ impl Comparison {
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Where each lane's render comes from this frame: the ground truth's when
+/// its records are the full scene's (and `share_ground_truth`), an earlier
+/// lane's when it traces exactly the same TLAS (the same records, the same
+/// merged boxes' leaves and hitbox counters: the render depends on nothing
+/// else), its own otherwise.
+fn render_sources(
+    lanes: &[Lane],
+    full_records: &[TlasInstance],
+    counting: &CountingBoxes,
+    share_ground_truth: bool,
+) -> Result<Vec<RenderSource>, SimError> {
+    let mut sources: Vec<RenderSource> = Vec::with_capacity(lanes.len());
+    for (i, lane) in lanes.iter().enumerate() {
+        let source = if lane.strategy.is_full_scene() && share_ground_truth {
+            if lane.records != full_records {
+                return Err(SimError::BadConfig(
+                    "full-scene strategy's records differ from the ground truth's",
+                ));
+            }
+            RenderSource::GroundTruth
+        } else {
+            (0..i)
+                .find(|&j| sources[j] == RenderSource::Own && same_tlas(&lanes[j], lane, counting))
+                .map_or(RenderSource::Own, RenderSource::SameAs)
+        };
+        sources.push(source);
+    }
+    Ok(sources)
+}
+
+/// Whether lanes `a` and `b` trace the same TLAS with the same counters.
+fn same_tlas(a: &Lane, b: &Lane, counting: &CountingBoxes) -> bool {
+    if a.records != b.records || a.strategy.hitboxes() != b.strategy.hitboxes() {
+        return false;
+    }
+    let merged = |r: &&TlasInstance| {
+        r.acceleration_structure_reference != 0
+            && r.mask() != 0
+            && r.sbt_offset() == counting.merged_box_sbt
+    };
+    if !a.records.iter().any(|r| merged(&r)) {
+        return true;
+    }
+    let (Some(ma), Some(mb)) = (a.strategy.merged_boxes(), b.strategy.merged_boxes()) else {
+        return false;
+    };
+    let (mut la, mut lb) = (Vec::new(), Vec::new());
+    a.records.iter().filter(merged).all(|r| {
+        la.clear();
+        lb.clear();
+        ma.leaf_boxes(r.custom_index(), &mut la);
+        mb.leaf_boxes(r.custom_index(), &mut lb);
+        la == lb
+    })
+}
+
+impl Lane {
+    /// The strategy's frame: its records into `self.records`, its BLAS work
+    /// and memory into the frame's metrics.
+    fn plan(&mut self, ctx: &FrameContext<'_>) -> Result<FrameMetrics, SimError> {
+        let t = Instant::now();
+        let sf = self
+            .strategy
+            .frame(ctx, self.previous.as_ref(), &mut self.records)?;
+        let mut m = FrameMetrics {
+            frame: ctx.frame,
+            strategy_ms: ms(t),
+            ..FrameMetrics::default()
+        };
+        apply_strategy_frame(&mut m, &sf);
+        Ok(m)
+    }
+
+    /// The frame's render `r` (`shared`: the ground truth's, reused)
+    /// accounted against the ground truth `gt`: TLAS and trace figures,
+    /// error, tracker; the counters for the next frame; a snapshot when
+    /// `capture`.
+    #[allow(clippy::too_many_arguments)]
+    fn account(
+        &mut self,
+        ctx: &FrameContext<'_>,
+        r: &Rendered,
+        shared: bool,
+        gt: &FrameOutput,
+        m: &mut FrameMetrics,
+        counting: &CountingBoxes,
+        throughput: &BuildThroughput,
+        gpu: &GpuModel,
+        capture: bool,
+    ) -> Result<Option<StrategySnapshot>, SimError> {
+        let n = ctx.full_records.len() as u32;
+        let geometry = SlotSet::from_geometry_records(&self.records, counting);
+        m.tlas_build_ms = r.tlas_build_ms;
+        m.trace_ms = r.out.traced_ns as f64 * 1e-6;
+        m.traced_rays = r.out.rays.bounce + r.out.rays.shadow;
+        m.tlas_instances = r.tlas_len as u64;
+        m.counting_boxes = r.box_count as u64;
+        m.tlas_bytes = tlas_bytes(m.tlas_instances);
+        m.charge_time(throughput, gpu);
+        let geometry_slots = (0..n).filter(|&s| geometry.contains(s));
+        self.tracker
+            .observe(ctx.frame, geometry_slots, &gt.counters.instances, m);
+        m.error = if shared {
+            0.0
+        } else {
+            relative_rmse(&r.out.indirect, &gt.indirect)?
+        };
+        let counters = match self.previous.take() {
+            Some(mut c)
+                if c.instances.len() == r.out.counters.instances.len()
+                    && c.hitboxes.len() == r.out.counters.hitboxes.len() =>
+            {
+                c.instances.copy_from_slice(&r.out.counters.instances);
+                c.hitboxes.copy_from_slice(&r.out.counters.hitboxes);
+                c.dropped = r.out.counters.dropped;
+                c
+            }
+            _ => r.out.counters.clone(),
+        };
+        let counters = self.previous.insert(counters);
+        let snapshot = if capture {
+            Some(StrategySnapshot {
+                name: self.name.clone(),
+                indirect: r.out.indirect.clone(),
+                error: m.error,
+                map: TlasMap::new(
+                    ctx.scene,
+                    &self.records,
+                    counting,
+                    counters,
+                    ctx.camera,
+                    self.strategy.hitbox_cells().as_deref(),
+                )?,
+            })
+        } else {
+            None
+        };
+        self.last_geometry.clear();
+        self.last_geometry
+            .extend((0..n).filter(|&s| geometry.contains(s)));
+        Ok(snapshot)
+    }
 }

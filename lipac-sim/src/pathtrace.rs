@@ -21,6 +21,9 @@
 //!   the culled render of an unculled TLAS equals ground truth.
 //! * **Russian roulette** from bounce [`PathTraceConfig::rr_start`].
 //!
+//! * **Primary hits** are the same for every render of a frame: traced once
+//!   ([`primary_hits`]), they are shared by [`render_with_primary`].
+//!
 //! Random numbers are [`crate::rng::sample`]`(frame, pixel, bounce, dim)`:
 //! a render and its ground truth use identical numbers, and results do not
 //! depend on the thread count (counters are sums).
@@ -35,7 +38,8 @@ use crate::error::SimError;
 use crate::mesh::material as material_of;
 use crate::rng::sample;
 use crate::tlas::{masks, CpuTlas};
-use crate::traversal::{occluded_by, trace, Counters, Ray, SlotSet, TraceResult};
+use crate::traversal::{occluded_by, trace, Counters, Hit, Ray, SlotSet, TraceResult};
+use rayon::prelude::*;
 
 /// Settings of [`render`].
 #[derive(Clone, Debug, PartialEq)]
@@ -61,7 +65,8 @@ pub struct PathTraceConfig {
     pub shadow_mask: u8,
     /// Count primary hits into the instance counters.
     pub count_primary: bool,
-    /// Worker threads (0 = all available cores).
+    /// Worker threads (0 = all available cores); called inside a rayon
+    /// pool (as the comparison does), the render uses that pool instead.
     pub threads: usize,
 }
 
@@ -231,9 +236,6 @@ fn cosine_sample(n: Vec3A, u1: f32, u2: f32) -> Vec3A {
     (t * x + bt * y + n * z).normalize()
 }
 
-/// A block of rows: first row, direct and indirect pixels.
-type RowBlock<'a> = (usize, &'a mut [Vec3], &'a mut [Vec3]);
-
 struct Worker<'a> {
     fs: FrameScene<'a>,
     cfg: &'a PathTraceConfig,
@@ -299,21 +301,28 @@ impl Worker<'_> {
         albedo * self.cfg.sun_irradiance * (cos * std::f32::consts::FRAC_1_PI)
     }
 
-    fn pixel(&mut self, camera: &FlyCamera, px: u32, py: u32) -> (Vec3, Vec3) {
+    /// Shades pixel (`px`, `py`) whose primary hit is `primary` (traced
+    /// by [`primary_hit`]).
+    fn pixel(
+        &mut self,
+        camera: &FlyCamera,
+        px: u32,
+        py: u32,
+        primary: Option<Hit>,
+    ) -> (Vec3, Vec3) {
         let cfg = self.cfg;
         let fs = self.fs;
         let pixel = py * cfg.width + px;
-        let d0: Vec3A = camera
-            .ray_direction(px, py, cfg.width, cfg.height, (0.0, 0.0))
-            .into();
+        let d0 = primary_direction(camera, cfg, px, py);
         let o0: Vec3A = camera.position.into();
         self.rays.primary += 1;
-        let primary = Ray::unchecked(o0, d0, 0.0, f32::INFINITY, masks::ALL & !masks::COUNTING);
-        let r = trace(fs.full, fs.store, &primary, None);
         if cfg.count_primary {
-            self.count(&r, true);
+            // A primary ray never counts a box (its mask leaves them out).
+            if let Some(h) = &primary {
+                self.counters.count_instance(h.custom_index);
+            }
         }
-        let Some(h) = r.hit else {
+        let Some(h) = primary else {
             return (cfg.sky_radiance, Vec3::ZERO);
         };
         let mut p = o0 + d0 * h.t;
@@ -372,11 +381,115 @@ impl Worker<'_> {
     }
 }
 
+/// The primary hits of one frame: every camera ray's closest hit in the
+/// full TLAS (the stand-in for the rasterized G-buffer, the same for every
+/// render of the frame), traced once by [`primary_hits`] and shared by
+/// [`render_with_primary`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PrimaryHits {
+    camera: FlyCamera,
+    width: u32,
+    height: u32,
+    hits: Vec<Option<Hit>>,
+}
+
+impl PrimaryHits {
+    /// Pixels with a hit (the rest see the sky).
+    pub fn hit_count(&self) -> usize {
+        self.hits.iter().filter(|h| h.is_some()).count()
+    }
+}
+
+/// The direction of pixel (`px`, `py`)'s camera ray.
+#[inline]
+fn primary_direction(camera: &FlyCamera, cfg: &PathTraceConfig, px: u32, py: u32) -> Vec3A {
+    camera
+        .ray_direction(px, py, cfg.width, cfg.height, (0.0, 0.0))
+        .into()
+}
+
+/// The closest hit of pixel (`px`, `py`)'s camera ray in `full` (counting
+/// boxes masked out).
+#[inline]
+fn primary_hit(
+    full: &CpuTlas,
+    store: &BlasStore,
+    camera: &FlyCamera,
+    cfg: &PathTraceConfig,
+    px: u32,
+    py: u32,
+) -> Option<Hit> {
+    let d0 = primary_direction(camera, cfg, px, py);
+    let o0: Vec3A = camera.position.into();
+    let primary = Ray::unchecked(o0, d0, 0.0, f32::INFINITY, masks::ALL & !masks::COUNTING);
+    trace(full, store, &primary, None).hit
+}
+
+/// Runs `f` with `threads` workers (0 = all cores): inside a rayon pool
+/// (a caller that parallelises more than one render, as the comparison
+/// does) in that pool, otherwise in a pool of its own for the call.
+fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> Result<R, SimError> {
+    if rayon::current_thread_index().is_some() {
+        return Ok(f());
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(worker_threads(threads))
+        .build()
+        .map_err(|e| SimError::BadValue(format!("render threads: {e}")))?;
+    Ok(pool.install(f))
+}
+
+/// Threads that `threads` asks for: 0 = all available cores.
+pub(crate) fn worker_threads(threads: usize) -> usize {
+    if threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        threads
+    }
+}
+
+/// Rows per unit of parallel work: blocks of rows balance sky-heavy and
+/// city-heavy rows across workers.
+const BLOCK_ROWS: usize = 4;
+
+/// Traces the primary hits of `camera`'s view in `full` (see
+/// [`PrimaryHits`]); rows in parallel as in [`render`].
+pub fn primary_hits(
+    full: &CpuTlas,
+    store: &BlasStore,
+    camera: &FlyCamera,
+    config: &PathTraceConfig,
+) -> Result<PrimaryHits, SimError> {
+    config.validate()?;
+    if !camera.position.is_finite() {
+        return Err(SimError::NonFinite("camera position"));
+    }
+    let (w, h) = (config.width as usize, config.height as usize);
+    let mut hits = vec![None; w * h];
+    in_pool(config.threads, || {
+        hits.par_chunks_mut(BLOCK_ROWS * w)
+            .enumerate()
+            .for_each(|(i, block)| {
+                for (k, hit) in block.iter_mut().enumerate() {
+                    let (px, py) = ((k % w) as u32, (i * BLOCK_ROWS + k / w) as u32);
+                    *hit = primary_hit(full, store, camera, config, px, py);
+                }
+            })
+    })?;
+    Ok(PrimaryHits {
+        camera: *camera,
+        width: config.width,
+        height: config.height,
+        hits,
+    })
+}
+
 /// Renders one frame: 1 sample per pixel, `counters` sized for
 /// `instance_slots` instances and `hitboxes` hitboxes.
 ///
-/// See the module docs for the model. Rows are split over
-/// `config.threads` scoped threads; the output does not depend on it.
+/// See the module docs for the model. Blocks of rows are shared out over
+/// `config.threads` workers (or, called inside a rayon pool, that pool's);
+/// the output does not depend on them.
 pub fn render(
     scene: &FrameScene<'_>,
     camera: &FlyCamera,
@@ -385,70 +498,90 @@ pub fn render(
     instance_slots: usize,
     hitboxes: usize,
 ) -> Result<FrameOutput, SimError> {
+    let primary = primary_hits(scene.full, scene.store, camera, config)?;
+    render_with_primary(
+        scene,
+        camera,
+        frame,
+        config,
+        instance_slots,
+        hitboxes,
+        &primary,
+    )
+}
+
+/// [`render`] with the frame's primary hits traced already: every render
+/// of one frame (the ground truth and each strategy) shares them, since
+/// primary rays trace the full TLAS, `scene.full`, which `primary` must have
+/// been traced in ([`primary_hits`]). The output equals [`render`]'s.
+/// Primary hits of another view or image size are an error.
+pub fn render_with_primary(
+    scene: &FrameScene<'_>,
+    camera: &FlyCamera,
+    frame: u32,
+    config: &PathTraceConfig,
+    instance_slots: usize,
+    hitboxes: usize,
+    primary: &PrimaryHits,
+) -> Result<FrameOutput, SimError> {
     config.validate()?;
     if !camera.position.is_finite() {
         return Err(SimError::NonFinite("camera position"));
     }
-    let (w, h) = (config.width as usize, config.height as usize);
-    let threads = if config.threads == 0 {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
-    } else {
-        config.threads
-    }
-    .clamp(1, h);
-    let sun: Vec3A = config.sun_direction.normalize().into();
-    let mut direct = vec![Vec3::ZERO; w * h];
-    let mut indirect = vec![Vec3::ZERO; w * h];
-    // Interleave rows in blocks of 4 to balance sky-heavy and city-heavy rows.
-    let block = 4 * w;
-    let mut work: Vec<Vec<RowBlock<'_>>> = (0..threads).map(|_| Vec::new()).collect();
-    for (i, (d, ind)) in direct
-        .chunks_mut(block)
-        .zip(indirect.chunks_mut(block))
-        .enumerate()
+    if primary.camera != *camera || primary.width != config.width || primary.height != config.height
     {
-        work[i % threads].push((i * 4, d, ind));
+        return Err(SimError::BadConfig(
+            "primary hits of another view or image size",
+        ));
     }
-    let results: Vec<(Counters, RayStats, u64)> = std::thread::scope(|s| {
-        let handles: Vec<_> = work
-            .into_iter()
-            .map(|chunks| {
-                let fs = *scene;
-                s.spawn(move || {
-                    let mut wk = Worker {
-                        fs,
-                        cfg: config,
-                        sun,
-                        frame,
-                        counters: Counters::new(instance_slots, hitboxes),
-                        rays: RayStats::default(),
-                        traced_ns: 0,
-                    };
-                    for (row0, d, ind) in chunks {
-                        for (k, (dp, ip)) in d.iter_mut().zip(ind.iter_mut()).enumerate() {
-                            let (px, py) = ((k % w) as u32, (row0 + k / w) as u32);
-                            let (a, b) = wk.pixel(camera, px, py);
-                            *dp = a;
-                            *ip = b;
-                        }
-                    }
-                    (wk.counters, wk.rays, wk.traced_ns)
-                })
+    let w = config.width as usize;
+    let n = w * config.height as usize;
+    let sun: Vec3A = config.sun_direction.normalize().into();
+    let mut direct = vec![Vec3::ZERO; n];
+    let mut indirect = vec![Vec3::ZERO; n];
+    let block = BLOCK_ROWS * w;
+    let new_worker = || Worker {
+        fs: *scene,
+        cfg: config,
+        sun,
+        frame,
+        counters: Counters::new(instance_slots, hitboxes),
+        rays: RayStats::default(),
+        traced_ns: 0,
+    };
+    // Counters are integer sums: the order in which workers merge does not
+    // change them.
+    let merged = in_pool(config.threads, || {
+        direct
+            .par_chunks_mut(block)
+            .zip(indirect.par_chunks_mut(block))
+            .zip(primary.hits.par_chunks(block))
+            .enumerate()
+            .fold(new_worker, |mut wk, (i, ((d, ind), hits))| {
+                for (k, ((dp, ip), hit)) in d.iter_mut().zip(ind.iter_mut()).zip(hits).enumerate() {
+                    let (px, py) = ((k % w) as u32, (i * BLOCK_ROWS + k / w) as u32);
+                    (*dp, *ip) = wk.pixel(camera, px, py, *hit);
+                }
+                wk
             })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-            .collect()
-    });
-    let mut counters = Counters::new(instance_slots, hitboxes);
-    let mut rays = RayStats::default();
-    let mut traced_ns = 0;
-    for (c, r, t) in &results {
-        counters.merge(c);
-        rays.add(r);
-        traced_ns += t;
-    }
+            .map(|wk| (wk.counters, wk.rays, wk.traced_ns))
+            .reduce(
+                || {
+                    (
+                        Counters::new(instance_slots, hitboxes),
+                        RayStats::default(),
+                        0,
+                    )
+                },
+                |mut a, b| {
+                    a.0.merge(&b.0);
+                    a.1.add(&b.1);
+                    a.2 += b.2;
+                    a
+                },
+            )
+    })?;
+    let (counters, rays, traced_ns) = merged;
     Ok(FrameOutput {
         width: config.width,
         height: config.height,

@@ -121,6 +121,47 @@ impl SceneBlases {
         Ok(id)
     }
 
+    /// Brings every animated unique BLAS held at its instance's LOD in
+    /// `lods` to `frame` by refit, in parallel (in the current rayon pool):
+    /// what [`Self::unique`] with [`UniqueUpdate::Refit`] would do for each
+    /// of them one by one, leaving the others (another LOD, none held yet)
+    /// to it.
+    pub fn refit_animated(
+        &mut self,
+        store: &mut BlasStore,
+        scene: &Scene,
+        lods: &[u8],
+        frame: u32,
+    ) -> Result<(), SimError> {
+        if lods.len() != scene.instances().len() {
+            return Err(SimError::SizeMismatch {
+                a: lods.len(),
+                b: scene.instances().len(),
+            });
+        }
+        let mut due: Vec<(u32, UniqueBlas)> = self
+            .unique
+            .iter()
+            .filter(|(&slot, u)| {
+                u.frame != frame
+                    && lods.get(slot as usize).map(|&l| usize::from(l)) == Some(u.lod)
+                    && scene.instance(slot).is_ok_and(|i| i.is_animated())
+                    && store.get(u.id).is_ok()
+            })
+            .map(|(&slot, &u)| (slot, u))
+            .collect();
+        due.sort_unstable_by_key(|&(slot, _)| slot);
+        let ids: Vec<BvhBlasId> = due.iter().map(|(_, u)| u.id).collect();
+        store.refit_many(&ids, |i, out| {
+            let (slot, u) = due[i];
+            scene.unique_geometry(slot, u.lod, frame, out)
+        })?;
+        for (slot, u) in due {
+            self.unique.insert(slot, UniqueBlas { frame, ..u });
+        }
+        Ok(())
+    }
+
     /// The BLAS for instance `slot` (shared or unique, see [`Self::unique`]).
     pub fn blas_for(
         &mut self,
@@ -216,6 +257,9 @@ pub fn full_scene_records_at(
             a: lods.len(),
             b: scene.instances().len(),
         });
+    }
+    if update == UniqueUpdate::Refit {
+        blases.refit_animated(store, scene, lods, frame)?;
     }
     out.clear();
     out.reserve(scene.instances().len());

@@ -11,6 +11,7 @@ use lipac_sim::mesh::{cuboid, material, mirror_block, MeshLibrary};
 use lipac_sim::report::{write_report, CSV_HEADER, PLOTS};
 use lipac_sim::scene::{flags, Scene, SceneConfig};
 use lipac_sim::strategy::hindsight::Hindsight;
+use lipac_sim::strategy::lipac::{Lipac, LipacConfig};
 use lipac_sim::strategy::{Oracle, StrategyKind};
 
 fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) -> CompareReport {
@@ -53,6 +54,68 @@ fn same_seed_gives_identical_metrics() {
     // The check can fail: LiPaC differs from the full scene.
     let (full, lipac) = (a.strategy("full").unwrap(), a.strategy("lipac").unwrap());
     assert_ne!(full.last_geometry, lipac.last_geometry);
+}
+
+#[test]
+fn figures_do_not_depend_on_threads_and_twins_share_one_render() {
+    let run_with = |threads: usize| {
+        let mut scene = Scene::generate(&SceneChoice::Small.config(None)).unwrap();
+        let path = CameraPath::flythrough(&scene, 32.0 / 18.0);
+        let config = CompareConfig {
+            frames: Some(6),
+            width: 32,
+            height: 18,
+            threads,
+            ..CompareConfig::default()
+        };
+        let lipac = LipacConfig::for_rays_per_frame(32 * 18).unwrap();
+        let contenders = ["lipac", "twin"]
+            .into_iter()
+            .map(|name| Contender {
+                name: name.into(),
+                strategy: Box::new(Lipac::new(&scene, lipac.clone()).unwrap()),
+            })
+            .chain([Contender {
+                name: "oracle".into(),
+                strategy: Box::new(Oracle::new(&scene).unwrap()),
+            }])
+            .collect();
+        run_contenders(
+            "small",
+            &mut scene,
+            &path,
+            &config,
+            contenders,
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    let (one, three) = (run_with(1), run_with(3));
+    for (x, y) in one.strategies.iter().zip(&three.strategies) {
+        assert_eq!(x.last_geometry, y.last_geometry);
+        for (m, n) in x.frames.iter().zip(&y.frames) {
+            assert_eq!(m.without_timings(), n.without_timings(), "{}", x.name);
+        }
+    }
+    // The twin traces LiPaC's TLAS: its figures are LiPaC's, and its render
+    // is LiPaC's own (the same measured times, which two renders would not
+    // give to the nanosecond).
+    let (lipac, twin) = (
+        one.strategy("lipac").unwrap(),
+        one.strategy("twin").unwrap(),
+    );
+    for (m, n) in lipac.frames.iter().zip(&twin.frames) {
+        assert_eq!(m.without_timings(), n.without_timings());
+        assert_eq!(m.trace_ms.to_bits(), n.trace_ms.to_bits());
+        assert_eq!(m.tlas_build_ms.to_bits(), n.tlas_build_ms.to_bits());
+    }
+    // The oracle traces another TLAS: its own render.
+    let oracle = one.strategy("oracle").unwrap();
+    assert!(lipac
+        .frames
+        .iter()
+        .zip(&oracle.frames)
+        .any(|(m, n)| m.trace_ms != n.trace_ms));
 }
 
 #[test]

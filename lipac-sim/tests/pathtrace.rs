@@ -6,7 +6,10 @@ use lipac_core::layout::TlasInstance;
 use lipac_core::math::Aabb;
 use lipac_sim::blas::{box_transform, BlasStore};
 use lipac_sim::camera::CameraPath;
-use lipac_sim::pathtrace::{relative_rmse, render, FrameOutput, FrameScene, PathTraceConfig};
+use lipac_sim::pathtrace::{
+    primary_hits, relative_rmse, render, render_with_primary, FrameOutput, FrameScene,
+    PathTraceConfig,
+};
 use lipac_sim::scene::{flags, LodPolicy, Scene, SceneConfig};
 use lipac_sim::scene_blas::{full_scene_records, SceneBlases, UniqueUpdate};
 use lipac_sim::tlas::{masks, CountingBoxes, CpuTlas};
@@ -222,4 +225,43 @@ fn bad_inputs_are_errors() {
         relative_rmse(&[Vec3::ONE], &[Vec3::ZERO]).unwrap(),
         f64::INFINITY
     );
+}
+
+#[test]
+fn shared_primary_hits_render_as_tracing_them_and_belong_to_one_view() {
+    let s = setup(120);
+    // A culled TLAS: every other instance.
+    let counting = CountingBoxes::default();
+    let half: Vec<TlasInstance> = s.records.iter().step_by(2).copied().collect();
+    let culled = CpuTlas::build(&s.store, &half, &counting).unwrap();
+    let slots = SlotSet::from_geometry_records(&half, &counting);
+    let cam = s.path.camera_at(s.frame);
+    let primary = primary_hits(&s.full, &s.store, &cam, &config(3)).unwrap();
+    assert!(primary.hit_count() > 0);
+    let n = s.scene.instances().len();
+    for (traced, slots) in [(&s.full, &s.all), (&culled, &slots)] {
+        let fs = FrameScene {
+            store: &s.store,
+            full: &s.full,
+            traced,
+            traced_slots: slots,
+        };
+        let shared = render_with_primary(&fs, &cam, s.frame, &config(2), n, 0, &primary).unwrap();
+        let traced_here = draw(&s, traced, slots, 1, 0);
+        assert_eq!(shared.without_timings(), traced_here.without_timings());
+    }
+    // Primary hits of another view or size are refused.
+    let fs = FrameScene {
+        store: &s.store,
+        full: &s.full,
+        traced: &s.full,
+        traced_slots: &s.all,
+    };
+    let other = s.path.camera_at(s.frame + 40);
+    assert!(render_with_primary(&fs, &other, s.frame, &config(1), n, 0, &primary).is_err());
+    let wide = PathTraceConfig {
+        width: 64,
+        ..config(1)
+    };
+    assert!(render_with_primary(&fs, &cam, s.frame, &wide, n, 0, &primary).is_err());
 }

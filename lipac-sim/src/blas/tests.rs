@@ -75,3 +75,68 @@ fn non_finite_geometry_is_rejected() {
         SimError::NonFinite("triangle vertices")
     );
 }
+
+#[test]
+fn refit_many_equals_refits_one_by_one_and_refuses_bad_batches() {
+    let rest = mesh::unit().lods[0].clone();
+    let phases = [0.1f32, 0.7, 1.9, 3.0];
+    let mut serial = BlasStore::new();
+    let mut batch = BlasStore::new();
+    let ids: Vec<BvhBlasId> = phases
+        .iter()
+        .map(|_| serial.build(&rest, BuildQuality::Fast, true).unwrap())
+        .collect();
+    let ids_b: Vec<BvhBlasId> = phases
+        .iter()
+        .map(|_| batch.build(&rest, BuildQuality::Fast, true).unwrap())
+        .collect();
+    assert_eq!(ids, ids_b);
+    let mut g = LodTriangles::default();
+    for (id, &p) in ids.iter().zip(&phases) {
+        mesh::deform_unit(&rest, p, &mut g);
+        serial.refit(*id, &g).unwrap();
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        batch.refit_many(&ids, |i, out| {
+            mesh::deform_unit(&rest, phases[i], out);
+            Ok(())
+        })
+    })
+    .unwrap();
+    assert_eq!(serial.stats(), batch.stats());
+    for id in &ids {
+        let (a, b) = (serial.get(*id).unwrap(), batch.get(*id).unwrap());
+        assert_eq!(a.bvh.nodes, b.bvh.nodes);
+        assert!(a.tris == b.tris);
+        assert_eq!(a.prim, b.prim);
+        assert_eq!(a.bounds, b.bounds);
+    }
+    // A repeated or stale id, or a failed geometry, is an error.
+    let twice = [ids[0], ids[0]];
+    assert!(batch
+        .refit_many(&twice, |_, out| {
+            out.clone_from(&rest);
+            Ok(())
+        })
+        .is_err());
+    batch.remove(ids[1]).unwrap();
+    assert_eq!(
+        batch.refit_many(&ids[1..2], |_, out| {
+            out.clone_from(&rest);
+            Ok(())
+        }),
+        Err(SimError::StaleBlas)
+    );
+    let failed = batch.refit_many(&[ids[2], ids[3]], |i, out| {
+        out.clone_from(&rest);
+        if i == 1 {
+            out.triangles.pop();
+        }
+        Ok(())
+    });
+    assert!(matches!(failed, Err(SimError::RefitCountMismatch { .. })));
+}
