@@ -73,6 +73,9 @@ pub enum SceneChoice {
     Small,
     /// The city with an 80 m mirror block.
     Mirror,
+    /// The paper-scale city ([`SceneConfig::paper_city`]): ~125k
+    /// instances, 8,000 units, half the buildings fitted to the terrain.
+    PaperCity,
 }
 
 impl SceneChoice {
@@ -82,19 +85,37 @@ impl SceneChoice {
             Self::City => SceneConfig::city(),
             Self::Small => SceneConfig::small(),
             Self::Mirror => SceneConfig::city().with_mirror(80.0),
+            Self::PaperCity => SceneConfig::paper_city(),
         };
         if let Some(s) = seed {
             c.seed = s;
         }
         c
     }
+    /// Every built-in scene.
+    pub const ALL: [Self; 4] = [Self::City, Self::Small, Self::Mirror, Self::PaperCity];
+
     /// Name.
     pub fn name(self) -> &'static str {
         match self {
             Self::City => "city",
             Self::Small => "small",
             Self::Mirror => "mirror",
+            Self::PaperCity => "paper-city",
         }
+    }
+
+    /// The scene of name `name` ([`SceneChoice::name`]), if any.
+    ///
+    /// ```
+    /// use lipac_sim::compare::SceneChoice;
+    /// for s in SceneChoice::ALL {
+    ///     assert_eq!(SceneChoice::from_name(s.name()), Some(s));
+    /// }
+    /// assert_eq!(SceneChoice::from_name("town"), None);
+    /// ```
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
     }
 }
 

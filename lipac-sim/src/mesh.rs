@@ -167,6 +167,50 @@ impl LodTriangles {
         self.tri(q[0], q[1], q[2], mat, alpha, part);
         self.tri(q[0], q[2], q[3], mat, alpha, part);
     }
+    /// A closed prism standing on `base` (centre of its bottom), `height`
+    /// tall, elliptical with radii `radii` (x, z) at the bottom and
+    /// `taper` times them at the top, `sides` around and `rings` bands up:
+    /// `2 * sides * (rings + 1) - 4` triangles.
+    #[allow(clippy::too_many_arguments)]
+    fn prism(
+        &mut self,
+        base: Vec3,
+        height: f32,
+        radii: (f32, f32),
+        taper: f32,
+        sides: u32,
+        rings: u32,
+        mat: u8,
+        part: u8,
+    ) {
+        let ring = |r: u32| {
+            let f = r as f32 / rings as f32;
+            let scale = 1.0 + (taper - 1.0) * f;
+            (0..sides)
+                .map(|i| {
+                    let a = std::f32::consts::TAU * i as f32 / sides as f32;
+                    base + Vec3::new(
+                        radii.0 * scale * a.cos(),
+                        height * f,
+                        radii.1 * scale * a.sin(),
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        let rings_v: Vec<Vec<Vec3>> = (0..=rings).map(ring).collect();
+        let n = sides as usize;
+        for w in rings_v.windows(2) {
+            for i in 0..n {
+                let j = (i + 1) % n;
+                self.quad([w[0][i], w[0][j], w[1][j], w[1][i]], mat, false, Some(part));
+            }
+        }
+        let (bottom, top) = (&rings_v[0], &rings_v[rings as usize]);
+        for i in 1..n - 1 {
+            self.tri(bottom[0], bottom[i + 1], bottom[i], mat, false, Some(part));
+            self.tri(top[0], top[i], top[i + 1], mat, false, Some(part));
+        }
+    }
     fn cuboid(&mut self, min: Vec3, max: Vec3, mat: u8, part: Option<u8>) {
         let c = |x: bool, y: bool, z: bool| {
             Vec3::new(
@@ -944,6 +988,67 @@ pub fn unit() -> Mesh {
         m,
         Some(0),
     );
+    Mesh::from_lods(MeshKind::Unit, [lod0, lod1, lod2])
+}
+
+/// A character unit as a game draws one (the paper's city-building game:
+/// villagers, workers): [`unit`]'s proportions and animation parts (0
+/// body and head, 1/2 legs, 3/4 arms, so [`deform_unit`] walks it) from
+/// rounded limbs. LOD 0: 12-sided torso and head, 10-sided legs and
+/// 8-sided arms in several rings (552 triangles); LOD 1: hexagonal
+/// prisms (120); LOD 2: five boxes (60).
+pub fn character() -> Mesh {
+    let m = material::UNIT;
+    // (part, centre x, y0, y1, radius x, radius z, taper at the top).
+    let parts: [(u8, f32, f32, f32, f32, f32, f32); 6] = [
+        (0, 0.0, 0.9, 1.5, 0.25, 0.15, 0.9),
+        (0, 0.0, 1.5, 1.8, 0.13, 0.13, 0.6),
+        (1, -0.125, 0.0, 0.9, 0.09, 0.1, 1.1),
+        (2, 0.125, 0.0, 0.9, 0.09, 0.1, 1.1),
+        (3, -0.31, 0.85, 1.48, 0.05, 0.08, 1.2),
+        (4, 0.31, 0.85, 1.48, 0.05, 0.08, 1.2),
+    ];
+    let lod = |sides: [u32; 6], rings: [u32; 6]| {
+        let mut l = LodTriangles::default();
+        for (k, &(part, x, y0, y1, rx, rz, taper)) in parts.iter().enumerate() {
+            l.prism(
+                Vec3::new(x, y0, 0.0),
+                y1 - y0,
+                (rx, rz),
+                taper,
+                sides[k],
+                rings[k],
+                m,
+                part,
+            );
+        }
+        l
+    };
+    let lod0 = lod([12, 12, 10, 10, 8, 8], [3, 4, 4, 4, 4, 4]);
+    let lod1 = lod([6; 6], [1; 6]);
+    let mut lod2 = LodTriangles::default();
+    lod2.cuboid(
+        Vec3::new(-0.25, 0.9, -0.15),
+        Vec3::new(0.25, 1.8, 0.15),
+        m,
+        Some(0),
+    );
+    for (part, x0, x1) in [(1, -0.22, -0.03), (2, 0.03, 0.22)] {
+        lod2.cuboid(
+            Vec3::new(x0, 0.0, -0.1),
+            Vec3::new(x1, 0.9, 0.1),
+            m,
+            Some(part),
+        );
+    }
+    for (part, x0, x1) in [(3, -0.37, -0.26), (4, 0.26, 0.37)] {
+        lod2.cuboid(
+            Vec3::new(x0, 0.85, -0.08),
+            Vec3::new(x1, 1.48, 0.08),
+            m,
+            Some(part),
+        );
+    }
     Mesh::from_lods(MeshKind::Unit, [lod0, lod1, lod2])
 }
 

@@ -116,12 +116,7 @@ impl SceneRef {
     pub fn parse(name: &str) -> Option<Self> {
         let rest = name.strip_prefix(SCENE_PREFIX)?;
         let mut parts = rest.split(':');
-        let scene = match parts.next()? {
-            "city" => SceneChoice::City,
-            "small" => SceneChoice::Small,
-            "mirror" => SceneChoice::Mirror,
-            _ => return None,
-        };
+        let scene = SceneChoice::from_name(parts.next()?)?;
         let seed = parts.next()?.strip_prefix("seed=")?.parse().ok()?;
         let camera = CameraChoice::from_name(parts.next()?.strip_prefix("camera=")?)?;
         if parts.next().is_some() {

@@ -45,16 +45,20 @@ fn leaf_alpha_has_holes_inside_the_crown() {
 fn unit_deformation_keeps_order_and_stays_in_bounds() {
     let m = unit();
     let mut out = LodTriangles::default();
-    for k in 0..16 {
-        let phase = k as f32 * 0.4;
-        deform_unit(&m.lods[0], phase, &mut out);
-        assert_eq!(out.len(), m.lods[0].len());
-        let b = out.bounds();
-        assert!(
-            b.min.cmpge(m.bounds.min).all() && b.max.cmple(m.bounds.max).all(),
-            "{b:?} {:?}",
-            m.bounds
-        );
+    for mesh in [unit(), character()] {
+        for lod in &mesh.lods {
+            for k in 0..16 {
+                let phase = k as f32 * 0.4;
+                deform_unit(lod, phase, &mut out);
+                assert_eq!(out.len(), lod.len());
+                let b = out.bounds();
+                assert!(
+                    b.min.cmpge(mesh.bounds.min).all() && b.max.cmple(mesh.bounds.max).all(),
+                    "{b:?} {:?}",
+                    mesh.bounds
+                );
+            }
+        }
     }
     deform_unit(&m.lods[0], 1.0, &mut out);
     assert_ne!(
@@ -72,4 +76,43 @@ fn library_rejects_unknown_ids() {
     assert_eq!(lib.triangle_count(id, 0).unwrap(), 12 + 10);
     assert_eq!(lib.mesh(id + 1).unwrap_err(), SimError::UnknownMesh(id + 1));
     assert_eq!(lib.lod(id, 3).unwrap_err(), SimError::BadLod(3));
+}
+
+#[test]
+fn the_character_walks_like_the_box_unit_with_more_triangles() {
+    let c = character();
+    let u = unit();
+    assert_eq!(
+        [c.lods[0].len(), c.lods[1].len(), c.lods[2].len()],
+        [552, 120, 60]
+    );
+    for l in &c.lods {
+        // Every triangle belongs to an animation part.
+        assert_eq!(l.parts.len(), l.len());
+        assert!(l.parts.iter().all(|&p| p <= 4));
+        assert!((1..=4).all(|p| l.parts.contains(&p)));
+    }
+    // Same height and animation padding as the box unit.
+    assert!((c.bounds.max.y - u.bounds.max.y).abs() < 0.06);
+    assert!(c.bounds.min.x >= u.bounds.min.x - 1e-4 && c.bounds.max.x <= u.bounds.max.x + 1e-4);
+    // Walking moves its legs and keeps the triangle order for refits.
+    let mut a = LodTriangles::default();
+    let mut b = LodTriangles::default();
+    deform_unit(&c.lods[0], 0.0, &mut a);
+    deform_unit(&c.lods[0], 1.2, &mut b);
+    assert_eq!(a.len(), b.len());
+    assert_eq!(a.parts, b.parts);
+    assert_ne!(a.triangles[200].v0, b.triangles[200].v0);
+    // Closed prisms: every edge is shared by two triangles.
+    let mut edges = std::collections::HashMap::new();
+    for t in &c.lods[1].triangles {
+        for (p, q) in [(t.v0, t.v1), (t.v1, t.v2), (t.v2, t.v0)] {
+            let key = |v: Vec3A| v.to_array().map(f32::to_bits);
+            let (k0, k1) = (key(p), key(q));
+            *edges
+                .entry(if k0 < k1 { (k0, k1) } else { (k1, k0) })
+                .or_insert(0) += 1;
+        }
+    }
+    assert!(edges.values().all(|&n| n == 2));
 }

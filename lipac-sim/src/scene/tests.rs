@@ -66,3 +66,33 @@ fn bad_configs_are_rejected() {
     c.block = 0.0;
     assert!(Scene::generate(&c).is_err());
 }
+
+#[test]
+fn the_paper_city_has_the_papers_population_and_is_deterministic() {
+    let c = SceneConfig::paper_city();
+    let s = Scene::generate(&c).unwrap();
+    let n = s.instances().len();
+    let count = |f: u8| s.instances().iter().filter(|i| i.flags & f != 0).count();
+    // The paper: more than a hundred thousand instances, more than six
+    // thousand animated units, buildings fitted to the terrain.
+    assert!(n >= 100_000, "{n}");
+    assert!(count(flags::ANIMATED) >= 6000);
+    let buildings = s
+        .instances()
+        .iter()
+        .filter(|i| i.flags & (flags::TERRAIN | flags::VEGETATION | flags::ANIMATED) == 0)
+        .count();
+    let adapted = count(flags::TERRAIN_ADAPTED);
+    assert!(buildings > 30_000, "{buildings}");
+    assert!(
+        (0.45..0.55).contains(&(adapted as f64 / buildings as f64)),
+        "{adapted} of {buildings}"
+    );
+    let est = c.estimated_instances() as f64;
+    assert!((n as f64 / est - 1.0).abs() < 0.1, "estimate {est} vs {n}");
+    // Deterministic from the seed, and the seed matters.
+    let again = Scene::generate(&c).unwrap();
+    assert_eq!(s.instances(), again.instances());
+    let other = Scene::generate(&SceneConfig { seed: 2, ..c }).unwrap();
+    assert_ne!(s.instances(), other.instances());
+}
