@@ -106,7 +106,7 @@ struct Common {
     /// Scene seed (default: the scene's own).
     #[arg(long)]
     seed: Option<u64>,
-    /// Render threads (0 = all cores).
+    /// Worker threads: strategies, image rows and BLAS refits (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
     /// LiPaC's adaptive hitboxes: merge levels of cold hitboxes into one
@@ -318,7 +318,7 @@ struct SweepArgs {
     /// (`inf:0:800`).
     #[arg(long)]
     warm_start: Option<String>,
-    /// Render threads (0 = all cores).
+    /// Worker threads: strategies, image rows and BLAS refits (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
     /// Output folder.

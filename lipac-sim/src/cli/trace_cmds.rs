@@ -84,7 +84,7 @@ pub struct ReplayArgs {
     /// Image height.
     #[arg(long, default_value_t = 72)]
     height: u32,
-    /// Render threads (0 = all cores).
+    /// Worker threads: strategies, image rows and BLAS refits (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
     /// Report folder.
