@@ -73,7 +73,7 @@ pub enum SceneChoice {
     Small,
     /// The city with an 80 m mirror block.
     Mirror,
-    /// The paper-scale city ([`SceneConfig::paper_city`]): ~125k
+    /// The paper-scale city ([`SceneConfig::paper_city`]): ~120k
     /// instances, 8,000 units, half the buildings fitted to the terrain.
     PaperCity,
 }

@@ -48,8 +48,8 @@ enum SceneArg {
     City,
     Small,
     Mirror,
-    /// The paper-scale city: ~125k instances, 8,000 units, half the
-    /// buildings fitted to the terrain (about 4 minutes on 2 cores).
+    /// The paper-scale city: ~120k instances, 8,000 units, half the
+    /// buildings fitted to the terrain (about 2.5 minutes on 2 cores).
     PaperCity,
 }
 
