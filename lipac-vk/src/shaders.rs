@@ -50,9 +50,18 @@ pub const CAMERA_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/camera_trace.
 /// lipac's counting (GPU ray generation, shadow and bounce rays).
 pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp");
 
+/// SPIR-V of `stream_bytes.comp`: streams a given number of bytes from one
+/// buffer device address and writes a given number to another, each byte
+/// once, coalesced (push constants: source and destination addresses, then
+/// 16-byte words to read, to write, and a word the XOR of the reads is
+/// compared with; local size 256). The bandwidth reference of the GPU
+/// benchmark (`examples/gpu_bench.rs`): the time a pass that reads and
+/// writes those bytes cannot beat.
+pub const STREAM_BYTES_SPV: &[u8] = include_bytes!("../shaders/spv/stream_bytes.spv");
+
 /// Every embedded SPIR-V module with the name of its `.comp` source (without
 /// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 13] = [
+pub const ALL_SPV: [(&str, &[u8]); 14] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
@@ -66,6 +75,7 @@ pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
     ("feedback_instances", FEEDBACK_INSTANCES_SPV),
     ("escape_sums", ESCAPE_SUMS_SPV),
+    ("stream_bytes", STREAM_BYTES_SPV),
 ];
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,
