@@ -20,7 +20,9 @@
 //! [`CompareReport::blas_throughput`]); its TLAS build is a real
 //! [`CpuTlas`] build over its own records, its trace time the traversal's.
 //! Beside these, the modelled GPU time of the same work
-//! ([`crate::metrics::GpuModel::PUBLISHED`]; see [`crate::metrics`]).
+//! ([`crate::metrics::GpuModel::PUBLISHED`], or the rates of
+//! [`CompareConfig::device`]'s profile; see [`crate::metrics`]). The memory
+//! axis is the profile's sizes ([`crate::memory::MemoryModel`]).
 
 use std::time::Instant;
 
@@ -31,8 +33,9 @@ use serde::{Deserialize, Serialize};
 use crate::blas::{BlasStore, BuildThroughput};
 use crate::camera::{CameraPath, FlyCamera};
 use crate::error::SimError;
-use crate::memory::tlas_bytes;
-use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, GpuModel, Summary, Tracker};
+use crate::device_profile::DeviceProfile;
+use crate::memory::MemoryModel;
+use crate::metrics::{apply_strategy_frame, summarize_with, FrameMetrics, GpuModel, Summary, Tracker};
 use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
@@ -119,6 +122,11 @@ pub struct CompareConfig {
     /// Frames LiPaC holds what a warm start activates
     /// ([`LipacConfig::warm_start_hold`]; `None`: as configured, 0).
     pub lipac_warm_start_hold: Option<u32>,
+    /// The device whose acceleration-structure sizes make the memory axis
+    /// and whose build rates the modelled GPU time
+    /// ([`crate::device_profile`]; default: the built-in profile, lavapipe's
+    /// sizes and published rates).
+    pub device: DeviceProfile,
 }
 
 /// How LiPaC starts in a comparison ([`LipacConfig::warm_start`]).
@@ -192,6 +200,7 @@ impl Default for CompareConfig {
             lipac_start: LipacStart::Default,
             lipac_warm_start_at_cuts: false,
             lipac_warm_start_hold: None,
+            device: DeviceProfile::builtin(),
         }
     }
 }
@@ -259,6 +268,11 @@ pub struct CompareReport {
     /// cold, or the warm start's set, hold and cuts.
     #[serde(default)]
     pub start: String,
+    /// The device profile of the memory axis and the modelled GPU time
+    /// ([`CompareConfig::device`]; the built-in one in reports that predate
+    /// profiles).
+    #[serde(default)]
+    pub device_profile: DeviceProfile,
 }
 
 impl CompareReport {
@@ -286,24 +300,35 @@ impl std::fmt::Debug for Contender {
     }
 }
 
-/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`).
+/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`; every
+/// strategy's BLASes sized by `lipac.memory`, the comparison's device).
 pub fn make_strategy(
     kind: StrategyKind,
     scene: &Scene,
     lipac: &LipacConfig,
 ) -> Result<Box<dyn Strategy>, SimError> {
     Ok(match kind {
-        StrategyKind::Full => Box::new(Full::new(scene)?),
-        StrategyKind::Frustum => {
-            Box::new(FrustumRadius::new(scene, FrustumRadius::DEFAULT_RADIUS)?)
-        }
-        StrategyKind::Heuristic => Box::new(Heuristic::new(scene, Default::default())?),
+        StrategyKind::Full => Box::new(Full::with_memory(scene, &lipac.memory)?),
+        StrategyKind::Frustum => Box::new(FrustumRadius::with_memory(
+            scene,
+            FrustumRadius::DEFAULT_RADIUS,
+            &lipac.memory,
+        )?),
+        StrategyKind::Heuristic => Box::new(Heuristic::with_memory(
+            scene,
+            Default::default(),
+            &lipac.memory,
+        )?),
         StrategyKind::Lipac => Box::new(Lipac::new(scene, lipac.clone())?),
         StrategyKind::LipacLatency => {
             Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
         }
-        StrategyKind::Oracle => Box::new(Oracle::new(scene)?),
-        StrategyKind::Hindsight => Box::new(Hindsight::new(scene, Hindsight::DEFAULT_FRAMES)?),
+        StrategyKind::Oracle => Box::new(Oracle::with_memory(scene, &lipac.memory)?),
+        StrategyKind::Hindsight => Box::new(Hindsight::with_memory(
+            scene,
+            Hindsight::DEFAULT_FRAMES,
+            &lipac.memory,
+        )?),
     })
 }
 
@@ -358,10 +383,11 @@ pub fn run(
 }
 
 /// LiPaC's configuration of a comparison: the defaults for its rays, with
-/// `config`'s adaptive hitboxes, cell size, rise shift and start.
+/// `config`'s adaptive hitboxes, cell size, rise shift, start and device.
 pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
+        .with_memory(config.device.memory_model());
     if let Some(levels) = config.adaptive_levels {
         lipac_config = lipac_config.with_adaptive_hitboxes(levels);
     }
@@ -484,6 +510,7 @@ pub struct Comparison {
     traced_rays: u64,
     throughput: BuildThroughput,
     gpu: GpuModel,
+    memory: MemoryModel,
     frames: u32,
     capture: Vec<u32>,
     cuts: Vec<u32>,
@@ -557,7 +584,8 @@ impl Comparison {
             ..PathTraceConfig::default()
         };
         let n = scene.instances().len();
-        let catalog = InstanceCatalog::new(scene)?;
+        let memory = config.device.memory_model();
+        let catalog = InstanceCatalog::with_memory(scene, &memory)?;
         let (names, strategies): (Vec<String>, Vec<Box<dyn Strategy>>) =
             contenders.into_iter().map(|c| (c.name, c.strategy)).unzip();
         let k = strategies.len();
@@ -608,7 +636,8 @@ impl Comparison {
             geometry_ms: 0.0,
             traced_rays: 0,
             throughput,
-            gpu: GpuModel::PUBLISHED,
+            gpu: config.device.gpu_model(),
+            memory,
             frames: 0,
             capture: Vec::new(),
             cuts: Vec::new(),
@@ -821,7 +850,7 @@ impl Comparison {
             };
             m.tlas_instances = traced.len() as u64;
             m.counting_boxes = traced.box_count() as u64;
-            m.tlas_bytes = tlas_bytes(m.tlas_instances);
+            m.tlas_bytes = self.memory.tlas_bytes(m.tlas_instances);
             m.charge_time(&self.throughput, &self.gpu);
             let geometry_slots = (0..n as u32).filter(|&s| geometry.contains(s));
             self.trackers[i].observe(frame, geometry_slots, &gt.counters.instances, &mut m);
@@ -896,7 +925,7 @@ impl Comparison {
             .zip(self.last_geometry)
             .map(|(((name, frames), tracker), last)| StrategyRun {
                 name: name.clone(),
-                summary: summarize(name, &frames, tracker),
+                summary: summarize_with(name, &frames, tracker, &self.memory),
                 frames,
                 last_geometry: last,
             })
@@ -922,6 +951,7 @@ impl Comparison {
             camera_cuts: self.cuts.clone(),
             rule: crate::report::rule_description(&th),
             start: crate::report::start_description(&self.lipac_config),
+            device_profile: self.config.device.clone(),
         };
         Ok((report, self.snapshots))
     }
