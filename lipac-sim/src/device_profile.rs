@@ -455,6 +455,11 @@ impl DeviceProfile {
         let curve = |points: Vec<(u64, u64)>, fallback: SizeCurve| {
             SizeCurve::new(points).unwrap_or(fallback)
         };
+        // Scratch the same at every measured size: that size at any count.
+        let scratch_curve = |points: Vec<(u64, u64)>, fallback: SizeCurve| match points.first() {
+            Some(&(_, b)) if points.iter().all(|p| p.1 == b) => SizeCurve::constant(b),
+            _ => curve(points, fallback),
+        };
         let lavapipe = MemoryModel::lavapipe();
         let sizes = &self.blas.sizes;
         let scratch = |f: fn(&BlasSize) -> Option<u64>| -> Vec<(u64, u64)> {
@@ -480,11 +485,11 @@ impl DeviceProfile {
             blas: curve(built, lavapipe.blas.clone()),
             blas_compacted: curve(self.compacted_points(), lavapipe.blas_compacted.clone()),
             blas_min_bytes: self.blas.min_bytes.unwrap_or(1),
-            build_scratch: curve(
+            build_scratch: scratch_curve(
                 scratch(|s| s.build_scratch_bytes),
                 lavapipe.build_scratch.clone(),
             ),
-            update_scratch: curve(
+            update_scratch: scratch_curve(
                 scratch(|s| s.update_scratch_bytes),
                 lavapipe.update_scratch.clone(),
             ),

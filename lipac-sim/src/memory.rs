@@ -21,8 +21,6 @@
 //! comparison reports the model, which is what a Vulkan backend on the
 //! profile's device would allocate for the same BLASes and TLAS records.
 
-use serde::{Deserialize, Serialize};
-
 use lipac_core::build_plan::BuildEstimate;
 use lipac_core::grid::{HITBOX_BYTES, HIT_FEEDBACK_BYTES_PER_INSTANCE};
 use lipac_core::manager::MeshLod;
@@ -128,14 +126,15 @@ pub fn mesh_lod(triangles: u64) -> MeshLod {
 /// every point, linear between two, the last segment extended above the
 /// last point, proportional to the first point below it (rounded up).
 /// Integer arithmetic, so a profile's points come back exactly.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SizeCurve {
     points: Vec<(u64, u64)>,
 }
 
 impl SizeCurve {
-    /// The curve through `points`; `None` when there are none, a count is
-    /// 0, counts do not strictly increase or bytes decrease.
+    /// The curve through `points`; `None` when there are none, counts do
+    /// not strictly increase or bytes decrease, or a lone point is at
+    /// count 0 (a first point at count 0 gives the size of nothing).
     ///
     /// ```
     /// use lipac_sim::memory::SizeCurve;
@@ -148,13 +147,20 @@ impl SizeCurve {
         let ordered = points
             .windows(2)
             .all(|w| w[0].0 < w[1].0 && w[0].1 <= w[1].1);
-        (!points.is_empty() && points[0].0 > 0 && ordered).then_some(Self { points })
+        let lone_zero = points.len() == 1 && points[0].0 == 0;
+        (!points.is_empty() && !lone_zero && ordered).then_some(Self { points })
     }
 
     /// A constant size (e.g. lavapipe's build scratch).
+    ///
+    /// ```
+    /// use lipac_sim::memory::SizeCurve;
+    /// let c = SizeCurve::constant(64);
+    /// assert_eq!((c.at(0), c.at(1), c.at(1 << 40)), (64, 64, 64));
+    /// ```
     pub fn constant(bytes: u64) -> Self {
         Self {
-            points: vec![(1, bytes), (2, bytes)],
+            points: vec![(0, bytes), (1, bytes)],
         }
     }
 
@@ -215,7 +221,7 @@ impl SizeCurve {
 /// }
 /// assert_eq!(m.tlas_bytes_per_instance(), 176);
 /// ```
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct MemoryModel {
     /// BLAS bytes by triangles, as built.
     pub blas: SizeCurve,

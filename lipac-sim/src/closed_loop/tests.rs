@@ -1,4 +1,5 @@
 use super::*;
+use crate::memory::blas_bytes;
 use crate::camera::CameraPath;
 use crate::compare::StrategyRun;
 use crate::metrics::{FrameMetrics, Summary};
@@ -75,6 +76,7 @@ fn report(strategies: Vec<StrategyRun>) -> CompareReport {
         start: String::new(),
         blas_throughput: Default::default(),
         gpu_model: Default::default(),
+        device_profile: Default::default(),
     }
 }
 
