@@ -537,18 +537,18 @@ impl DeviceProfile {
         g
     }
 
-    /// One line naming the profile for reports.
+    /// A few words naming the profile for reports: its name and device
+    /// (its `source` is in the report's memory note and JSON).
     pub fn describe(&self) -> String {
         if self.is_builtin() {
             return "built-in (lavapipe's acceleration-structure sizes; published GPU rates)"
                 .into();
         }
-        let device = if self.device.is_empty() {
-            String::new()
+        if self.device.is_empty() {
+            self.name.clone()
         } else {
-            format!(", {}", self.device)
-        };
-        format!("{}{device}: {}", self.name, self.source)
+            format!("{} ({})", self.name, self.device)
+        }
     }
 }
 

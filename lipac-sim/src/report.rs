@@ -33,7 +33,7 @@ pub const PLOT_TITLES: [&str; 6] = [
     "Error per frame",
     "Frame time per frame (AS work + trace, measured on CPU)",
     "Frame time (AS work + trace, measured on CPU) against error",
-    "Modelled GPU frame time against error (published throughput)",
+    "Modelled GPU frame time against error (the device profile's rates)",
 ];
 
 /// The summary table for the terminal (fixed-width text).
@@ -546,10 +546,10 @@ pub fn memory_note(profile: &crate::device_profile::DeviceProfile) -> String {
                 .compacted_bytes
                 .filter(|&c| c != b.built_bytes)
                 .map_or(String::new(), |c| {
-                    format!(", {:.0} compacted", c as f64 / b.triangles as f64)
+                    format!(" ({:.0} compacted)", c as f64 / b.triangles as f64)
                 });
             format!(
-                "{:.0}{compacted} at {} triangles",
+                "{:.0} at {} triangles{compacted}",
                 b.built_bytes as f64 / b.triangles as f64,
                 b.triangles
             )
@@ -558,10 +558,11 @@ pub fn memory_note(profile: &crate::device_profile::DeviceProfile) -> String {
     format!(
         "Memory is modelled on the acceleration-structure sizes of the device profile {} (BLAS \
          bytes per triangle as built: {}; {} B per TLAS instance; {lipac}): see \
-         docs/MEMORY_MODEL.md.",
+         docs/MEMORY_MODEL.md. The profile's source: {}",
         profile.describe(),
         per_triangle.join("; "),
-        m.tlas_bytes_per_instance()
+        m.tlas_bytes_per_instance(),
+        profile.source
     )
 }
 

@@ -176,3 +176,24 @@ fn the_cli_reports_the_profile_and_refuses_a_malformed_one() {
     assert_eq!(std::fs::read(&own).unwrap(), original);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn replay_takes_the_profile_too() {
+    let dir = scratch("replay");
+    let trace = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/tiny.lipactrace");
+    for (flag, name) in [(true, "nvidia-h200"), (false, "built-in")] {
+        let out = dir.join(name);
+        let mut cmd = lipac();
+        cmd.arg("replay").arg(&trace).arg("--out").arg(&out);
+        if flag {
+            cmd.arg("--device-profile").arg(profile("nvidia-h200.json"));
+        }
+        let o = cmd.stdin(Stdio::null()).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        assert_eq!(json["device_profile"]["name"], name);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
