@@ -32,10 +32,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::blas::{BlasStore, BuildThroughput};
 use crate::camera::{CameraPath, FlyCamera};
-use crate::error::SimError;
 use crate::device_profile::DeviceProfile;
+use crate::error::SimError;
 use crate::memory::MemoryModel;
-use crate::metrics::{apply_strategy_frame, summarize_with, FrameMetrics, GpuModel, Summary, Tracker};
+use crate::metrics::{
+    apply_strategy_frame, summarize_with, FrameMetrics, GpuModel, Summary, Tracker,
+};
 use crate::pathtrace::{relative_rmse, render, FrameScene, PathTraceConfig};
 use crate::scene::{LodPolicy, Scene, SceneConfig};
 use crate::scene_blas::{full_scene_records_at, SceneBlases, UniqueUpdate};
@@ -386,8 +388,8 @@ pub fn run(
 /// `config`'s adaptive hitboxes, cell size, rise shift, start and device.
 pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?
-        .with_memory(config.device.memory_model());
+    let mut lipac_config =
+        LipacConfig::for_rays_per_frame(rays_per_frame)?.with_memory(config.device.memory_model());
     if let Some(levels) = config.adaptive_levels {
         lipac_config = lipac_config.with_adaptive_hitboxes(levels);
     }

@@ -209,7 +209,9 @@ fn check_len<T>(v: &[T], what: &str, at_least: usize) -> Result<(), SimError> {
 fn check_points(points: &[(u64, u64)], what: &str, unit: &str) -> Result<(), SimError> {
     for (i, &(n, b)) in points.iter().enumerate() {
         if n == 0 || b == 0 {
-            return Err(bad(format!("{what}[{i}]: {n} {unit}, {b} bytes (both must be > 0)")));
+            return Err(bad(format!(
+                "{what}[{i}]: {n} {unit}, {b} bytes (both must be > 0)"
+            )));
         }
         if b / n > MAX_BYTES_PER_ITEM {
             return Err(bad(format!(
@@ -375,7 +377,11 @@ impl DeviceProfile {
         }
         let b = &self.blas;
         check_len(&b.sizes, "blas.sizes", 1)?;
-        let built: Vec<(u64, u64)> = b.sizes.iter().map(|s| (s.triangles, s.built_bytes)).collect();
+        let built: Vec<(u64, u64)> = b
+            .sizes
+            .iter()
+            .map(|s| (s.triangles, s.built_bytes))
+            .collect();
         check_points(&built, "blas.sizes", "triangles")?;
         for (i, s) in b.sizes.iter().enumerate() {
             if let Some(c) = s.compacted_bytes {
@@ -526,12 +532,7 @@ impl DeviceProfile {
             g.build_s_per_blas = overhead;
             g.build_triangles_per_s = 1.0 / per_triangle;
         }
-        if let Some(t) = self
-            .tlas
-            .builds
-            .iter()
-            .max_by_key(|t| t.instances)
-        {
+        if let Some(t) = self.tlas.builds.iter().max_by_key(|t| t.instances) {
             g.tlas_instances_per_s = t.instances as f64 / (t.ms * 1e-3);
         }
         g

@@ -50,7 +50,13 @@ fn a_profile_changes_the_memory_axis_and_the_gpu_model() {
             r.frames.iter().map(|m| m.blas_bytes).max().unwrap_or(0)
         };
         // 92 B per triangle against lavapipe's 104: less BLAS memory.
-        assert!(bytes(h) < bytes(b), "{}: {} vs {}", b.name, bytes(h), bytes(b));
+        assert!(
+            bytes(h) < bytes(b),
+            "{}: {} vs {}",
+            b.name,
+            bytes(h),
+            bytes(b)
+        );
         assert!(h.summary.mean_mib < b.summary.mean_mib, "{}", b.name);
         assert_ne!(
             h.summary.mean_gpu_frame_ms, b.summary.mean_gpu_frame_ms,
@@ -71,7 +77,10 @@ fn no_profile_is_the_builtin_model() {
     assert_eq!(r.gpu_model, m);
     for s in &r.strategies {
         for f in &s.frames {
-            assert_eq!(f.tlas_bytes, lipac_sim::memory::tlas_bytes(f.tlas_instances));
+            assert_eq!(
+                f.tlas_bytes,
+                lipac_sim::memory::tlas_bytes(f.tlas_instances)
+            );
         }
     }
 }
@@ -159,7 +168,10 @@ fn the_cli_reports_the_profile_and_refuses_a_malformed_one() {
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
-    assert!(err.contains("bad.json") && err.contains("version 9"), "{err}");
+    assert!(
+        err.contains("bad.json") && err.contains("version 9"),
+        "{err}"
+    );
     assert!(!none.exists());
     // The profile is an input: never the report folder.
     let own = dir.join("own.json");

@@ -102,6 +102,7 @@ fn report_html_renders_in_headless_chromium() {
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     };
     let (r, snaps) =
         run_choice_with_snapshots(SceneChoice::Small, None, &config, &[0, 3], &mut |_, _| {})

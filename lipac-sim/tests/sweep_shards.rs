@@ -178,8 +178,18 @@ fn merge_refuses_what_is_not_one_sweep() {
     );
     assert_eq!(device.plan.device_profile.name, "nvidia-h200");
     assert!(err(&[a.clone(), device.clone()]).contains("other settings"));
-    let both = merge(&[part(1, 2, &SweepConfig { device: h200, ..config.clone() }), device])
-        .unwrap();
+    let both = merge(&[
+        part(
+            1,
+            2,
+            &SweepConfig {
+                device: h200,
+                ..config.clone()
+            },
+        ),
+        device,
+    ])
+    .unwrap();
     assert_eq!(both.device_profile.name, "nvidia-h200");
     assert!(sweep::sweep_markdown(&both).contains("Device profile: nvidia-h200 (NVIDIA H200)"));
     // Another split of the same sweep.

@@ -220,7 +220,9 @@ fn measure(dev: &GpuDevice, opts: &Options, args: &[String]) -> Res<DeviceProfil
         cube_compacted.unwrap_or(cube_blas.size())
     );
     sizes.sort_by_key(|s| s.triangles);
-    println!("| BLAS triangles | built B | B/triangle | compacted B | B/triangle | build scratch B |");
+    println!(
+        "| BLAS triangles | built B | B/triangle | compacted B | B/triangle | build scratch B |"
+    );
     println!("| ---: | ---: | ---: | ---: | ---: | ---: |");
     for s in &sizes {
         println!(

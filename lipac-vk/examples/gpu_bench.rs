@@ -70,7 +70,10 @@ fn options(args: &[String]) -> Result<Options, String> {
         .split(',')
         .map(parse_count)
         .collect::<Result<Vec<_>, _>>()?;
-    if slots.iter().any(|&s| s == 0 || s > lipac_core::layout::MAX_SLOTS) {
+    if slots
+        .iter()
+        .any(|&s| s == 0 || s > lipac_core::layout::MAX_SLOTS)
+    {
         return Err(format!(
             "--slots: each count must be 1..={}",
             lipac_core::layout::MAX_SLOTS
@@ -242,7 +245,10 @@ fn run(dev: &GpuDevice, opts: &Options, args: &[String]) -> Res<Report> {
     let bw_bytes = opts.bandwidth_mib << 20;
     let source = b.random_buffer("bandwidth source", bw_bytes, 0xB4D_5EED)?;
     let (warm_ms, warm_runs) = b.warm_up(&source, opts.warmup_ms)?;
-    println!("gpu_bench: warm-up {warm_ms:.0} ms ({warm_runs} streams of {} MiB)", opts.bandwidth_mib);
+    println!(
+        "gpu_bench: warm-up {warm_ms:.0} ms ({warm_runs} streams of {} MiB)",
+        opts.bandwidth_mib
+    );
     let read = b.reference(&source, &source, bw_bytes / 16 * 16, 0)?;
     let bandwidth = Bandwidth {
         bytes: bw_bytes,

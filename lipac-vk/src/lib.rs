@@ -111,7 +111,8 @@ pub use counting::{
 };
 pub use device_allocator::{
     AllocationRequest, AllocatorBlocks, DeviceAllocation, DeviceAllocator, DeviceMemoryStats,
-    FailingAllocator, GpuAllocator, GPU_ALLOCATOR_DEVICE_BLOCK_BYTES, GPU_ALLOCATOR_HOST_BLOCK_BYTES,
+    FailingAllocator, GpuAllocator, GPU_ALLOCATOR_DEVICE_BLOCK_BYTES,
+    GPU_ALLOCATOR_HOST_BLOCK_BYTES,
 };
 pub use error::{Result, VkError};
 pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};

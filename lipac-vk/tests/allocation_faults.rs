@@ -255,6 +255,9 @@ fn out_of_memory_at_every_allocation_of_a_frame_loop() {
     }
     eprintln!("{name}: {total} allocations failed one by one; where: {stages:?}");
     // Setup and frames each met failures (the loop's allocations are spread).
-    assert!(stages.contains_key("Setup") && stages.contains_key("frame 1"), "{stages:?}");
+    assert!(
+        stages.contains_key("Setup") && stages.contains_key("frame 1"),
+        "{stages:?}"
+    );
     assert_no_validation_errors(&h);
 }

@@ -1,7 +1,7 @@
 use super::*;
-use crate::memory::blas_bytes;
 use crate::camera::CameraPath;
 use crate::compare::StrategyRun;
+use crate::memory::blas_bytes;
 use crate::metrics::{FrameMetrics, Summary};
 use crate::strategy::StrategyKind;
 

@@ -21,7 +21,10 @@ fn builtin_is_todays_model_exactly() {
         assert_eq!(m.tlas_bytes(n), tlas_bytes(n), "TLAS of {n}");
         assert_eq!(m.build_estimate(n), build_estimate(n), "estimate of {n}");
     }
-    assert_eq!(m.tlas_bytes_per_instance(), crate::memory::TLAS_BYTES_PER_INSTANCE);
+    assert_eq!(
+        m.tlas_bytes_per_instance(),
+        crate::memory::TLAS_BYTES_PER_INSTANCE
+    );
     assert_eq!(p.gpu_model(), GpuModel::PUBLISHED);
     // Round trip through JSON.
     let back = DeviceProfile::from_json(&p.to_json()).unwrap();
@@ -47,7 +50,11 @@ fn shipped_profiles_load_and_differ_from_the_builtin() {
 #[test]
 fn h200_profile_is_the_transcribed_figures() {
     let p = h200();
-    assert!(p.source.to_lowercase().contains("transcribed"), "{}", p.source);
+    assert!(
+        p.source.to_lowercase().contains("transcribed"),
+        "{}",
+        p.source
+    );
     let m = p.memory_model();
     // 92 B per triangle built, 76 compacted; 161 B per TLAS instance.
     assert_eq!(m.blas_bytes(512), 92 * 512);
@@ -67,7 +74,10 @@ fn h200_profile_is_the_transcribed_figures() {
     // TLAS of 1M instances in 1.69 ms.
     assert!((g.frame(0, 0, 0, 1_000_000, 0).tlas_build_ms - 1.69).abs() < 1e-9);
     // Refits and rays: the published rates (no profile measures them).
-    assert_eq!(g.refit_triangles_per_s, GpuModel::PUBLISHED.refit_triangles_per_s);
+    assert_eq!(
+        g.refit_triangles_per_s,
+        GpuModel::PUBLISHED.refit_triangles_per_s
+    );
     assert_eq!(g.rays_per_s, GpuModel::PUBLISHED.rays_per_s);
 }
 
@@ -85,16 +95,25 @@ fn refused(v: &serde_json::Value) -> String {
     }
 }
 
+/// A change to a valid profile's JSON.
+type Mutation = Box<dyn Fn(&mut serde_json::Value)>;
+
 #[test]
 fn malformed_profiles_are_clear_errors() {
     assert!(DeviceProfile::from_json(&base_json().to_string()).is_ok());
-    let cases: Vec<(Box<dyn Fn(&mut serde_json::Value)>, &str)> = vec![
-        (Box::new(|v| v["format"] = "something else".into()), "format"),
+    let cases: Vec<(Mutation, &str)> = vec![
+        (
+            Box::new(|v| v["format"] = "something else".into()),
+            "format",
+        ),
         (Box::new(|v| v["version"] = 2.into()), "version 2"),
         (Box::new(|v| v["name"] = "".into()), "name"),
         (Box::new(|v| v["source"] = " ".into()), "source"),
         (Box::new(|v| v["extra"] = 1.into()), "unknown field"),
-        (Box::new(|v| v["blas"]["sizes"] = serde_json::json!([])), "blas.sizes"),
+        (
+            Box::new(|v| v["blas"]["sizes"] = serde_json::json!([])),
+            "blas.sizes",
+        ),
         (
             Box::new(|v| v["blas"]["sizes"][0]["built_bytes"] = 0.into()),
             "blas.sizes[0]",
@@ -115,10 +134,22 @@ fn malformed_profiles_are_clear_errors() {
             Box::new(|v| v["blas"]["sizes"][0]["built_bytes"] = u64::MAX.into()),
             "bytes each",
         ),
-        (Box::new(|v| v["blas"]["builds"][0]["ms"] = (-1.0).into()), "blas.builds[0].ms"),
-        (Box::new(|v| v["blas"]["builds"][0]["meshes"] = 0.into()), "meshes"),
-        (Box::new(|v| v["tlas"]["sizes"][0]["instances"] = 0.into()), "tlas.sizes[0]"),
-        (Box::new(|v| v["tlas"]["builds"][0]["ms"] = 0.0.into()), "tlas.builds[0].ms"),
+        (
+            Box::new(|v| v["blas"]["builds"][0]["ms"] = (-1.0).into()),
+            "blas.builds[0].ms",
+        ),
+        (
+            Box::new(|v| v["blas"]["builds"][0]["meshes"] = 0.into()),
+            "meshes",
+        ),
+        (
+            Box::new(|v| v["tlas"]["sizes"][0]["instances"] = 0.into()),
+            "tlas.sizes[0]",
+        ),
+        (
+            Box::new(|v| v["tlas"]["builds"][0]["ms"] = 0.0.into()),
+            "tlas.builds[0].ms",
+        ),
         (Box::new(|v| v["blas"]["min_bytes"] = 0.into()), "min_bytes"),
         (
             Box::new(|v| {
@@ -138,7 +169,9 @@ fn malformed_profiles_are_clear_errors() {
         assert!(e.contains(says), "{e} should say {says}");
     }
     // NaN is not JSON; a string where a number goes is refused by the parser.
-    let e = DeviceProfile::from_json("{\"format\": 1}").unwrap_err().to_string();
+    let e = DeviceProfile::from_json("{\"format\": 1}")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not a profile"), "{e}");
     assert!(DeviceProfile::from_json("not json").is_err());
 }
@@ -170,7 +203,10 @@ fn fit_recovers_a_cost_per_build_and_a_rate() {
         .map(|&n| (n, 10e-6 + n * 1e-9))
         .collect();
     let (c, s) = fit_affine(&pts).unwrap();
-    assert!((c - 10e-6).abs() < 1e-12 && (s - 1e-9).abs() < 1e-15, "{c} {s}");
+    assert!(
+        (c - 10e-6).abs() < 1e-12 && (s - 1e-9).abs() < 1e-15,
+        "{c} {s}"
+    );
     // One point: the rate alone.
     let (c, s) = fit_affine(&pts[..1]).unwrap();
     assert_eq!(c, 0.0);

@@ -110,7 +110,10 @@ impl World {
         meshes.sort_unstable();
         let mut catalog = MeshCatalog::new();
         for (&mesh, lods) in meshes {
-            let lods = lods.iter().map(|&t| memory.mesh_lod(u64::from(t))).collect();
+            let lods = lods
+                .iter()
+                .map(|&t| memory.mesh_lod(u64::from(t)))
+                .collect();
             catalog.insert(MeshId(mesh), lods).map_err(core)?;
         }
         Ok(catalog)

@@ -366,14 +366,21 @@ pub fn run(b: &mut Bench<'_>, f: &CpuFrame) -> Res<FrameResult> {
     out.active = u64::from(st.active);
     out.omitted_boxes = u64::from(st.omitted_boxes);
     out.hitbox_boxes = u64::from(st.hitbox_boxes);
-    out.algorithm1.check = "equal to lipac-core's assemble_tlas (record multiset, hitbox records)".into();
+    out.algorithm1.check =
+        "equal to lipac-core's assemble_tlas (record multiset, hitbox records)".into();
 
     // Algorithm 2 against the CPU (from the pristine records).
     let mut hot: Vec<InstanceHot> = f.arrays.hot().to_vec();
     let mut hitboxes = f.hitboxes.clone();
     let mut commands = CommandBuffer::new(slots.max(1));
-    let fs = process_feedback(&mut hot, &f.hits, &mut hitboxes, &f.thresholds, &mut commands)
-        .map_err(|e| format!("CPU Algorithm 2: {e:?}"))?;
+    let fs = process_feedback(
+        &mut hot,
+        &f.hits,
+        &mut hitboxes,
+        &f.thresholds,
+        &mut commands,
+    )
+    .map_err(|e| format!("CPU Algorithm 2: {e:?}"))?;
     if fs.overflowed != 0 {
         return Err("the CPU reference overflowed its command buffer".into());
     }
@@ -471,7 +478,11 @@ pub fn run(b: &mut Bench<'_>, f: &CpuFrame) -> Res<FrameResult> {
             .collect(),
         ..Uploads::default()
     };
-    out.upload_records = uploads.records.iter().map(|r| u64::from(r.len() as u32)).sum();
+    out.upload_records = uploads
+        .records
+        .iter()
+        .map(|r| u64::from(r.len() as u32))
+        .sum();
     let arrays = &f.arrays;
     let mut staged: Option<Result<(), lipac_vk::VkError>> = None;
     out.upload = b.timed(
@@ -489,7 +500,8 @@ pub fn run(b: &mut Bench<'_>, f: &CpuFrame) -> Res<FrameResult> {
     }
 
     // The TLAS over Algorithm 1's output (as LipacVk builds it).
-    b.one_shot.run(|rec| assembly.record(rec, &ab, &config, slots))?;
+    b.one_shot
+        .run(|rec| assembly.record(rec, &ab, &config, slots))?;
     let count = (n + h) as u32;
     let flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE;
     let mut tlas = GpuTlas::new(&ctx, count, flags)?;

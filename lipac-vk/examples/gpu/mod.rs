@@ -70,7 +70,13 @@ impl<'a> Bench<'a> {
             one_shot,
             stream: StreamKernel::new(ctx)?,
             evict,
-            sink: Buffer::named(ctx, "gpu bench sink", 256, STORAGE_XFER, MemoryLocation::GpuOnly)?,
+            sink: Buffer::named(
+                ctx,
+                "gpu bench sink",
+                256,
+                STORAGE_XFER,
+                MemoryLocation::GpuOnly,
+            )?,
             reps: reps.max(1),
         })
     }
@@ -151,7 +157,13 @@ impl<'a> Bench<'a> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let size = (bytes.len() as u64).max(16);
         let ctx = self.dev.ctx();
-        let dst = Buffer::named(ctx, name, size, usage | STORAGE_XFER, MemoryLocation::GpuOnly)?;
+        let dst = Buffer::named(
+            ctx,
+            name,
+            size,
+            usage | STORAGE_XFER,
+            MemoryLocation::GpuOnly,
+        )?;
         if !bytes.is_empty() {
             let staging = Buffer::with_data(
                 ctx,

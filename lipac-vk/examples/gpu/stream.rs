@@ -57,9 +57,8 @@ impl StreamKernel {
             .stage(stage)
             .layout(layout)];
         // SAFETY: valid device, module and layout.
-        let made = unsafe {
-            device.create_compute_pipelines(vk::PipelineCache::null(), &info, None)
-        };
+        let made =
+            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
         // SAFETY: the module is no longer needed once the pipeline exists.
         unsafe { device.destroy_shader_module(module, None) };
         let pipeline = match made {
