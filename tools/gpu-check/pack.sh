@@ -10,9 +10,13 @@
 # made by this script. It gets run.sh, bin/ (gpu_bench, device_profile,
 # device_oom, vk_city), tests/ (every test binary of lipac-vk and the root
 # crate's vk_city test: whatever `cargo test --no-run` produces) and
-# MANIFEST.txt. --with-loader adds this machine's libvulkan.so.1 (run.sh uses
-# it where the target has none); --with-validation adds the Khronos
-# validation layer (run.sh then runs the tests with LIPAC_REQUIRE_VULKAN=1).
+# MANIFEST.txt. lipac-vk's `shaders` test is left out: it checks the source
+# tree's SPIR-V with glslangValidator, not a device. --with-loader adds this
+# machine's Vulkan loader and the glvnd libraries a vendor's driver loads
+# through (libvulkan.so.1, libGLdispatch.so.0, libGLX.so.0, libGL.so.1,
+# libEGL.so.1, libOpenGL.so.0; run.sh uses those the target lacks);
+# --with-validation adds the Khronos validation layer (run.sh then runs the
+# tests with LIPAC_REQUIRE_VULKAN=1, under validation).
 # When the binaries exceed --max-mib (default 48) they are packed as
 # payload.tar.xz instead; the script fails if even that does not fit.
 set -euo pipefail
@@ -78,6 +82,7 @@ PY
 rm -rf "$dest"
 mkdir -p "$dest/bin" "$dest/tests"
 { list "$tmp/vk.json" test; list "$tmp/city-test.json" test; } | sort -u | while read -r name exe; do
+  [ "$name" = shaders ] && continue
   cp "$exe" "$dest/tests/$name"
 done
 { list "$tmp/ex.json" example; list "$tmp/city.json" example; } | sort -u | while read -r name exe; do
@@ -91,10 +96,12 @@ cp tools/gpu-check/run.sh "$dest/run.sh"
 chmod +x "$dest/run.sh"
 
 if [ "$with_loader" = 1 ]; then
-  lib=$(ldconfig -p | awk '/libvulkan\.so\.1 .*x86-64/ {print $NF; exit}')
-  [ -n "$lib" ] || { echo "pack.sh: no libvulkan.so.1 here for --with-loader" >&2; exit 1; }
   mkdir -p "$dest/loader"
-  cp -L "$lib" "$dest/loader/libvulkan.so.1"
+  for so in libvulkan.so.1 libGLdispatch.so.0 libGLX.so.0 libGL.so.1 libEGL.so.1 libOpenGL.so.0; do
+    lib=$(ldconfig -p | awk -v n="$so" '$1 == n && /x86-64/ {print $NF; exit}')
+    [ -n "$lib" ] || { echo "pack.sh: no $so here for --with-loader" >&2; exit 1; }
+    cp -L "$lib" "$dest/loader/$so"
+  done
 fi
 if [ "$with_validation" = 1 ]; then
   json=""

@@ -18,7 +18,8 @@
 # status is 1 when any step failed. LIPAC_GPU_CHECK_SMALL=1 runs small
 # sizes (CPU Vulkan, lavapipe); LIPAC_GPU_CHECK_PACK=DIR names the pack when
 # this script is not inside one; LIPAC_GPU_CHECK_VK_CITY_ARGS adds
-# arguments to vk_city.
+# arguments to vk_city; LIPAC_GPU_CHECK_TEST_ARGS replaces the test
+# binaries' arguments (default --nocapture).
 set -u
 if [ $# -ne 1 ]; then
   echo "usage: run.sh OUTDIR" >&2
@@ -64,24 +65,32 @@ if command -v nvidia-smi >/dev/null 2>&1; then
     --format=csv 2>&1 | tee -a "$log"
 fi
 
-# The Vulkan loader: the system's, else the pack's.
-have_loader() {
+# The Vulkan loader (and the glvnd libraries drivers load through): the
+# system's, and the pack's for those the system lacks.
+have_lib() {
   { command -v ldconfig >/dev/null && ldconfig -p 2>/dev/null || /sbin/ldconfig -p 2>/dev/null; } |
-    grep -q 'libvulkan\.so\.1 ' && return 0
+    grep -q "^[[:space:]]*$1 " && return 0
   local d
-  for d in ${LD_LIBRARY_PATH//:/ } /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu /usr/lib64 /usr/lib /usr/local/lib; do
-    [ -e "$d/libvulkan.so.1" ] && return 0
+  for d in ${LD_LIBRARY_PATH:+${LD_LIBRARY_PATH//:/ }} /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu /usr/lib64 /usr/lib /usr/local/lib; do
+    [ -e "$d/$1" ] && return 0
   done
   return 1
 }
 loader=system
-if ! have_loader; then
-  if [ -f "$pack/loader/libvulkan.so.1" ]; then
-    export LD_LIBRARY_PATH="$pack/loader${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-    loader="pack ($pack/loader)"
-  else
-    loader="none found (no libvulkan.so.1 on the system and none in the pack: pack.sh --with-loader)"
+mkdir -p "$work/loader"
+for f in "$pack"/loader/*; do
+  [ -f "$f" ] || continue
+  so=$(basename "$f")
+  if ! have_lib "$so"; then
+    ln -s "$f" "$work/loader/$so"
+    loader="system + the pack's $(ls "$work/loader" | tr '\n' ' ')"
   fi
+done
+if [ -n "$(ls "$work/loader")" ]; then
+  export LD_LIBRARY_PATH="$work/loader${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+fi
+if ! have_lib libvulkan.so.1; then
+  loader="none found (no libvulkan.so.1 on the system and none in the pack: pack.sh --with-loader)"
 fi
 say "Vulkan loader: $loader"
 # A driver manifest where the loader looks, else a vendor's install path.
@@ -150,7 +159,7 @@ step() {
   say ""
   say "== $name: $cmd (limit ${limit} s)"
   if [ "$limit" -lt 5 ]; then
-    status="not run" rc=-1 secs=0
+    status="not run: time budget" rc=-1 secs=0
     say "-- not run: the time budget (LIPAC_GPU_CHECK_BUDGET_S=$budget) is spent"
   elif [ ! -x "$1" ]; then
     status="not run" rc=-1 secs=0
@@ -196,7 +205,7 @@ step() {
     fi
     say "-- $name: $status (exit $rc, ${secs} s)"
   fi
-  [ "$status" = "failed" ] || [ "$status" = "timed out" ] && failed=1
+  case "$status" in failed | "timed out" | "not run: time budget") failed=1 ;; esac
   steps+=("{\"name\": \"$(json_escape "$name")\", \"command\": \"$(json_escape "$cmd")\", \"status\": \"$status\", \"exit_code\": $rc, \"seconds\": $secs$extra}")
   return 0
 }
@@ -206,7 +215,8 @@ step "device_profile" 150 "$bins/bin/device_profile" --out "$out/profile.json" "
 step "device_oom" 120 "$bins/bin/device_oom" --out "$out/oom.json" "${oom_args[@]}"
 for t in "$bins"/tests/*; do
   [ -x "$t" ] || continue
-  step "test $(basename "$t")" 150 "$t" --nocapture
+  # shellcheck disable=SC2086
+  step "test $(basename "$t")" 150 "$t" ${LIPAC_GPU_CHECK_TEST_ARGS---nocapture}
 done
 if [ -x "$bins/bin/vk_city" ]; then
   step "vk_city" 120 "$bins/bin/vk_city" --out "$out/vk_city.png" "${city_args[@]}"

@@ -3,15 +3,18 @@
 //! its device. It asks for what the measured work needs (acceleration
 //! structures and compute: Vulkan 1.3, `VK_KHR_acceleration_structure`,
 //! buffer device address, timeline semaphores, synchronization2) and
-//! enables ray queries only where the device has them, so it runs on GPUs
-//! that trace with ray-tracing pipelines alone. Kept apart from
+//! enables ray queries where the device has them, else ray-tracing
+//! pipelines (`vkGetAccelerationStructureBuildSizesKHR` needs one of the two
+//! features enabled), so it runs on GPUs that trace with ray-tracing
+//! pipelines alone. Kept apart from
 //! `HeadlessContext` on purpose: a device-creation helper the examples can
 //! drop once `HeadlessContext` takes such devices.
 //!
 //! Device choice: a discrete GPU before an integrated, virtual or CPU one;
 //! `LIPAC_DEVICE=TEXT` picks the first device whose name contains TEXT (or
 //! whose index is TEXT). `LIPAC_VALIDATION=1` enables
-//! `VK_LAYER_KHRONOS_validation` and counts its errors.
+//! `VK_LAYER_KHRONOS_validation` and counts its errors;
+//! `LIPAC_NO_RAY_QUERY=1` leaves ray queries off where the device has them.
 
 use ash::vk;
 use lipac_vk::{DeviceAllocator, DeviceContext, EngineQueue, GpuAllocator, VkError};
@@ -105,6 +108,9 @@ struct Candidate {
     family: u32,
     rank: u32,
     ray_query: bool,
+    /// Enable `VK_KHR_ray_tracing_pipeline` (without ray queries: the
+    /// acceleration-structure size query needs one of the two features).
+    ray_tracing_pipeline: bool,
     info: DeviceInfo,
 }
 
@@ -173,13 +179,30 @@ fn check(
     if !missing.is_empty() {
         return Err(format!("{name}: lacks {}", missing.join(", ")));
     }
-    let mut ray_query = has(ash::khr::ray_query::NAME);
+    // LIPAC_NO_RAY_QUERY=1: as on a device without them (to check on one
+    // that has them that nothing here needs them).
+    let mut ray_query = has(ash::khr::ray_query::NAME)
+        && !std::env::var("LIPAC_NO_RAY_QUERY").is_ok_and(|v| v == "1");
     if ray_query {
         let mut frq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut frq);
         // SAFETY: as above; the extension is present.
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
         ray_query = frq.ray_query == vk::TRUE;
+    }
+    let mut ray_tracing_pipeline = false;
+    if !ray_query && has(ash::khr::ray_tracing_pipeline::NAME) {
+        let mut frt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut frt);
+        // SAFETY: as above; the extension is present.
+        unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+        ray_tracing_pipeline = frt.ray_tracing_pipeline == vk::TRUE;
+    }
+    if !ray_query && !ray_tracing_pipeline {
+        // vkGetAccelerationStructureBuildSizesKHR needs either feature.
+        return Err(format!(
+            "{name}: neither rayQuery nor rayTracingPipeline (acceleration-structure sizes need one)"
+        ));
     }
     let family = lipac_vk::preferred_queue_family(instance, pd)
         .ok_or_else(|| format!("{name}: no compute queue"))?;
@@ -231,6 +254,7 @@ fn check(
         family,
         rank,
         ray_query,
+        ray_tracing_pipeline,
         info,
     })
 }
@@ -371,6 +395,9 @@ impl GpuDevice {
         if chosen.ray_query {
             names.push(ash::khr::ray_query::NAME.as_ptr());
         }
+        if chosen.ray_tracing_pipeline {
+            names.push(ash::khr::ray_tracing_pipeline::NAME.as_ptr());
+        }
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
             .buffer_device_address(true)
             .timeline_semaphore(true);
@@ -378,6 +405,8 @@ impl GpuDevice {
         let mut fas = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
             .acceleration_structure(true);
         let mut frq = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
+        let mut frt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default()
+            .ray_tracing_pipeline(true);
         let mut device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)
             .enabled_extension_names(&names)
@@ -386,6 +415,9 @@ impl GpuDevice {
             .push_next(&mut fas);
         if chosen.ray_query {
             device_info = device_info.push_next(&mut frq);
+        }
+        if chosen.ray_tracing_pipeline {
+            device_info = device_info.push_next(&mut frt);
         }
         // SAFETY: every extension and feature enabled was checked above;
         // the pointers are live.
