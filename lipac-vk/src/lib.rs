@@ -81,6 +81,7 @@ mod readback;
 pub mod shaders;
 mod timeline;
 mod tlas;
+mod tracing_paths;
 mod upload;
 
 pub use accel::{AccelerationStructure, AsSizes};
@@ -103,7 +104,7 @@ pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, Ca
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
-    REQUIRED_DEVICE_EXTENSIONS,
+    RAY_QUERY_EXTENSIONS, RAY_TRACING_PIPELINE_EXTENSIONS, REQUIRED_DEVICE_EXTENSIONS,
 };
 pub use counting::{
     counting_box_instance, CountingBoxConfig, CountingBoxKind, UnitCube, UNIT_CUBE_INDICES,
@@ -116,7 +117,7 @@ pub use device_allocator::{
 pub use error::{Result, VkError};
 pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
-pub use headless::{HeadlessContext, Validation};
+pub use headless::{HeadlessContext, HeadlessOptions, Validation, DEVICE_ENV, HIDE_ENV};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use merged_boxes::MergedBoxes;
@@ -127,6 +128,7 @@ pub use ray_query_test_pipeline::{
 pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{GpuTlas, TlasBuildOutput};
+pub use tracing_paths::{RayTracingPipelineProperties, TracingPath, TracingPaths};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.

@@ -68,11 +68,14 @@ impl MergedTraceTestPipeline {
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    /// [`VkError::MissingFeature`] without ray queries
+    /// ([`DeviceContext::tracing`]); [`VkError::InvalidArgument`] for an
+    /// invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Ok(Self {
             pipeline: RayQueryPipeline::new(
                 ctx,
+                "MergedTraceTestPipeline",
                 TRACE_MERGED_SPV,
                 config,
                 5,

@@ -13,6 +13,7 @@ use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::tlas::GpuTlas;
+use crate::tracing_paths::TracingPath;
 use ash::vk;
 
 /// Set layout (binding 0: the TLAS, 1..: storage buffers), pipeline layout
@@ -28,14 +29,17 @@ pub(crate) struct RayQueryPipeline {
 
 impl RayQueryPipeline {
     /// Creates the pipeline of `spv` (entry `main`, specialization constants
-    /// 0..3 = omitted-box SBT offset, hitbox-box SBT offset, counting mask).
+    /// 0..3 = omitted-box SBT offset, hitbox-box SBT offset, counting mask)
+    /// for `component`; [`VkError::MissingFeature`] without ray queries.
     pub(crate) fn new(
         ctx: &DeviceContext,
+        component: &'static str,
         spv: &[u8],
         config: &CountingBoxConfig,
         storage_bindings: u32,
         push_size: u32,
     ) -> Result<Self> {
+        ctx.require_tracing(TracingPath::RayQuery, component)?;
         config.validate()?;
         let mut kinds = vec![vk::DescriptorType::ACCELERATION_STRUCTURE_KHR];
         kinds.resize(
