@@ -7,9 +7,9 @@ use crate::context::{
     preferred_queue_family, DeviceContext, EngineQueue, RAY_QUERY_EXTENSIONS,
     RAY_TRACING_PIPELINE_EXTENSIONS, REQUIRED_DEVICE_EXTENSIONS,
 };
-use crate::tracing_paths::{TracingPath, TracingPaths};
 use crate::device_allocator::{DeviceAllocator, GpuAllocator};
 use crate::error::{Result, VkContext, VkError};
+use crate::tracing_paths::{TracingPath, TracingPaths};
 use ash::vk;
 use std::ffi::{c_void, CStr};
 use std::sync::{Arc, Mutex};
@@ -235,13 +235,16 @@ impl HeadlessOptions {
     ///
     /// [`VkError::InvalidArgument`] for an unknown path in [`HIDE_ENV`].
     pub fn from_env(validation: Validation) -> Result<Self> {
-        let device = std::env::var(DEVICE_ENV).ok().filter(|v| !v.trim().is_empty());
+        let device = std::env::var(DEVICE_ENV)
+            .ok()
+            .filter(|v| !v.trim().is_empty());
         let mut hide = TracingPaths::NONE;
         if let Ok(v) = std::env::var(HIDE_ENV) {
             for part in v.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-                match part.parse::<TracingPath>().map_err(|e| {
-                    VkError::InvalidArgument(format!("{HIDE_ENV}: {e}"))
-                })? {
+                match part
+                    .parse::<TracingPath>()
+                    .map_err(|e| VkError::InvalidArgument(format!("{HIDE_ENV}: {e}")))?
+                {
                     TracingPath::RayQuery => hide.ray_query = true,
                     TracingPath::RayTracingPipeline => hide.ray_tracing_pipeline = true,
                 }
@@ -412,29 +415,35 @@ fn pick_device(instance: &ash::Instance, options: &HeadlessOptions) -> Result<Ca
                 None => name.to_lowercase().contains(&want.to_lowercase()),
             };
             if hit {
-                return check_device(instance, pd, i, options.hide)
-                    .map_err(|why| VkError::NoSuitableDevice {
+                return check_device(instance, pd, i, options.hide).map_err(|why| {
+                    VkError::NoSuitableDevice {
                         rejected: vec![format!("{DEVICE_ENV}={want} chose device {i}, {why}")],
-                    });
+                    }
+                });
             }
             names.push(format!("{i}: {name}"));
         }
         return Err(VkError::NoSuitableDevice {
             rejected: vec![format!(
                 "{DEVICE_ENV}={want} names no device (devices: {})",
-                if names.is_empty() { "none".to_owned() } else { names.join(", ") }
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
             )],
         });
     }
     let mut rejected = Vec::new();
     let mut best: Option<Candidate> = None;
-    let paths = |c: &Candidate| u32::from(c.tracing.ray_query) + u32::from(c.tracing.ray_tracing_pipeline);
+    let paths =
+        |c: &Candidate| u32::from(c.tracing.ray_query) + u32::from(c.tracing.ray_tracing_pipeline);
     for (i, pd) in devices.into_iter().enumerate() {
         match check_device(instance, pd, i, options.hide) {
             Ok(c) => {
-                let better = best
-                    .as_ref()
-                    .is_none_or(|b| (c.rank, std::cmp::Reverse(paths(&c))) < (b.rank, std::cmp::Reverse(paths(b))));
+                let better = best.as_ref().is_none_or(|b| {
+                    (c.rank, std::cmp::Reverse(paths(&c))) < (b.rank, std::cmp::Reverse(paths(b)))
+                });
                 if better {
                     best = Some(c);
                 }

@@ -50,9 +50,29 @@ pub const CAMERA_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/camera_trace.
 /// lipac's counting (GPU ray generation, shadow and bounce rays).
 pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp");
 
-/// Every embedded SPIR-V module with the name of its `.comp` source (without
-/// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 13] = [
+/// SPIR-V of `pipeline_trace.rgen`: ray generation of
+/// [`crate::PipelineTestTracer`] (rays from a buffer, `trace_merged.comp`
+/// with a ray-tracing pipeline).
+pub const PIPELINE_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_trace.rgen.spv");
+/// SPIR-V of `pipeline_camera.rgen`: ray generation of
+/// [`crate::PipelineCameraTracer`] (`camera_trace.comp` with a ray-tracing
+/// pipeline).
+pub const PIPELINE_CAMERA_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_camera.rgen.spv");
+/// SPIR-V of `pipeline_hit.rchit`: closest-hit of real geometry in lipac's
+/// pipeline tracers.
+pub const PIPELINE_HIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_hit.rchit.spv");
+/// SPIR-V of `pipeline_box.rahit`: any-hit of counting boxes.
+pub const PIPELINE_BOX_AHIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_box.rahit.spv");
+/// SPIR-V of `pipeline_box.rchit`: closest-hit of counting boxes.
+pub const PIPELINE_BOX_CHIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_box.rchit.spv");
+/// SPIR-V of `pipeline_miss.rmiss`: miss shader of lipac's pipeline tracers.
+pub const PIPELINE_MISS_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_miss.rmiss.spv");
+
+/// Every embedded SPIR-V module with the name of its source: a compute
+/// shader's without extension (`trace_test` for `trace_test.comp`), a
+/// ray-tracing stage's with it (`pipeline_hit.rchit`); the file is
+/// `shaders/spv/{name}.spv`. For tooling and the freshness test.
+pub const ALL_SPV: [(&str, &[u8]); 19] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
@@ -66,6 +86,12 @@ pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
     ("feedback_instances", FEEDBACK_INSTANCES_SPV),
     ("escape_sums", ESCAPE_SUMS_SPV),
+    ("pipeline_trace.rgen", PIPELINE_TRACE_SPV),
+    ("pipeline_camera.rgen", PIPELINE_CAMERA_SPV),
+    ("pipeline_hit.rchit", PIPELINE_HIT_SPV),
+    ("pipeline_box.rahit", PIPELINE_BOX_AHIT_SPV),
+    ("pipeline_box.rchit", PIPELINE_BOX_CHIT_SPV),
+    ("pipeline_miss.rmiss", PIPELINE_MISS_SPV),
 ];
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,
