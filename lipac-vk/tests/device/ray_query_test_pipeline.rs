@@ -1,13 +1,11 @@
 //! Rays traced on the device hit the instance and distance a CPU reference
 //! computes, through a TLAS that grew and holds an inactive record.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_test_support::{Rng64, SplitMix64};
-use lipac_vk::{CountingBoxConfig, GpuRay, RayQueryTestPipeline};
+use lipac_vk::{CountingBoxConfig, GpuRay};
 
 fn scene() -> Vec<SceneInstance> {
     let inst = |mesh: Mesh, transform, custom_index, active| SceneInstance {
@@ -68,12 +66,9 @@ fn scene() -> Vec<SceneInstance> {
     ]
 }
 
-#[test]
-fn traced_rays_hit_the_right_instance_at_the_right_distance() {
-    let Some(h) = headless("traced_rays_hit_the_right_instance_at_the_right_distance") else {
-        return;
-    };
-    let ctx = h.context();
+pub fn traced_rays_hit_the_right_instance_at_the_right_distance() {
+    let h = headless("traced_rays_hit_the_right_instance_at_the_right_distance");
+    let _ctx = h.context();
     let scene = scene();
     let quad = GpuMesh::new(&h, Mesh::quad());
     let grid = GpuMesh::new(&h, Mesh::bumpy_grid(8));
@@ -116,7 +111,7 @@ fn traced_rays_hit_the_right_instance_at_the_right_distance() {
         });
     }
 
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     // Capacity 3 for 5 records: the TLAS grows to max(5, 2 * 3) = 6.
     let (tlas, out) = trace(&h, &pipeline, &records, 3, &rays, 0xFF, 16);
     assert_eq!(tlas.capacity(), 6);

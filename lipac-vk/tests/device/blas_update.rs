@@ -2,15 +2,13 @@
 //! destination, same address), then rebuilt in place, and rays hit the
 //! *deformed* geometry as a CPU reference computes it.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     AccelerationStructurePool, BlasBatch, BlasUpdateMode, CountingBoxConfig, GpuRay, OneShot,
-    RayQueryTestPipeline, ScratchBuffer, VkError,
+    ScratchBuffer, VkError,
 };
 
 /// The grid with its vertices displaced along z by `amp * wave(x, y)`.
@@ -50,11 +48,8 @@ fn rays() -> Vec<GpuRay> {
         .collect()
 }
 
-#[test]
-fn refit_and_rebuild_in_place_trace_the_deformed_mesh() {
-    let Some(h) = headless("refit_and_rebuild_in_place_trace_the_deformed_mesh") else {
-        return;
-    };
+pub fn refit_and_rebuild_in_place_trace_the_deformed_mesh() {
+    let h = headless("refit_and_rebuild_in_place_trace_the_deformed_mesh");
     let ctx = h.context();
     let base = Mesh::bumpy_grid(12);
     let mut gpu = GpuMesh::new(&h, base.clone());
@@ -97,7 +92,7 @@ fn refit_and_rebuild_in_place_trace_the_deformed_mesh() {
     assert!(matches!(err, VkError::InvalidArgument(_)), "{err}");
     drop(bad);
 
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     let rays = rays();
     let trace_with = |mesh: &Mesh| {
         let scene = scene_of(mesh);

@@ -2,38 +2,166 @@
 #![allow(dead_code)]
 
 use ash::vk;
+use bytemuck::Zeroable;
 use glam::{Affine3A, Vec3};
+use lipac_core::layout::HitboxRecord;
 use lipac_core::layout::TlasInstance;
 use lipac_core::math::affine_to_rows;
 use lipac_vk::{
-    BlasBatch, BlasBatchOutput, Buffer, GpuBlas, GpuHit, GpuRay, GpuTlas, HeadlessContext,
-    MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline, ScratchBuffer,
-    TriangleGeometry, UnitCube, Validation,
+    BlasBatch, BlasBatchOutput, Buffer, CountingBoxConfig, GpuBlas, GpuHit, GpuRay, GpuTlas,
+    HeadlessContext, HitboxCounting, MemoryLocation, MergedBoxes, MergedTraceBuffers,
+    MergedTraceTestPipeline, OneShot, PipelineTestBuffers, PipelineTestTracer, RayQueryTestBuffers,
+    RayQueryTestPipeline, ScratchBuffer, TracingPath, TriangleGeometry, UnitCube, Validation,
 };
 
-/// Whether the environment demands a Vulkan ray-query device (CI sets it).
+/// Whether the environment demands a Vulkan device (CI sets it).
 pub fn vulkan_required() -> bool {
     std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1")
 }
 
-/// A headless context, or `None` (with a printed reason) when this machine
-/// has no Vulkan ray-query device and LIPAC_REQUIRE_VULKAN is not 1.
-pub fn headless(test: &str) -> Option<HeadlessContext> {
-    let validation = if vulkan_required() {
+/// The validation the tests ask for: required with `LIPAC_REQUIRE_VULKAN=1`.
+pub fn validation() -> Validation {
+    if vulkan_required() {
         Validation::Required
     } else {
         Validation::IfAvailable
-    };
-    match HeadlessContext::new(validation) {
-        Ok(h) => Some(h),
-        Err(e) if e.is_unsupported_machine() && !vulkan_required() => {
-            eprintln!(
-                "SKIPPED {test}: {e} (install mesa-vulkan-drivers >= 23 for lavapipe; \
-                 set LIPAC_REQUIRE_VULKAN=1 to fail instead of skipping)"
-            );
-            None
-        }
+    }
+}
+
+/// A headless context (the harness runs a device test only after its
+/// probe found a device that can run it, so failing here is a failure).
+pub fn headless(test: &str) -> HeadlessContext {
+    match HeadlessContext::new(validation()) {
+        Ok(h) => h,
         Err(e) => panic!("{test}: no Vulkan context: {e}"),
+    }
+}
+
+/// The tracing paths of `h`'s device, ray queries first.
+pub fn paths(h: &HeadlessContext) -> Vec<TracingPath> {
+    [TracingPath::RayQuery, TracingPath::RayTracingPipeline]
+        .into_iter()
+        .filter(|p| h.context().tracing().has(*p))
+        .collect()
+}
+
+/// lipac's test tracer on one path: `trace_counting.comp` / `trace_merged.comp`
+/// ([`RayQueryTestPipeline`] with hitbox records, [`MergedTraceTestPipeline`])
+/// or [`PipelineTestTracer`]; hitbox hits go into `HitboxRecord`s either way.
+pub enum TestTracer {
+    /// Ray queries.
+    RayQuery {
+        leaf: RayQueryTestPipeline,
+        merged: MergedTraceTestPipeline,
+    },
+    /// A ray-tracing pipeline.
+    Pipeline(PipelineTestTracer),
+}
+
+/// The merged-box SBT offset the tests use: `AdaptiveHitboxes`' default 3,
+/// or past the box kinds' offsets when `cfg` uses 3.
+pub fn merged_sbt(cfg: &CountingBoxConfig) -> u32 {
+    if cfg.omitted_box_sbt_offset == 3 || cfg.hitbox_box_sbt_offset == 3 {
+        cfg.omitted_box_sbt_offset.max(cfg.hitbox_box_sbt_offset) + 1
+    } else {
+        3
+    }
+}
+
+impl TestTracer {
+    /// The tracer of `path`.
+    pub fn new(h: &HeadlessContext, cfg: &CountingBoxConfig, path: TracingPath) -> Self {
+        let ctx = h.context();
+        match path {
+            TracingPath::RayQuery => Self::RayQuery {
+                leaf: RayQueryTestPipeline::with_hitbox_counting(ctx, cfg, HitboxCounting::Records)
+                    .unwrap(),
+                merged: MergedTraceTestPipeline::new(ctx, cfg).unwrap(),
+            },
+            TracingPath::RayTracingPipeline => {
+                Self::Pipeline(PipelineTestTracer::new(ctx, cfg, merged_sbt(cfg)).unwrap())
+            }
+        }
+    }
+
+    /// The tracer of the device's preferred path.
+    pub fn preferred(h: &HeadlessContext, cfg: &CountingBoxConfig) -> Self {
+        let path = h.context().tracing().preferred().expect("a tracing path");
+        Self::new(h, cfg, path)
+    }
+
+    pub fn path(&self) -> TracingPath {
+        match self {
+            Self::RayQuery { .. } => TracingPath::RayQuery,
+            Self::Pipeline(_) => TracingPath::RayTracingPipeline,
+        }
+    }
+
+    /// Traces `rays` through `tlas` (cull mask, GLSL ray flags, merged
+    /// boxes as `merged` says) into `results`, `instance_hits` and the
+    /// hitbox records `hitboxes` (with `bounds`), waiting for the GPU.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        &self,
+        h: &HeadlessContext,
+        tlas: &GpuTlas,
+        rays: &Buffer,
+        ray_count: u32,
+        results: &Buffer,
+        instance_hits: &Buffer,
+        hitboxes: &Buffer,
+        bounds: &Buffer,
+        merged: &MergedBoxes,
+        cull_mask: u8,
+        ray_flags: u32,
+    ) {
+        let mut one_shot = OneShot::new(h.context()).unwrap();
+        match self {
+            Self::RayQuery { leaf, .. } if !merged.is_on() => {
+                let b = leaf
+                    .bind(&RayQueryTestBuffers {
+                        tlas,
+                        rays,
+                        results,
+                        instance_hits,
+                        hitbox_hits: hitboxes,
+                    })
+                    .unwrap();
+                one_shot
+                    .run(|rec| leaf.record(rec, &b, ray_count, cull_mask, ray_flags))
+                    .unwrap();
+            }
+            Self::RayQuery { merged: m, .. } => {
+                let b = m
+                    .bind(&MergedTraceBuffers {
+                        tlas,
+                        rays,
+                        results,
+                        instance_hits,
+                        hitboxes,
+                        hitbox_bounds: bounds,
+                    })
+                    .unwrap();
+                one_shot
+                    .run(|rec| m.record_merged(rec, &b, merged, ray_count, cull_mask, ray_flags))
+                    .unwrap();
+            }
+            Self::Pipeline(p) => {
+                let b = p
+                    .bind(&PipelineTestBuffers {
+                        tlas,
+                        rays,
+                        results,
+                        instance_hits,
+                        hitboxes,
+                        hitbox_bounds: bounds,
+                    })
+                    .unwrap();
+                one_shot
+                    .run(|rec| p.record(rec, &b, merged, ray_count, cull_mask, ray_flags))
+                    .unwrap();
+            }
+        }
     }
 }
 
@@ -316,10 +444,11 @@ pub struct TraceOutcome {
 }
 
 /// Uploads `records`, builds a TLAS (starting at `initial_capacity`) and
-/// traces `rays` with `cull_mask`.
+/// traces `rays` with `cull_mask` on `tracer`'s path; `counters` instance
+/// counters and hitbox records (their hit counts returned as `hitbox_hits`).
 pub fn trace(
     h: &HeadlessContext,
-    pipeline: &RayQueryTestPipeline,
+    tracer: &TestTracer,
     records: &[TlasInstance],
     initial_capacity: u32,
     rays: &[GpuRay],
@@ -327,19 +456,7 @@ pub fn trace(
     counters: usize,
 ) -> (GpuTlas, TraceOutcome) {
     let ctx = h.context();
-    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let instances = Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, records).unwrap();
-    let ray_buf = Buffer::with_data(ctx, storage, MemoryLocation::CpuToGpu, rays).unwrap();
-    let results = Buffer::new(
-        ctx,
-        (rays.len() * 16) as u64,
-        storage,
-        MemoryLocation::GpuToCpu,
-    )
-    .unwrap();
-    let zeros = vec![0u32; counters];
-    let instance_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
-    let hitbox_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
     let mut tlas = GpuTlas::new(
         ctx,
         initial_capacity,
@@ -351,24 +468,60 @@ pub fn trace(
     let _retired = one_shot
         .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
         .unwrap();
-    let bindings = pipeline
-        .bind(&RayQueryTestBuffers {
-            tlas: &tlas,
-            rays: &ray_buf,
-            results: &results,
-            instance_hits: &instance_hits,
-            hitbox_hits: &hitbox_hits,
-        })
-        .unwrap();
-    one_shot
-        .run(|rec| pipeline.record(rec, &bindings, rays.len() as u32, cull_mask, 0))
-        .unwrap();
-    let outcome = TraceOutcome {
+    let outcome = trace_tlas(h, tracer, &tlas, rays, cull_mask, counters);
+    (tlas, outcome)
+}
+
+/// Traces `rays` through a built `tlas` on `tracer`'s path (no merged
+/// boxes): `counters` instance counters and zeroed hitbox records.
+pub fn trace_tlas(
+    h: &HeadlessContext,
+    tracer: &TestTracer,
+    tlas: &GpuTlas,
+    rays: &[GpuRay],
+    cull_mask: u8,
+    counters: usize,
+) -> TraceOutcome {
+    let ctx = h.context();
+    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let ray_buf = Buffer::with_data(ctx, storage, MemoryLocation::CpuToGpu, rays).unwrap();
+    let results = Buffer::new(
+        ctx,
+        (rays.len().max(1) * 16) as u64,
+        storage,
+        MemoryLocation::GpuToCpu,
+    )
+    .unwrap();
+    let zeros = vec![0u32; counters];
+    let instance_hits = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &zeros).unwrap();
+    let empty = vec![HitboxRecord::zeroed(); counters];
+    let hitboxes = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &empty).unwrap();
+    let bounds = Buffer::with_data(
+        ctx,
+        storage,
+        MemoryLocation::CpuToGpu,
+        &vec![[0f32; 4]; counters],
+    )
+    .unwrap();
+    tracer.run(
+        h,
+        tlas,
+        &ray_buf,
+        rays.len() as u32,
+        &results,
+        &instance_hits,
+        &hitboxes,
+        &bounds,
+        &MergedBoxes::OFF,
+        cull_mask,
+        0,
+    );
+    let records: Vec<HitboxRecord> = hitboxes.read(0, counters).unwrap();
+    TraceOutcome {
         hits: results.read(0, rays.len()).unwrap(),
         instance_hits: instance_hits.read(0, counters).unwrap(),
-        hitbox_hits: hitbox_hits.read(0, counters).unwrap(),
-    };
-    (tlas, outcome)
+        hitbox_hits: records.iter().map(HitboxRecord::hits).collect(),
+    }
 }
 
 /// Compares GPU hits with the CPU reference; returns how many rays were

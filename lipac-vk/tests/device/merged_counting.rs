@@ -4,10 +4,8 @@
 //! with one box per hitbox (as `trace_counting.comp` does against the
 //! leaf-only TLAS), and finds the same real hits as the leaf-only trace.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::assembly::{assemble_tlas_adaptive, AssemblyConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
@@ -20,9 +18,7 @@ use lipac_core::layout::{
 use lipac_core::math::Aabb;
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    hitbox_bounds, Buffer, CountingBoxConfig, GpuHit, GpuRay, HitboxCounting, MemoryLocation,
-    MergedTraceBuffers, MergedTraceTestPipeline, OneShot, RayQueryTestBuffers,
-    RayQueryTestPipeline,
+    hitbox_bounds, Buffer, CountingBoxConfig, GpuHit, GpuRay, MemoryLocation, MergedBoxes, OneShot,
 };
 
 const STORAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
@@ -31,11 +27,8 @@ fn hits_of(records: &[HitboxRecord]) -> Vec<u32> {
     records.iter().map(HitboxRecord::hits).collect()
 }
 
-#[test]
-fn merged_boxes_count_on_the_gpu_what_leaf_boxes_count() {
-    let Some(h) = headless("merged_boxes_count_on_the_gpu_what_leaf_boxes_count") else {
-        return;
-    };
+pub fn merged_boxes_count_on_the_gpu_what_leaf_boxes_count() {
+    let h = headless("merged_boxes_count_on_the_gpu_what_leaf_boxes_count");
     let ctx = h.context();
     let counting = CountingBoxConfig::default();
     let mut one_shot = OneShot::new(ctx).unwrap();
@@ -155,50 +148,51 @@ fn merged_boxes_count_on_the_gpu_what_leaf_boxes_count() {
     let host = MemoryLocation::GpuToCpu;
     let ray_buf = Buffer::with_data(ctx, STORAGE, host, &rays).unwrap();
     let bounds = Buffer::with_data(ctx, STORAGE, host, &hitbox_bounds(&grid)).unwrap();
-    let run = |records: &[TlasInstance], merged: bool| -> (Vec<GpuHit>, Vec<u32>) {
+    let run = |records: &[TlasInstance], merged: bool, path| -> (Vec<GpuHit>, Vec<u32>) {
         let (tlas, _inputs) = build_tlas(&h, records);
         let results = Buffer::new(ctx, (rays.len() * 16) as u64, STORAGE, host).unwrap();
         let instance_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 8]).unwrap();
         let hitbox_buf = Buffer::with_data(ctx, STORAGE, host, &hitboxes).unwrap();
-        let mut one_shot = OneShot::new(ctx).unwrap();
-        if merged {
-            let p = MergedTraceTestPipeline::new(ctx, &counting).unwrap();
-            let b = p
-                .bind(&MergedTraceBuffers {
-                    tlas: &tlas,
-                    rays: &ray_buf,
-                    results: &results,
-                    instance_hits: &instance_hits,
-                    hitboxes: &hitbox_buf,
-                    hitbox_bounds: &bounds,
-                })
-                .unwrap();
-            one_shot
-                .run(|rec| p.record(rec, &b, &tree, &cfg, rays.len() as u32, 0xFF, 0))
-                .unwrap();
+        let boxes = if merged {
+            MergedBoxes::new(Some(&tree), &cfg)
         } else {
-            let p =
-                RayQueryTestPipeline::with_hitbox_counting(ctx, &counting, HitboxCounting::Records)
-                    .unwrap();
-            let b = p
-                .bind(&RayQueryTestBuffers {
-                    tlas: &tlas,
-                    rays: &ray_buf,
-                    results: &results,
-                    instance_hits: &instance_hits,
-                    hitbox_hits: &hitbox_buf,
-                })
-                .unwrap();
-            one_shot
-                .run(|rec| p.record(rec, &b, rays.len() as u32, 0xFF, 0))
-                .unwrap();
-        }
+            MergedBoxes::OFF
+        };
+        TestTracer::new(&h, &counting, path).run(
+            &h,
+            &tlas,
+            &ray_buf,
+            rays.len() as u32,
+            &results,
+            &instance_hits,
+            &hitbox_buf,
+            &bounds,
+            &boxes,
+            0xFF,
+            0,
+        );
         let hits: Vec<GpuHit> = results.read(0, rays.len()).unwrap();
         let records: Vec<HitboxRecord> = hitbox_buf.read(0, hitboxes.len()).unwrap();
         (hits, hits_of(&records))
     };
-    let (leaf_hits, leaf_counts) = run(&leaf_records, false);
-    let (merged_hits, merged_counts) = run(&merged_records, true);
+    // Every path the device has gives the same hits and counts, bit for bit.
+    let mut outcomes = paths(&h)
+        .into_iter()
+        .map(|p| (run(&leaf_records, false, p), run(&merged_records, true, p)));
+    let ((leaf_hits, leaf_counts), (merged_hits, merged_counts)) = outcomes.next().unwrap();
+    for ((lh, lc), (mh, mc)) in outcomes {
+        let bits = |v: &[GpuHit]| bytemuck::cast_slice::<GpuHit, u32>(v).to_vec();
+        assert!(
+            bits(&lh) == bits(&leaf_hits),
+            "leaf-only hits differ between paths"
+        );
+        assert_eq!(lc, leaf_counts, "leaf-only counts differ between paths");
+        assert!(
+            bits(&mh) == bits(&merged_hits),
+            "merged hits differ between paths"
+        );
+        assert_eq!(mc, merged_counts, "merged counts differ between paths");
+    }
 
     // The same real hits, ray by ray (the ground, or nothing).
     let mut real = 0;

@@ -1,22 +1,17 @@
 //! Compaction: queried sizes are no larger than the built BLASes, and the
 //! compacted copies still trace like the CPU reference.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    record_compactions, BlasBatch, CountingBoxConfig, GpuRay, OneShot, RayQueryTestPipeline,
-    ScratchBuffer, UnitCube, VkError,
+    record_compactions, BlasBatch, CountingBoxConfig, GpuRay, OneShot, ScratchBuffer, UnitCube,
+    VkError,
 };
 
-#[test]
-fn compacted_blases_are_no_larger_and_trace_the_same() {
-    let Some(h) = headless("compacted_blases_are_no_larger_and_trace_the_same") else {
-        return;
-    };
+pub fn compacted_blases_are_no_larger_and_trace_the_same() {
+    let h = headless("compacted_blases_are_no_larger_and_trace_the_same");
     let ctx = h.context();
     let grid = GpuMesh::new(&h, Mesh::bumpy_grid(16));
     let quad = GpuMesh::new(&h, Mesh::quad());
@@ -106,7 +101,7 @@ fn compacted_blases_are_no_larger_and_trace_the_same() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     let (tlas, out) = trace(&h, &pipeline, &records, 8, &rays, 0xFF, 32);
     let (compared, hits) = compare_with_cpu(&scene, &rays, &out.hits);
     assert!(

@@ -2,16 +2,13 @@
 //! intact, and retired storage (grown TLAS, pooled BLAS) is destroyed only
 //! once the GPU has passed its timeline value, without the host waiting.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::layout::TlasInstance;
 use lipac_vk::{
-    AccelerationStructurePool, BlasBatch, Buffer, CountingBoxConfig, FrameSubmitter, GpuHit,
-    GpuRay, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline, Retirement,
-    ScratchBuffer, TimelineSemaphore, TlasPair,
+    AccelerationStructurePool, BlasBatch, Buffer, CountingBoxConfig, FrameSubmitter, GpuRay,
+    MemoryLocation, OneShot, Retirement, ScratchBuffer, TimelineSemaphore, TlasPair,
 };
 use std::time::{Duration, Instant};
 
@@ -47,11 +44,8 @@ fn collect_until(r: &mut Retirement, s: &TimelineSemaphore, left: usize) {
     }
 }
 
-#[test]
-fn double_buffered_tlas_and_deferred_destruction() {
-    let Some(h) = headless("double_buffered_tlas_and_deferred_destruction") else {
-        return;
-    };
+pub fn double_buffered_tlas_and_deferred_destruction() {
+    let h = headless("double_buffered_tlas_and_deferred_destruction");
     let ctx = h.context();
     let pool = AccelerationStructurePool::new(ctx, 1 << 20).unwrap();
     let quad = GpuMesh::new(&h, Mesh::quad());
@@ -128,32 +122,14 @@ fn double_buffered_tlas_and_deferred_destruction() {
     );
     assert_ne!(pair.current().accel().raw(), pair.previous().accel().raw());
 
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
-    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     let rays = [GpuRay {
         origin: [0.1, 0.2, 0.0],
         t_min: 0.0,
         direction: [0.0, 0.0, 1.0],
         t_max: 100.0,
     }];
-    let ray_buf = Buffer::with_data(ctx, storage, MemoryLocation::CpuToGpu, &rays).unwrap();
-    let results = Buffer::new(ctx, 16, storage, MemoryLocation::GpuToCpu).unwrap();
-    let counters = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &[0u32; 32]).unwrap();
-    let mut trace = |tlas| {
-        let b = pipeline
-            .bind(&RayQueryTestBuffers {
-                tlas,
-                rays: &ray_buf,
-                results: &results,
-                instance_hits: &counters,
-                hitbox_hits: &counters,
-            })
-            .unwrap();
-        one_shot
-            .run(|rec| pipeline.record(rec, &b, 1, 0xFF, 0))
-            .unwrap();
-        results.read::<GpuHit>(0, 1).unwrap()[0]
-    };
+    let trace = |tlas| trace_tlas(&h, &pipeline, tlas, &rays, 0xFF, 32).hits[0];
     let prev = trace(pair.previous());
     let cur = trace(pair.current());
     assert_eq!((prev.custom_index, cur.custom_index), (10, 20));

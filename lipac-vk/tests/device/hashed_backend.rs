@@ -16,10 +16,8 @@
 //! rate floors uploaded to the GPU). Serial frames (each waited for): the frames-in-flight loop is
 //! `tests/vk_city.rs`'s.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::Vec3;
 use lipac_core::blas_cache::BlasOwner;
 use lipac_core::build_plan::SchedulerConfig;
@@ -34,8 +32,8 @@ use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::{DecayedRule, DecisionRule, Thresholds, RATE_ONE};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter, HeadlessContext, LipacVk,
-    LipacVkConfig, MemoryLocation, Polled, TriangleGeometry,
+    AnyCameraTracer, Buffer, CameraTraceBuffers, CameraView, FrameSubmitter, HeadlessContext,
+    LipacVk, LipacVkConfig, MemoryLocation, Polled, TriangleGeometry,
 };
 
 const FRAMES: u64 = 22;
@@ -202,27 +200,21 @@ fn manager(
     Manager::new(index, mc, catalog.clone()).unwrap()
 }
 
-#[test]
-fn hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule() {
-    if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule") {
-        gpu_equals_cpu(&h, paper(), false, None);
-    }
+pub fn hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule() {
+    let h = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_paper_rule");
+    gpu_equals_cpu(&h, paper(), false, None);
 }
 
-#[test]
-fn hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule() {
-    if let Some(h) = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule") {
-        gpu_equals_cpu(&h, decayed(), false, None);
-    }
+pub fn hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule() {
+    let h = headless("hashed_index_on_the_gpu_equals_the_cpu_backend_decayed_rule");
+    gpu_equals_cpu(&h, decayed(), false, None);
 }
 
 /// Warm starts at some frames, held for 3 frames without hits: the GPU
 /// gets the rate floors through the upload and decides as the CPU does.
-#[test]
-fn held_warm_starts_on_the_gpu_equal_the_cpu_backend() {
-    if let Some(h) = headless("held_warm_starts_on_the_gpu_equal_the_cpu_backend") {
-        gpu_equals_cpu(&h, decayed(), false, Some(3));
-    }
+pub fn held_warm_starts_on_the_gpu_equal_the_cpu_backend() {
+    let h = headless("held_warm_starts_on_the_gpu_equal_the_cpu_backend");
+    gpu_equals_cpu(&h, decayed(), false, Some(3));
 }
 
 /// The frustum of `view` (as the camera tracer shoots its rays).
@@ -237,11 +229,9 @@ fn frustum_of(view: &CameraView) -> Frustum {
 
 /// The escape sums with random per-slot hit counts up to `u32::MAX`
 /// written over the trace's (so that the sums pass 2^32 and carry).
-#[test]
-fn escape_sums_equal_the_cpu_for_random_large_hit_counts() {
-    if let Some(h) = headless("escape_sums_equal_the_cpu_for_random_large_hit_counts") {
-        gpu_equals_cpu(&h, paper(), true, None);
-    }
+pub fn escape_sums_equal_the_cpu_for_random_large_hit_counts() {
+    let h = headless("escape_sums_equal_the_cpu_for_random_large_hit_counts");
+    gpu_equals_cpu(&h, paper(), true, None);
 }
 
 /// Random hit counts for `slots` slots: zero, small, or up to `u32::MAX`.
@@ -353,7 +343,7 @@ fn gpu_equals_cpu(
     warm_start_hold: Option<u32>,
 ) {
     let ctx = h.context();
-    let (mesh, catalog) = common::one_mesh_catalog(h, DATA_BYTES);
+    let (mesh, catalog) = crate::common::one_mesh_catalog(h, DATA_BYTES);
     let commands = 512;
     let empty = HashedHitboxes::new(HashedConfig::default()).unwrap();
     let config = LipacVkConfig {
@@ -374,7 +364,7 @@ fn gpu_equals_cpu(
     let mut warm_activations = 0;
     let (mut gpu_scene, mut cpu_scene) = (Scene::new(), Scene::new());
 
-    let tracer = CameraTracer::new(ctx, lipac.counting()).unwrap();
+    let tracer = AnyCameraTracer::new(ctx, lipac.counting(), 3, None).unwrap();
     let image = Buffer::new(
         ctx,
         48 * 32 * 4,

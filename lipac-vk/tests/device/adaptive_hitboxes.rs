@@ -3,10 +3,8 @@
 //! multiset), and leaves the same hitbox records as the CPU reference
 //! `assemble_tlas_adaptive`, on random frames with the option on.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::Vec3;
 use lipac_core::assembly::{assemble_tlas_adaptive, AssemblyConfig};
 use lipac_core::grid::{GridConfig, HitboxGrid};
@@ -68,11 +66,8 @@ fn random_instance(
     m
 }
 
-#[test]
-fn merged_assembly_matches_cpu_reference() {
-    let Some(h) = headless("merged_assembly_matches_cpu_reference") else {
-        return;
-    };
+pub fn merged_assembly_matches_cpu_reference() {
+    let h = headless("merged_assembly_matches_cpu_reference");
     let ctx = h.context();
     let pipeline = AssemblyPipeline::new(ctx).unwrap();
     let mut one_shot = OneShot::new(ctx).unwrap();

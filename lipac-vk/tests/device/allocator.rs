@@ -5,15 +5,13 @@
 //! dropped and agrees with lipac's exact statistics; the default
 //! gpu-allocator packs many buffers into few blocks.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Vec3};
 use lipac_vk::{
     AccelerationStructurePool, AllocationRequest, AllocatorBlocks, BlasBatch, Buffer,
     CountingBoxConfig, DeviceAllocation, DeviceAllocator, GpuRay, HeadlessContext, MemoryLocation,
-    OneShot, RayQueryTestPipeline, ScratchBuffer, Validation, VkError,
+    OneShot, ScratchBuffer, Validation, VkError,
 };
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -150,9 +148,9 @@ impl Drop for CountingAllocator {
     }
 }
 
-/// A headless context on the counting allocator (skips like
-/// `common::headless` on a machine without a ray-query device).
-fn counting_headless(test: &str) -> Option<(HeadlessContext, Arc<Counts>)> {
+/// A headless context on the counting allocator (the harness made sure
+/// there is a device).
+fn counting_headless(test: &str) -> (HeadlessContext, Arc<Counts>) {
     let counts = Arc::new(Counts::default());
     let shared = counts.clone();
     let validation = if vulkan_required() {
@@ -172,22 +170,14 @@ fn counting_headless(test: &str) -> Option<(HeadlessContext, Arc<Counts>)> {
         }))
     });
     match made {
-        Ok(h) => Some((h, counts)),
-        Err(e) if e.is_unsupported_machine() && !vulkan_required() => {
-            eprintln!("SKIPPED {test}: {e}");
-            None
-        }
+        Ok(h) => (h, counts),
         Err(e) => panic!("{test}: no Vulkan context: {e}"),
     }
 }
 
-#[test]
-fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
-    let Some((h, counts)) =
-        counting_headless("custom_allocator_serves_every_buffer_and_gets_every_allocation_back")
-    else {
-        return;
-    };
+pub fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
+    let (h, counts) =
+        counting_headless("custom_allocator_serves_every_buffer_and_gets_every_allocation_back");
     let ctx = h.context();
     let allocations = || counts.allocations.load(Ordering::SeqCst);
     let frees = || counts.frees.load(Ordering::SeqCst);
@@ -294,7 +284,7 @@ fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 8);
     let hit: Vec<u32> = out.hits.iter().map(|h| h.custom_index).collect();
     assert_eq!(hit, [10, 11, 12, 13]);
@@ -313,11 +303,8 @@ fn custom_allocator_serves_every_buffer_and_gets_every_allocation_back() {
     assert_eq!(*counts.live_at_drop.lock().unwrap(), Some(0));
 }
 
-#[test]
-fn gpu_allocator_packs_buffers_into_blocks_with_exact_stats() {
-    let Some(h) = headless("gpu_allocator_packs_buffers_into_blocks_with_exact_stats") else {
-        return;
-    };
+pub fn gpu_allocator_packs_buffers_into_blocks_with_exact_stats() {
+    let h = headless("gpu_allocator_packs_buffers_into_blocks_with_exact_stats");
     let ctx = h.context();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let mut buffers = Vec::new();

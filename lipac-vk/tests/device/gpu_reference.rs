@@ -12,10 +12,8 @@
 //! on `InstanceArrays` built from the same records, and the GPU's arrays are
 //! compared with the CPU's word for word.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Vec2, Vec3};
 use lipac_core::assembly::{assemble_tlas, AssemblyConfig};
 use lipac_core::command::{CommandBuffer, CommandQueue};
@@ -451,11 +449,8 @@ fn sorted(mut v: Vec<u32>) -> Vec<u32> {
     v
 }
 
-#[test]
-fn assembly_matches_cpu_reference() {
-    let Some(h) = headless("assembly_matches_cpu_reference") else {
-        return;
-    };
+pub fn assembly_matches_cpu_reference() {
+    let h = headless("assembly_matches_cpu_reference");
     let ctx = h.context();
     let pipeline = AssemblyPipeline::new(ctx).unwrap();
     let mut one_shot = OneShot::new(ctx).unwrap();
@@ -546,11 +541,8 @@ fn assembly_matches_cpu_reference() {
 /// subnormal: the shader's atomicMin/atomicMax on ordered keys and the CPU
 /// reference give the same hitbox heights bit for bit (−0 is the lower
 /// bound, NaN never wins) and the same counting boxes.
-#[test]
-fn assembly_signed_zero_and_nan_heights_match_cpu() {
-    let Some(h) = headless("assembly_signed_zero_and_nan_heights_match_cpu") else {
-        return;
-    };
+pub fn assembly_signed_zero_and_nan_heights_match_cpu() {
+    let h = headless("assembly_signed_zero_and_nan_heights_match_cpu");
     let ctx = h.context();
     let pipeline = AssemblyPipeline::new(ctx).unwrap();
     let mut one_shot = OneShot::new(ctx).unwrap();
@@ -631,11 +623,8 @@ fn assembly_signed_zero_and_nan_heights_match_cpu() {
 
 /// Some slots processed, a full TLAS buffer: only the first `capacity`
 /// appends are stored, the counter says how many were asked for.
-#[test]
-fn assembly_slot_count_and_small_tlas_buffer() {
-    let Some(h) = headless("assembly_slot_count_and_small_tlas_buffer") else {
-        return;
-    };
+pub fn assembly_slot_count_and_small_tlas_buffer() {
+    let h = headless("assembly_slot_count_and_small_tlas_buffer");
     let ctx = h.context();
     let pipeline = AssemblyPipeline::new(ctx).unwrap();
     let th = Thresholds::paper();
@@ -761,11 +750,8 @@ fn decayed_rise_thresholds() -> Thresholds {
 
 /// Full frames on both sides: assembly (hitbox reset), random box hits added
 /// to the hitboxes as a trace would, Algorithm 2 with every command fitting.
-#[test]
-fn frames_match_cpu_reference_without_overflow() {
-    let Some(h) = headless("frames_match_cpu_reference_without_overflow") else {
-        return;
-    };
+pub fn frames_match_cpu_reference_without_overflow() {
+    let h = headless("frames_match_cpu_reference_without_overflow");
     let ctx = h.context();
     let assembly = AssemblyPipeline::new(ctx).unwrap();
     let feedback = FeedbackPipeline::new(ctx).unwrap();
@@ -891,11 +877,8 @@ fn frames_match_cpu_reference_without_overflow() {
 
 /// A small command buffer: which requests get a slot is up to GPU thread
 /// order, but the outcome must be one the overflow rule allows.
-#[test]
-fn feedback_overflow_invariants() {
-    let Some(h) = headless("feedback_overflow_invariants") else {
-        return;
-    };
+pub fn feedback_overflow_invariants() {
+    let h = headless("feedback_overflow_invariants");
     let ctx = h.context();
     let feedback = FeedbackPipeline::new(ctx).unwrap();
     let th = feedback_thresholds();
@@ -1003,11 +986,8 @@ fn feedback_overflow_invariants() {
     assert_no_validation_errors(&h);
 }
 
-#[test]
-fn feedback_rejects_bad_arguments() {
-    let Some(h) = headless("feedback_rejects_bad_arguments") else {
-        return;
-    };
+pub fn feedback_rejects_bad_arguments() {
+    let h = headless("feedback_rejects_bad_arguments");
     let ctx = h.context();
     let feedback = FeedbackPipeline::new(ctx).unwrap();
     let th = feedback_thresholds();
@@ -1064,11 +1044,8 @@ fn feedback_rejects_bad_arguments() {
     assert_no_validation_errors(&h);
 }
 
-#[test]
-fn readback_ring_waits_for_the_gpu_wraps_and_never_blocks() {
-    let Some(h) = headless("readback_ring_waits_for_the_gpu_wraps_and_never_blocks") else {
-        return;
-    };
+pub fn readback_ring_waits_for_the_gpu_wraps_and_never_blocks() {
+    let h = headless("readback_ring_waits_for_the_gpu_wraps_and_never_blocks");
     let ctx = h.context();
     let capacity = 8u32;
     let mut ring = CommandReadbackRing::new(ctx, 3, capacity).unwrap();
@@ -1210,11 +1187,8 @@ fn feedback_once_exact(
 
 /// Lines 7–13 for every (active, streak, hits near each threshold)
 /// combination, with streak lengths at their extremes too.
-#[test]
-fn hitbox_transitions_match_exhaustively() {
-    let Some(h) = headless("hitbox_transitions_match_exhaustively") else {
-        return;
-    };
+pub fn hitbox_transitions_match_exhaustively() {
+    let h = headless("hitbox_transitions_match_exhaustively");
     for th in [
         feedback_thresholds(),
         Thresholds {
@@ -1260,11 +1234,8 @@ fn hitbox_transitions_match_exhaustively() {
 /// The decayed rule's hitbox pass on every combination of state, rate and
 /// hits around each threshold, cost words included (saturated counts, the
 /// largest threshold a validated rule allows).
-#[test]
-fn decayed_hitbox_transitions_match_exhaustively() {
-    let Some(h) = headless("decayed_hitbox_transitions_match_exhaustively") else {
-        return;
-    };
+pub fn decayed_hitbox_transitions_match_exhaustively() {
+    let h = headless("decayed_hitbox_transitions_match_exhaustively");
     for (what, th) in [
         ("decayed", decayed_thresholds()),
         ("decayed, rise shift 2 of 3", decayed_rise_thresholds()),
@@ -1314,11 +1285,8 @@ fn decayed_hitbox_transitions(h: &lipac_vk::HeadlessContext, th: &Thresholds, wh
 
 /// Command words for hit counts at every priority step (and ±1 around it),
 /// so the shader's integer log2 must agree with `priority_from_hits` exactly.
-#[test]
-fn command_priorities_match_at_every_boundary() {
-    let Some(h) = headless("command_priorities_match_at_every_boundary") else {
-        return;
-    };
+pub fn command_priorities_match_at_every_boundary() {
+    let h = headless("command_priorities_match_at_every_boundary");
     use lipac_core::command::priority_from_hits;
     use lipac_core::layout::InstanceState;
     // Smallest hit count of each priority (priority is monotone in hits).
@@ -1380,16 +1348,10 @@ fn command_priorities_match_at_every_boundary() {
 /// buffer (assembly's final barrier covers the build), and rays count the
 /// boxes it made: the omitted instance's box into its slot, the inactive
 /// hitbox's box into the hitbox, while the active instance is hit.
-#[test]
-fn assembled_tlas_builds_and_counts_boxes() {
-    let Some(h) = headless("assembled_tlas_builds_and_counts_boxes") else {
-        return;
-    };
+pub fn assembled_tlas_builds_and_counts_boxes() {
+    let h = headless("assembled_tlas_builds_and_counts_boxes");
     use lipac_core::layout::{InstanceState, VK_INSTANCE_CULL_DISABLE};
-    use lipac_vk::{
-        BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, RayQueryTestBuffers, RayQueryTestPipeline,
-        ScratchBuffer, UnitCube,
-    };
+    use lipac_vk::{BlasBatch, CountingBoxConfig, GpuRay, GpuTlas, ScratchBuffer, UnitCube};
     let ctx = h.context();
     let quad = GpuMesh::new(&h, Mesh::quad());
     let cube = UnitCube::new(ctx).unwrap();
@@ -1491,31 +1453,15 @@ fn assembled_tlas_builds_and_counts_boxes() {
             t_max: 100.0,
         },
     ];
-    let pipeline = RayQueryTestPipeline::new(ctx, &counting).unwrap();
-    let host = MemoryLocation::GpuToCpu;
-    let ray_buf = Buffer::with_data(ctx, STORAGE, host, &rays).unwrap();
-    let results = Buffer::new(ctx, 16 * 3, STORAGE, host).unwrap();
-    let instance_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
-    let hitbox_hits = Buffer::with_data(ctx, STORAGE, host, &[0u32; 4]).unwrap();
-    let tb = pipeline
-        .bind(&RayQueryTestBuffers {
-            tlas: &tlas,
-            rays: &ray_buf,
-            results: &results,
-            instance_hits: &instance_hits,
-            hitbox_hits: &hitbox_hits,
-        })
-        .unwrap();
-    one_shot
-        .run(|rec| pipeline.record(rec, &tb, 3, 0xFF, 0))
-        .unwrap();
-    let hits: Vec<lipac_vk::GpuHit> = results.read(0, 3).unwrap();
+    let pipeline = TestTracer::preferred(&h, &counting);
+    let out = trace_tlas(&h, &pipeline, &tlas, &rays, 0xFF, 4);
+    let hits = out.hits;
     assert!(hits[0].is_hit() && hits[0].custom_index == 0);
     assert!((hits[0].t - 15.0).abs() < 1e-4);
     assert!(!hits[1].is_hit() && hits[1].counted_box());
     assert!(!hits[2].is_hit() && hits[2].counted_box());
     // The committed quad hit counts for slot 0 (trace_test counts real hits).
-    assert_eq!(instance_hits.read::<u32>(0, 4).unwrap(), [1, 1, 0, 0]);
-    assert_eq!(hitbox_hits.read::<u32>(0, 4).unwrap(), [0, 0, 1, 0]);
+    assert_eq!(out.instance_hits, [1, 1, 0, 0]);
+    assert_eq!(out.hitbox_hits, [0, 0, 1, 0]);
     assert_no_validation_errors(&h);
 }

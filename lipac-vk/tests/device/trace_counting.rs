@@ -3,16 +3,14 @@
 //! boxes and real hits into the per-slot `u32` counters, as a CPU
 //! computation of the nearest box before the closest real hit says.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::layout::{hitbox_bits, HitboxRecord, TlasInstance};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     counting_box_instance, Buffer, CountingBoxConfig, CountingBoxKind, GpuHit, GpuRay, GpuTlas,
-    HitboxCounting, MemoryLocation, OneShot, RayQueryTestBuffers, RayQueryTestPipeline,
+    MemoryLocation, MergedBoxes, OneShot,
 };
 
 const MAX: u32 = hitbox_bits::HITS_MAX;
@@ -50,11 +48,8 @@ fn slab(ray: &GpuRay, b: &CpuBox) -> Option<f64> {
     (lo <= hi).then_some(lo)
 }
 
-#[test]
-fn trace_counts_into_hitbox_records_saturating() {
-    let Some(h) = headless("trace_counts_into_hitbox_records_saturating") else {
-        return;
-    };
+pub fn trace_counts_into_hitbox_records_saturating() {
+    let h = headless("trace_counts_into_hitbox_records_saturating");
     let ctx = h.context();
     let cfg = CountingBoxConfig {
         omitted_box_sbt_offset: 3,
@@ -185,65 +180,79 @@ fn trace_counts_into_hitbox_records_saturating() {
     let instances =
         Buffer::with_data(ctx, BUILD_INPUT, MemoryLocation::CpuToGpu, &records).unwrap();
     let ray_buf = Buffer::with_data(ctx, storage, MemoryLocation::CpuToGpu, &rays).unwrap();
-    let results = Buffer::new(
+    let bounds = Buffer::with_data(
         ctx,
-        (rays.len() * 16) as u64,
         storage,
-        MemoryLocation::GpuToCpu,
+        MemoryLocation::CpuToGpu,
+        &[[0f32; 4]; HITBOXES],
     )
     .unwrap();
-    let instance_hits =
-        Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &[0u32; SLOTS]).unwrap();
-    let hitboxes = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &initial).unwrap();
     let mut tlas = GpuTlas::new(ctx, 16, flags).unwrap();
     let _retired = one_shot
         .run(|rec| tlas.record_build(rec, &instances, 0, records.len() as u32, &mut scratch))
         .unwrap();
-    let pipeline =
-        RayQueryTestPipeline::with_hitbox_counting(ctx, &cfg, HitboxCounting::Records).unwrap();
-    assert_eq!(pipeline.hitbox_counting(), HitboxCounting::Records);
-    let bindings = pipeline
-        .bind(&RayQueryTestBuffers {
-            tlas: &tlas,
-            rays: &ray_buf,
-            results: &results,
-            instance_hits: &instance_hits,
-            hitbox_hits: &hitboxes,
-        })
+    // The same counts on every tracing path the device has (ray queries:
+    // trace_counting.comp; pipelines: pipeline_trace.rgen and its hit groups).
+    for path in paths(&h) {
+        let pipeline = TestTracer::new(&h, &cfg, path);
+        let results = Buffer::new(
+            ctx,
+            (rays.len() * 16) as u64,
+            storage,
+            MemoryLocation::GpuToCpu,
+        )
         .unwrap();
-    one_shot
-        .run(|rec| pipeline.record(rec, &bindings, rays.len() as u32, 0xFF, 0))
-        .unwrap();
-    let hits: Vec<GpuHit> = results.read(0, rays.len()).unwrap();
-    let (compared, n_hits) = compare_with_cpu(&scene, &rays, &hits);
-    assert_eq!((compared, n_hits), (rays.len(), 4));
-    let got_hitboxes: Vec<HitboxRecord> = hitboxes.read(0, HITBOXES).unwrap();
-    for (i, (got, want)) in got_hitboxes.iter().zip(&want_hitboxes).enumerate() {
-        assert_eq!(
-            bytemuck::bytes_of(got),
-            bytemuck::bytes_of(want),
-            "hitbox {i}: {got:?} vs {want:?}"
-        );
-    }
-    let got_instances: Vec<u32> = instance_hits.read(0, SLOTS).unwrap();
-    assert_eq!(got_instances, want_instances);
+        let instance_hits =
+            Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &[0u32; SLOTS]).unwrap();
+        let hitboxes = Buffer::with_data(ctx, storage, MemoryLocation::GpuToCpu, &initial).unwrap();
+        let run = || {
+            pipeline.run(
+                &h,
+                &tlas,
+                &ray_buf,
+                rays.len() as u32,
+                &results,
+                &instance_hits,
+                &hitboxes,
+                &bounds,
+                &MergedBoxes::OFF,
+                0xFF,
+                0,
+            )
+        };
+        run();
+        let hits: Vec<GpuHit> = results.read(0, rays.len()).unwrap();
+        let (compared, n_hits) = compare_with_cpu(&scene, &rays, &hits);
+        assert_eq!((compared, n_hits), (rays.len(), 4), "{path:?}");
+        let got_hitboxes: Vec<HitboxRecord> = hitboxes.read(0, HITBOXES).unwrap();
+        for (i, (got, want)) in got_hitboxes.iter().zip(&want_hitboxes).enumerate() {
+            assert_eq!(
+                bytemuck::bytes_of(got),
+                bytemuck::bytes_of(want),
+                "{path:?}: hitbox {i}: {got:?} vs {want:?}"
+            );
+        }
+        let got_instances: Vec<u32> = instance_hits.read(0, SLOTS).unwrap();
+        assert_eq!(got_instances, want_instances, "{path:?}");
 
-    // A second trace of the same rays: every touched count saturates or
-    // grows by the same amounts again.
-    one_shot
-        .run(|rec| pipeline.record(rec, &bindings, rays.len() as u32, 0xFF, 0))
-        .unwrap();
-    let again: Vec<HitboxRecord> = hitboxes.read(0, HITBOXES).unwrap();
-    for (i, (got, (first, init))) in again
-        .iter()
-        .zip(want_hitboxes.iter().zip(&initial))
-        .enumerate()
-    {
-        let mut want = *first;
-        want.add_hits(first.hits() - init.hits());
-        assert_eq!(got.packed, want.packed, "hitbox {i}, second trace");
+        // A second trace of the same rays: every touched count saturates or
+        // grows by the same amounts again.
+        run();
+        let again: Vec<HitboxRecord> = hitboxes.read(0, HITBOXES).unwrap();
+        for (i, (got, (first, init))) in again
+            .iter()
+            .zip(want_hitboxes.iter().zip(&initial))
+            .enumerate()
+        {
+            let mut want = *first;
+            want.add_hits(first.hits() - init.hits());
+            assert_eq!(
+                got.packed, want.packed,
+                "{path:?}: hitbox {i}, second trace"
+            );
+        }
+        assert_eq!(again[5].hits(), 114);
     }
-    assert_eq!(again[5].hits(), 114);
-    drop((bindings, pipeline, tlas, built, cube, quad));
+    drop((tlas, built, cube, quad));
     assert_no_validation_errors(&h);
 }

@@ -3,10 +3,8 @@
 //! ranges, overrides, rate floors and hitbox extents, over several rounds
 //! on the same GPU buffers.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use lipac_core::culling::{apply_uploads, Uploads};
 use lipac_core::hitbox_extents::HitboxExtent;
 use lipac_core::layout::{
@@ -98,11 +96,8 @@ fn random_uploads(rng: &mut Rng, slots: u32, hitboxes: u32) -> Uploads {
     }
 }
 
-#[test]
-fn gpu_upload_equals_apply_uploads() {
-    let Some(h) = headless("gpu_upload_equals_apply_uploads") else {
-        return;
-    };
+pub fn gpu_upload_equals_apply_uploads() {
+    let h = headless("gpu_upload_equals_apply_uploads");
     let ctx = h.context();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let mut one_shot = OneShot::new(ctx).unwrap();
@@ -229,11 +224,8 @@ fn gpu_upload_equals_apply_uploads() {
     assert_no_validation_errors(&h);
 }
 
-#[test]
-fn upload_targets_are_checked() {
-    let Some(h) = headless("upload_targets_are_checked") else {
-        return;
-    };
+pub fn upload_targets_are_checked() {
+    let h = headless("upload_targets_are_checked");
     let ctx = h.context();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let uploader = RecordUploader::new(ctx).unwrap();

@@ -17,12 +17,10 @@
 //!   that took merged boxes for geometry (`MergedBoxes::OFF` pushed with a
 //!   merged TLAS) fails this at the first merged box on a ray.
 
-mod common;
-
 use std::collections::BTreeSet;
 
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::Vec3;
 use lipac_core::assembly::assemble_tlas_adaptive;
 use lipac_core::blas_cache::BlasOwner;
@@ -36,7 +34,7 @@ use lipac_core::registry::InstanceHandle;
 use lipac_core::thresholds::Thresholds;
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
-    hitbox_bounds, Buffer, CameraTraceBuffers, CameraTracer, CameraView, FrameSubmitter,
+    hitbox_bounds, AnyCameraTracer, Buffer, CameraTraceBuffers, CameraView, FrameSubmitter,
     HeadlessContext, LipacVk, LipacVkConfig, MemoryLocation, MergedBoxes, OneShot, Polled,
     TriangleGeometry,
 };
@@ -197,7 +195,7 @@ struct Traced {
 #[allow(clippy::too_many_arguments)]
 fn trace_reference(
     h: &HeadlessContext,
-    tracer: &CameraTracer,
+    tracer: &AnyCameraTracer,
     lipac: &LipacVk,
     records: &[TlasInstance],
     hitboxes: &[HitboxRecord],
@@ -251,25 +249,19 @@ fn assert_same<T: PartialEq + std::fmt::Debug>(frame: &[T], reference: &[T], f: 
     }
 }
 
-#[test]
-fn adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_2() {
-    if let Some(h) = headless("adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_2")
-    {
-        adaptive_frame_loop(&h, 2);
-    }
+pub fn adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_2() {
+    let h = headless("adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_2");
+    adaptive_frame_loop(&h, 2);
 }
 
-#[test]
-fn adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3() {
-    if let Some(h) = headless("adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3")
-    {
-        adaptive_frame_loop(&h, 3);
-    }
+pub fn adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3() {
+    let h = headless("adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3");
+    adaptive_frame_loop(&h, 3);
 }
 
 fn adaptive_frame_loop(h: &HeadlessContext, levels: u8) {
     let ctx = h.context();
-    let (mesh, catalog) = common::one_mesh_catalog(h, DATA_BYTES);
+    let (mesh, catalog) = crate::common::one_mesh_catalog(h, DATA_BYTES);
     let commands = 512;
     let config = LipacVkConfig {
         initial_slot_capacity: 16,
@@ -288,7 +280,7 @@ fn adaptive_frame_loop(h: &HeadlessContext, levels: u8) {
     let mut cpu = manager(cube, align, &catalog, commands, levels);
     let (mut gpu_scene, mut cpu_scene) = (Scene::new(), Scene::new());
 
-    let tracer = CameraTracer::new(ctx, lipac.counting()).unwrap();
+    let tracer = AnyCameraTracer::new(ctx, lipac.counting(), 3, None).unwrap();
     let pixels = u64::from(WIDTH * HEIGHT);
     let image = Buffer::new(ctx, pixels * 4, STORAGE, MemoryLocation::GpuToCpu).unwrap();
     let geometry = |_: &BlasOwner| -> Option<Vec<TriangleGeometry>> { Some(vec![mesh.geometry()]) };
@@ -480,13 +472,11 @@ fn adaptive_frame_loop(h: &HeadlessContext, levels: u8) {
 
 /// `CameraTracer::record` refuses merged boxes over a grid larger than the
 /// bound hitbox records or bounds (the shader would read past them).
-#[test]
-fn camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers() {
-    let Some(h) = headless("camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers") else {
-        return;
-    };
+pub fn camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers() {
+    let h = headless("camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers");
     let ctx = h.context();
-    let tracer = CameraTracer::new(ctx, &lipac_vk::CountingBoxConfig::default()).unwrap();
+    let tracer =
+        AnyCameraTracer::new(ctx, &lipac_vk::CountingBoxConfig::default(), 3, None).unwrap();
     // One zeroed record: BLAS 0, an inactive instance.
     let (tlas, _inputs) = build_tlas(&h, &[bytemuck::Zeroable::zeroed()]);
     let host = MemoryLocation::GpuToCpu;

@@ -2,15 +2,13 @@
 //! aligned, disjoint ranges of a few large blocks, trace like the CPU
 //! reference, and return their ranges when dropped.
 
-mod common;
-
+use crate::common::*;
 use ash::vk;
-use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use lipac_test_support::{Rng64, SplitMix64};
 use lipac_vk::{
     record_compactions_pooled, AccelerationStructurePool, BlasBatch, CountingBoxConfig, GpuRay,
-    OneShot, RayQueryTestPipeline, ScratchBuffer, VkError, AS_OFFSET_ALIGNMENT,
+    OneShot, ScratchBuffer, VkError, AS_OFFSET_ALIGNMENT,
 };
 
 /// Asserts that the structures' address ranges do not overlap.
@@ -28,12 +26,8 @@ fn assert_disjoint(ranges: &[(u64, u64)]) {
     }
 }
 
-#[test]
-fn pooled_blases_share_blocks_trace_correctly_and_free_their_ranges() {
-    let Some(h) = headless("pooled_blases_share_blocks_trace_correctly_and_free_their_ranges")
-    else {
-        return;
-    };
+pub fn pooled_blases_share_blocks_trace_correctly_and_free_their_ranges() {
+    let h = headless("pooled_blases_share_blocks_trace_correctly_and_free_their_ranges");
     let ctx = h.context();
     assert!(matches!(
         AccelerationStructurePool::new(ctx, 100),
@@ -132,7 +126,7 @@ fn pooled_blases_share_blocks_trace_correctly_and_free_their_ranges() {
             t_max: 100.0,
         })
         .collect();
-    let pipeline = RayQueryTestPipeline::new(ctx, &CountingBoxConfig::default()).unwrap();
+    let pipeline = TestTracer::preferred(&h, &CountingBoxConfig::default());
     let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 32);
     let (compared, hits) = compare_with_cpu(&scene, &rays, &out.hits);
     assert!(compared >= rays.len() * 9 / 10, "{compared}");

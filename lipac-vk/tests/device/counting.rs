@@ -1,15 +1,10 @@
 //! Counting boxes pass rays through: a ray counts at most one box, the
 //! nearest, and only when it lies before the closest real hit.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use glam::{Affine3A, Vec3};
 use lipac_core::layout::{TlasInstance, VK_INSTANCE_CULL_DISABLE, VK_INSTANCE_FORCE_OPAQUE};
-use lipac_vk::{
-    counting_box_instance, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot,
-    RayQueryTestPipeline,
-};
+use lipac_vk::{counting_box_instance, CountingBoxConfig, CountingBoxKind, GpuRay, OneShot};
 
 const REAL_MASK: u8 = 0x01;
 
@@ -22,11 +17,8 @@ fn lane_box(k: u32, z0: f32, z1: f32) -> ([f32; 3], [f32; 3]) {
     ([lane_x(k) - 0.5, -0.5, z0], [lane_x(k) + 0.5, 0.5, z1])
 }
 
-#[test]
-fn counting_boxes_count_once_and_let_rays_through() {
-    let Some(h) = headless("counting_boxes_count_once_and_let_rays_through") else {
-        return;
-    };
+pub fn counting_boxes_count_once_and_let_rays_through() {
+    let h = headless("counting_boxes_count_once_and_let_rays_through");
     let ctx = h.context();
     let cfg = CountingBoxConfig {
         omitted_box_sbt_offset: 3,
@@ -94,45 +86,49 @@ fn counting_boxes_count_once_and_let_rays_through() {
         t_max: 100.0,
     };
     let rays: Vec<GpuRay> = (0..5).map(ray).collect();
-    let pipeline = RayQueryTestPipeline::new(ctx, &cfg).unwrap();
+    // The same counts on every tracing path the device has.
+    for path in paths(&h) {
+        let pipeline = TestTracer::new(&h, &cfg, path);
 
-    let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 16);
-    let hits = &out.hits;
-    // Real hits are the CPU reference's (boxes are not geometry).
-    let (compared, n_hits) = compare_with_cpu(&scene, &rays, hits);
-    assert_eq!((compared, n_hits), (5, 3));
-    assert_eq!((hits[0].custom_index, hits[0].t), (3, 5.0));
-    assert_eq!(hits[0].sbt_offset, 0);
-    assert!(hits[0].counted_box());
-    assert!(!hits[1].is_hit() && hits[1].counted_box());
-    assert_eq!((hits[2].custom_index, hits[2].t), (4, 2.0));
-    assert!(!hits[2].counted_box());
-    assert_eq!((hits[3].custom_index, hits[3].t), (6, 6.0));
-    assert!(hits[3].counted_box());
-    assert!(!hits[4].is_hit() && hits[4].counted_box());
+        let (tlas, out) = trace(&h, &pipeline, &records, 4, &rays, 0xFF, 16);
+        let hits = &out.hits;
+        // Real hits are the CPU reference's (boxes are not geometry).
+        let (compared, n_hits) = compare_with_cpu(&scene, &rays, hits);
+        assert_eq!((compared, n_hits), (5, 3), "{path:?}");
+        assert_eq!((hits[0].custom_index, hits[0].t), (3, 5.0));
+        assert_eq!(hits[0].sbt_offset, 0);
+        assert!(hits[0].counted_box());
+        assert!(!hits[1].is_hit() && hits[1].counted_box());
+        assert_eq!((hits[2].custom_index, hits[2].t), (4, 2.0));
+        assert!(!hits[2].counted_box());
+        assert_eq!((hits[3].custom_index, hits[3].t), (6, 6.0));
+        assert!(hits[3].counted_box());
+        assert!(!hits[4].is_hit() && hits[4].counted_box());
 
-    let mut want_instance = vec![0u32; 16];
-    want_instance[5] = 1; // omitted box of lane 0
-    want_instance[3] = 1; // real hits (committed hits are counted too)
-    want_instance[4] = 1;
-    want_instance[6] = 1;
-    assert_eq!(out.instance_hits, want_instance);
-    let mut want_hitbox = vec![0u32; 16];
-    want_hitbox[7] = 1;
-    want_hitbox[10] = 1;
-    want_hitbox[12] = 1;
-    assert_eq!(out.hitbox_hits, want_hitbox);
-    drop(tlas);
+        let mut want_instance = vec![0u32; 16];
+        want_instance[5] = 1; // omitted box of lane 0
+        want_instance[3] = 1; // real hits (committed hits are counted too)
+        want_instance[4] = 1;
+        want_instance[6] = 1;
+        assert_eq!(out.instance_hits, want_instance);
+        let mut want_hitbox = vec![0u32; 16];
+        want_hitbox[7] = 1;
+        want_hitbox[10] = 1;
+        want_hitbox[12] = 1;
+        assert_eq!(out.hitbox_hits, want_hitbox);
+        drop(tlas);
 
-    // The same rays with the counting bit outside the cull mask count nothing
-    // and hit the same real geometry.
-    let (tlas, masked) = trace(&h, &pipeline, &records, 16, &rays, REAL_MASK, 16);
-    assert!(masked.hitbox_hits.iter().all(|&n| n == 0));
-    assert_eq!(masked.instance_hits.iter().sum::<u32>(), 3);
-    for (a, b) in masked.hits.iter().zip(hits) {
-        assert_eq!((a.custom_index, a.t), (b.custom_index, b.t));
-        assert!(!a.counted_box());
+        // The same rays with the counting bit outside the cull mask count nothing
+        // and hit the same real geometry.
+        let (tlas, masked) = trace(&h, &pipeline, &records, 16, &rays, REAL_MASK, 16);
+        assert!(masked.hitbox_hits.iter().all(|&n| n == 0));
+        assert_eq!(masked.instance_hits.iter().sum::<u32>(), 3);
+        for (a, b) in masked.hits.iter().zip(hits) {
+            assert_eq!((a.custom_index, a.t), (b.custom_index, b.t));
+            assert!(!a.counted_box());
+        }
+        drop((tlas, pipeline));
     }
-    drop((tlas, pipeline, built, cube, quad));
+    drop((built, cube, quad));
     assert_no_validation_errors(&h);
 }
