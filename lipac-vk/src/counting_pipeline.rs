@@ -4,7 +4,9 @@
 //! ([`crate::PipelineTestTracer`], [`crate::PipelineCameraTracer`]).
 //!
 //! Shader groups: 0 the ray generation shader, 1 the miss shader
-//! (`pipeline_miss.rmiss`), 2 real geometry (`pipeline_hit.rchit`), 3–5 the
+//! (`pipeline_miss.rmiss`), 2 real geometry (`pipeline_hit.rchit`, and
+//! `pipeline_hit.rahit`, which skips real instances in the boxes-alone
+//! trace of merged boxes), 3–5 the
 //! omitted-instance, hitbox and merged box kinds (`pipeline_box.rahit` and
 //! `.rchit`, specialised per kind). The hit region has one record per SBT
 //! offset up to the largest box offset: a box offset's record runs its box
@@ -22,7 +24,8 @@ use crate::memory::{Buffer, MemoryLocation};
 use crate::ray_query::bind_tlas_set;
 use crate::sbt::{SbtLayout, SbtRecords};
 use crate::shaders::{
-    spirv_words, PIPELINE_BOX_AHIT_SPV, PIPELINE_BOX_CHIT_SPV, PIPELINE_HIT_SPV, PIPELINE_MISS_SPV,
+    spirv_words, PIPELINE_BOX_AHIT_SPV, PIPELINE_BOX_CHIT_SPV, PIPELINE_HIT_AHIT_SPV,
+    PIPELINE_HIT_SPV, PIPELINE_MISS_SPV,
 };
 use crate::tlas::GpuTlas;
 use crate::tracing_paths::TracingPath;
@@ -181,6 +184,7 @@ impl CountingPipeline {
         let raygen = modules.load(raygen_spv)?;
         let miss = modules.load(PIPELINE_MISS_SPV)?;
         let hit = modules.load(PIPELINE_HIT_SPV)?;
+        let hit_ahit = modules.load(PIPELINE_HIT_AHIT_SPV)?;
         let box_ahit = modules.load(PIPELINE_BOX_AHIT_SPV)?;
         let box_chit = modules.load(PIPELINE_BOX_CHIT_SPV)?;
 
@@ -217,6 +221,7 @@ impl CountingPipeline {
             stage(vk::ShaderStageFlags::RAYGEN_KHR, raygen, &base_spec),
             stage(vk::ShaderStageFlags::MISS_KHR, miss, &base_spec),
             stage(vk::ShaderStageFlags::CLOSEST_HIT_KHR, hit, &base_spec),
+            stage(vk::ShaderStageFlags::ANY_HIT_KHR, hit_ahit, &base_spec),
         ];
         for spec in &kind_specs {
             stages.push(stage(vk::ShaderStageFlags::ANY_HIT_KHR, box_ahit, spec));
@@ -241,10 +246,10 @@ impl CountingPipeline {
         let groups = [
             general(0),
             general(1),
-            triangles(2, vk::SHADER_UNUSED_KHR),
-            triangles(4, 3),
-            triangles(6, 5),
-            triangles(8, 7),
+            triangles(2, 3),
+            triangles(5, 4),
+            triangles(7, 6),
+            triangles(9, 8),
         ];
         let info = [vk::RayTracingPipelineCreateInfoKHR::default()
             .stages(&stages)

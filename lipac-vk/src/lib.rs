@@ -85,6 +85,7 @@ mod sbt;
 pub mod shaders;
 mod timeline;
 mod tlas;
+mod trace_resources;
 mod tracing_paths;
 mod upload;
 
@@ -138,6 +139,7 @@ pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
 pub use sbt::{SbtLayout, SbtRecords, SbtRegion};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{GpuTlas, TlasBuildOutput};
+pub use trace_resources::TraceResources;
 pub use tracing_paths::{RayTracingPipelineProperties, TracingPath, TracingPaths};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
