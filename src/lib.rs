@@ -25,10 +25,10 @@
 #![warn(missing_docs)]
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
-pub use lipac_core as core;
 /// The `glam` that lipac's API takes (transforms, vectors): use it rather
 /// than a `glam` dependency of your own, so that the versions match.
 pub use glam;
+pub use lipac_core as core;
 #[cfg(feature = "sim")]
 #[cfg_attr(docsrs, doc(cfg(feature = "sim")))]
 pub use lipac_sim as sim;
