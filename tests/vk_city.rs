@@ -72,7 +72,8 @@ fn main() -> ExitCode {
         eprintln!("LIPAC_REQUIRE_VULKAN=1 but there is no suitable Vulkan device: {device}");
         return ExitCode::FAILURE;
     }
-    let tests: [(&str, fn(TracingPath)); 2] = [
+    type Test = (&'static str, fn(TracingPath));
+    let tests: [Test; 2] = [
         (
             "vk_city_keeps_frames_in_flight_without_lipac_waits",
             vk_city_keeps_frames_in_flight_without_lipac_waits,
