@@ -14,9 +14,16 @@ use lipac_vk::{
     RayQueryTestPipeline, ScratchBuffer, TracingPath, TriangleGeometry, UnitCube, Validation,
 };
 
-/// Whether the environment demands a Vulkan device (CI sets it).
+/// Whether the environment demands a Vulkan device with the validation
+/// layer and glslangValidator (`LIPAC_REQUIRE_VULKAN=1`, CI).
 pub fn vulkan_required() -> bool {
     std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1")
+}
+
+/// Whether the environment demands a Vulkan device (`LIPAC_REQUIRE_VULKAN=1`,
+/// or `=device` on a GPU machine without the validation layer or glslang).
+pub fn device_required() -> bool {
+    vulkan_required() || std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "device")
 }
 
 /// The validation the tests ask for: required with `LIPAC_REQUIRE_VULKAN=1`.
