@@ -6,7 +6,8 @@
 //! the device can run and reports the others as **ignored**, listing each
 //! with the reason in a summary at the end: a test that could not run is
 //! never reported as passed. `LIPAC_REQUIRE_VULKAN=1` (CI) makes a missing
-//! device, validation layer or glslangValidator a failure instead;
+//! device, validation layer or glslangValidator, and any test that could not
+//! run (a missing tracing path too), a failure instead;
 //! `LIPAC_REQUIRE_VULKAN=device` (a GPU machine without the layer or
 //! glslang) only a missing device.
 //!
@@ -233,6 +234,15 @@ fn main() -> ExitCode {
             }
         })
         .collect();
+    // CI's lavapipe offers everything the tests need (both tracing paths
+    // too): there a test that could not run is a failure, not a skip.
+    if required && !skipped.is_empty() {
+        eprintln!("LIPAC_REQUIRE_VULKAN=1 is set but these tests cannot run here:");
+        for (name, why) in &skipped {
+            eprintln!("  {name}: {why}");
+        }
+        return ExitCode::FAILURE;
+    }
     // The probe's device is not needed while the tests run.
     drop(machine);
     let conclusion = libtest_mimic::run(&args, trials);
