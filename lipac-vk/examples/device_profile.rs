@@ -10,8 +10,9 @@
 //!     [--name NAME] [--slots 1M] [--tlas 1M] [--blas 256x512,16x131072] [--reps 40]
 //! ```
 //!
-//! Runs on any Vulkan 1.3 device with acceleration structures
-//! (`LIPAC_DEVICE` picks one). Never writes over an existing file.
+//! Runs on any Vulkan 1.3 device with acceleration structures and either
+//! tracing path (`LIPAC_VK_DEVICE` picks one). Never writes over an
+//! existing file.
 
 mod gpu;
 

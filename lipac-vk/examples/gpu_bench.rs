@@ -12,9 +12,10 @@
 //!     [--warmup-ms 1000] [--evict-mib 256] [--bandwidth-mib 1024]
 //! ```
 //!
-//! Runs on any Vulkan 1.3 device with acceleration structures (ray queries
-//! are not needed); `LIPAC_DEVICE` picks one, `LIPAC_VALIDATION=1` enables
-//! the validation layer (its errors fail the run). Writes JSON to `--out`
+//! Runs on any Vulkan 1.3 device with acceleration structures and either
+//! tracing path (ray queries are not needed); `LIPAC_VK_DEVICE` picks one,
+//! `LIPAC_VALIDATION=1` enables the validation layer (its errors fail the
+//! run). Writes JSON to `--out`
 //! (never over an existing file); exits 1 when a check or measurement
 //! failed (the JSON says which). docs/BENCHMARKS.md, "GPU benchmark".
 
@@ -198,9 +199,6 @@ fn main() {
         }
     };
     println!("gpu_bench: {}", dev.describe());
-    for other in &dev.info.others {
-        println!("gpu_bench: not chosen: {other}");
-    }
     let report = match run(&dev, &opts, &args) {
         Ok(r) => r,
         Err(e) => {

@@ -8,15 +8,15 @@
 # DIR (default: .gpu-check at the repository root, added to the repository's
 # .git/info/exclude) is created fresh; it must not exist or must be a pack
 # made by this script. It gets run.sh, bin/ (gpu_bench, device_profile,
-# device_oom, vk_city), tests/ (every test binary of lipac-vk and the root
-# crate's vk_city test: whatever `cargo test --no-run` produces) and
-# MANIFEST.txt. lipac-vk's `shaders` test is left out: it checks the source
-# tree's SPIR-V with glslangValidator, not a device. --with-loader adds this
+# device_oom, vk_city), tests/ (every test binary of lipac-vk, its device
+# tests among them, and the root crate's vk_city test: whatever `cargo test
+# --no-run` produces) and
+# MANIFEST.txt. --with-loader adds this
 # machine's Vulkan loader and the glvnd libraries a vendor's driver loads
 # through (libvulkan.so.1, libGLdispatch.so.0, libGLX.so.0, libGL.so.1,
 # libEGL.so.1, libOpenGL.so.0; run.sh uses those the target lacks);
-# --with-validation adds the Khronos validation layer (run.sh then runs the
-# tests with LIPAC_REQUIRE_VULKAN=1, under validation).
+# --with-validation adds the Khronos validation layer (the tests and
+# examples then run under it where the target has none).
 # When the binaries exceed --max-mib (default 48) they are packed as
 # payload.tar.xz instead; the script fails if even that does not fit.
 set -euo pipefail
@@ -82,14 +82,13 @@ PY
 rm -rf "$dest"
 mkdir -p "$dest/bin" "$dest/tests"
 { list "$tmp/vk.json" test; list "$tmp/city-test.json" test; } | sort -u | while read -r name exe; do
-  [ "$name" = shaders ] && continue
   cp "$exe" "$dest/tests/$name"
 done
 { list "$tmp/ex.json" example; list "$tmp/city.json" example; } | sort -u | while read -r name exe; do
   cp "$exe" "$dest/bin/$name"
 done
 strip --strip-all "$dest"/bin/* "$dest"/tests/*
-for need in bin/gpu_bench bin/device_profile bin/device_oom tests/allocation_faults; do
+for need in bin/gpu_bench bin/device_profile bin/device_oom tests/device; do
   [ -x "$dest/$need" ] || { echo "pack.sh: $need was not built" >&2; exit 1; }
 done
 cp tools/gpu-check/run.sh "$dest/run.sh"

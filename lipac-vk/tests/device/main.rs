@@ -23,6 +23,7 @@
 
 mod adaptive_backend;
 mod adaptive_hitboxes;
+mod allocation_faults;
 mod allocator;
 mod api_errors;
 mod as_pool;
@@ -87,6 +88,7 @@ const TESTS: &[DeviceTest] = tests![
     Tracing adaptive_backend::adaptive_frame_loop_equals_the_cpu_and_the_leaf_only_trace_levels_3,
     Tracing adaptive_backend::camera_tracer_refuses_a_grid_larger_than_its_hitbox_buffers,
     Device adaptive_hitboxes::merged_assembly_matches_cpu_reference,
+    Device allocation_faults::out_of_memory_at_every_allocation_of_a_frame_loop,
     Tracing allocator::custom_allocator_serves_every_buffer_and_gets_every_allocation_back,
     Device allocator::gpu_allocator_packs_buffers_into_blocks_with_exact_stats,
     Device api_errors::caller_mistakes_are_errors,
