@@ -22,7 +22,7 @@ use lipac_core::controller::{ControlTarget, ControllerConfig};
 use crate::camera::CameraPath;
 use crate::compare::{make_strategy, CompareConfig, CompareReport, Contender, SceneChoice};
 use crate::error::SimError;
-use crate::memory::blas_bytes;
+use crate::memory::MemoryModel;
 use crate::plots::{Axis, Color, Plot, Series, Shape};
 use crate::scene::Scene;
 use crate::snapshot::Snapshot;
@@ -142,6 +142,7 @@ pub fn lipac_with_target(
 /// (docs/EVALUATION.md).
 pub fn with_target(base: LipacConfig, target: ControlTarget) -> LipacConfig {
     let mut controller = sim_controller();
+    controller.tlas_record_bytes = base.memory.tlas_bytes_per_instance();
     if matches!(target, ControlTarget::MemoryBudget { .. }) {
         controller.min_scale = 1.0;
     }
@@ -157,8 +158,13 @@ pub fn with_target(base: LipacConfig, target: ControlTarget) -> LipacConfig {
 /// out. NaN, infinite, zero, negative or budgets below the unit cube are
 /// errors.
 pub fn manager_budget(mib: f64) -> Result<ControlTarget, SimError> {
+    manager_budget_with(mib, &MemoryModel::default())
+}
+
+/// [`manager_budget`] on a device of `memory`'s sizes (its unit cube).
+pub fn manager_budget_with(mib: f64, memory: &MemoryModel) -> Result<ControlTarget, SimError> {
     let bytes = mib * MIB;
-    let cube = blas_bytes(12);
+    let cube = memory.blas_bytes(12);
     if !bytes.is_finite() || bytes < (cube + 1) as f64 {
         return Err(SimError::BadValue(format!(
             "--memory-budget {mib} MiB must be a positive number above the unit cube's {cube} B"
@@ -186,7 +192,7 @@ pub fn contenders(
         });
     }
     if let Some(mib) = opts.memory_budget_mib {
-        let c = with_target(base.clone(), manager_budget(mib)?);
+        let c = with_target(base.clone(), manager_budget_with(mib, &base.memory)?);
         out.push(Contender {
             name: "lipac-budget".into(),
             strategy: Box::new(Lipac::new(scene, c)?),
@@ -263,7 +269,7 @@ pub struct BudgetFigures {
 /// [`BudgetFigures`] of every run with a memory budget; `cuts`: the frames
 /// the camera jumps at.
 pub fn budget_figures(r: &CompareReport, cuts: &[u32]) -> Vec<BudgetFigures> {
-    let cube = blas_bytes(12);
+    let cube = r.device_profile.memory_model().blas_bytes(12);
     let mut out = Vec::new();
     for st in &r.strategies {
         let Some(target) = st.frames.iter().find_map(|m| m.control_target) else {

@@ -31,7 +31,9 @@
 //! [`CompareReport::blas_throughput`]); its TLAS build is a real
 //! [`CpuTlas`] build over its own records, its trace time the traversal's.
 //! Beside these, the modelled GPU time of the same work
-//! ([`crate::metrics::GpuModel::PUBLISHED`]; see [`crate::metrics`]).
+//! ([`crate::metrics::GpuModel::PUBLISHED`], or the rates of
+//! [`CompareConfig::device`]'s profile; see [`crate::metrics`]). The memory
+//! axis is the profile's sizes ([`crate::memory::MemoryModel`]).
 
 use std::time::Instant;
 
@@ -41,9 +43,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::blas::{BlasStore, BuildThroughput};
 use crate::camera::{CameraPath, FlyCamera};
+use crate::device_profile::DeviceProfile;
 use crate::error::SimError;
-use crate::memory::tlas_bytes;
-use crate::metrics::{apply_strategy_frame, summarize, FrameMetrics, GpuModel, Summary, Tracker};
+use crate::memory::MemoryModel;
+use crate::metrics::{
+    apply_strategy_frame, summarize_with, FrameMetrics, GpuModel, Summary, Tracker,
+};
 use crate::pathtrace::{
     primary_hits, relative_rmse, render_with_primary, worker_threads, FrameOutput, FrameScene,
     PathTraceConfig,
@@ -156,6 +161,11 @@ pub struct CompareConfig {
     /// Frames LiPaC holds what a warm start activates
     /// ([`LipacConfig::warm_start_hold`]; `None`: as configured, 0).
     pub lipac_warm_start_hold: Option<u32>,
+    /// The device whose acceleration-structure sizes make the memory axis
+    /// and whose build rates the modelled GPU time
+    /// ([`crate::device_profile`]; default: the built-in profile, lavapipe's
+    /// sizes and published rates).
+    pub device: DeviceProfile,
 }
 
 /// How LiPaC starts in a comparison ([`LipacConfig::warm_start`]).
@@ -229,6 +239,7 @@ impl Default for CompareConfig {
             lipac_start: LipacStart::Default,
             lipac_warm_start_at_cuts: false,
             lipac_warm_start_hold: None,
+            device: DeviceProfile::builtin(),
         }
     }
 }
@@ -296,6 +307,11 @@ pub struct CompareReport {
     /// cold, or the warm start's set, hold and cuts.
     #[serde(default)]
     pub start: String,
+    /// The device profile of the memory axis and the modelled GPU time
+    /// ([`CompareConfig::device`]; the built-in one in reports that predate
+    /// profiles).
+    #[serde(default)]
+    pub device_profile: DeviceProfile,
 }
 
 impl CompareReport {
@@ -323,24 +339,35 @@ impl std::fmt::Debug for Contender {
     }
 }
 
-/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`).
+/// Makes the strategy `kind` for `scene` (LiPaC with `lipac`; every
+/// strategy's BLASes sized by `lipac.memory`, the comparison's device).
 pub fn make_strategy(
     kind: StrategyKind,
     scene: &Scene,
     lipac: &LipacConfig,
 ) -> Result<Box<dyn Strategy + Send>, SimError> {
     Ok(match kind {
-        StrategyKind::Full => Box::new(Full::new(scene)?),
-        StrategyKind::Frustum => {
-            Box::new(FrustumRadius::new(scene, FrustumRadius::DEFAULT_RADIUS)?)
-        }
-        StrategyKind::Heuristic => Box::new(Heuristic::new(scene, Default::default())?),
+        StrategyKind::Full => Box::new(Full::with_memory(scene, &lipac.memory)?),
+        StrategyKind::Frustum => Box::new(FrustumRadius::with_memory(
+            scene,
+            FrustumRadius::DEFAULT_RADIUS,
+            &lipac.memory,
+        )?),
+        StrategyKind::Heuristic => Box::new(Heuristic::with_memory(
+            scene,
+            Default::default(),
+            &lipac.memory,
+        )?),
         StrategyKind::Lipac => Box::new(Lipac::new(scene, lipac.clone())?),
         StrategyKind::LipacLatency => {
             Box::new(Lipac::new(scene, lipac.clone().with_latency_mitigation())?)
         }
-        StrategyKind::Oracle => Box::new(Oracle::new(scene)?),
-        StrategyKind::Hindsight => Box::new(Hindsight::new(scene, Hindsight::DEFAULT_FRAMES)?),
+        StrategyKind::Oracle => Box::new(Oracle::with_memory(scene, &lipac.memory)?),
+        StrategyKind::Hindsight => Box::new(Hindsight::with_memory(
+            scene,
+            Hindsight::DEFAULT_FRAMES,
+            &lipac.memory,
+        )?),
     })
 }
 
@@ -395,10 +422,11 @@ pub fn run(
 }
 
 /// LiPaC's configuration of a comparison: the defaults for its rays, with
-/// `config`'s adaptive hitboxes, cell size, rise shift and start.
+/// `config`'s adaptive hitboxes, cell size, rise shift, start and device.
 pub(crate) fn lipac_config_of(config: &CompareConfig) -> Result<LipacConfig, SimError> {
     let rays_per_frame = u64::from(config.width) * u64::from(config.height);
-    let mut lipac_config = LipacConfig::for_rays_per_frame(rays_per_frame)?;
+    let mut lipac_config =
+        LipacConfig::for_rays_per_frame(rays_per_frame)?.with_memory(config.device.memory_model());
     if let Some(levels) = config.adaptive_levels {
         lipac_config = lipac_config.with_adaptive_hitboxes(levels);
     }
@@ -515,6 +543,7 @@ pub struct Comparison {
     traced_rays: u64,
     throughput: BuildThroughput,
     gpu: GpuModel,
+    memory: MemoryModel,
     frames: u32,
     capture: Vec<u32>,
     cuts: Vec<u32>,
@@ -623,7 +652,8 @@ impl Comparison {
             ..PathTraceConfig::default()
         };
         let n = scene.instances().len();
-        let catalog = InstanceCatalog::new(scene)?;
+        let memory = config.device.memory_model();
+        let catalog = InstanceCatalog::with_memory(scene, &memory)?;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(worker_threads(config.threads))
             .build()
@@ -680,7 +710,8 @@ impl Comparison {
             geometry_ms: 0.0,
             traced_rays: 0,
             throughput,
-            gpu: GpuModel::PUBLISHED,
+            gpu: config.device.gpu_model(),
+            memory,
             frames: 0,
             capture: Vec::new(),
             cuts: Vec::new(),
@@ -831,11 +862,12 @@ impl Comparison {
             lods,
             throughput,
             gpu,
+            memory,
             config,
             ..
         } = self;
         let (store, full_tlas, pt, counting) = (&*store, &*full_tlas, &*pt, &*counting);
-        let (throughput, gpu) = (&*throughput, &*gpu);
+        let (throughput, gpu, memory) = (&*throughput, &*gpu, &*memory);
         let capture = self.capture.contains(&frame);
         let ctx = FrameContext {
             frame,
@@ -945,6 +977,7 @@ impl Comparison {
                         counting,
                         throughput,
                         gpu,
+                        memory,
                         capture,
                     )
                 })
@@ -986,7 +1019,7 @@ impl Comparison {
             .lanes
             .into_iter()
             .map(|lane| StrategyRun {
-                summary: summarize(&lane.name, &lane.metrics, &lane.tracker),
+                summary: summarize_with(&lane.name, &lane.metrics, &lane.tracker, &self.memory),
                 name: lane.name,
                 frames: lane.metrics,
                 last_geometry: lane.last_geometry,
@@ -1013,6 +1046,7 @@ impl Comparison {
             camera_cuts: self.cuts.clone(),
             rule: crate::report::rule_description(&th),
             start: crate::report::start_description(&self.lipac_config),
+            device_profile: self.config.device.clone(),
         };
         Ok((report, self.snapshots))
     }
@@ -1110,6 +1144,7 @@ impl Lane {
         counting: &CountingBoxes,
         throughput: &BuildThroughput,
         gpu: &GpuModel,
+        memory: &MemoryModel,
         capture: bool,
     ) -> Result<Option<StrategySnapshot>, SimError> {
         let n = ctx.full_records.len() as u32;
@@ -1119,7 +1154,7 @@ impl Lane {
         m.traced_rays = r.out.rays.bounce + r.out.rays.shadow;
         m.tlas_instances = r.tlas_len as u64;
         m.counting_boxes = r.box_count as u64;
-        m.tlas_bytes = tlas_bytes(m.tlas_instances);
+        m.tlas_bytes = memory.tlas_bytes(m.tlas_instances);
         m.charge_time(throughput, gpu);
         let geometry_slots = (0..n).filter(|&s| geometry.contains(s));
         self.tracker

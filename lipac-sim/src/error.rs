@@ -62,6 +62,9 @@ pub enum SimError {
     /// Sweep shards that do not merge into one sweep (missing, repeated,
     /// from other settings).
     Shard(String),
+    /// A device profile that cannot be used (`crate::device_profile`): the
+    /// file, and what is wrong.
+    DeviceProfile(String),
 }
 
 impl fmt::Display for SimError {
@@ -95,6 +98,7 @@ impl fmt::Display for SimError {
             Self::Replay(what) => write!(f, "cannot replay: {what}"),
             Self::Import(what) => write!(f, "cannot import: {what}"),
             Self::Shard(what) => write!(f, "cannot merge sweep shards: {what}"),
+            Self::DeviceProfile(what) => write!(f, "device profile: {what}"),
         }
     }
 }

@@ -8,7 +8,6 @@ use std::fmt::Write as _;
 
 use crate::compare::CompareReport;
 use crate::error::SimError;
-use crate::metrics::TIMING_NOTE;
 use crate::report::{headline, PLOTS};
 use crate::snapshot::{heat_scale_png, Pictures, Snapshot};
 use crate::tlas_map::MapState;
@@ -131,7 +130,12 @@ pub fn report_html(
             m.mean_gpu_frame_ms
         );
     }
-    let _ = writeln!(s, "</table>\n<p>{}</p>", escape(TIMING_NOTE));
+    let _ = writeln!(
+        s,
+        "</table>\n<p>{}</p>\n<p>{}</p>",
+        escape(&crate::report::memory_note(&r.device_profile)),
+        escape(&crate::report::timing_note(r))
+    );
     s.push_str("<h2 id=\"plots\">Plots</h2>\n<div class=\"plots\">\n");
     for (svg, file) in plots.iter().zip(PLOTS) {
         let body = svg.trim_start_matches(|c| c != '<');

@@ -10,6 +10,7 @@ pub mod camera;
 pub mod closed_loop;
 pub mod compare;
 pub mod cpu_backend;
+pub mod device_profile;
 pub mod error;
 pub mod heuristic_arg;
 pub mod html;

@@ -27,6 +27,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::blas::BuildThroughput;
+use crate::memory::MemoryModel;
 use crate::strategy::{BlasWork, StrategyFrame};
 
 /// How the times of the reports are made (one paragraph of Markdown, for
@@ -220,6 +221,7 @@ impl FrameMetrics {
             self.blas_build_ms + self.blas_refit_ms + self.tlas_build_ms + self.trace_ms;
         let g = gpu.frame(
             self.primitives_built,
+            self.builds,
             self.primitives_refit,
             self.tlas_instances,
             self.traced_rays,
@@ -346,22 +348,32 @@ pub struct Summary {
 }
 
 /// Modelled GPU time of acceleration-structure work and tracing: each
-/// count divided by a throughput ([`GpuModel::PUBLISHED`] gives the
-/// figures and their sources). A second, clearly labelled figure beside the
-/// measured CPU times, not a measurement.
+/// count divided by a throughput, plus a fixed cost per BLAS build
+/// ([`GpuModel::PUBLISHED`] gives the figures and their sources; a device
+/// profile its own, [`crate::device_profile::DeviceProfile::gpu_model`]).
+/// A second, clearly labelled figure beside the measured CPU times, not a
+/// measurement.
 ///
 /// ```
 /// use lipac_sim::metrics::GpuModel;
-/// let m = GpuModel { build_triangles_per_s: 1e8, refit_triangles_per_s: 1e9,
-///     tlas_instances_per_s: 1e7, rays_per_s: 1e9 };
-/// let t = m.frame(100_000, 1_000_000, 10_000, 2_000_000);
+/// let m = GpuModel { build_triangles_per_s: 1e8, build_s_per_blas: 0.0,
+///     refit_triangles_per_s: 1e9, tlas_instances_per_s: 1e7, rays_per_s: 1e9 };
+/// let t = m.frame(100_000, 10, 1_000_000, 10_000, 2_000_000);
 /// assert_eq!((t.blas_build_ms, t.blas_refit_ms, t.tlas_build_ms, t.trace_ms), (1.0, 1.0, 1.0, 2.0));
 /// assert_eq!(t.frame_ms, 5.0);
+/// // With a cost per build: 10 builds of 10 µs each on top.
+/// let m = GpuModel { build_s_per_blas: 1e-5, ..m };
+/// assert!((m.frame(100_000, 10, 0, 0, 0).blas_build_ms - 1.1).abs() < 1e-12);
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GpuModel {
     /// Triangles a full BLAS build processes per second.
     pub build_triangles_per_s: f64,
+    /// Seconds every BLAS build costs besides its triangles (0 for the
+    /// published rates; a device profile's timed batches of small and
+    /// large meshes give it).
+    #[serde(default)]
+    pub build_s_per_blas: f64,
     /// Triangles a BLAS refit processes per second.
     pub refit_triangles_per_s: f64,
     /// Instances a TLAS build processes per second.
@@ -398,17 +410,27 @@ impl GpuModel {
     /// against error".
     pub const PUBLISHED: GpuModel = GpuModel {
         build_triangles_per_s: 0.843e6 / 2.718e-3,
+        build_s_per_blas: 0.0,
         refit_triangles_per_s: 8.43e6 / 2.78e-3,
         tlas_instances_per_s: 0.843e6 / 2.718e-3,
         rays_per_s: 1e9,
     };
 
-    /// The modelled time of `built` and `refit` triangles, a TLAS of
-    /// `instances` records and `rays` rays: each count divided by its
-    /// throughput, in ms.
-    pub fn frame(&self, built: u64, refit: u64, instances: u64, rays: u64) -> GpuFrame {
+    /// The modelled time of `built` triangles in `builds` BLAS builds,
+    /// `refit` triangles, a TLAS of `instances` records and `rays` rays:
+    /// each count divided by its throughput, plus
+    /// [`GpuModel::build_s_per_blas`] per build, in ms.
+    pub fn frame(
+        &self,
+        built: u64,
+        builds: u64,
+        refit: u64,
+        instances: u64,
+        rays: u64,
+    ) -> GpuFrame {
         let ms = |n: u64, per_s: f64| n as f64 / per_s * 1e3;
-        let blas_build_ms = ms(built, self.build_triangles_per_s);
+        let blas_build_ms =
+            ms(built, self.build_triangles_per_s) + builds as f64 * self.build_s_per_blas * 1e3;
         let blas_refit_ms = ms(refit, self.refit_triangles_per_s);
         let tlas_build_ms = ms(instances, self.tlas_instances_per_s);
         let trace_ms = ms(rays, self.rays_per_s);
@@ -419,6 +441,31 @@ impl GpuModel {
             trace_ms,
             frame_ms: blas_build_ms + blas_refit_ms + tlas_build_ms + trace_ms,
         }
+    }
+
+    /// The paragraph saying how the reports' times are made: [`TIMING_NOTE`]
+    /// for [`GpuModel::PUBLISHED`], else the same with this model's rates
+    /// and `device` (a device profile's description) as their source.
+    pub fn timing_note(&self, device: &str) -> String {
+        if *self == Self::PUBLISHED {
+            return TIMING_NOTE.to_owned();
+        }
+        let g = |per_s: f64| format!("{:.3} G/s", per_s / 1e9);
+        format!(
+            "{} Modelled GPU time (a model, not a measurement) = BLAS builds x {:.2} µs + \
+             triangles built / {} + triangles refit / {} + TLAS instances / {} + bounce and \
+             shadow rays / {}; builds and TLAS from the device profile {device}, refits and \
+             rays at the published and assumed rates (docs/MEMORY_MODEL.md, \"Device profiles\").",
+            TIMING_NOTE
+                .split(" Modelled GPU time")
+                .next()
+                .unwrap_or(TIMING_NOTE),
+            self.build_s_per_blas * 1e6,
+            g(self.build_triangles_per_s),
+            g(self.refit_triangles_per_s),
+            g(self.tlas_instances_per_s),
+            g(self.rays_per_s),
+        )
     }
 }
 
@@ -666,8 +713,20 @@ pub fn median(v: impl Iterator<Item = f64>) -> f64 {
     }
 }
 
-/// Summarises a strategy's frames.
+/// Summarises a strategy's frames (TLAS shares under the built-in memory
+/// model; [`summarize_with`] for a device profile's).
 pub fn summarize(strategy: &str, frames: &[FrameMetrics], tracker: &Tracker) -> Summary {
+    summarize_with(strategy, frames, tracker, &MemoryModel::default())
+}
+
+/// Summarises a strategy's frames, splitting TLAS bytes with `memory`
+/// (the model the frames were measured with).
+pub fn summarize_with(
+    strategy: &str,
+    frames: &[FrameMetrics],
+    tracker: &Tracker,
+    memory: &MemoryModel,
+) -> Summary {
     let n = frames.len().max(1) as f64;
     let mean = |f: &dyn Fn(&FrameMetrics) -> f64| frames.iter().map(f).sum::<f64>() / n;
     let lat = tracker.latencies();
@@ -718,12 +777,11 @@ pub fn summarize(strategy: &str, frames: &[FrameMetrics], tracker: &Tracker) -> 
             mean(&|m| m.blas_split.shared_used as f64 / MIB),
             mean(&|m| m.blas_split.shared_cached as f64 / MIB),
             mean(&|m| {
-                crate::memory::tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)) as f64
-                    / MIB
+                memory.tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)) as f64 / MIB
             }),
             mean(&|m| {
-                (crate::memory::tlas_bytes(m.tlas_instances).saturating_sub(
-                    crate::memory::tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)),
+                (memory.tlas_bytes(m.tlas_instances).saturating_sub(
+                    memory.tlas_bytes(m.tlas_instances.saturating_sub(m.counting_boxes)),
                 )) as f64
                     / MIB
             }),

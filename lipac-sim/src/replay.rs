@@ -51,6 +51,7 @@ use lipac_core::trace::{
 
 use crate::camera::FlyCamera;
 use crate::compare::{CompareConfig, CompareReport, Comparison, Contender, LipacStart};
+use crate::device_profile::DeviceProfile;
 use crate::error::SimError;
 use crate::record::{from_trace_camera, header, same_pose, to_trace_camera, SceneRef};
 use crate::scene::Scene;
@@ -112,6 +113,9 @@ pub struct ReplayConfig {
     /// --trace` puts its hindsight windows here). Names as for
     /// `lipac_variants`.
     pub hindsight_variants: Vec<(String, u32)>,
+    /// The device profile of the memory axis and the modelled GPU time
+    /// ([`CompareConfig::device`]; both modes).
+    pub device: DeviceProfile,
 }
 
 impl ReplayConfig {
@@ -140,6 +144,7 @@ impl ReplayConfig {
             lipac_start: self.lipac_start,
             lipac_warm_start_at_cuts: self.warm_start_at_cuts,
             lipac_warm_start_hold: self.warm_start_hold,
+            device: self.device.clone(),
         }
     }
 
@@ -149,6 +154,7 @@ impl ReplayConfig {
     /// [`ReplayConfig::hindsight_variants`].
     pub(crate) fn comparison(&self, name: &str, scene: &Scene) -> Result<Comparison, SimError> {
         let cc = self.compare_config();
+        let memory = cc.device.memory_model();
         let mut contenders = crate::compare::contenders_of(scene, &cc)?;
         for (variant, config) in &self.lipac_variants {
             contenders.push(Contender {
@@ -159,7 +165,7 @@ impl ReplayConfig {
         for (variant, frames) in &self.hindsight_variants {
             contenders.push(Contender {
                 name: variant.clone(),
-                strategy: Box::new(Hindsight::new(scene, *frames)?),
+                strategy: Box::new(Hindsight::with_memory(scene, *frames, &memory)?),
             });
         }
         Comparison::with_contenders(name, scene, &cc, contenders)
@@ -182,6 +188,7 @@ impl Default for ReplayConfig {
             warm_start_hold: None,
             lipac_variants: Vec::new(),
             hindsight_variants: Vec::new(),
+            device: DeviceProfile::builtin(),
         }
     }
 }

@@ -11,7 +11,6 @@ use lipac_core::thresholds::{DecisionRule, Thresholds};
 use crate::compare::CompareReport;
 use crate::error::SimError;
 use crate::html::report_html;
-use crate::metrics::TIMING_NOTE;
 use crate::plots::{line_plot, scatter_plot};
 use crate::snapshot::{write_snapshots, Snapshot};
 
@@ -34,7 +33,7 @@ pub const PLOT_TITLES: [&str; 6] = [
     "Error per frame",
     "Frame time per frame (AS work + trace, measured on CPU)",
     "Frame time (AS work + trace, measured on CPU) against error",
-    "Modelled GPU frame time against error (published throughput)",
+    "Modelled GPU frame time against error (the device profile's rates)",
 ];
 
 /// The summary table for the terminal (fixed-width text).
@@ -180,14 +179,13 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
     }
     let _ = writeln!(
         s,
-        "\nMemory is modelled on lavapipe's acceleration-structure sizes (104 B per BLAS triangle, \
-         176 B per TLAS instance; LiPaC adds 20 B per hitbox and 4 B per instance slot, 8 B under the decayed rule): see \
-         docs/MEMORY_MODEL.md. TLAS instances count counting boxes. Error: relative RMSE of the \
+        "\n{} TLAS instances count counting boxes. Error: relative RMSE of the \
          indirect light against the ground truth (every instance traced, same random numbers). \
          Latency: frames from the first frame the ground-truth paths hit an instance to the first \
          frame it is traced as geometry (\"never active\": never by the end). A cycle is an instance \
          re-entering the TLAS within 30 frames of leaving it. The full-scene strategy reuses the \
-         ground truth's render (identical TLAS).\n"
+         ground truth's render (identical TLAS).\n",
+        memory_note(&r.device_profile)
     );
     s.push_str(&breakdown_markdown(r));
     let _ = writeln!(
@@ -233,7 +231,7 @@ pub fn markdown(r: &CompareReport, snapshots: bool) -> String {
             m.mean_error
         );
     }
-    let _ = writeln!(s, "\n{TIMING_NOTE}\n");
+    let _ = writeln!(s, "\n{}\n", timing_note(r));
     let _ = writeln!(s, "## Plots\n");
     for (file, title) in PLOTS.iter().zip(PLOT_TITLES) {
         let _ = writeln!(s, "- [{title}]({file})\n\n  ![{title}]({file})\n");
@@ -525,4 +523,51 @@ pub fn write_report_with_snapshots(
     }
     paths.extend(write_snapshots(snapshots, &pictures, dir)?);
     Ok(paths)
+}
+
+/// The report's sentence on the memory model: the profile named, its
+/// bytes per BLAS triangle and per TLAS instance, LiPaC's own buffers.
+pub fn memory_note(profile: &crate::device_profile::DeviceProfile) -> String {
+    let lipac = "LiPaC adds 20 B per hitbox and 4 B per instance slot, 8 B under the decayed rule";
+    if profile.is_builtin() {
+        return format!(
+            "Memory is modelled on lavapipe's acceleration-structure sizes (104 B per BLAS \
+             triangle, 176 B per TLAS instance; {lipac}; the built-in device profile): see \
+             docs/MEMORY_MODEL.md."
+        );
+    }
+    let m = profile.memory_model();
+    let per_triangle: Vec<String> = profile
+        .blas
+        .sizes
+        .iter()
+        .map(|b| {
+            let compacted = b
+                .compacted_bytes
+                .filter(|&c| c != b.built_bytes)
+                .map_or(String::new(), |c| {
+                    format!(" ({:.0} compacted)", c as f64 / b.triangles as f64)
+                });
+            format!(
+                "{:.0} at {} triangles{compacted}",
+                b.built_bytes as f64 / b.triangles as f64,
+                b.triangles
+            )
+        })
+        .collect();
+    format!(
+        "Memory is modelled on the acceleration-structure sizes of the device profile {} (BLAS \
+         bytes per triangle as built: {}; {} B per TLAS instance; {lipac}): see \
+         docs/MEMORY_MODEL.md. The profile's source: {}",
+        profile.describe(),
+        per_triangle.join("; "),
+        m.tlas_bytes_per_instance(),
+        profile.source
+    )
+}
+
+/// The report's paragraph on how its times are made, naming the profile
+/// of the modelled GPU time ([`crate::metrics::GpuModel::timing_note`]).
+pub fn timing_note(r: &CompareReport) -> String {
+    r.gpu_model.timing_note(&r.device_profile.describe())
 }

@@ -64,7 +64,7 @@ use lipac_core::MeshId;
 use crate::camera::FlyCamera;
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{build_estimate, mesh_lod};
+use crate::memory::MemoryModel;
 use crate::mesh::{LOD_COUNT, TERRAIN_RESOLUTION};
 use crate::metrics::{BlasSplit, MissingKind};
 use crate::scene::{flags, Scene, SceneInstance, TERRAIN_MESH};
@@ -91,11 +91,19 @@ pub struct InstanceCatalog {
     kinds: Vec<BlasOwnership>,
     meshes: Vec<MeshId>,
     terrain: Vec<bool>,
+    memory: MemoryModel,
 }
 
 impl InstanceCatalog {
-    /// Catalog of every instance of `scene`.
+    /// Catalog of every instance of `scene`, its BLASes sized by the
+    /// built-in memory model ([`MemoryModel::default`]).
     pub fn new(scene: &Scene) -> Result<Self, SimError> {
+        Self::with_memory(scene, &MemoryModel::default())
+    }
+
+    /// Catalog of every instance of `scene`, its BLASes sized by `memory`
+    /// (a device profile's, [`crate::device_profile`]).
+    pub fn with_memory(scene: &Scene, memory: &MemoryModel) -> Result<Self, SimError> {
         let n = scene.instances().len();
         let mut triangles = Vec::with_capacity(n);
         let mut kinds = Vec::with_capacity(n);
@@ -127,7 +135,12 @@ impl InstanceCatalog {
             kinds,
             meshes,
             terrain,
+            memory: memory.clone(),
         })
+    }
+    /// The memory model sizing the catalog's BLASes.
+    pub fn memory(&self) -> &MemoryModel {
+        &self.memory
     }
     /// Number of instances.
     pub fn len(&self) -> usize {
@@ -184,12 +197,14 @@ impl InstanceCatalog {
         }
         split
     }
-    /// Build sizes of instance `slot` at `lod` ([`crate::memory`]).
+    /// Build sizes of instance `slot` at `lod` (the catalog's
+    /// [`MemoryModel`]).
     pub fn estimate(&self, slot: u32, lod: usize) -> BuildEstimate {
-        build_estimate(u64::from(self.triangles(slot, lod)))
+        self.memory
+            .build_estimate(u64::from(self.triangles(slot, lod)))
     }
     /// The Manager's mesh catalog: every mesh of the scene with its
-    /// [`LOD_COUNT`] LODs ([`crate::memory::mesh_lod`]). Fails if two
+    /// [`LOD_COUNT`] LODs ([`MemoryModel::mesh_lod`]). Fails if two
     /// instances of one mesh disagree on a triangle count.
     pub fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
         let mut first: HashMap<MeshId, usize> = HashMap::new();
@@ -208,7 +223,7 @@ impl InstanceCatalog {
         for (mesh, slot) in meshes {
             let lods = self.triangles[slot]
                 .iter()
-                .map(|&t| mesh_lod(u64::from(t)))
+                .map(|&t| self.memory.mesh_lod(u64::from(t)))
                 .collect();
             catalog.insert(mesh, lods).map_err(SimError::core)?;
         }
@@ -402,8 +417,8 @@ struct SetStrategy {
 impl SetStrategy {
     /// Registers every instance of `scene` (frame 0 state, none selected;
     /// registry slots = scene slots).
-    fn new(scene: &Scene) -> Result<Self, SimError> {
-        let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
+    fn new(scene: &Scene, memory: &MemoryModel) -> Result<Self, SimError> {
+        let catalog = InstanceCatalog::with_memory(scene, memory)?.mesh_catalog()?;
         let mut backend =
             CpuBackend::engine_selected(scene_grid(scene, BASELINE_CELL_SIZE)?, catalog)?;
         let n = scene.instances().len();
@@ -512,9 +527,13 @@ impl SetStrategy {
 pub struct Full(SetStrategy);
 
 impl Full {
-    /// For the instances of `scene`.
+    /// For the instances of `scene` (the built-in memory model).
     pub fn new(scene: &Scene) -> Result<Self, SimError> {
-        let mut s = SetStrategy::new(scene)?;
+        Self::with_memory(scene, &MemoryModel::default())
+    }
+    /// For the instances of `scene`, its BLASes sized by `memory`.
+    pub fn with_memory(scene: &Scene, memory: &MemoryModel) -> Result<Self, SimError> {
+        let mut s = SetStrategy::new(scene, memory)?;
         s.wanted.fill(true);
         Ok(Self(s))
     }
@@ -557,13 +576,18 @@ pub struct FrustumRadius {
 impl FrustumRadius {
     /// The usual radius: 800 m.
     pub const DEFAULT_RADIUS: f32 = 800.0;
-    /// For the instances of `scene` and a keep-radius of `radius` metres.
+    /// For the instances of `scene` and a keep-radius of `radius` metres
+    /// (the built-in memory model).
     pub fn new(scene: &Scene, radius: f32) -> Result<Self, SimError> {
+        Self::with_memory(scene, radius, &MemoryModel::default())
+    }
+    /// As [`FrustumRadius::new`], its BLASes sized by `memory`.
+    pub fn with_memory(scene: &Scene, radius: f32, memory: &MemoryModel) -> Result<Self, SimError> {
         if !radius.is_finite() || radius < 0.0 {
             return Err(SimError::BadConfig("radius must be finite and >= 0"));
         }
         Ok(Self {
-            set: SetStrategy::new(scene)?,
+            set: SetStrategy::new(scene, memory)?,
             radius,
         })
     }
@@ -598,8 +622,16 @@ pub struct Heuristic {
 
 impl Heuristic {
     /// For the instances of `scene` with `rule` (default: within 50 m, or
-    /// `radius / distance >= 0.1`).
+    /// `radius / distance >= 0.1`; the built-in memory model).
     pub fn new(scene: &Scene, rule: ActivationHeuristic) -> Result<Self, SimError> {
+        Self::with_memory(scene, rule, &MemoryModel::default())
+    }
+    /// As [`Heuristic::new`], its BLASes sized by `memory`.
+    pub fn with_memory(
+        scene: &Scene,
+        rule: ActivationHeuristic,
+        memory: &MemoryModel,
+    ) -> Result<Self, SimError> {
         if rule.max_distance.is_nan()
             || rule.max_distance < 0.0
             || rule.min_projected_size.is_nan()
@@ -608,7 +640,7 @@ impl Heuristic {
             return Err(SimError::BadConfig("heuristic values must be >= 0"));
         }
         Ok(Self {
-            set: SetStrategy::new(scene)?,
+            set: SetStrategy::new(scene, memory)?,
             rule,
         })
     }
@@ -646,9 +678,13 @@ impl Strategy for Heuristic {
 pub struct Oracle(SetStrategy);
 
 impl Oracle {
-    /// For the instances of `scene`.
+    /// For the instances of `scene` (the built-in memory model).
     pub fn new(scene: &Scene) -> Result<Self, SimError> {
-        Ok(Self(SetStrategy::new(scene)?))
+        Self::with_memory(scene, &MemoryModel::default())
+    }
+    /// For the instances of `scene`, its BLASes sized by `memory`.
+    pub fn with_memory(scene: &Scene, memory: &MemoryModel) -> Result<Self, SimError> {
+        Ok(Self(SetStrategy::new(scene, memory)?))
     }
 }
 

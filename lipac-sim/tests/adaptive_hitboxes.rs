@@ -179,6 +179,7 @@ fn compare_with_adaptive_hitboxes_decides_alike_with_fewer_boxes() {
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
             lipac_warm_start_hold: None,
+            device: Default::default(),
         };
         run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
     };

@@ -28,6 +28,7 @@ fn small(frames: u32, w: u32, h: u32, strategies: &[StrategyKind], share: bool) 
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     };
     run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).expect("comparison")
 }
@@ -242,6 +243,7 @@ fn config(frames: u32) -> CompareConfig {
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     }
 }
 
@@ -515,6 +517,7 @@ fn a_rise_shift_reaches_lipac_and_a_bad_one_is_refused() {
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
             lipac_warm_start_hold: None,
+            device: Default::default(),
         };
         run_choice(SceneChoice::City, None, &config, &mut |_, _| {})
     };

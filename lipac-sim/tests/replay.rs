@@ -111,6 +111,7 @@ fn record_then_replay_reproduces_compare_exactly() {
             lipac_start: lipac_sim::compare::LipacStart::Default,
             lipac_warm_start_at_cuts: false,
             lipac_warm_start_hold: None,
+            device: Default::default(),
         },
         &mut |_, _| {},
     )

@@ -21,6 +21,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     };
     let r = run_choice(SceneChoice::Small, None, &config, &mut |_, _| {}).unwrap();
     let t = r.blas_throughput;
@@ -53,6 +54,7 @@ fn timings_are_positive_sum_to_the_frame_and_follow_the_work() {
             // The model: each count over its published throughput.
             let g = GpuModel::PUBLISHED.frame(
                 m.primitives_built,
+                m.builds,
                 m.primitives_refit,
                 m.tlas_instances,
                 m.traced_rays,

@@ -37,6 +37,7 @@ fn run(frames: u32, snapshots: &[u32]) -> (lipac_sim::compare::CompareReport, Ve
         lipac_start: lipac_sim::compare::LipacStart::Cold,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     };
     run_choice_with_snapshots(SceneChoice::Small, None, &config, snapshots, &mut |_, _| {}).unwrap()
 }

@@ -29,6 +29,7 @@ fn tiny(scenes: Vec<SceneChoice>, frames: u32) -> SweepConfig {
         warm_start_at_cuts: false,
         warm_start_hold: None,
         lipac_start: LipacStart::Default,
+        device: Default::default(),
     }
 }
 
@@ -198,6 +199,7 @@ fn shared_ground_truth_gives_the_errors_of_compare() {
         lipac_start: lipac_sim::compare::LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: Default::default(),
     };
     let c = run_choice(SceneChoice::Small, None, &compare, &mut |_, _| {}).unwrap();
     for (swept, compared) in [("lipac ×1", "lipac"), ("lipac-latency", "lipac-latency")] {

@@ -56,6 +56,7 @@ fn infinite_errors_survive_merge_and_replot() {
         warm_start_at_cuts: false,
         warm_start_hold: None,
         lipac_start: Default::default(),
+        device: Default::default(),
     };
     let mut shard = run_shard(&config, Shard::new(1, 1).unwrap(), &mut |_, _, _, _| {}).unwrap();
     assert!(shard.points.len() >= 2, "{} points", shard.points.len());

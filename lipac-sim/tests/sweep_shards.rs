@@ -32,6 +32,7 @@ fn tiny(frames: u32) -> SweepConfig {
         warm_start_at_cuts: false,
         warm_start_hold: None,
         lipac_start: Default::default(),
+        device: Default::default(),
     }
 }
 
@@ -162,6 +163,35 @@ fn merge_refuses_what_is_not_one_sweep() {
         },
     );
     assert!(err(&[a.clone(), other]).contains("other settings"));
+    // A shard run on another device profile (its memory axis differs).
+    let h200 = lipac_sim::device_profile::DeviceProfile::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles/nvidia-h200.json"),
+    )
+    .unwrap();
+    let device = part(
+        2,
+        2,
+        &SweepConfig {
+            device: h200.clone(),
+            ..config.clone()
+        },
+    );
+    assert_eq!(device.plan.device_profile.name, "nvidia-h200");
+    assert!(err(&[a.clone(), device.clone()]).contains("other settings"));
+    let both = merge(&[
+        part(
+            1,
+            2,
+            &SweepConfig {
+                device: h200,
+                ..config.clone()
+            },
+        ),
+        device,
+    ])
+    .unwrap();
+    assert_eq!(both.device_profile.name, "nvidia-h200");
+    assert!(sweep::sweep_markdown(&both).contains("Device profile: nvidia-h200 (NVIDIA H200)"));
     // Another split of the same sweep.
     let third = part(1, 3, &config);
     assert!(err(&[a.clone(), third]).contains("not one of 2 parts"));

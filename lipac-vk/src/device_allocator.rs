@@ -17,6 +17,10 @@
 //! offset, and hands it back to [`DeviceAllocator::free`] after destroying
 //! the buffer.
 //!
+//! [`FailingAllocator`] wraps any of them and fails allocations on purpose
+//! (from the n-th on, until restored): out-of-memory at every allocation of
+//! a frame loop, for tests.
+//!
 //! lipac counts what it holds itself ([`DeviceMemoryStats`]): live buffers
 //! and the bytes of their memory requirements, exact whatever the allocator
 //! does. What the allocator took from the driver (its blocks, including free
@@ -452,6 +456,9 @@ unsafe impl DeviceAllocator for GpuAllocator {
         })
     }
 }
+
+mod failing;
+pub use failing::FailingAllocator;
 
 #[cfg(test)]
 mod tests;

@@ -26,6 +26,7 @@ use lipac_sim::closed_loop::{self, ClosedLoopOptions, ClosedLoopPath};
 use lipac_sim::compare::{
     check_image_size, run_choice_with_snapshots, CompareConfig, LipacStart, SceneChoice,
 };
+use lipac_sim::device_profile::DeviceProfile;
 use lipac_sim::heuristic_arg::parse_heuristic;
 use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::strategy::lipac::LipacConfig;
@@ -149,6 +150,12 @@ struct Common {
     /// Report folder.
     #[arg(long, default_value = "lipac-report")]
     out: PathBuf,
+    /// A device profile (JSON, `lipac-sim/profiles/`; made by lipac-vk's
+    /// `device_profile` example): its acceleration-structure sizes make the
+    /// memory axis, its build rates the modelled GPU time. Default: the
+    /// built-in profile (lavapipe's sizes, published rates).
+    #[arg(long, value_name = "FILE")]
+    device_profile: Option<PathBuf>,
     /// Frames to take pictures of (e.g. `0,90,180`): the indirect light of
     /// the ground truth and each strategy, error heat maps and TLAS maps, in
     /// report.html and under snapshots/.
@@ -337,6 +344,10 @@ struct SweepArgs {
     /// into the report of one run, written to `--out`.
     #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with = "shard")]
     merge: Vec<PathBuf>,
+    /// A device profile for the memory axis and the modelled GPU time (as
+    /// `lipac compare --device-profile`; shards of one sweep must share it).
+    #[arg(long, value_name = "FILE")]
+    device_profile: Option<PathBuf>,
 }
 
 fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Result<(A, B), String> {
@@ -446,6 +457,8 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
                 None => LipacStart::Default,
                 Some(spec) => LipacStart::parse(spec).map_err(|e| format!("--warm-start: {e}"))?,
             },
+            device: DeviceProfile::load_or_builtin(a.device_profile.as_deref())
+                .map_err(|e| e.to_string())?,
         })
     })();
     let config = match parsed.and_then(|c| {
@@ -465,7 +478,12 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
     );
     // The trace is an input: neither the report folder nor any file
     // written into it may be the trace (checked again on writing).
-    let inputs: Vec<&Path> = config.trace.iter().map(PathBuf::as_path).collect();
+    let inputs: Vec<&Path> = config
+        .trace
+        .iter()
+        .chain(a.device_profile.iter())
+        .map(PathBuf::as_path)
+        .collect();
     if let Err(e) = output::check_not_input(&a.out, &inputs) {
         eprintln!("lipac sweep: {e}");
         return ExitCode::FAILURE;
@@ -557,7 +575,15 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    let device = match DeviceProfile::load_or_builtin(common.device_profile.as_deref()) {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("lipac: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let config = CompareConfig {
+        device,
         frames: common.frames,
         width: common.width,
         height: common.height,
@@ -643,7 +669,8 @@ fn main() -> ExitCode {
             c.points, c.pearson, c.spearman
         );
     }
-    match output::publish_dir(&common.out, &[], |dir| {
+    let inputs: Vec<&Path> = common.device_profile.iter().map(PathBuf::as_path).collect();
+    match output::publish_dir(&common.out, &inputs, |dir| {
         write_report_with_snapshots(&report, &snapshots, dir).map_err(|e| e.to_string())
     }) {
         Ok(_) => {

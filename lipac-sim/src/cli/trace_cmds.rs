@@ -115,6 +115,10 @@ pub struct ReplayArgs {
     /// start activates (as `lipac compare --warm-start-hold`).
     #[arg(long)]
     warm_start_hold: Option<u32>,
+    /// A device profile for the memory axis and the modelled GPU time (as
+    /// `lipac compare --device-profile`).
+    #[arg(long, value_name = "FILE")]
+    device_profile: Option<PathBuf>,
     #[command(flatten)]
     scene: TraceSceneArgs,
 }
@@ -209,6 +213,9 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     // The report folder must not be (or hold) the trace: checked before
     // the (possibly long) replay.
     check_not_input(&a.out, &[&a.file])?;
+    if let Some(p) = a.device_profile.as_deref() {
+        check_not_input(&a.out, &[p])?;
+    }
     let config = ReplayConfig {
         strategies: a.strategies.iter().map(|&s| s.into()).collect(),
         width: a.width,
@@ -228,6 +235,10 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
         warm_start_hold: a.warm_start_hold,
         lipac_variants: Vec::new(),
         hindsight_variants: Vec::new(),
+        device: lipac_sim::device_profile::DeviceProfile::load_or_builtin(
+            a.device_profile.as_deref(),
+        )
+        .map_err(|e| e.to_string())?,
     };
     let at_file = |e: SimError| format!("{}: {e}", a.file.display());
     let regular_file = std::fs::metadata(&a.file).is_ok_and(|m| m.is_file());
@@ -245,7 +256,9 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     if let Some(h) = headline(&report) {
         print!("{h}");
     }
-    publish_dir(&a.out, &[&a.file], |dir| {
+    let mut inputs: Vec<&std::path::Path> = vec![&a.file];
+    inputs.extend(a.device_profile.as_deref());
+    publish_dir(&a.out, &inputs, |dir| {
         write_report_with_snapshots(&report, &snapshots, dir)
             .map_err(|e| format!("writing the report: {e}"))
     })?;

@@ -1,6 +1,7 @@
 use super::*;
 use crate::camera::CameraPath;
 use crate::compare::StrategyRun;
+use crate::memory::blas_bytes;
 use crate::metrics::{FrameMetrics, Summary};
 use crate::strategy::StrategyKind;
 
@@ -75,6 +76,7 @@ fn report(strategies: Vec<StrategyRun>) -> CompareReport {
         start: String::new(),
         blas_throughput: Default::default(),
         gpu_model: Default::default(),
+        device_profile: Default::default(),
     }
 }
 

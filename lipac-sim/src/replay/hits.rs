@@ -52,8 +52,8 @@ use crate::camera::FlyCamera;
 use crate::compare::{CompareReport, StrategyRun};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, lipac_overhead_bytes, mesh_lod, tlas_bytes};
-use crate::metrics::{summarize, FrameMetrics, Summary, Tracker};
+use crate::memory::{lipac_overhead_bytes, MemoryModel};
+use crate::metrics::{summarize, summarize_with, FrameMetrics, Summary, Tracker};
 use crate::record::from_trace_camera;
 use crate::strategy::lipac::LipacConfig;
 use crate::strategy::{BlasWork, StrategyKind};
@@ -104,13 +104,16 @@ impl World {
         self.slot_ids.len()
     }
     /// The Manager's catalog: the header's meshes, one
-    /// [`crate::memory::mesh_lod`] per LOD.
-    fn mesh_catalog(&self) -> Result<MeshCatalog, SimError> {
+    /// [`MemoryModel::mesh_lod`] per LOD.
+    fn mesh_catalog(&self, memory: &MemoryModel) -> Result<MeshCatalog, SimError> {
         let mut meshes: Vec<(&u32, &Vec<u32>)> = self.triangles.iter().collect();
         meshes.sort_unstable();
         let mut catalog = MeshCatalog::new();
         for (&mesh, lods) in meshes {
-            let lods = lods.iter().map(|&t| mesh_lod(u64::from(t))).collect();
+            let lods = lods
+                .iter()
+                .map(|&t| memory.mesh_lod(u64::from(t)))
+                .collect();
             catalog.insert(MeshId(mesh), lods).map_err(core)?;
         }
         Ok(catalog)
@@ -130,6 +133,8 @@ impl World {
 #[derive(Debug)]
 struct LipacReplay {
     backend: CpuBackend<WorldHitboxes>,
+    /// The unit cube's BLAS (LiPaC's counting boxes), bytes.
+    unit_cube_bytes: u64,
     /// The `full` baseline ([`CpuBackend::engine_selected`]).
     baseline: bool,
     /// Handle per dense slot.
@@ -279,7 +284,10 @@ pub fn replay_hits_with<R: Read>(
     // Leaf hitboxes only: the recorded hits already name the instance or
     // cell a path met, so merged counting boxes would decide nothing
     // differently, and the hashed index of an unbounded world is leaf-only.
-    let mut lipac_config = LipacConfig::for_rays_per_frame(rays(config))?.with_adaptive_hitboxes(0);
+    let memory = config.device.memory_model();
+    let mut lipac_config = LipacConfig::for_rays_per_frame(rays(config))?
+        .with_adaptive_hitboxes(0)
+        .with_memory(memory.clone());
     config.lipac_start.apply(&mut lipac_config);
     // A bounded world's grid, or the hashed grid of an unbounded one (the
     // readers checked the grid's size).
@@ -290,7 +298,8 @@ pub fn replay_hits_with<R: Read>(
         let runner = match k {
             StrategyKind::Full => Runner::Full(Box::new(LipacReplay::full(
                 grid.clone(),
-                world.mesh_catalog()?,
+                world.mesh_catalog(&memory)?,
+                &memory,
             )?)),
             StrategyKind::Lipac | StrategyKind::LipacLatency => {
                 let c = if *k == StrategyKind::Lipac {
@@ -301,7 +310,7 @@ pub fn replay_hits_with<R: Read>(
                 Runner::Lipac(Box::new(LipacReplay::new(
                     grid.clone(),
                     &c,
-                    world.mesh_catalog()?,
+                    world.mesh_catalog(&memory)?,
                 )?))
             }
             other => {
@@ -369,7 +378,7 @@ pub fn replay_hits_with<R: Read>(
                 }
             };
             m.strategy_ms = t.elapsed().as_secs_f64() * 1e3;
-            m.tlas_bytes = tlas_bytes(m.tlas_instances);
+            m.tlas_bytes = memory.tlas_bytes(m.tlas_instances);
             run.tracker.resize(world.slots());
             run.tracker
                 .observe(number, geometry.into_iter(), &world.hits, &mut m);
@@ -414,7 +423,7 @@ pub fn replay_hits_with<R: Read>(
         .zip(runs)
         .map(|(k, run)| {
             let mut summary = if config.keep_frames {
-                summarize(k.name(), &run.frames, &run.tracker)
+                summarize_with(k.name(), &run.frames, &run.tracker, &memory)
             } else {
                 summary_of(k.name(), &run)
             };
@@ -454,6 +463,7 @@ pub fn replay_hits_with<R: Read>(
             gpu_model: Default::default(),
             strategies,
             camera_cuts: Vec::new(),
+            device_profile: config.device.clone(),
         },
         fp,
     ))
@@ -591,9 +601,14 @@ fn blas_kind(f: InstanceFlags) -> InstanceFlags {
 impl LipacReplay {
     /// The `full` baseline: every live instance pinned on a Manager without
     /// feedback.
-    fn full(grid: WorldHitboxes, catalog: MeshCatalog) -> Result<Self, SimError> {
+    fn full(
+        grid: WorldHitboxes,
+        catalog: MeshCatalog,
+        memory: &MemoryModel,
+    ) -> Result<Self, SimError> {
         Ok(Self {
             backend: CpuBackend::engine_selected(grid, catalog)?,
+            unit_cube_bytes: memory.blas_bytes(12),
             baseline: true,
             handles: Vec::new(),
             dense: Vec::new(),
@@ -608,6 +623,7 @@ impl LipacReplay {
     ) -> Result<Self, SimError> {
         Ok(Self {
             backend: CpuBackend::new(grid, config, catalog)?,
+            unit_cube_bytes: config.memory.blas_bytes(12),
             baseline: false,
             handles: Vec::new(),
             dense: Vec::new(),
@@ -750,7 +766,7 @@ impl LipacReplay {
         if self.baseline {
             m.blas_bytes = self.backend.blas_bytes();
         } else {
-            m.blas_bytes = self.backend.blas_bytes() + blas_bytes(12);
+            m.blas_bytes = self.backend.blas_bytes() + self.unit_cube_bytes;
             let slots = u64::from(self.backend.slot_count());
             m.overhead_bytes = lipac_overhead_bytes(hitboxes, slots)
                 + crate::memory::decayed_rate_bytes(&self.backend.manager().thresholds(), slots);

@@ -12,6 +12,7 @@
 
 use super::{ground_truth_hits, FrameContext, SetStrategy, Strategy, StrategyFrame};
 use crate::error::SimError;
+use crate::memory::MemoryModel;
 use crate::scene::Scene;
 use crate::traversal::Counters;
 use lipac_core::layout::TlasInstance;
@@ -31,15 +32,21 @@ impl Hindsight {
     pub const DEFAULT_FRAMES: u32 = 8;
 
     /// For the instances of `scene`, remembering `frames` past frames'
-    /// hits (at least 1: with none it would trace only the pinned ones).
+    /// hits (at least 1: with none it would trace only the pinned ones);
+    /// the built-in memory model.
     pub fn new(scene: &Scene, frames: u32) -> Result<Self, SimError> {
+        Self::with_memory(scene, frames, &MemoryModel::default())
+    }
+
+    /// As [`Hindsight::new`], its BLASes sized by `memory`.
+    pub fn with_memory(scene: &Scene, frames: u32, memory: &MemoryModel) -> Result<Self, SimError> {
         if frames == 0 {
             return Err(SimError::BadConfig(
                 "hindsight needs a window of at least one frame",
             ));
         }
         Ok(Self {
-            set: SetStrategy::new(scene)?,
+            set: SetStrategy::new(scene, memory)?,
             frames,
             last_hit: vec![None; scene.instances().len()],
         })

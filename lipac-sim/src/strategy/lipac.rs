@@ -35,7 +35,7 @@ use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use super::{ControlFrame, FrameContext, InstanceCatalog, Strategy, StrategyFrame};
 use crate::cpu_backend::CpuBackend;
 use crate::error::SimError;
-use crate::memory::{blas_bytes, decayed_rate_bytes, lipac_overhead_bytes};
+use crate::memory::{decayed_rate_bytes, lipac_overhead_bytes, MemoryModel};
 use crate::scene::{Scene, SceneInstance};
 use crate::scene_blas::instance_mask;
 use crate::tlas::{CountingBoxes, MergedBoxes};
@@ -101,6 +101,11 @@ pub struct LipacConfig {
     /// (`lipac sweep --decayed` with `!`; docs/EVALUATION.md, "A default
     /// within 1.15x the oracle"). The oracle keeps the pins either way.
     pub honour_pins: bool,
+    /// The device's acceleration-structure sizes: the Manager's build
+    /// estimates, the unit cube and the controller's bytes per TLAS record
+    /// ([`MemoryModel`]; the built-in one by default, a device profile's
+    /// with [`LipacConfig::with_memory`]).
+    pub memory: MemoryModel,
 }
 
 impl LipacConfig {
@@ -200,7 +205,16 @@ impl LipacConfig {
             warm_start_at_cuts: false,
             warm_start_hold: 0,
             honour_pins: true,
+            memory: MemoryModel::default(),
         })
+    }
+    /// The same on a device of `memory`'s sizes (a device profile's,
+    /// [`crate::device_profile::DeviceProfile::memory_model`]): its build
+    /// estimates, and the controller's bytes per TLAS record.
+    pub fn with_memory(mut self, memory: MemoryModel) -> Self {
+        self.controller.tlas_record_bytes = memory.tlas_bytes_per_instance();
+        self.memory = memory;
+        self
     }
     /// The same with adaptive hitboxes of `levels` merge levels (0: off).
     pub fn with_adaptive_hitboxes(mut self, levels: u8) -> Self {
@@ -285,7 +299,7 @@ impl Lipac {
     /// [`CpuBackend`] whose hitbox grid covers the scene.
     pub fn new(scene: &Scene, config: LipacConfig) -> Result<Self, SimError> {
         let grid = super::scene_grid(scene, config.cell_size)?;
-        let catalog = InstanceCatalog::new(scene)?.mesh_catalog()?;
+        let catalog = InstanceCatalog::with_memory(scene, &config.memory)?.mesh_catalog()?;
         let mut backend = CpuBackend::new(grid, &config, catalog)?;
         let n = scene.instances().len();
         backend.reserve(n);
@@ -500,7 +514,7 @@ impl Strategy for Lipac {
         };
         Ok(StrategyFrame {
             work: f.work,
-            blas_bytes: self.backend.blas_bytes() + blas_bytes(12),
+            blas_bytes: self.backend.blas_bytes() + self.config.memory.blas_bytes(12),
             blas_split: ctx.catalog.blas_split(manager.scheduler().cache()),
             overhead_bytes: lipac_overhead_bytes(hitboxes.len() as u64, n as u64)
                 + decayed_rate_bytes(&self.config.thresholds, n as u64),

@@ -5,7 +5,6 @@ use std::fmt::Write as _;
 
 use super::dominance::dominance_markdown;
 use super::{SweepReport, COSTS};
-use crate::metrics::TIMING_NOTE;
 
 /// The Markdown report: per scene a table of every variant, fronts marked;
 /// then [`dominance_markdown`].
@@ -99,11 +98,13 @@ pub fn sweep_markdown(r: &SweepReport) -> String {
     for (file, title, _, _) in COSTS {
         let _ = writeln!(s, "- [{title}]({file})\n\n  ![{title}]({file})\n");
     }
+    let device = r.device_profile.describe();
     let _ = writeln!(
         s,
         "Data: [sweep.csv](sweep.csv); everything, with per-frame errors: [sweep.json](sweep.json).\n\n\
-         Memory is modelled on lavapipe's acceleration-structure sizes (docs/MEMORY_MODEL.md). \
-         {TIMING_NOTE}"
+         Device profile: {device}. Memory is modelled on its acceleration-structure sizes \
+         (docs/MEMORY_MODEL.md). {}",
+        r.device_profile.gpu_model().timing_note(&device)
     );
     s
 }

@@ -24,7 +24,7 @@ pub const COSTS: [Cost; 4] = [
     ),
     (
         "sweep_gpu_time.svg",
-        "Modelled GPU frame time against error (published throughput)",
+        "Modelled GPU frame time against error (the device profile's rates)",
         "modelled GPU frame time (AS work + trace), ms",
         |p| p.summary.mean_gpu_frame_ms,
     ),

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Family;
+use crate::device_profile::DeviceProfile;
 use crate::metrics::Summary;
 
 /// One configuration on one scene.
@@ -108,6 +109,10 @@ pub struct SweepReport {
     pub skipped: Vec<String>,
     /// Wall time, s (merged shards: the sum of theirs).
     pub wall_s: f64,
+    /// The device profile of the memory axis and the modelled GPU time
+    /// (the built-in one in reports that predate profiles).
+    #[serde(default)]
+    pub device_profile: DeviceProfile,
 }
 
 impl SweepReport {

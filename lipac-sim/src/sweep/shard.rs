@@ -45,6 +45,7 @@ use super::variants::make_contender;
 use super::{mark_fronts, SweepConfig, SweepPoint, SweepReport, SweepScene};
 use crate::camera::CameraPath;
 use crate::compare::{run_contenders, CompareConfig, CompareReport, LipacStart};
+use crate::device_profile::DeviceProfile;
 use crate::error::SimError;
 use crate::replay::{ReplayConfig, ReplayMode};
 use crate::scene::Scene;
@@ -145,6 +146,10 @@ pub struct SweepPlan {
     pub variants: Vec<String>,
     /// Variants dropped as duplicates of an earlier one.
     pub skipped: Vec<String>,
+    /// The device profile of the memory axis and the modelled GPU time
+    /// (the built-in one in shards that predate profiles).
+    #[serde(default)]
+    pub device_profile: DeviceProfile,
 }
 
 impl SweepPlan {
@@ -250,6 +255,7 @@ pub fn run_shard(
         scenes: config.scene_names(),
         variants: variants.iter().map(|v| v.name.clone()).collect(),
         skipped,
+        device_profile: config.device.clone(),
     };
     let range = shard.range(plan.len());
     let mine: Vec<(usize, usize)> = plan
@@ -258,7 +264,8 @@ pub fn run_shard(
         .filter(|(i, _)| range.contains(i))
         .map(|(_, u)| u)
         .collect();
-    let base = LipacConfig::for_rays_per_frame(config.rays_per_frame())?;
+    let base = LipacConfig::for_rays_per_frame(config.rays_per_frame())?
+        .with_memory(config.device.memory_model());
     let compare = CompareConfig {
         frames: config.frames,
         width: config.width,
@@ -272,6 +279,7 @@ pub fn run_shard(
         lipac_start: LipacStart::Default,
         lipac_warm_start_at_cuts: false,
         lipac_warm_start_hold: None,
+        device: config.device.clone(),
     };
     let mut scenes = Vec::new();
     let mut points = Vec::new();
@@ -389,6 +397,7 @@ fn replay_variants(
             .iter()
             .filter_map(|v| v.hindsight.map(|k| (v.name.clone(), k)))
             .collect(),
+        device: config.device.clone(),
         ..ReplayConfig::default()
     };
     // A trace does not say its length up front: the total is 0 (unknown).
@@ -588,6 +597,7 @@ pub fn merge(shards: &[SweepShard]) -> Result<SweepReport, SimError> {
         points,
         skipped: plan.skipped.clone(),
         wall_s,
+        device_profile: plan.device_profile.clone(),
     };
     mark_fronts(&mut report);
     Ok(report)

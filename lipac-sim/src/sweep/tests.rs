@@ -445,6 +445,7 @@ fn time_fronts_of_a_hand_made_sweep() {
         ],
         skipped: vec![],
         wall_s: 0.0,
+        device_profile: Default::default(),
     };
     mark_fronts(&mut r);
     let on = |f: fn(&SweepPoint) -> bool| -> Vec<bool> { r.points.iter().map(f).collect() };
@@ -488,6 +489,7 @@ fn sweep_markdown_says_where_lipac_is_below_the_baselines() {
         ],
         skipped: vec![],
         wall_s: 0.0,
+        device_profile: Default::default(),
     };
     let md = sweep_markdown(&r);
     assert!(md.contains("### a: LiPaC's front against the baselines'"));

@@ -11,6 +11,7 @@ use lipac_core::thresholds::{DecayedSettings, DecisionRule, Thresholds};
 use serde::{Deserialize, Serialize};
 
 use crate::compare::{make_strategy, Contender, LipacStart, SceneChoice};
+use crate::device_profile::DeviceProfile;
 use crate::error::SimError;
 use crate::scene::Scene;
 use crate::strategy::hindsight::Hindsight;
@@ -121,6 +122,9 @@ pub struct SweepConfig {
     /// configured, cold, or warm with a heuristic); said in each
     /// configuration's name unless it is the configured start.
     pub lipac_start: LipacStart,
+    /// The device profile of every scene's memory axis and modelled GPU
+    /// time ([`crate::compare::CompareConfig::device`]).
+    pub device: DeviceProfile,
 }
 
 impl Default for SweepConfig {
@@ -162,6 +166,7 @@ impl Default for SweepConfig {
             warm_start_at_cuts: false,
             warm_start_hold: None,
             lipac_start: LipacStart::Default,
+            device: DeviceProfile::builtin(),
         }
     }
 }
@@ -467,7 +472,7 @@ impl SweepConfig {
         }
         let mut base = LipacConfig {
             warm_start_at_cuts: self.warm_start_at_cuts,
-            ..LipacConfig::for_rays_per_frame(rays)?
+            ..LipacConfig::for_rays_per_frame(rays)?.with_memory(self.device.memory_model())
         };
         if let Some(frames) = self.warm_start_hold {
             base.warm_start_hold = frames;
@@ -676,7 +681,7 @@ pub(super) fn make_contender(
 ) -> Result<Contender, SimError> {
     let strategy = match (&v.lipac, v.hindsight) {
         (Some(c), _) => Box::new(Lipac::new(scene, c.clone())?) as _,
-        (None, Some(frames)) => Box::new(Hindsight::new(scene, frames)?) as _,
+        (None, Some(frames)) => Box::new(Hindsight::with_memory(scene, frames, &base.memory)?) as _,
         (None, None) => make_strategy(v.kind, scene, base)?,
     };
     Ok(Contender {
