@@ -359,10 +359,11 @@ fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
 }
 
 fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
+    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
+    output::check_not_input(out, &inputs)?;
     let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
     let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
     print!("{}", sweep::sweep_markdown(&report));
-    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
     output::publish_dir(out, &inputs, |dir| {
         sweep::write_sweep(&report, dir).map_err(|e| format!("writing the report: {e}"))
     })?;
@@ -518,7 +519,12 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    run(Cli::parse())
+}
+
+/// The command line's work (`main` less the parsing; the file-safety
+/// table in `lipac/tests.rs` runs it in child processes).
+fn run(cli: Cli) -> ExitCode {
     let (common, strategies, closed_loop) = match cli.command {
         Command::Compare {
             common,
@@ -608,29 +614,7 @@ fn main() -> ExitCode {
     }
     if closed_loop.is_some() {
         for b in closed_loop::budget_figures(&report, &report.camera_cuts) {
-            println!(
-                "{}: budget {:.2} MiB, frames {}+: mean {:.2} MiB, max deviation {:.1} %, \
-                 max overrun {:+.1} %, {} of {} frames > 5 % off ({} over, {} under at scale > 1), \
-                 after the jump {}, final scale {:.3}{}",
-                b.name,
-                b.budget_bytes as f64 / (1024.0 * 1024.0),
-                closed_loop::SETTLE_FRAMES,
-                b.mean_bytes / (1024.0 * 1024.0),
-                100.0 * b.max_deviation,
-                100.0 * b.max_overrun,
-                b.frames_outside,
-                b.frames,
-                b.frames_over,
-                b.frames_spare,
-                b.jump_max_deviation
-                    .map_or("-".into(), |d| format!("{:.1} %", 100.0 * d)),
-                b.final_scale,
-                if b.unreachable_frames > 0 {
-                    format!(", budget unreachable in {} frames", b.unreachable_frames)
-                } else {
-                    String::new()
-                }
-            );
+            println!("{}", b.summary_line());
         }
     }
     if let Some(c) = closed_loop::escape_error_correlation(&report) {
@@ -659,3 +643,9 @@ fn main() -> ExitCode {
         }
     }
 }
+
+// The file-safety table of every subcommand (the CLI's own unit test, in
+// src/cli/ with the command modules).
+#[cfg(test)]
+#[path = "../cli/tests.rs"]
+mod tests;
