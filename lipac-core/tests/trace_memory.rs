@@ -151,7 +151,11 @@ fn run_case(case: &str) {
                 max_events_per_frame: max_events,
                 ..limits()
             };
-            let e = within(3 * RECORD as usize, || {
+            // The events allowed, as built (a `Vec` grows by doubling), and
+            // a little more: not the 4 MiB line, which is parsed as it is
+            // read (the reader held it whole before).
+            let events = 2 * max_events as usize * std::mem::size_of::<InstanceEvent>();
+            let e = within(events + (256 << 10), || {
                 let mut r = JsonlReader::with_limits(text.as_slice(), limits).unwrap();
                 r.next_frame().unwrap();
                 r.next_frame().unwrap_err()
@@ -169,6 +173,61 @@ fn run_case(case: &str) {
             );
             assert_eq!(e.location, TraceLocation::Line(3), "{e}");
         }
+        "jsonl-string" => {
+            // A frame line of one 64 MiB string: refused once the string
+            // passes the longest a frame line holds, before anything
+            // copies it (it cost three times its size: the line, serde's
+            // copy, and the error quoting it whole).
+            let (h, _) = tiny_trace();
+            let head =
+                String::from_utf8(JsonlWriter::new(Vec::new(), &h).unwrap().finish().unwrap())
+                    .unwrap();
+            let mut text = head.lines().next().unwrap().as_bytes().to_vec();
+            text.extend_from_slice(b"\n{\"frame\":\"");
+            text.resize(text.len() + (64 << 20), b'a');
+            text.extend_from_slice(b"\"}\n");
+            let e = within(256 << 10, || {
+                let mut r = JsonlReader::with_limits(
+                    text.as_slice(),
+                    TraceLimits {
+                        max_frame_bytes: 128 << 20,
+                        ..TraceLimits::default()
+                    },
+                )
+                .unwrap();
+                r.next_frame().unwrap_err()
+            });
+            assert!(e.to_string().contains("longer than"), "{e}");
+            assert!(e.to_string().len() < 1000, "{e}");
+        }
+        "jsonl-long-line" => {
+            // A 16 MiB line of whitespace against a 4 MiB limit: refused at
+            // the limit, having held none of it.
+            let (h, _) = tiny_trace();
+            let head =
+                String::from_utf8(JsonlWriter::new(Vec::new(), &h).unwrap().finish().unwrap())
+                    .unwrap();
+            let mut text = head.lines().next().unwrap().as_bytes().to_vec();
+            text.push(b'\n');
+            text.push(b'{');
+            text.resize(text.len() + (16 << 20), b' ');
+            text.extend_from_slice(b"}\n");
+            let e = within(256 << 10, || {
+                let mut r = JsonlReader::with_limits(text.as_slice(), limits()).unwrap();
+                r.next_frame().unwrap_err()
+            });
+            assert!(
+                matches!(
+                    e.kind,
+                    TraceErrorKind::LimitExceeded {
+                        what: "frame line bytes",
+                        limit,
+                        ..
+                    } if limit == u64::from(RECORD)
+                ),
+                "{e}"
+            );
+        }
         other => panic!("unknown case {other}"),
     }
     println!("{case}: ok");
@@ -185,7 +244,7 @@ fn rejected_records_cost_a_small_multiple_of_their_size() {
         run_case(&case);
         return;
     }
-    for case in ["binary", "jsonl"] {
+    for case in ["binary", "jsonl", "jsonl-string", "jsonl-long-line"] {
         let mut child = std::process::Command::new(std::env::current_exe().unwrap())
             .args([
                 "--exact",

@@ -418,6 +418,9 @@ struct LineSeed<'a> {
     limits: &'a TraceLimits,
     events: &'a mut Vec<InstanceEvent>,
     stop: &'a mut Option<FrameFault>,
+    /// The `"frame"` number once parsed (for the error of a line stopped
+    /// later).
+    number: &'a mut Option<u64>,
 }
 
 impl<'de> serde::de::DeserializeSeed<'de> for LineSeed<'_> {
@@ -450,6 +453,7 @@ impl<'de> serde::de::Visitor<'de> for LineSeed<'_> {
                 LineKey::Frame => {
                     once(&mut seen_frame, "frame")?;
                     parts.frame = m.next_value()?;
+                    *self.number = parts.frame;
                 }
                 LineKey::Camera => {
                     once(&mut seen_camera, "camera")?;
@@ -933,6 +937,119 @@ fn read_line<R: BufRead>(
     Ok(Some(Ok(())))
 }
 
+/// The longest JSON string a frame line may hold, bytes as written (field
+/// names and flag names are a few bytes): a longer one is refused as it is
+/// read, before a JSON parser copies it (and quotes it whole in its error).
+pub(crate) const MAX_FRAME_LINE_STRING: u64 = 256;
+
+/// One line of a [`BufRead`] as a [`Read`]: its bytes up to (not
+/// including) the newline, which it consumes; at most `max` bytes, and no
+/// JSON string longer than [`MAX_FRAME_LINE_STRING`] (a tiny lexer follows
+/// the strings). Past either limit it returns an error and leaves the
+/// fault in [`LineReader::fault`].
+struct LineReader<'a, R> {
+    r: &'a mut R,
+    /// Bytes of the line still allowed.
+    left: u64,
+    max: u64,
+    /// The newline (or the end of input) was reached.
+    done: bool,
+    in_string: bool,
+    escaped: bool,
+    /// Bytes of the string being read.
+    string_len: u64,
+    fault: Option<TraceErrorKind>,
+}
+
+impl<'a, R: BufRead> LineReader<'a, R> {
+    fn new(r: &'a mut R, max: u64) -> Self {
+        Self {
+            r,
+            left: max,
+            max,
+            done: false,
+            in_string: false,
+            escaped: false,
+            string_len: 0,
+            fault: None,
+        }
+    }
+
+    /// Reads to the end of the line (after a successful parse only
+    /// whitespace is left; `end` has read it).
+    fn finish(&mut self) -> io::Result<()> {
+        let mut sink = [0u8; 64];
+        while self.read(&mut sink)? > 0 {}
+        Ok(())
+    }
+
+    fn fail(&mut self, kind: TraceErrorKind) -> io::Error {
+        let e = io::Error::new(io::ErrorKind::InvalidData, kind.to_string());
+        self.fault = Some(kind);
+        e
+    }
+}
+
+impl<R: BufRead> Read for LineReader<'_, R> {
+    fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
+        if self.done || out.is_empty() {
+            return Ok(0);
+        }
+        let avail = self.r.fill_buf()?;
+        if avail.is_empty() {
+            self.done = true;
+            return Ok(0);
+        }
+        // At most one byte past the limit: reading it tells the line is
+        // longer.
+        let allowed = usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX);
+        let n = avail.len().min(out.len()).min(allowed);
+        let mut taken = 0;
+        let mut newline = false;
+        for &b in &avail[..n] {
+            if b == b'\n' {
+                newline = true;
+                break;
+            }
+            if self.in_string {
+                if self.escaped {
+                    self.escaped = false;
+                } else if b == b'\\' {
+                    self.escaped = true;
+                } else if b == b'"' {
+                    self.in_string = false;
+                }
+                self.string_len += 1;
+            } else if b == b'"' {
+                self.in_string = true;
+                self.string_len = 0;
+            }
+            out[taken] = b;
+            taken += 1;
+        }
+        self.r.consume(taken + usize::from(newline));
+        self.done = newline;
+        if taken as u64 > self.left {
+            return Err(self.fail(TraceErrorKind::LimitExceeded {
+                what: "frame line bytes",
+                value: self.max + 1,
+                limit: self.max,
+            }));
+        }
+        self.left -= taken as u64;
+        if self.in_string && self.string_len > MAX_FRAME_LINE_STRING {
+            return Err(self.fail(TraceErrorKind::InvalidValue {
+                what: "JSON string".into(),
+                reason: format!(
+                    "longer than {MAX_FRAME_LINE_STRING} bytes (a frame line holds only short \
+                     names)"
+                ),
+            }));
+        }
+        Ok(taken)
+    }
+}
+
 #[derive(Debug)]
 enum ReadState {
     Frames,
@@ -952,7 +1069,6 @@ pub struct JsonlReader<R: Read> {
     header: TraceHeader,
     validator: TraceValidator,
     line: u64,
-    buf: Vec<u8>,
     state: ReadState,
 }
 
@@ -1010,15 +1126,13 @@ impl<R: Read> JsonlReader<R> {
         let header = header_of(dto);
         let meshes = check_header(&header, &limits).map_err(here)?;
         let validator = TraceValidator::with_meshes(meshes, limits, &header.world, version);
-        buf.clear();
-        buf.shrink_to(64 * 1024);
+        drop(buf);
         Ok(Self {
             r,
             limits,
             header,
             validator,
             line: 1,
-            buf,
             state: ReadState::Frames,
         })
     }
@@ -1089,62 +1203,61 @@ impl<R: Read> JsonlReader<R> {
             kind,
         };
         let max = u64::from(self.limits.max_frame_bytes);
-        match read_line(&mut self.r, &mut self.buf, max)
-            .map_err(|e| err(None, None, TraceErrorKind::io(&e)))?
-        {
-            None => {
+        // The line is parsed as it is read (never held whole): a line
+        // refused at byte k has cost what was parsed of its first k bytes.
+        let io_err = |e: io::Error| err(None, None, TraceErrorKind::io(&e));
+        match self.r.fill_buf().map_err(io_err)? {
+            [] => {
                 return Err(err(
                     None,
                     None,
                     TraceErrorKind::MissingEnd { frames: index },
                 ))
             }
-            Some(Err(len)) => {
+            [b'\n', ..] | [b'\r', b'\n', ..] => {
+                self.line = line;
                 return Err(err(
                     None,
                     None,
-                    TraceErrorKind::LimitExceeded {
-                        what: "frame line bytes",
-                        value: len,
-                        limit: max,
+                    TraceErrorKind::InvalidValue {
+                        what: "line".into(),
+                        reason: "empty line".into(),
                     },
-                ))
+                ));
             }
-            Some(Ok(())) => {}
+            _ => {}
         }
         self.line = line;
-        if self.buf.is_empty() {
-            return Err(err(
-                None,
-                None,
-                TraceErrorKind::InvalidValue {
-                    what: "line".into(),
-                    reason: "empty line".into(),
-                },
-            ));
-        }
         let mut events = Vec::new();
         let mut stop = None;
+        let mut number = None;
+        let mut reader = LineReader::new(&mut self.r, max);
         let parsed = {
-            let mut de = serde_json::Deserializer::from_slice(&self.buf);
+            let mut de = serde_json::Deserializer::from_reader(&mut reader);
             serde::de::DeserializeSeed::deserialize(
                 LineSeed {
                     limits: &self.limits,
                     events: &mut events,
                     stop: &mut stop,
+                    number: &mut number,
                 },
                 &mut de,
             )
             .and_then(|parts| de.end().map(|()| parts))
         };
+        if let Some(fault) = reader.fault.take() {
+            return Err(err(number, None, fault));
+        }
         let parts = match (parsed, stop) {
             (Ok(parts), _) => parts,
             (Err(_), Some(FrameFault { event, kind })) => {
-                let number = peek_frame_number(&self.buf);
                 return Err(err(number, event, kind));
             }
-            (Err(e), None) => return Err(err(None, None, json_err(&e))),
+            (Err(e), None) => return Err(err(number, None, json_err(&e))),
         };
+        // The rest of the line (serde stops at the end of the value; `end`
+        // read the whitespace after it up to the newline).
+        reader.finish().map_err(io_err)?;
         let shape_err = |number, reason: &str| {
             err(
                 number,
@@ -1171,10 +1284,12 @@ impl<R: Read> JsonlReader<R> {
                         read: index,
                     }));
                 }
-                self.buf.clear();
-                let more = read_line(&mut self.r, &mut self.buf, 0)
-                    .map_err(|x| e(TraceErrorKind::io(&x)))?;
-                if more.is_some() {
+                let more = !self
+                    .r
+                    .fill_buf()
+                    .map_err(|x| e(TraceErrorKind::io(&x)))?
+                    .is_empty();
+                if more {
                     return Err(TraceError::at(
                         TraceLocation::Line(line + 1),
                         TraceErrorKind::TrailingData,
@@ -1229,18 +1344,6 @@ impl<R: Read> JsonlReader<R> {
             )),
         }
     }
-}
-
-/// The `"frame"` number of a line whose parsing was stopped, for the error
-/// (found by a second, skipping parse that keeps nothing but the number).
-fn peek_frame_number(line: &[u8]) -> Option<u64> {
-    #[derive(Deserialize)]
-    struct Number {
-        frame: Option<u64>,
-    }
-    // Every other field is skipped by serde (`IgnoredAny`), allocating
-    // nothing per event.
-    serde_json::from_slice::<Number>(line).ok()?.frame
 }
 
 #[cfg(test)]
