@@ -209,10 +209,17 @@ impl HashedHitboxes {
                 "hashed grid fingerprint_bits = {fingerprint_bits} must be in 1..=32"
             ));
         }
+        let mut table = Vec::new();
+        crate::memory::try_reserve_exact(
+            &mut table,
+            initial_buckets as usize,
+            "hash table buckets",
+        )?;
+        table.resize(initial_buckets as usize, Bucket::default());
         Ok(Self {
             config,
             inv_cell: cell_size.recip(),
-            table: vec![Bucket::default(); initial_buckets as usize],
+            table,
             live: 0,
             cells: Vec::new(),
             free: BinaryHeap::new(),
