@@ -346,7 +346,7 @@ fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Resu
 }
 
 fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
-    output::check_not_input(out, &[from])?;
+    output::check_out_dir(out, &[from])?;
     let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
     let mut report: sweep::SweepReport =
         serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
@@ -360,7 +360,7 @@ fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
 
 fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
     let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
-    output::check_not_input(out, &inputs)?;
+    output::check_out_dir(out, &inputs)?;
     let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
     let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
     print!("{}", sweep::sweep_markdown(&report));
@@ -463,7 +463,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
     // The trace is an input: neither the report folder nor any file
     // written into it may be the trace (checked again on writing).
     let inputs: Vec<&Path> = config.trace.iter().map(PathBuf::as_path).collect();
-    if let Err(e) = output::check_not_input(&a.out, &inputs) {
+    if let Err(e) = output::check_out_dir(&a.out, &inputs) {
         eprintln!("lipac sweep: {e}");
         return ExitCode::FAILURE;
     }
@@ -549,6 +549,10 @@ fn run(cli: Cli) -> ExitCode {
     }
     if common.frames == Some(0) {
         eprintln!("lipac: --frames 0: nothing to render (give at least 1)");
+        return ExitCode::FAILURE;
+    }
+    if let Err(e) = output::check_out_dir(&common.out, &[]) {
+        eprintln!("lipac: {e}");
         return ExitCode::FAILURE;
     }
     let lipac_start = match common.warm_start.as_deref().map(LipacStart::parse) {

@@ -217,6 +217,10 @@ const FILE_TABLE: &[Entry] = &[
             &[
                 "replay",
                 "in/half.lipactrace",
+                "--width",
+                "8",
+                "--height",
+                "8",
                 "--threads",
                 "1",
                 "--out",
@@ -239,6 +243,10 @@ const FILE_TABLE: &[Entry] = &[
                 &[
                     "replay",
                     "in/r/report.json",
+                    "--width",
+                    "8",
+                    "--height",
+                    "8",
                     "--threads",
                     "1",
                     "--out",
