@@ -6,7 +6,10 @@
 //!   4096 x 4096 grid (1.4 GB before: a record per declared cell);
 //! * `sweep --merge` of a shard claiming 4294967295 parts (34 GB before),
 //!   and of one whose plan claims 10^4 x 10^4 runs it does not carry;
-//! * a glTF import whose index accessor claims 2^40 indices, and one of
+//! * a glTF import whose index accessor claims 2^40 indices, one whose
+//!   200 primitives share an accessor of 1.2 MB (a budget of 8 x the
+//!   buffers), one placing a triangle 100,000 times under 200 nodes with
+//!   4000-byte names (names shared, not copied per instance), and one of
 //!   u32::MAX frames (its frames are made as they are written).
 //!
 //! The allocator is limited around each case: an allocation past the
@@ -74,13 +77,7 @@ fn shard(index: u32, count: u32, scenes: usize, variants: usize) -> SweepShard {
     }
 }
 
-fn one_triangle(index_count: u64) -> Vec<u8> {
-    let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
-        .iter()
-        .flat_map(|v| v.to_le_bytes())
-        .collect();
-    bin.extend([0u16, 1, 2, 0].iter().flat_map(|v| v.to_le_bytes()));
-    // Base64 of the 44 bytes.
+fn base64(bin: &[u8]) -> String {
     const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut b64 = String::new();
     for c in bin.chunks(3) {
@@ -95,6 +92,16 @@ fn one_triangle(index_count: u64) -> Vec<u8> {
             });
         }
     }
+    b64
+}
+
+fn one_triangle(index_count: u64) -> Vec<u8> {
+    let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    bin.extend([0u16, 1, 2, 0].iter().flat_map(|v| v.to_le_bytes()));
+    let b64 = base64(&bin);
     format!(
         r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
 "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
@@ -102,6 +109,76 @@ fn one_triangle(index_count: u64) -> Vec<u8> {
 {{"bufferView":1,"componentType":5123,"count":{index_count},"type":"SCALAR"}}],
 "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":6}}],
 "buffers":[{{"byteLength":44,"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#
+    )
+    .into_bytes()
+}
+
+/// `vertices` positions (a fan of triangles in the x/z plane), as
+/// (buffer, its base64).
+fn positions(vertices: usize) -> (Vec<u8>, String) {
+    let bin: Vec<u8> = (0..vertices)
+        .flat_map(|i| [i as f32, 0.0, (i % 7) as f32])
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let b64 = base64(&bin);
+    (bin, b64)
+}
+
+/// One mesh of `primitives` primitives all reading the same accessor of
+/// 100,000 positions (1.2 MB): 200 copies are 240 MB.
+fn shared_accessor(primitives: usize) -> Vec<u8> {
+    let n = 100_000;
+    let (bin, b64) = positions(n);
+    let prims = vec![r#"{"attributes":{"POSITION":0}}"#; primitives].join(",");
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{prims}]}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3","min":[0,0,0],"max":[{},0,6]}}],
+"bufferViews":[{{"buffer":0,"byteLength":{}}}],
+"buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#,
+        n - 1,
+        bin.len(),
+        bin.len()
+    )
+    .into_bytes()
+}
+
+/// A chain of 200 nodes, each named with 4000 bytes, whose last node
+/// places a triangle 100,000 times through EXT_mesh_gpu_instancing: names
+/// copied per instance would be 80 GB.
+fn deep_instancing() -> Vec<u8> {
+    let depth = 200;
+    let n = 100_000;
+    let (mut bin, _) = positions(n);
+    let tri_at = bin.len();
+    bin.extend(
+        [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes()),
+    );
+    let b64 = base64(&bin);
+    let long = "x".repeat(4000);
+    let nodes: Vec<String> = (0..depth)
+        .map(|i| {
+            if i + 1 < depth {
+                format!(r#"{{"name":"n{i}{long}","children":[{}]}}"#, i + 1)
+            } else {
+                format!(
+                    r#"{{"name":"leaf{long}","mesh":0,"extensions":{{"EXT_mesh_gpu_instancing":{{"attributes":{{"TRANSLATION":0}}}}}}}}"#
+                )
+            }
+        })
+        .collect();
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"extensionsUsed":["EXT_mesh_gpu_instancing"],"scene":0,"scenes":[{{"nodes":[0]}}],
+"nodes":[{}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":1}}}}]}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3"}},
+{{"bufferView":1,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,0,1]}}],
+"bufferViews":[{{"buffer":0,"byteLength":{tri_at}}},{{"buffer":0,"byteOffset":{tri_at},"byteLength":36}}],
+"buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#,
+        nodes.join(","),
+        bin.len()
     )
     .into_bytes()
 }
@@ -158,6 +235,30 @@ fn run_case(case: &str) {
             let e = within(MIB, || import_gltf(&bytes, None, "t", &config).unwrap_err());
             assert!(e.to_string().contains("overrun"), "{e}");
         }
+        "gltf-shared-accessor" => {
+            let bytes = shared_accessor(200);
+            let config = ImportConfig {
+                frames: 1,
+                ..ImportConfig::default()
+            };
+            let e = within(48 * MIB, || {
+                import_gltf(&bytes, None, "t", &config).unwrap_err()
+            });
+            assert!(e.to_string().contains("bytes of geometry"), "{e}");
+        }
+        "gltf-deep-instancing" => {
+            let bytes = deep_instancing();
+            let config = ImportConfig {
+                frames: 1,
+                ..ImportConfig::default()
+            };
+            // Instances and their frame-0 events (~300 B each), not their
+            // names.
+            let im = within(96 * MIB, || {
+                import_gltf(&bytes, None, "t", &config).unwrap()
+            });
+            assert_eq!(im.summary.instances, 100_000);
+        }
         "import-frames" => {
             let bytes = one_triangle(3);
             let config = ImportConfig {
@@ -192,6 +293,8 @@ fn inputs_cost_what_they_carry() {
         "merge-shard-count",
         "merge-plan-size",
         "gltf-index-count",
+        "gltf-shared-accessor",
+        "gltf-deep-instancing",
         "import-frames",
     ] {
         let out = std::process::Command::new(std::env::current_exe().unwrap())

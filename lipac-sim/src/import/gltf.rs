@@ -12,6 +12,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use ::gltf::accessor::Iter as AccessorIter;
 use ::gltf::buffer::Source;
@@ -51,13 +52,51 @@ pub struct ImportedInstance {
     pub mesh: usize,
     /// Object-to-world transform.
     pub transform: Affine3A,
-    /// Names of the node and its ancestors, innermost first, then the
-    /// mesh's name (for name patterns).
-    pub names: Vec<String>,
-    /// The node's `extras` (raw JSON) and its ancestors', innermost first.
-    pub extras: Vec<String>,
+    /// The placing node and its ancestors, shared by the node's instances
+    /// (names and extras for the flag mapping).
+    pub node: Arc<NodePath>,
+    /// The mesh's name (empty if none).
+    pub mesh_name: Arc<str>,
     /// Placed through `EXT_mesh_gpu_instancing`.
     pub gpu_instanced: bool,
+}
+
+impl ImportedInstance {
+    /// Names of the node and its ancestors, innermost first, then the
+    /// mesh's name (for name patterns).
+    pub fn names(&self) -> impl Iterator<Item = &str> + Clone {
+        self.node
+            .nodes()
+            .map(|n| n.name.as_ref())
+            .chain(std::iter::once(self.mesh_name.as_ref()))
+    }
+
+    /// The `extras` (raw JSON) of the node and its ancestors that have
+    /// them, innermost first.
+    pub fn extras(&self) -> impl Iterator<Item = &str> {
+        self.node.nodes().filter_map(|n| n.extras.as_deref())
+    }
+}
+
+/// A node of the glTF hierarchy with its parent's path: each node holds
+/// its own name and extras once (a node's instances and children share
+/// it), so names and extras cost what the file holds whatever the depth or
+/// the number of instances.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodePath {
+    /// The node's name (empty if none).
+    pub name: Arc<str>,
+    /// The node's `extras`, raw JSON.
+    pub extras: Option<Arc<str>>,
+    /// The parent's path (`None` for a root).
+    pub parent: Option<Arc<NodePath>>,
+}
+
+impl NodePath {
+    /// This node, then its ancestors.
+    pub fn nodes(&self) -> impl Iterator<Item = &NodePath> + Clone {
+        std::iter::successors(Some(self), |n| n.parent.as_deref())
+    }
 }
 
 /// A camera node.
@@ -93,7 +132,7 @@ pub struct ImportedScene {
 
 /// A node still to visit: the node, its parent's world transform, its
 /// ancestors' names and extras (innermost first), its depth.
-type Pending<'a> = (Node<'a>, Affine3A, Vec<String>, Vec<String>, u32);
+type Pending<'a> = (Node<'a>, Affine3A, Option<Arc<NodePath>>, u32);
 
 fn err(what: impl std::fmt::Display) -> SimError {
     SimError::Import(what.to_string())
@@ -179,6 +218,54 @@ fn load_buffers(
         out.push(data);
     }
     Ok(out)
+}
+
+/// The geometry an import may hold: a small multiple of the file's buffer
+/// bytes. Accessors shared by many primitives, or a mesh placed with many
+/// different `MSFT_lod` lists (each a trace mesh of its own, its geometry
+/// copied), would otherwise multiply a small file into any amount of
+/// memory (and of trace).
+struct GeometryBudget {
+    left: u64,
+    limit: u64,
+    buffer_bytes: u64,
+}
+
+impl GeometryBudget {
+    /// Times the buffer bytes, plus [`GeometryBudget::SLACK`].
+    const FACTOR: u64 = 8;
+    const SLACK: u64 = 16 << 20;
+
+    fn new(buffers: &[Vec<u8>]) -> Self {
+        let buffer_bytes: u64 = buffers.iter().map(|b| b.len() as u64).sum();
+        let limit = buffer_bytes
+            .saturating_mul(Self::FACTOR)
+            .saturating_add(Self::SLACK);
+        Self {
+            left: limit,
+            limit,
+            buffer_bytes,
+        }
+    }
+
+    /// Takes room for `vertices` positions and `indices` indices before
+    /// they are copied.
+    fn take(&mut self, vertices: usize, indices: usize) -> Result<(), SimError> {
+        let bytes = (vertices as u64)
+            .saturating_mul(12)
+            .saturating_add((indices as u64).saturating_mul(4));
+        self.left = self.left.checked_sub(bytes).ok_or_else(|| {
+            err(format!(
+                "the meshes as placed take more than {} bytes of geometry, {} x the file's {} \
+                 buffer bytes (accessors shared by many primitives, or meshes placed with many \
+                 different MSFT_lod lists)",
+                self.limit,
+                Self::FACTOR,
+                self.buffer_bytes
+            ))
+        })?;
+        Ok(())
+    }
 }
 
 /// What an accessor must hold to be read as the import reads it.
@@ -310,6 +397,7 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
     let mut scene = ImportedScene::default();
     let buffers = load_buffers(doc, gltf.blob.as_deref(), base, &mut scene.files_read)?;
     let get = |b: ::gltf::Buffer<'_>| buffers.get(b.index()).map(Vec::as_slice);
+    let mut geometry = GeometryBudget::new(&buffers);
 
     // glTF mesh index -> imported mesh index.
     let mut base_meshes: Vec<Option<ImportedMesh>> = vec![None; doc.meshes().len()];
@@ -349,6 +437,10 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                 .ok()
                 .filter(|&c| u64::from(c) + u64::from(base) <= u64::from(u32::MAX))
                 .ok_or_else(|| err(format!("{}: more than 2^32 vertices", at("POSITION"))))?;
+            let indices = index_accessor
+                .as_ref()
+                .map_or(count as usize, |a| a.count());
+            geometry.take(count as usize, indices)?;
             out.positions.extend(positions);
             if out.positions.len() - start != count as usize {
                 return Err(err(format!(
@@ -403,9 +495,9 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
     let mut stack: Vec<Pending<'_>> = roots
         .into_iter()
         .rev()
-        .map(|n| (n, Affine3A::IDENTITY, Vec::new(), Vec::new(), 0))
+        .map(|n| (n, Affine3A::IDENTITY, None, 0))
         .collect();
-    while let Some((node, parent, names, extras, depth)) = stack.pop() {
+    while let Some((node, parent, parent_path, depth)) = stack.pop() {
         if depth > 256 {
             return Err(err("node hierarchy deeper than 256 (a cycle?)"));
         }
@@ -417,15 +509,11 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                 node.index()
             )));
         }
-        let mut names_here = vec![node.name().unwrap_or_default().to_string()];
-        names_here.extend(names.iter().cloned());
-        let mut extras_here: Vec<String> = node
-            .extras()
-            .as_ref()
-            .map(|r| r.get().to_string())
-            .into_iter()
-            .collect();
-        extras_here.extend(extras.iter().cloned());
+        let path = Arc::new(NodePath {
+            name: Arc::from(node.name().unwrap_or_default()),
+            extras: node.extras().as_ref().map(|r| Arc::from(r.get())),
+            parent: parent_path,
+        });
         if let Some(c) = node.camera() {
             let (_, rotation, translation) = world.to_scale_rotation_translation();
             let (fov, aspect) = match c.projection() {
@@ -446,6 +534,11 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                 let mesh = match placed_meshes.get(&key) {
                     Some(&i) => i,
                     None => {
+                        for m in std::iter::once(m.index()).chain(key.1.iter().copied()) {
+                            if let Some(g) = &base_meshes[m] {
+                                geometry.take(g.positions.len(), g.indices.len())?;
+                            }
+                        }
                         let mut out = base.clone();
                         out.lods = key
                             .1
@@ -461,29 +554,22 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                         scene.meshes.len() - 1
                     }
                 };
-                let mut inst_names = names_here.clone();
-                inst_names.push(m.name().unwrap_or_default().to_string());
+                let mesh_name: Arc<str> = Arc::from(m.name().unwrap_or_default());
                 let placements = gpu_instances(doc, &node, &get, &buffers)?;
                 let gpu = placements.is_some();
                 for t in placements.unwrap_or_else(|| vec![Affine3A::IDENTITY]) {
                     scene.instances.push(ImportedInstance {
                         mesh,
                         transform: world * t,
-                        names: inst_names.clone(),
-                        extras: extras_here.clone(),
+                        node: Arc::clone(&path),
+                        mesh_name: Arc::clone(&mesh_name),
                         gpu_instanced: gpu,
                     });
                 }
             }
         }
         for child in node.children().collect::<Vec<_>>().into_iter().rev() {
-            stack.push((
-                child,
-                world,
-                names_here.clone(),
-                extras_here.clone(),
-                depth + 1,
-            ));
+            stack.push((child, world, Some(Arc::clone(&path)), depth + 1));
         }
     }
     Ok(scene)

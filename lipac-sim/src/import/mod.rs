@@ -41,7 +41,7 @@ use lipac_core::trace::{
 };
 
 use self::camera_path::CameraSource;
-use self::gltf::{read_gltf, ImportedCamera, ImportedScene};
+use self::gltf::{read_gltf, ImportedCamera, ImportedInstance, ImportedScene};
 use crate::error::SimError;
 
 /// Name patterns of the flag mapping (case-insensitive substrings).
@@ -80,11 +80,15 @@ pub struct MappedFlags {
 }
 
 impl FlagRules {
-    /// The flags of an instance with `names` and `extras` (innermost
-    /// first).
-    pub fn map(&self, names: &[String], extras: &[String]) -> MappedFlags {
+    /// The flags of an instance with `names` and `extras` (raw JSON),
+    /// innermost first.
+    pub fn map<'a>(
+        &self,
+        names: impl IntoIterator<Item = &'a str> + Clone,
+        extras: impl IntoIterator<Item = &'a str>,
+    ) -> MappedFlags {
         let has = |pats: &[String]| {
-            names.iter().any(|n| {
+            names.clone().into_iter().any(|n| {
                 let n = n.to_lowercase();
                 pats.iter()
                     .any(|p| !p.is_empty() && n.contains(&p.to_lowercase()))
@@ -432,8 +436,20 @@ pub fn to_trace(
     let mut placed = Vec::with_capacity(scene.instances.len());
     let mut world_lo = Vec3::splat(f32::INFINITY);
     let mut world_hi = Vec3::splat(f32::NEG_INFINITY);
+    // The instances of one node (GPU instancing) share its flags: mapped
+    // once, not once per instance.
+    let mut last: Option<(&ImportedInstance, MappedFlags)> = None;
     for inst in &scene.instances {
-        let flags = config.rules.map(&inst.names, &inst.extras);
+        let flags = match last {
+            Some((prev, f))
+                if std::sync::Arc::ptr_eq(&prev.node, &inst.node)
+                    && std::sync::Arc::ptr_eq(&prev.mesh_name, &inst.mesh_name) =>
+            {
+                f
+            }
+            _ => config.rules.map(inst.names(), inst.extras()),
+        };
+        last = Some((inst, flags));
         summary.vegetation += usize::from(flags.vegetation);
         summary.animated += usize::from(flags.animated);
         summary.pinned += usize::from(flags.pinned);
