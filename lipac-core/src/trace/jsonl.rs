@@ -942,15 +942,43 @@ fn read_line<R: BufRead>(
 /// read, before a JSON parser copies it (and quotes it whole in its error).
 pub(crate) const MAX_FRAME_LINE_STRING: u64 = 256;
 
-/// One line of a [`BufRead`] as a [`Read`]: its bytes up to (not
-/// including) the newline, which it consumes; at most `max` bytes, and no
-/// JSON string longer than [`MAX_FRAME_LINE_STRING`] (a tiny lexer follows
-/// the strings). Past either limit it returns an error and leaves the
-/// fault in [`LineReader::fault`].
+/// Reads up to `limit` bytes of a line (its newline included, if within
+/// them) into `buf` (cleared first), growing `buf` by doubling but never
+/// beyond `limit` bytes; returns the bytes read (0 at end of input).
+fn read_line_into<R: BufRead>(r: &mut R, buf: &mut Vec<u8>, limit: u64) -> io::Result<usize> {
+    buf.clear();
+    let limit = usize::try_from(limit).unwrap_or(usize::MAX);
+    while buf.len() < limit {
+        let chunk = r.fill_buf()?.len().min(limit - buf.len());
+        if chunk == 0 {
+            break;
+        }
+        // Room for the chunk first, so that `read_until` (memchr) never
+        // grows `buf` past `limit`.
+        if buf.capacity() - buf.len() < chunk {
+            let want = (buf.len() + chunk).max(buf.capacity() * 2).min(limit);
+            buf.reserve_exact(want - buf.len());
+        }
+        r.by_ref().take(chunk as u64).read_until(b'\n', buf)?;
+        if buf.last() == Some(&b'\n') {
+            break;
+        }
+    }
+    Ok(buf.len())
+}
+
+/// The rest of a line as a [`Read`]: first `prefix` (the bytes of the line
+/// read already), then the [`BufRead`]'s bytes up to (not including) the
+/// newline, which it consumes; at most `left` bytes from the `BufRead`, and
+/// no JSON string longer than [`MAX_FRAME_LINE_STRING`] (a tiny lexer
+/// follows the strings over all the bytes). Past either limit it returns an
+/// error and leaves the fault in [`LineReader::fault`].
 struct LineReader<'a, R> {
+    prefix: &'a [u8],
     r: &'a mut R,
-    /// Bytes of the line still allowed.
+    /// Bytes of the line still allowed from `r`.
     left: u64,
+    /// The line's limit (for the error).
     max: u64,
     /// The newline (or the end of input) was reached.
     done: bool,
@@ -962,11 +990,12 @@ struct LineReader<'a, R> {
 }
 
 impl<'a, R: BufRead> LineReader<'a, R> {
-    fn new(r: &'a mut R, max: u64) -> Self {
+    fn new(prefix: &'a [u8], r: &'a mut R, left: u64) -> Self {
         Self {
+            prefix,
             r,
-            left: max,
-            max,
+            left,
+            max: left + prefix.len() as u64,
             done: false,
             in_string: false,
             escaped: false,
@@ -988,29 +1017,10 @@ impl<'a, R: BufRead> LineReader<'a, R> {
         self.fault = Some(kind);
         e
     }
-}
 
-impl<R: BufRead> Read for LineReader<'_, R> {
-    fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
-        if self.done || out.is_empty() {
-            return Ok(0);
-        }
-        let avail = self.r.fill_buf()?;
-        if avail.is_empty() {
-            self.done = true;
-            return Ok(0);
-        }
-        // At most one byte past the limit: reading it tells the line is
-        // longer.
-        let allowed = usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX);
-        let n = avail.len().min(out.len()).min(allowed);
-        let mut taken = 0;
-        let mut newline = false;
-        for &b in &avail[..n] {
-            if b == b'\n' {
-                newline = true;
-                break;
-            }
+    /// Follows the JSON strings over `bytes`.
+    fn lex(&mut self, bytes: &[u8]) -> io::Result<()> {
+        for &b in bytes {
             if self.in_string {
                 if self.escaped {
                     self.escaped = false;
@@ -1024,9 +1034,44 @@ impl<R: BufRead> Read for LineReader<'_, R> {
                 self.in_string = true;
                 self.string_len = 0;
             }
-            out[taken] = b;
-            taken += 1;
         }
+        if self.in_string && self.string_len > MAX_FRAME_LINE_STRING {
+            return Err(self.fail(TraceErrorKind::InvalidValue {
+                what: "JSON string".into(),
+                reason: format!(
+                    "longer than {MAX_FRAME_LINE_STRING} bytes (a frame line holds only short \
+                     names)"
+                ),
+            }));
+        }
+        Ok(())
+    }
+}
+
+impl<R: BufRead> Read for LineReader<'_, R> {
+    fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
+        if !self.prefix.is_empty() {
+            let n = self.prefix.len().min(out.len());
+            out[..n].copy_from_slice(&self.prefix[..n]);
+            self.prefix = &self.prefix[n..];
+            self.lex(&out[..n])?;
+            return Ok(n);
+        }
+        if self.done || out.is_empty() {
+            return Ok(0);
+        }
+        let avail = self.r.fill_buf()?;
+        if avail.is_empty() {
+            self.done = true;
+            return Ok(0);
+        }
+        // At most one byte past the limit: reading it tells the line is
+        // longer.
+        let allowed = usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX);
+        let n = avail.len().min(out.len()).min(allowed);
+        let taken = avail[..n].iter().position(|&b| b == b'\n').unwrap_or(n);
+        let newline = taken < n;
+        out[..taken].copy_from_slice(&avail[..taken]);
         self.r.consume(taken + usize::from(newline));
         self.done = newline;
         if taken as u64 > self.left {
@@ -1037,15 +1082,7 @@ impl<R: BufRead> Read for LineReader<'_, R> {
             }));
         }
         self.left -= taken as u64;
-        if self.in_string && self.string_len > MAX_FRAME_LINE_STRING {
-            return Err(self.fail(TraceErrorKind::InvalidValue {
-                what: "JSON string".into(),
-                reason: format!(
-                    "longer than {MAX_FRAME_LINE_STRING} bytes (a frame line holds only short \
-                     names)"
-                ),
-            }));
-        }
+        self.lex(&out[..taken])?;
         Ok(taken)
     }
 }
@@ -1069,6 +1106,9 @@ pub struct JsonlReader<R: Read> {
     header: TraceHeader,
     validator: TraceValidator,
     line: u64,
+    /// The line being parsed (up to
+    /// [`TraceLimits::max_buffered_line_bytes`] of it).
+    buf: Vec<u8>,
     state: ReadState,
 }
 
@@ -1126,13 +1166,15 @@ impl<R: Read> JsonlReader<R> {
         let header = header_of(dto);
         let meshes = check_header(&header, &limits).map_err(here)?;
         let validator = TraceValidator::with_meshes(meshes, limits, &header.world, version);
-        drop(buf);
+        buf.clear();
+        buf.shrink_to(64 * 1024);
         Ok(Self {
             r,
             limits,
             header,
             validator,
             line: 1,
+            buf,
             state: ReadState::Frames,
         })
     }
@@ -1203,51 +1245,79 @@ impl<R: Read> JsonlReader<R> {
             kind,
         };
         let max = u64::from(self.limits.max_frame_bytes);
-        // The line is parsed as it is read (never held whole): a line
-        // refused at byte k has cost what was parsed of its first k bytes.
         let io_err = |e: io::Error| err(None, None, TraceErrorKind::io(&e));
-        match self.r.fill_buf().map_err(io_err)? {
-            [] => {
-                return Err(err(
-                    None,
-                    None,
-                    TraceErrorKind::MissingEnd { frames: index },
-                ))
-            }
-            [b'\n', ..] | [b'\r', b'\n', ..] => {
-                self.line = line;
-                return Err(err(
-                    None,
-                    None,
-                    TraceErrorKind::InvalidValue {
-                        what: "line".into(),
-                        reason: "empty line".into(),
-                    },
-                ));
-            }
-            _ => {}
+        // A line of up to max_buffered_line_bytes is read whole and parsed
+        // from memory (fast); a longer one is parsed as it is read after
+        // those bytes, so a line refused at byte k has cost at most
+        // max_buffered_line_bytes and what was parsed of its first k bytes.
+        let held = max.min(u64::from(self.limits.max_buffered_line_bytes));
+        let n = read_line_into(&mut self.r, &mut self.buf, held + 1).map_err(io_err)?;
+        if n == 0 {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::MissingEnd { frames: index },
+            ));
         }
         self.line = line;
+        let whole = self.buf.last() == Some(&b'\n') || (n as u64) <= held;
+        if self.buf.last() == Some(&b'\n') {
+            self.buf.pop();
+            if self.buf.last() == Some(&b'\r') {
+                self.buf.pop();
+            }
+        }
+        if self.buf.is_empty() {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::InvalidValue {
+                    what: "line".into(),
+                    reason: "empty line".into(),
+                },
+            ));
+        }
+        if !whole && n as u64 > max {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::LimitExceeded {
+                    what: "frame line bytes",
+                    value: n as u64,
+                    limit: max,
+                },
+            ));
+        }
         let mut events = Vec::new();
         let mut stop = None;
         let mut number = None;
-        let mut reader = LineReader::new(&mut self.r, max);
-        let parsed = {
-            let mut de = serde_json::Deserializer::from_reader(&mut reader);
-            serde::de::DeserializeSeed::deserialize(
-                LineSeed {
-                    limits: &self.limits,
-                    events: &mut events,
-                    stop: &mut stop,
-                    number: &mut number,
-                },
-                &mut de,
-            )
-            .and_then(|parts| de.end().map(|()| parts))
+        let seed = LineSeed {
+            limits: &self.limits,
+            events: &mut events,
+            stop: &mut stop,
+            number: &mut number,
         };
-        if let Some(fault) = reader.fault.take() {
-            return Err(err(number, None, fault));
-        }
+        let parsed = if whole {
+            let mut de = serde_json::Deserializer::from_slice(&self.buf);
+            serde::de::DeserializeSeed::deserialize(seed, &mut de)
+                .and_then(|parts| de.end().map(|()| parts))
+        } else {
+            let mut reader = LineReader::new(&self.buf, &mut self.r, max - n as u64);
+            let parsed = {
+                let mut de = serde_json::Deserializer::from_reader(&mut reader);
+                serde::de::DeserializeSeed::deserialize(seed, &mut de)
+                    .and_then(|parts| de.end().map(|()| parts))
+            };
+            if let Some(fault) = reader.fault.take() {
+                return Err(err(number, None, fault));
+            }
+            if parsed.is_ok() {
+                // The rest of the line (serde stops at the end of the value;
+                // `end` read the whitespace after it up to the newline).
+                reader.finish().map_err(io_err)?;
+            }
+            parsed
+        };
         let parts = match (parsed, stop) {
             (Ok(parts), _) => parts,
             (Err(_), Some(FrameFault { event, kind })) => {
@@ -1255,9 +1325,6 @@ impl<R: Read> JsonlReader<R> {
             }
             (Err(e), None) => return Err(err(number, None, json_err(&e))),
         };
-        // The rest of the line (serde stops at the end of the value; `end`
-        // read the whitespace after it up to the newline).
-        reader.finish().map_err(io_err)?;
         let shape_err = |number, reason: &str| {
             err(
                 number,
