@@ -1,23 +1,29 @@
-//! lipac on a Vulkan ray-query device (lavapipe works), driven the way an
-//! engine drives it: a `Manager` plans each frame, one `LipacVk` executes
-//! the plan in the engine's command buffer (BLAS builds, record uploads,
-//! GPU Algorithm 1, TLAS build, GPU Algorithm 2, read-back copies), and the
-//! "engine" traces its own ray-query pass in between (`CameraTracer`: a
-//! primary ray per pixel, a sun shadow ray and one diffuse bounce, all
-//! generated on the GPU, all through `lipac_counting.glsl`). Frames are kept
-//! in flight; acknowledgements and read-backs come back through
+//! lipac on a Vulkan device with acceleration structures and ray queries or
+//! ray-tracing pipelines (lavapipe has both), driven the way an engine
+//! drives it: a `Manager` plans each frame, one `LipacVk` executes the plan
+//! in the engine's command buffer (BLAS builds, record uploads, GPU
+//! Algorithm 1, TLAS build, GPU Algorithm 2, read-back copies), and the
+//! "engine" traces its own pass in between: a primary ray per pixel, a sun
+//! shadow ray and one diffuse bounce, all generated on the GPU, counted
+//! through lipac's includes, with ray queries (`CameraTracer`,
+//! `lipac_counting.glsl`) or a ray-tracing pipeline (`PipelineCameraTracer`,
+//! `lipac_counting_pipeline.glsl`, counting in the hit shaders). Frames are
+//! kept in flight; acknowledgements and read-backs come back through
 //! `LipacVk::poll`, which never waits.
 //!
 //! ```text
 //! cargo run --release --features vk,sim --example vk_city -- [--instances N] [--frames F]
-//!     [--width W] [--height H] [--in-flight K] [--out FILE.png]
+//!     [--width W] [--height H] [--in-flight K] [--out FILE.png] [--tracing ray-query|pipeline]
 //! ```
+//!
+//! `--tracing` picks the path; by default ray queries when the device has
+//! them (one compute dispatch, no shader binding table), else the pipeline.
 //!
 //! Defaults: about 5000 instances of lipac-sim's procedural city, 12 frames at
 //! 160 × 96, 2 frames in flight, `vk_city.png` (the last frame). Prints per
 //! frame the host's blocking waits, the TLAS records and counting boxes,
 //! BLAS builds / compactions / frees and lipac's device memory. Without a
-//! ray-query device it prints why and exits successfully (with
+//! suitable device it prints why and exits successfully (with
 //! `LIPAC_REQUIRE_VULKAN=1` it fails). `LIPAC_VALIDATION=1` runs under the
 //! validation layer and fails on any validation error.
 //!
@@ -30,6 +36,7 @@ use lipac::core::blas_cache::BlasOwner;
 use lipac::core::build_plan::{BuildEstimate, SchedulerConfig};
 use lipac::core::grid::{GridConfig, HitboxGrid};
 use lipac::core::hitbox_index::HitboxIndex;
+use lipac::core::hitbox_tree::AdaptiveHitboxes;
 use lipac::core::instance::{InstanceDesc, InstanceFlags, MeshId};
 use lipac::core::manager::{
     DataUpload, FrameBudgets, Manager, ManagerConfig, ManagerPlan, MeshCatalog, MeshLod,
@@ -39,9 +46,9 @@ use lipac::sim::camera::{CameraPath, FlyCamera};
 use lipac::sim::mesh::TERRAIN_RESOLUTION;
 use lipac::sim::scene::{LodPolicy, Scene, SceneConfig, TERRAIN_MESH};
 use lipac::vk::{
-    BlasGeometrySource, Buffer, CameraTraceBuffers, CameraTracer, CameraView, DeviceContext,
+    AnyCameraTracer, BlasGeometrySource, Buffer, CameraTraceBuffers, CameraView, DeviceContext,
     FrameSubmitter, GpuBlas, HeadlessContext, InstanceDataSource, LipacVk, LipacVkConfig,
-    MemoryLocation, RecordedFrame, Recorder, TriangleGeometry, Validation,
+    MemoryLocation, RecordedFrame, Recorder, TracingPath, TriangleGeometry, Validation,
 };
 use std::collections::HashMap;
 use std::error::Error;
@@ -68,6 +75,9 @@ pub struct Options {
     pub validation: Validation,
     /// Print the per-frame table.
     pub print: bool,
+    /// The tracing path; `None`: the device's preferred one (ray queries
+    /// when it has them).
+    pub tracing: Option<TracingPath>,
 }
 
 impl Default for Options {
@@ -81,6 +91,7 @@ impl Default for Options {
             out: Some("vk_city.png".into()),
             validation: Validation::Off,
             print: true,
+            tracing: None,
         }
     }
 }
@@ -97,6 +108,7 @@ fn parse_args() -> AnyResult<Options> {
             "--height" => a.height = value()?.parse()?,
             "--in-flight" => a.in_flight = value()?.parse()?,
             "--out" => a.out = Some(value()?),
+            "--tracing" => a.tracing = Some(value()?.parse()?),
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -125,13 +137,14 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// A headless ray-query device, or `None` (with a message) on a machine
-/// without one unless `LIPAC_REQUIRE_VULKAN=1`.
+/// A headless device (acceleration structures and a tracing path), or
+/// `None` (with a message) on a machine without one unless
+/// `LIPAC_REQUIRE_VULKAN=1`.
 pub fn device(validation: Validation) -> AnyResult<Option<HeadlessContext>> {
     match HeadlessContext::new(validation) {
         Ok(h) => Ok(Some(h)),
         Err(e) if e.is_unsupported_machine() && std::env::var("LIPAC_REQUIRE_VULKAN").is_err() => {
-            println!("vk_city: skipped, no Vulkan ray-query device: {e}");
+            println!("vk_city: not run, no suitable Vulkan device: {e}");
             Ok(None)
         }
         Err(e) => Err(e.into()),
@@ -369,20 +382,23 @@ pub struct Summary {
     pub commands: u64,
     /// Validation errors.
     pub validation_errors: Vec<String>,
+    /// The tracing path the frames were traced with.
+    pub tracing: Option<TracingPath>,
 }
 
 /// The run's settings and the per-frame table's header.
-fn print_header(city: &City, o: &Options, ctx: &DeviceContext) {
+fn print_header(city: &City, o: &Options, headless: &HeadlessContext, path: TracingPath) {
     println!(
-        "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, device: {}",
+        "vk_city: {} instances, {} hitboxes, {}x{} px, {} frames, {} in flight, tracing with {}",
         city.descs.len(),
         city.grid.len(),
         o.width,
         o.height,
         o.frames,
         o.in_flight,
-        ctx.device_name()
+        path
     );
+    println!("vk_city: device {}", headless.summary());
     println!(
         "frame | host waits lipac pacing | read back: frame TLAS-records boxes cmds \
          | builds compact freed | lipac device bytes"
@@ -408,7 +424,8 @@ fn write_png(image: &Buffer, o: &Options, path: &str) -> AnyResult<()> {
 
 /// One frame's GPU work in the engine's command buffer: lipac's part
 /// (growth, data and record uploads, BLAS batches, Algorithm 1, TLAS), the
-/// engine's own ray-query pass counting through lipac's include, then
+/// engine's own pass (ray queries or a ray-tracing pipeline) counting
+/// through lipac's include, then
 /// Algorithm 2 and the read-back copies (`record_feedback` signals the
 /// frame's timeline value, as submitted).
 #[allow(clippy::too_many_arguments)]
@@ -419,7 +436,7 @@ pub fn record_frame(
     manager: &Manager,
     geometry: &dyn BlasGeometrySource,
     data: &dyn InstanceDataSource,
-    tracer: &CameraTracer,
+    tracer: &AnyCameraTracer,
     image: &Buffer,
     view: &CameraView,
 ) -> lipac::vk::Result<RecordedFrame> {
@@ -453,19 +470,23 @@ pub fn run(headless: &HeadlessContext, o: &Options) -> AnyResult<Summary> {
     };
     let mut lipac = LipacVk::new(ctx, &city.grid, config)?;
     let mut manager = city.manager(lipac.unit_cube_address(), lipac.scratch_alignment())?;
-    let tracer = CameraTracer::new(ctx, lipac.counting())?;
+    let merged_sbt = AdaptiveHitboxes::default().merged_box_sbt_offset;
+    let tracer = AnyCameraTracer::new(ctx, lipac.counting(), merged_sbt, o.tracing)?;
     let pixels = u64::from(o.width * o.height);
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let image = Buffer::new(ctx, pixels * 4, storage, MemoryLocation::GpuToCpu)?;
     let mut submitter = FrameSubmitter::new(ctx, o.in_flight)?;
     let timeline = lipac.timeline().clone();
     let budgets = FrameBudgets::default();
-    let mut s = Summary::default();
+    let mut s = Summary {
+        tracing: Some(tracer.path()),
+        ..Summary::default()
+    };
     // Instances with a BLAS in each frame's records (the rest of its TLAS
     // records are counting boxes).
     let mut with_blas = HashMap::new();
     if o.print {
-        print_header(&city, o, ctx);
+        print_header(&city, o, headless, tracer.path());
     }
     for f in 1..=u64::from(o.frames) {
         let waits_before = (ctx.host_waits(), submitter.blocking_waits());

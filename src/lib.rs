@@ -9,6 +9,10 @@
 //!   Always there.
 //! * `vk` — the Vulkan backend on `ash` (`lipac-vk`); feature `vk`.
 //! * `sim` — the CPU laboratory on `obvhs` (`lipac-sim`); feature `sim`.
+//! * [`glam`] — the vector-math crate lipac's API takes.
+//!
+//! docs/INTEGRATION.md (compiled below as doc tests with feature `vk`) adds
+//! lipac to an ash engine, tracer included.
 //!
 //! Both features are off by default, so `lipac = "0.1"` builds neither ash
 //! nor obvhs, clap or indicatif:
@@ -21,6 +25,9 @@
 #![warn(missing_docs)]
 #![cfg_attr(docsrs, feature(doc_cfg))]
 
+/// The `glam` that lipac's API takes (transforms, vectors): use it rather
+/// than a `glam` dependency of your own, so that the versions match.
+pub use glam;
 pub use lipac_core as core;
 #[cfg(feature = "sim")]
 #[cfg_attr(docsrs, doc(cfg(feature = "sim")))]

@@ -13,8 +13,12 @@
 //!   streams and plans are equal frame by frame, which holds because both
 //!   reconcile against the commanded state, not the records' state bits.
 //!
-//! Without a ray-query device both skip (and fail with
-//! `LIPAC_REQUIRE_VULKAN=1`).
+//! Both run on each tracing path the device has (ray queries:
+//! `CameraTracer`; ray-tracing pipelines: `PipelineCameraTracer`). A custom
+//! harness (libtest-mimic, as lipac-vk's device tests) probes the device
+//! first and reports a test it cannot run as ignored, with the reason, and
+//! never as passed; without a device they fail with
+//! `LIPAC_REQUIRE_VULKAN=1`.
 
 #[allow(dead_code)]
 #[path = "../examples/vk_city.rs"]
@@ -22,33 +26,108 @@ mod vk_city;
 
 use std::collections::BTreeMap;
 
+use libtest_mimic::{Arguments, Trial};
 use lipac::core::blas_cache::BlasOwner;
 use lipac::core::build_plan::FramePlan;
 use lipac::core::culling::{ProcessStats, Readback};
 use lipac::core::layout::tlas_multiset;
 use lipac::core::manager::{Ack, FrameBudgets, Manager, ManagerPlan};
 use lipac::core::MeshId;
+use lipac::vk::TracingPath;
 use lipac::vk::{
-    Buffer, CameraTracer, FrameReadback, FrameSubmitter, HeadlessContext, LipacVk, LipacVkConfig,
-    MemoryLocation, Validation,
+    AnyCameraTracer, Buffer, FrameReadback, FrameSubmitter, HeadlessContext, LipacVk,
+    LipacVkConfig, MemoryLocation, Validation,
 };
+use std::process::ExitCode;
 use vk_city::{City, Options};
 
-fn headless() -> Option<HeadlessContext> {
-    let required = std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-    let validation = if required {
+/// `LIPAC_REQUIRE_VULKAN=1` (CI): a device with the validation layer;
+/// `=device` (a GPU machine without the layer): a device.
+fn required() -> bool {
+    std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1" || v == "device")
+}
+
+fn validation() -> Validation {
+    if std::env::var("LIPAC_REQUIRE_VULKAN").is_ok_and(|v| v == "1") {
         Validation::Required
     } else {
         Validation::IfAvailable
-    };
-    match HeadlessContext::new(validation) {
-        Ok(h) => Some(h),
-        Err(e) if e.is_unsupported_machine() && !required => {
-            eprintln!("skipped: no Vulkan ray-query device: {e}");
-            None
-        }
-        Err(e) => panic!("Vulkan device: {e}"),
     }
+}
+
+/// The device (the harness runs a test only after its probe found one).
+fn headless() -> HeadlessContext {
+    HeadlessContext::new(validation()).unwrap_or_else(|e| panic!("Vulkan device: {e}"))
+}
+
+fn main() -> ExitCode {
+    let args = Arguments::from_args();
+    let probe = HeadlessContext::new(validation());
+    let device = match &probe {
+        Ok(h) => h.summary(),
+        Err(e) => format!("none ({e})"),
+    };
+    if !args.list {
+        println!("vk_city tests on: {device}");
+    }
+    if required() && probe.is_err() {
+        eprintln!("LIPAC_REQUIRE_VULKAN is set but there is no suitable Vulkan device: {device}");
+        return ExitCode::FAILURE;
+    }
+    type Test = (&'static str, fn(TracingPath));
+    let tests: [Test; 2] = [
+        (
+            "vk_city_keeps_frames_in_flight_without_lipac_waits",
+            vk_city_keeps_frames_in_flight_without_lipac_waits,
+        ),
+        (
+            "vulkan_backend_equals_cpu_backend_frame_by_frame",
+            vulkan_backend_equals_cpu_backend_frame_by_frame,
+        ),
+    ];
+    let mut skipped = Vec::new();
+    let mut trials = Vec::new();
+    for (name, run) in tests {
+        for path in [TracingPath::RayQuery, TracingPath::RayTracingPipeline] {
+            let full = format!("{name}::{}", path.name().replace('-', "_"));
+            let why = match &probe {
+                Err(e) => Some(format!("no suitable Vulkan device: {e}")),
+                Ok(h) => h
+                    .context()
+                    .tracing()
+                    .require(path, "this test")
+                    .err()
+                    .map(|e| e.to_string()),
+            };
+            let trial = Trial::test(full.clone(), move || {
+                run(path);
+                Ok(())
+            });
+            trials.push(match why {
+                Some(why) => {
+                    skipped.push((full, why));
+                    trial.with_ignored_flag(true)
+                }
+                None => trial,
+            });
+        }
+    }
+    drop(probe);
+    let conclusion = libtest_mimic::run(&args, trials);
+    if !args.list {
+        println!(
+            "vk_city tests: {} ran ({} failed), {} not run, on {device}",
+            conclusion.num_passed + conclusion.num_failed,
+            conclusion.num_failed,
+            conclusion.num_ignored
+        );
+        if conclusion.num_ignored > 0 && !args.ignored && !args.include_ignored {
+            for (name, why) in &skipped {
+                println!("  not run: {name}: {why}");
+            }
+        }
+    }
+    conclusion.exit_code()
 }
 
 fn small(frames: u32) -> Options {
@@ -61,16 +140,18 @@ fn small(frames: u32) -> Options {
         out: None,
         validation: Validation::IfAvailable,
         print: false,
+        tracing: None,
     }
 }
 
-#[test]
-fn vk_city_keeps_frames_in_flight_without_lipac_waits() {
-    let Some(h) = headless() else {
-        return;
+fn vk_city_keeps_frames_in_flight_without_lipac_waits(path: TracingPath) {
+    let h = headless();
+    let o = Options {
+        tracing: Some(path),
+        ..small(10)
     };
-    let o = small(10);
     let s = vk_city::run(&h, &o).unwrap();
+    assert_eq!(s.tracing, Some(path));
     assert_eq!(s.lipac_waits, 0, "lipac blocked the host");
     assert_eq!(
         s.frames_read_back,
@@ -170,11 +251,8 @@ impl CpuReplay {
     }
 }
 
-#[test]
-fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
-    let Some(h) = headless() else {
-        return;
-    };
+fn vulkan_backend_equals_cpu_backend_frame_by_frame(path: TracingPath) {
+    let h = headless();
     let ctx = h.context();
     let o = small(10);
     let mut city = City::new(ctx, &o).unwrap();
@@ -195,7 +273,9 @@ fn vulkan_backend_equals_cpu_backend_frame_by_frame() {
     let (cube, align) = (lipac.unit_cube_address(), lipac.scratch_alignment());
     let mut gpu = city.manager(cube, align).unwrap();
     let cpu = city.manager(cube, align).unwrap();
-    let tracer = CameraTracer::new(ctx, lipac.counting()).unwrap();
+    let merged_sbt = lipac::core::hitbox_tree::AdaptiveHitboxes::default().merged_box_sbt_offset;
+    let tracer = AnyCameraTracer::new(ctx, lipac.counting(), merged_sbt, Some(path)).unwrap();
+    assert_eq!(tracer.path(), path);
     let pixels = u64::from(o.width * o.height);
     let image = Buffer::new(
         ctx,

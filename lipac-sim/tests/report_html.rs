@@ -2,12 +2,16 @@
 //! small comparison with snapshots; its screenshot must not be blank and the
 //! rendered page must hold the title, the table and every picture.
 //!
-//! Skipped when no Chromium is installed (`apt-get install chromium`),
-//! unless `CI=true` or `LIPAC_REQUIRE_BROWSER=1`: then a missing browser is
-//! a failure. `LIPAC_CHROMIUM` names the binary if it is not on `PATH`.
+//! A custom harness (libtest-mimic) looks for Chromium first: without one
+//! (`apt-get install chromium`) the test is reported as ignored, with the
+//! reason, never as passed; with `CI=true` or `LIPAC_REQUIRE_BROWSER=1` a
+//! missing browser is a failure. `LIPAC_CHROMIUM` names the binary if it is
+//! not on `PATH`.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, ExitCode, Stdio};
+
+use libtest_mimic::{Arguments, Trial};
 use std::time::{Duration, Instant};
 
 use lipac_sim::compare::{run_choice_with_snapshots, CompareConfig, SceneChoice};
@@ -72,19 +76,33 @@ fn headless(browser: &Path, profile: &Path, args: &[String], page: &str) -> Stri
     std::fs::read_to_string(&out_file).unwrap()
 }
 
-#[test]
-fn report_html_renders_in_headless_chromium() {
-    let Some(browser) = chromium() else {
-        assert!(
-            !required(),
-            "chromium missing (apt-get install chromium); CI=true or LIPAC_REQUIRE_BROWSER=1 requires it"
-        );
-        eprintln!(
-            "SKIPPED report_html_renders_in_headless_chromium: no chromium \
-             (apt-get install chromium; CI=true makes this fail)"
-        );
-        return;
+fn main() -> ExitCode {
+    let args = Arguments::from_args();
+    let browser = chromium();
+    let name = "report_html_renders_in_headless_chromium";
+    let trial = match browser {
+        Some(b) => Trial::test(name, move || {
+            report_html_renders_in_headless_chromium(&b);
+            Ok(())
+        }),
+        None if required() => Trial::test(name, || {
+            Err("chromium missing (apt-get install chromium); CI=true or \
+                 LIPAC_REQUIRE_BROWSER=1 requires it"
+                .into())
+        }),
+        None => Trial::test(name, || Ok(())).with_ignored_flag(true),
     };
+    let ignored = trial.has_ignored_flag();
+    let conclusion = libtest_mimic::run(&args, vec![trial]);
+    if ignored && conclusion.num_ignored > 0 && !args.list {
+        println!(
+            "not run: {name}: no chromium (apt-get install chromium, or LIPAC_CHROMIUM=binary)"
+        );
+    }
+    conclusion.exit_code()
+}
+
+fn report_html_renders_in_headless_chromium(browser: &Path) {
     let config = CompareConfig {
         frames: Some(4),
         width: 48,
@@ -114,7 +132,7 @@ fn report_html_renders_in_headless_chromium() {
     std::fs::create_dir_all(&profile).unwrap();
 
     // The page as the browser built it: title, headline, table, pictures.
-    let dom = headless(&browser, &profile, &["--dump-dom".into()], &page);
+    let dom = headless(browser, &profile, &["--dump-dom".into()], &page);
     let title = "lipac: culling strategies compared on small";
     assert!(
         dom.contains(&format!("<title>{title}</title>")),
@@ -132,7 +150,7 @@ fn report_html_renders_in_headless_chromium() {
     // The screenshot: decoded, sized as asked, and far from blank.
     let shot = dir.join("screenshot.png");
     headless(
-        &browser,
+        browser,
         &profile,
         &[
             format!("--screenshot={}", shot.display()),

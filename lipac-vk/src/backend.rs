@@ -137,7 +137,10 @@ pub struct RecordedFrame {
     pub hitbox_bounds_written: u32,
     /// Slots Algorithm 1 ran over.
     pub slots: u32,
-    /// TLAS records built over (slots + hitboxes, the most Algorithm 1 emits).
+    /// A capacity, not a count: the TLAS records the build runs over
+    /// (slots + hitboxes, the most Algorithm 1 can emit; those past its
+    /// counter are inactive zeros). The count Algorithm 1 appended comes
+    /// back with the frame's read-back ([`FrameReadback::tlas_records`]).
     pub tlas_records: u32,
 }
 
@@ -163,7 +166,8 @@ pub struct FrameReadback {
     /// The per-slot hit counters of the trace: hand them to
     /// [`Manager::record_hits`] (build priorities).
     pub instance_hits: Vec<u32>,
-    /// TLAS records Algorithm 1 appended (instances and counting boxes).
+    /// A count: the TLAS records Algorithm 1 appended (instances and
+    /// counting boxes; counting boxes = this − the instances with a BLAS).
     pub tlas_records: u32,
     /// The escape fraction's sums of the frame, summed on the GPU after the
     /// trace: counting-box hits and all counted hits, the sample

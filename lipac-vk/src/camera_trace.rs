@@ -116,11 +116,14 @@ impl CameraTracer {
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    /// [`VkError::MissingFeature`] without ray queries
+    /// ([`DeviceContext::tracing`]); [`VkError::InvalidArgument`] for an
+    /// invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Ok(Self {
             pipeline: RayQueryPipeline::new(
                 ctx,
+                "CameraTracer",
                 CAMERA_TRACE_SPV,
                 config,
                 6,

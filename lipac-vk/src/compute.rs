@@ -238,6 +238,11 @@ impl StorageSet {
     pub(crate) fn context(&self) -> &DeviceContext {
         &self.ctx
     }
+
+    /// The descriptor set.
+    pub(crate) fn raw(&self) -> vk::DescriptorSet {
+        self.set
+    }
 }
 
 /// Records binding compute `pipeline` (of `layout`) and `set`, the push

@@ -6,6 +6,7 @@
 use crate::device_allocator::{DeviceAllocator, DeviceMemoryStats, GpuAllocator, MemoryCounters};
 use crate::error::{Result, VkError};
 use crate::headless::Owned;
+use crate::tracing_paths::{RayTracingPipelineProperties, TracingPath, TracingPaths};
 #[cfg(doc)]
 use crate::HeadlessContext;
 use ash::vk;
@@ -35,11 +36,29 @@ pub struct AccelerationStructureLimits {
     pub max_geometry_count: u64,
 }
 
-/// Extensions a device must enable for lipac (besides Vulkan 1.3 core).
-pub const REQUIRED_DEVICE_EXTENSIONS: [&CStr; 3] = [
+/// Extensions a device must enable for lipac (besides Vulkan 1.3 core):
+/// what the culling loop uses (BLAS/TLAS builds, Algorithms 1 and 2,
+/// uploads, read-back). Tracing is extra: [`RAY_QUERY_EXTENSIONS`] for
+/// lipac's ray-query tracers, [`RAY_TRACING_PIPELINE_EXTENSIONS`] for its
+/// pipeline tracers ([`TracingPaths`]).
+pub const REQUIRED_DEVICE_EXTENSIONS: [&CStr; 2] = [
     ash::khr::acceleration_structure::NAME,
-    ash::khr::ray_query::NAME,
     ash::khr::deferred_host_operations::NAME,
+];
+
+/// The extension of the ray-query tracing path (feature `rayQuery`).
+pub const RAY_QUERY_EXTENSIONS: [&CStr; 1] = [ash::khr::ray_query::NAME];
+
+/// The extension of the ray-tracing-pipeline path (feature
+/// `rayTracingPipeline`; its dependency `VK_KHR_spirv_1_4` is core in
+/// Vulkan 1.2).
+pub const RAY_TRACING_PIPELINE_EXTENSIONS: [&CStr; 1] = [ash::khr::ray_tracing_pipeline::NAME];
+
+/// Device functions of the ray-tracing-pipeline path.
+const PIPELINE_DEVICE_FUNCTIONS: [&CStr; 3] = [
+    c"vkCreateRayTracingPipelinesKHR",
+    c"vkGetRayTracingShaderGroupHandlesKHR",
+    c"vkCmdTraceRaysKHR",
 ];
 
 /// Device functions lipac calls; checked when binding to an engine's device.
@@ -76,6 +95,10 @@ struct Inner {
     host_waits: std::sync::atomic::AtomicU64,
     accel: ash::khr::acceleration_structure::Device,
     limits: AccelerationStructureLimits,
+    tracing: TracingPaths,
+    /// Loaded when `tracing.ray_tracing_pipeline`.
+    pipeline_fns: Option<ash::khr::ray_tracing_pipeline::Device>,
+    pipeline_properties: Option<RayTracingPipelineProperties>,
     memory_properties: vk::PhysicalDeviceMemoryProperties,
     device_name: String,
     memory: MemoryCounters,
@@ -91,6 +114,7 @@ impl std::fmt::Debug for DeviceContext {
         f.debug_struct("DeviceContext")
             .field("device", &self.inner.device_name)
             .field("queue_family", &self.inner.queue.family_index)
+            .field("tracing", &self.inner.tracing)
             .field("limits", &self.inner.limits)
             .finish_non_exhaustive()
     }
@@ -146,8 +170,10 @@ impl DeviceContext {
     /// together; every queue must be a queue of `device` from the family it
     /// names. The device must have been created with the extensions in
     /// [`REQUIRED_DEVICE_EXTENSIONS`] and the features `bufferDeviceAddress`,
-    /// `timelineSemaphore`, `synchronization2`, `accelerationStructure` and
-    /// `rayQuery` enabled. The engine must keep the device alive until every
+    /// `timelineSemaphore`, `synchronization2` and `accelerationStructure`
+    /// enabled (ray queries and ray-tracing pipelines are not needed: the
+    /// engine traces; to use lipac's own tracers too, declare the paths
+    /// enabled with [`DeviceContext::with_tracing`]). The engine must keep the device alive until every
     /// lipac object created from this context is dropped, and must not use the
     /// chosen queue from another thread while a lipac call submits to it.
     ///
@@ -188,6 +214,7 @@ impl DeviceContext {
                 physical_device,
                 queues,
                 Arc::new(allocator),
+                TracingPaths::NONE,
                 None,
             )
         }
@@ -217,7 +244,72 @@ impl DeviceContext {
         allocator: Arc<dyn DeviceAllocator>,
     ) -> Result<Self> {
         // SAFETY: forwarded from this function's contract.
-        unsafe { Self::bind(instance, device, physical_device, queues, allocator, None) }
+        unsafe {
+            Self::bind(
+                instance,
+                device,
+                physical_device,
+                queues,
+                allocator,
+                TracingPaths::NONE,
+                None,
+            )
+        }
+    }
+
+    /// Declares the tracing paths the engine enabled on its device, so that
+    /// lipac's own tracers ([`crate::CameraTracer`],
+    /// [`crate::PipelineCameraTracer`], the test tracers) can run on it; call
+    /// it on the context [`DeviceContext::from_engine`] returned, before
+    /// cloning it. Loads the `VK_KHR_ray_tracing_pipeline` functions and
+    /// reads the pipeline properties when `paths.ray_tracing_pipeline`.
+    ///
+    /// # Safety
+    ///
+    /// For `paths.ray_query` the device must have been created with
+    /// `VK_KHR_ray_query` and the `rayQuery` feature; for
+    /// `paths.ray_tracing_pipeline` with `VK_KHR_ray_tracing_pipeline` and the
+    /// `rayTracingPipeline` feature.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] when the context was cloned already;
+    /// [`VkError::MissingDeviceFunction`] when a pipeline function is not
+    /// loaded.
+    ///
+    /// ```no_run
+    /// # fn bind(instance: &ash::Instance, device: &ash::Device, pd: ash::vk::PhysicalDevice,
+    /// #         queues: &[lipac_vk::EngineQueue]) -> Result<(), lipac_vk::VkError> {
+    /// use lipac_vk::{DeviceContext, TracingPaths};
+    /// // SAFETY: the engine created `device` with lipac's extensions and features,
+    /// // VK_KHR_ray_tracing_pipeline and rayTracingPipeline, and outlives the context.
+    /// let ctx = unsafe {
+    ///     DeviceContext::from_engine(instance, device, pd, queues)?
+    ///         .with_tracing(TracingPaths { ray_query: false, ray_tracing_pipeline: true })?
+    /// };
+    /// assert!(ctx.tracing().ray_tracing_pipeline);
+    /// # Ok(()) }
+    /// ```
+    pub unsafe fn with_tracing(mut self, paths: TracingPaths) -> Result<Self> {
+        let inner = Arc::get_mut(&mut self.inner).ok_or_else(|| {
+            VkError::InvalidArgument(
+                "declare the tracing paths before cloning the device context".into(),
+            )
+        })?;
+        let (fns, props) = if paths.ray_tracing_pipeline {
+            // SAFETY: the handles are valid (from_engine's contract) and the
+            // device enabled the pipeline extension (this function's).
+            let (fns, props) = unsafe {
+                load_pipeline_path(&inner.instance, &inner.device, inner.physical_device)
+            }?;
+            (Some(fns), Some(props))
+        } else {
+            (None, None)
+        };
+        inner.tracing = paths;
+        inner.pipeline_fns = fns;
+        inner.pipeline_properties = props;
+        Ok(self)
     }
 
     /// # Safety
@@ -228,6 +320,7 @@ impl DeviceContext {
         physical_device: vk::PhysicalDevice,
         queues: &[EngineQueue],
         allocator: Arc<dyn DeviceAllocator>,
+        tracing: TracingPaths,
         owned: Option<Owned>,
     ) -> Result<Self> {
         for name in REQUIRED_DEVICE_FUNCTIONS {
@@ -277,6 +370,14 @@ impl DeviceContext {
         let memory_properties =
             unsafe { instance.get_physical_device_memory_properties(physical_device) };
         let accel = ash::khr::acceleration_structure::Device::new(instance, device);
+        let (pipeline_fns, pipeline_properties) = if tracing.ray_tracing_pipeline {
+            // SAFETY: valid handles (caller contract), the pipeline extension
+            // enabled (the caller's `tracing`).
+            let (fns, props) = unsafe { load_pipeline_path(instance, device, physical_device) }?;
+            (Some(fns), Some(props))
+        } else {
+            (None, None)
+        };
         Ok(Self {
             inner: Arc::new(Inner {
                 instance: instance.clone(),
@@ -287,6 +388,9 @@ impl DeviceContext {
                 host_waits: std::sync::atomic::AtomicU64::new(0),
                 accel,
                 limits,
+                tracing,
+                pipeline_fns,
+                pipeline_properties,
                 memory_properties,
                 device_name,
                 memory: MemoryCounters::default(),
@@ -320,6 +424,29 @@ impl DeviceContext {
     /// The loaded `VK_KHR_acceleration_structure` functions.
     pub fn acceleration_structure(&self) -> &ash::khr::acceleration_structure::Device {
         &self.inner.accel
+    }
+    /// The tracing paths lipac's tracers may use on this device.
+    pub fn tracing(&self) -> TracingPaths {
+        self.inner.tracing
+    }
+    /// `Ok` when this device offers `path`; else
+    /// [`VkError::MissingFeature`] naming `component`.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::MissingFeature`].
+    pub fn require_tracing(&self, path: TracingPath, component: &'static str) -> Result<()> {
+        self.inner.tracing.require(path, component)
+    }
+    /// The ray-tracing-pipeline properties (shader group handle size and
+    /// alignments), when the pipeline path is enabled.
+    pub fn ray_tracing_pipeline_properties(&self) -> Option<&RayTracingPipelineProperties> {
+        self.inner.pipeline_properties.as_ref()
+    }
+    /// The loaded `VK_KHR_ray_tracing_pipeline` functions, when the pipeline
+    /// path is enabled.
+    pub fn ray_tracing_pipeline(&self) -> Option<&ash::khr::ray_tracing_pipeline::Device> {
+        self.inner.pipeline_fns.as_ref()
     }
     /// Acceleration-structure limits of the device.
     pub fn limits(&self) -> &AccelerationStructureLimits {
@@ -374,6 +501,46 @@ impl DeviceContext {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
     }
+}
+
+/// Checks that the pipeline path's functions are loaded, loads them and
+/// reads the pipeline properties.
+///
+/// # Safety
+///
+/// Valid handles that belong together; the device enabled
+/// `VK_KHR_ray_tracing_pipeline`.
+unsafe fn load_pipeline_path(
+    instance: &ash::Instance,
+    device: &ash::Device,
+    physical_device: vk::PhysicalDevice,
+) -> Result<(
+    ash::khr::ray_tracing_pipeline::Device,
+    RayTracingPipelineProperties,
+)> {
+    for name in PIPELINE_DEVICE_FUNCTIONS {
+        // SAFETY: valid device of `instance`; NUL-terminated name.
+        let f =
+            unsafe { (instance.fp_v1_0().get_device_proc_addr)(device.handle(), name.as_ptr()) };
+        if f.is_none() {
+            return Err(VkError::MissingDeviceFunction(name.to_str().unwrap_or("?")));
+        }
+    }
+    let mut rt = vk::PhysicalDeviceRayTracingPipelinePropertiesKHR::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut rt);
+    // SAFETY: valid physical device supporting the extension; one output struct.
+    unsafe { instance.get_physical_device_properties2(physical_device, &mut props2) };
+    let props = RayTracingPipelineProperties {
+        handle_size: rt.shader_group_handle_size,
+        handle_alignment: rt.shader_group_handle_alignment.max(1),
+        base_alignment: rt.shader_group_base_alignment.max(1),
+        max_stride: rt.max_shader_group_stride,
+        max_recursion_depth: rt.max_ray_recursion_depth,
+    };
+    Ok((
+        ash::khr::ray_tracing_pipeline::Device::new(instance, device),
+        props,
+    ))
 }
 
 #[cfg(test)]

@@ -9,16 +9,28 @@ use std::fmt;
 pub enum VkError {
     /// The Vulkan loader (`libvulkan.so.1` / `vulkan-1.dll`) could not be loaded.
     LoaderUnavailable(String),
-    /// No physical device supports what lipac needs (Vulkan 1.3,
-    /// `VK_KHR_acceleration_structure`, `VK_KHR_ray_query`, buffer device
-    /// address, timeline semaphores, synchronization2, a compute queue).
-    /// Holds one line per rejected device saying why.
-    NoRayQueryDevice {
+    /// No physical device supports what [`crate::HeadlessContext`] needs
+    /// (Vulkan 1.3, `VK_KHR_acceleration_structure`, buffer device address,
+    /// timeline semaphores, synchronization2, a compute queue, and a tracing
+    /// path: `VK_KHR_ray_query` or `VK_KHR_ray_tracing_pipeline`), or the
+    /// device `LIPAC_VK_DEVICE` names does not. Holds one line per rejected
+    /// device saying why.
+    NoSuitableDevice {
         /// Why each enumerated device was rejected.
         rejected: Vec<String>,
     },
     /// The validation layer was required but is not installed.
     ValidationLayerMissing,
+    /// A component needs a device feature the context does not offer (a
+    /// tracer's tracing path, see [`crate::TracingPaths`]).
+    MissingFeature {
+        /// The component that needs it (e.g. `"CameraTracer"`).
+        component: &'static str,
+        /// What it needs (e.g. `"VK_KHR_ray_query"`).
+        needs: &'static str,
+        /// What the device offers instead (e.g. "ray-tracing pipelines only").
+        offers: String,
+    },
     /// A device function lipac needs is not loaded on the engine's device
     /// (its extension or Vulkan version was not enabled).
     MissingDeviceFunction(&'static str),
@@ -85,7 +97,7 @@ impl VkError {
     pub fn is_unsupported_machine(&self) -> bool {
         matches!(
             self,
-            Self::LoaderUnavailable(_) | Self::NoRayQueryDevice { .. }
+            Self::LoaderUnavailable(_) | Self::NoSuitableDevice { .. }
         )
     }
 }
@@ -94,14 +106,22 @@ impl fmt::Display for VkError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::LoaderUnavailable(e) => write!(f, "the Vulkan loader could not be loaded: {e}"),
-            Self::NoRayQueryDevice { rejected } => {
-                write!(f, "no Vulkan device with ray queries and acceleration structures")?;
+            Self::NoSuitableDevice { rejected } => {
+                write!(
+                    f,
+                    "no Vulkan device with acceleration structures and ray queries or ray-tracing pipelines"
+                )?;
                 if rejected.is_empty() {
                     write!(f, " (no physical devices)")
                 } else {
                     write!(f, ": {}", rejected.join("; "))
                 }
             }
+            Self::MissingFeature {
+                component,
+                needs,
+                offers,
+            } => write!(f, "{component} needs {needs}; this device offers {offers}"),
             Self::ValidationLayerMissing => {
                 write!(f, "VK_LAYER_KHRONOS_validation was required but is not installed")
             }

@@ -4,10 +4,12 @@
 //! [`DeviceContext::from_engine`] instead.
 
 use crate::context::{
-    preferred_queue_family, DeviceContext, EngineQueue, REQUIRED_DEVICE_EXTENSIONS,
+    preferred_queue_family, DeviceContext, EngineQueue, RAY_QUERY_EXTENSIONS,
+    RAY_TRACING_PIPELINE_EXTENSIONS, REQUIRED_DEVICE_EXTENSIONS,
 };
 use crate::device_allocator::{DeviceAllocator, GpuAllocator};
 use crate::error::{Result, VkContext, VkError};
+use crate::tracing_paths::{TracingPath, TracingPaths};
 use ash::vk;
 use std::ffi::{c_void, CStr};
 use std::sync::{Arc, Mutex};
@@ -27,17 +29,23 @@ pub enum Validation {
 /// A Vulkan instance and device of lipac's own, for examples and tests
 /// (engines use [`DeviceContext::from_engine`] instead).
 ///
-/// Picks the best device (discrete, integrated, virtual, CPU) with Vulkan
-/// 1.3, [`REQUIRED_DEVICE_EXTENSIONS`], buffer device address, timeline
-/// semaphores, synchronization2, acceleration structures and ray queries.
-/// When `VK_EXT_debug_utils` is available a messenger records every
+/// Picks the best device (discrete, integrated, virtual, CPU; then the one
+/// with more tracing paths) with Vulkan 1.3,
+/// [`REQUIRED_DEVICE_EXTENSIONS`], buffer device address, timeline
+/// semaphores, synchronization2, acceleration structures and at least one
+/// tracing path: ray queries ([`crate::RAY_QUERY_EXTENSIONS`]) or
+/// ray-tracing pipelines ([`crate::RAY_TRACING_PIPELINE_EXTENSIONS`]). It
+/// enables the paths the device has and reports them
+/// ([`DeviceContext::tracing`]). [`DEVICE_ENV`] (`LIPAC_VK_DEVICE`) picks a
+/// device by index or name; [`HIDE_ENV`] (`LIPAC_VK_HIDE`) hides paths. When
+/// `VK_EXT_debug_utils` is available a messenger records every
 /// error-severity message (validation errors among them); see
 /// [`HeadlessContext::validation_errors`].
 ///
 /// ```no_run
 /// use lipac_vk::{HeadlessContext, Validation};
 /// let headless = HeadlessContext::new(Validation::IfAvailable)?;
-/// println!("running on {}", headless.context().device_name());
+/// println!("running on {}", headless.summary());
 /// assert!(headless.validation_errors().is_empty());
 /// # Ok::<(), lipac_vk::VkError>(())
 /// ```
@@ -46,6 +54,9 @@ pub struct HeadlessContext {
     log: Arc<Mutex<Vec<String>>>,
     validation: bool,
     debug_utils: Option<ash::ext::debug_utils::Instance>,
+    device_index: usize,
+    device_type: vk::PhysicalDeviceType,
+    hidden: TracingPaths,
 }
 
 impl std::fmt::Debug for HeadlessContext {
@@ -80,18 +91,25 @@ unsafe extern "system" fn debug_callback(
     vk::FALSE
 }
 
-/// A physical device that qualifies, with the queue family lipac will use
-/// and its rank (lower is better: discrete, integrated, virtual, CPU).
+/// A physical device that qualifies, with the queue family lipac will use,
+/// its rank (lower is better: discrete, integrated, virtual, CPU) and the
+/// tracing paths it offers (hidden ones removed).
 struct Candidate {
     physical_device: vk::PhysicalDevice,
     family: u32,
     rank: u32,
+    index: usize,
+    device_type: vk::PhysicalDeviceType,
+    tracing: TracingPaths,
 }
 
-/// Whether `pd` has everything lipac needs; the reason when it does not.
+/// Whether `pd` (enumerated as `index`) has everything lipac needs and a
+/// tracing path not in `hide`; the reason when it does not.
 fn check_device(
     instance: &ash::Instance,
     pd: vk::PhysicalDevice,
+    index: usize,
+    hide: TracingPaths,
 ) -> std::result::Result<Candidate, String> {
     // SAFETY: `pd` was enumerated from `instance`.
     let props = unsafe { instance.get_physical_device_properties(pd) };
@@ -109,28 +127,37 @@ fn check_device(
     // SAFETY: as above.
     let exts = unsafe { instance.enumerate_device_extension_properties(pd) }
         .map_err(|e| format!("{name}: enumerating extensions failed: {e}"))?;
+    let has = |need: &CStr| exts.iter().any(|e| e.extension_name_as_c_str() == Ok(need));
     for need in REQUIRED_DEVICE_EXTENSIONS {
-        if !exts.iter().any(|e| e.extension_name_as_c_str() == Ok(need)) {
+        if !has(need) {
             return Err(format!("{name}: lacks {}", need.to_string_lossy()));
         }
     }
+    let has_rq_ext = RAY_QUERY_EXTENSIONS.iter().all(|n| has(n));
+    let has_rt_ext = RAY_TRACING_PIPELINE_EXTENSIONS.iter().all(|n| has(n));
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
     let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
     let mut fas = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
     let mut frq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
+    let mut frt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default();
     let mut f2 = vk::PhysicalDeviceFeatures2::default()
         .push_next(&mut f12)
         .push_next(&mut f13)
-        .push_next(&mut fas)
-        .push_next(&mut frq);
-    // SAFETY: as above; the chain holds valid output structs.
+        .push_next(&mut fas);
+    if has_rq_ext {
+        f2 = f2.push_next(&mut frq);
+    }
+    if has_rt_ext {
+        f2 = f2.push_next(&mut frt);
+    }
+    // SAFETY: as above; the chain holds valid output structs of supported
+    // extensions.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
     let missing: Vec<&str> = [
         (f12.buffer_device_address, "bufferDeviceAddress"),
         (f12.timeline_semaphore, "timelineSemaphore"),
         (f13.synchronization2, "synchronization2"),
         (fas.acceleration_structure, "accelerationStructure"),
-        (frq.ray_query, "rayQuery"),
     ]
     .into_iter()
     .filter(|(on, _)| *on == vk::FALSE)
@@ -138,6 +165,25 @@ fn check_device(
     .collect();
     if !missing.is_empty() {
         return Err(format!("{name}: lacks features {}", missing.join(", ")));
+    }
+    let offered = TracingPaths {
+        ray_query: has_rq_ext && frq.ray_query == vk::TRUE,
+        ray_tracing_pipeline: has_rt_ext && frt.ray_tracing_pipeline == vk::TRUE,
+    };
+    let tracing = TracingPaths {
+        ray_query: offered.ray_query && !hide.ray_query,
+        ray_tracing_pipeline: offered.ray_tracing_pipeline && !hide.ray_tracing_pipeline,
+    };
+    if !tracing.any() {
+        let hidden = if offered.any() {
+            format!(" ({offered} hidden by {HIDE_ENV})")
+        } else {
+            String::new()
+        };
+        return Err(format!(
+            "{name}: lacks a tracing path (VK_KHR_ray_query with rayQuery, or \
+             VK_KHR_ray_tracing_pipeline with rayTracingPipeline){hidden}"
+        ));
     }
     let family =
         preferred_queue_family(instance, pd).ok_or_else(|| format!("{name}: no compute queue"))?;
@@ -152,7 +198,64 @@ fn check_device(
         physical_device: pd,
         family,
         rank,
+        index,
+        device_type: props.device_type,
+        tracing,
     })
+}
+
+/// The environment variable that picks the device: an index into the
+/// enumerated devices (`vulkaninfo --summary` order) or a case-insensitive
+/// substring of its name.
+pub const DEVICE_ENV: &str = "LIPAC_VK_DEVICE";
+/// The environment variable that hides tracing paths the device has, as if
+/// it lacked them (comma-separated `ray-query`, `pipeline`): to check on
+/// one device what another without them does.
+pub const HIDE_ENV: &str = "LIPAC_VK_HIDE";
+
+/// How [`HeadlessContext::with_options`] creates its device.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct HeadlessOptions {
+    /// The validation layer.
+    pub validation: Validation,
+    /// The device to use: its index among the enumerated devices, or a
+    /// case-insensitive substring of its name; `None`: the best that
+    /// qualifies (discrete, integrated, virtual, CPU; then more tracing
+    /// paths; then enumeration order).
+    pub device: Option<String>,
+    /// Tracing paths to treat as absent even where the device has them.
+    pub hide: TracingPaths,
+}
+
+impl HeadlessOptions {
+    /// `validation`, with the device from [`DEVICE_ENV`] and the hidden
+    /// paths from [`HIDE_ENV`] when set.
+    ///
+    /// # Errors
+    ///
+    /// [`VkError::InvalidArgument`] for an unknown path in [`HIDE_ENV`].
+    pub fn from_env(validation: Validation) -> Result<Self> {
+        let device = std::env::var(DEVICE_ENV)
+            .ok()
+            .filter(|v| !v.trim().is_empty());
+        let mut hide = TracingPaths::NONE;
+        if let Ok(v) = std::env::var(HIDE_ENV) {
+            for part in v.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+                match part
+                    .parse::<TracingPath>()
+                    .map_err(|e| VkError::InvalidArgument(format!("{HIDE_ENV}: {e}")))?
+                {
+                    TracingPath::RayQuery => hide.ray_query = true,
+                    TracingPath::RayTracingPipeline => hide.ray_tracing_pipeline = true,
+                }
+            }
+        }
+        Ok(Self {
+            validation,
+            device,
+            hide,
+        })
+    }
 }
 
 /// Handles a [`HeadlessContext`] created; destroyed when the context is
@@ -281,7 +384,7 @@ fn create_instance(entry: &ash::Entry, support: &InstanceSupport) -> Result<ash:
     match unsafe { entry.create_instance(&create, None) } {
         Ok(i) => Ok(i),
         // The loader found no driver at all.
-        Err(vk::Result::ERROR_INCOMPATIBLE_DRIVER) => Err(VkError::NoRayQueryDevice {
+        Err(vk::Result::ERROR_INCOMPATIBLE_DRIVER) => Err(VkError::NoSuitableDevice {
             rejected: vec![
                 "no Vulkan 1.3 driver (vkCreateInstance: ERROR_INCOMPATIBLE_DRIVER)".into(),
             ],
@@ -290,25 +393,65 @@ fn create_instance(entry: &ash::Entry, support: &InstanceSupport) -> Result<ash:
     }
 }
 
-/// The best qualifying physical device; the reason for each rejected one
-/// when none qualifies.
-fn pick_device(instance: &ash::Instance) -> Result<Candidate> {
+/// The device `options.device` names, or the best qualifying one; the
+/// reason for each rejected one when none qualifies.
+fn pick_device(instance: &ash::Instance, options: &HeadlessOptions) -> Result<Candidate> {
     // SAFETY: valid instance.
     let devices =
         unsafe { instance.enumerate_physical_devices() }.ctx("vkEnumeratePhysicalDevices")?;
+    if let Some(want) = &options.device {
+        let want = want.trim();
+        let by_index = want.parse::<usize>().ok();
+        let mut names = Vec::new();
+        for (i, &pd) in devices.iter().enumerate() {
+            // SAFETY: enumerated from `instance`.
+            let props = unsafe { instance.get_physical_device_properties(pd) };
+            let name = props
+                .device_name_as_c_str()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let hit = match by_index {
+                Some(k) => k == i,
+                None => name.to_lowercase().contains(&want.to_lowercase()),
+            };
+            if hit {
+                return check_device(instance, pd, i, options.hide).map_err(|why| {
+                    VkError::NoSuitableDevice {
+                        rejected: vec![format!("{DEVICE_ENV}={want} chose device {i}, {why}")],
+                    }
+                });
+            }
+            names.push(format!("{i}: {name}"));
+        }
+        return Err(VkError::NoSuitableDevice {
+            rejected: vec![format!(
+                "{DEVICE_ENV}={want} names no device (devices: {})",
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
+            )],
+        });
+    }
     let mut rejected = Vec::new();
     let mut best: Option<Candidate> = None;
-    for pd in devices {
-        match check_device(instance, pd) {
+    let paths =
+        |c: &Candidate| u32::from(c.tracing.ray_query) + u32::from(c.tracing.ray_tracing_pipeline);
+    for (i, pd) in devices.into_iter().enumerate() {
+        match check_device(instance, pd, i, options.hide) {
             Ok(c) => {
-                if best.as_ref().is_none_or(|b| c.rank < b.rank) {
+                let better = best.as_ref().is_none_or(|b| {
+                    (c.rank, std::cmp::Reverse(paths(&c))) < (b.rank, std::cmp::Reverse(paths(b)))
+                });
+                if better {
                     best = Some(c);
                 }
             }
             Err(why) => rejected.push(why),
         }
     }
-    best.ok_or(VkError::NoRayQueryDevice { rejected })
+    best.ok_or(VkError::NoSuitableDevice { rejected })
 }
 
 /// A device on `candidate` with one queue of its family, lipac's
@@ -318,10 +461,17 @@ fn create_device(instance: &ash::Instance, candidate: &Candidate) -> Result<ash:
     let queue_info = [vk::DeviceQueueCreateInfo::default()
         .queue_family_index(candidate.family)
         .queue_priorities(&priorities)];
-    let ext_ptrs: Vec<*const i8> = REQUIRED_DEVICE_EXTENSIONS
+    let tracing = candidate.tracing;
+    let mut ext_ptrs: Vec<*const i8> = REQUIRED_DEVICE_EXTENSIONS
         .iter()
         .map(|n| n.as_ptr())
         .collect();
+    if tracing.ray_query {
+        ext_ptrs.extend(RAY_QUERY_EXTENSIONS.iter().map(|n| n.as_ptr()));
+    }
+    if tracing.ray_tracing_pipeline {
+        ext_ptrs.extend(RAY_TRACING_PIPELINE_EXTENSIONS.iter().map(|n| n.as_ptr()));
+    }
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
         .buffer_device_address(true)
         .timeline_semaphore(true);
@@ -329,13 +479,20 @@ fn create_device(instance: &ash::Instance, candidate: &Candidate) -> Result<ash:
     let mut fas =
         vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
     let mut frq = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
-    let device_info = vk::DeviceCreateInfo::default()
+    let mut frt =
+        vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default().ray_tracing_pipeline(true);
+    let mut device_info = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queue_info)
         .enabled_extension_names(&ext_ptrs)
         .push_next(&mut f12)
         .push_next(&mut f13)
-        .push_next(&mut fas)
-        .push_next(&mut frq);
+        .push_next(&mut fas);
+    if tracing.ray_query {
+        device_info = device_info.push_next(&mut frq);
+    }
+    if tracing.ray_tracing_pipeline {
+        device_info = device_info.push_next(&mut frt);
+    }
     // SAFETY: the physical device supports every extension and feature
     // enabled here (checked by `check_device`); pointers are live.
     unsafe { instance.create_device(candidate.physical_device, &device_info, None) }
@@ -343,17 +500,29 @@ fn create_device(instance: &ash::Instance, candidate: &Candidate) -> Result<ash:
 }
 
 impl HeadlessContext {
-    /// Creates an instance and a device for lipac.
+    /// Creates an instance and a device for lipac, the device chosen as
+    /// [`HeadlessOptions::from_env`] says.
     ///
     /// # Errors
     ///
     /// [`VkError::LoaderUnavailable`] without a Vulkan loader,
-    /// [`VkError::NoRayQueryDevice`] when no device qualifies (with the reason
+    /// [`VkError::NoSuitableDevice`] when no device qualifies (with the reason
     /// for each), [`VkError::ValidationLayerMissing`] for
-    /// [`Validation::Required`] without the layer, [`VkError::Vulkan`] when a
-    /// creation call fails.
+    /// [`Validation::Required`] without the layer, [`VkError::InvalidArgument`]
+    /// for a malformed [`HIDE_ENV`], [`VkError::Vulkan`] when a creation call
+    /// fails.
     pub fn new(validation: Validation) -> Result<Self> {
-        Self::with_allocator(validation, |instance, device, physical_device| {
+        Self::with_options(&HeadlessOptions::from_env(validation)?)
+    }
+
+    /// Creates an instance and a device for lipac as `options` say (no
+    /// environment variables read).
+    ///
+    /// # Errors
+    ///
+    /// As [`HeadlessContext::new`].
+    pub fn with_options(options: &HeadlessOptions) -> Result<Self> {
+        Self::with_options_and_allocator(options, |instance, device, physical_device| {
             // SAFETY: the handles belong together and the device has
             // bufferDeviceAddress enabled; the context owns the allocator and
             // drops it before destroying the device.
@@ -379,6 +548,24 @@ impl HeadlessContext {
             vk::PhysicalDevice,
         ) -> Result<Box<dyn DeviceAllocator>>,
     ) -> Result<Self> {
+        Self::with_options_and_allocator(&HeadlessOptions::from_env(validation)?, make_allocator)
+    }
+
+    /// As [`HeadlessContext::with_allocator`], the device chosen as
+    /// `options` say.
+    ///
+    /// # Errors
+    ///
+    /// As [`HeadlessContext::with_allocator`].
+    pub fn with_options_and_allocator(
+        options: &HeadlessOptions,
+        make_allocator: impl FnOnce(
+            &ash::Instance,
+            &ash::Device,
+            vk::PhysicalDevice,
+        ) -> Result<Box<dyn DeviceAllocator>>,
+    ) -> Result<Self> {
+        let validation = options.validation;
         // SAFETY: loading the system's Vulkan loader library; ash keeps it loaded
         // for the Entry's lifetime and the Entry lives in the context.
         let entry =
@@ -399,7 +586,7 @@ impl HeadlessContext {
         } else {
             None
         };
-        let candidate = pick_device(&owned.instance)?;
+        let candidate = pick_device(&owned.instance, options)?;
         let device = create_device(&owned.instance, &candidate)?;
         owned.device = Some(device.clone());
         // SAFETY: queue 0 of the family was requested at device creation.
@@ -424,6 +611,7 @@ impl HeadlessContext {
                     family_index: candidate.family,
                 }],
                 allocator,
+                candidate.tracing,
                 Some(owned),
             )
         }?;
@@ -432,7 +620,58 @@ impl HeadlessContext {
             log,
             validation: support.validation,
             debug_utils,
+            device_index: candidate.index,
+            device_type: candidate.device_type,
+            hidden: options.hide,
         })
+    }
+
+    /// The device's index among the enumerated physical devices (what
+    /// [`DEVICE_ENV`] takes).
+    pub fn device_index(&self) -> usize {
+        self.device_index
+    }
+
+    /// The device's type (discrete, integrated, virtual, CPU).
+    pub fn device_type(&self) -> vk::PhysicalDeviceType {
+        self.device_type
+    }
+
+    /// The tracing paths hidden by [`HeadlessOptions::hide`] (or [`HIDE_ENV`]).
+    pub fn hidden_tracing(&self) -> TracingPaths {
+        self.hidden
+    }
+
+    /// One line naming the device, its type and index, the tracing paths
+    /// enabled (and hidden) and whether validation is on, e.g.
+    /// `llvmpipe (LLVM 15.0.6, 256 bits) (CPU, device 0); tracing: ray
+    /// queries and ray-tracing pipelines; validation on`. Tests and
+    /// examples print it so that every log says where it ran.
+    pub fn summary(&self) -> String {
+        let kind = match self.device_type {
+            vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
+            vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated GPU",
+            vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual GPU",
+            vk::PhysicalDeviceType::CPU => "CPU",
+            _ => "other",
+        };
+        let hidden: Vec<String> = [TracingPath::RayQuery, TracingPath::RayTracingPipeline]
+            .into_iter()
+            .filter(|p| self.hidden.has(*p))
+            .map(|p| p.to_string())
+            .collect();
+        let hidden = if hidden.is_empty() {
+            String::new()
+        } else {
+            format!(" ({} hidden by {HIDE_ENV})", hidden.join(" and "))
+        };
+        format!(
+            "{} ({kind}, device {}); tracing: {}{hidden}; validation {}",
+            self.context.device_name(),
+            self.device_index,
+            self.context.tracing(),
+            if self.validation { "on" } else { "off" }
+        )
     }
 
     /// The device context (clone it to share).

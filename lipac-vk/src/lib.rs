@@ -64,6 +64,7 @@ mod commands;
 mod compute;
 mod context;
 mod counting;
+mod counting_pipeline;
 mod device_allocator;
 mod error;
 mod escape;
@@ -75,12 +76,17 @@ mod lifetimes;
 mod memory;
 mod merged_boxes;
 mod merged_trace;
+mod pipeline_camera;
+mod pipeline_test_tracer;
 mod ray_query;
 mod ray_query_test_pipeline;
 mod readback;
+mod sbt;
 pub mod shaders;
 mod timeline;
 mod tlas;
+mod trace_resources;
+mod tracing_paths;
 mod upload;
 
 pub use accel::{AccelerationStructure, AsSizes};
@@ -103,12 +109,13 @@ pub use camera_trace::{CameraTraceBindings, CameraTraceBuffers, CameraTracer, Ca
 pub use commands::{FrameSubmitter, OneShot, Recorder};
 pub use context::{
     preferred_queue_family, AccelerationStructureLimits, DeviceContext, EngineQueue,
-    REQUIRED_DEVICE_EXTENSIONS,
+    RAY_QUERY_EXTENSIONS, RAY_TRACING_PIPELINE_EXTENSIONS, REQUIRED_DEVICE_EXTENSIONS,
 };
 pub use counting::{
     counting_box_instance, CountingBoxConfig, CountingBoxKind, UnitCube, UNIT_CUBE_INDICES,
     UNIT_CUBE_VERTICES,
 };
+pub use counting_pipeline::MAX_PIPELINE_SBT_OFFSET;
 pub use device_allocator::{
     AllocationRequest, AllocatorBlocks, DeviceAllocation, DeviceAllocator, DeviceMemoryStats,
     GpuAllocator, GPU_ALLOCATOR_DEVICE_BLOCK_BYTES, GPU_ALLOCATOR_HOST_BLOCK_BYTES,
@@ -116,17 +123,24 @@ pub use device_allocator::{
 pub use error::{Result, VkError};
 pub use executor::{BlasGeometrySource, ExecutedFrame, ExecutorStats, PlanExecutor};
 pub use feedback::{FeedbackBindings, FeedbackBuffers, FeedbackPipeline};
-pub use headless::{HeadlessContext, Validation};
+pub use headless::{HeadlessContext, HeadlessOptions, Validation, DEVICE_ENV, HIDE_ENV};
 pub use lifetimes::{Retirement, TlasPair};
 pub use memory::{Buffer, MemoryLocation, ScratchBuffer};
 pub use merged_boxes::MergedBoxes;
 pub use merged_trace::{MergedTraceBindings, MergedTraceBuffers, MergedTraceTestPipeline};
+pub use pipeline_camera::{
+    AnyCameraBindings, AnyCameraTracer, PipelineCameraBindings, PipelineCameraTracer,
+};
+pub use pipeline_test_tracer::{PipelineTestBindings, PipelineTestBuffers, PipelineTestTracer};
 pub use ray_query_test_pipeline::{
     GpuHit, GpuRay, HitboxCounting, RayQueryTestBindings, RayQueryTestBuffers, RayQueryTestPipeline,
 };
 pub use readback::{CommandReadback, CommandReadbackRing, CommandReadbackTicket};
+pub use sbt::{SbtLayout, SbtRecords, SbtRegion};
 pub use timeline::TimelineSemaphore;
 pub use tlas::{GpuTlas, TlasBuildOutput};
+pub use trace_resources::TraceResources;
+pub use tracing_paths::{RayTracingPipelineProperties, TracingPath, TracingPaths};
 pub use upload::{RecordUploader, UploadBindings, UploadStats, UploadTargets};
 
 /// Size in bytes of one TLAS instance record as the GPU consumes it.

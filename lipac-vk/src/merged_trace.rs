@@ -55,6 +55,7 @@ pub struct MergedTraceBuffers<'a> {
 pub struct MergedTraceBindings {
     set: StorageSet,
     max_rays: u64,
+    hitboxes: u64,
 }
 
 /// The compiled `trace_merged.comp` for one [`CountingBoxConfig`].
@@ -68,11 +69,14 @@ impl MergedTraceTestPipeline {
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    /// [`VkError::MissingFeature`] without ray queries
+    /// ([`DeviceContext::tracing`]); [`VkError::InvalidArgument`] for an
+    /// invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Ok(Self {
             pipeline: RayQueryPipeline::new(
                 ctx,
+                "MergedTraceTestPipeline",
                 TRACE_MERGED_SPV,
                 config,
                 5,
@@ -100,7 +104,14 @@ impl MergedTraceTestPipeline {
                 .bind(buffers.tlas, &storage, "STORAGE_BUFFER for a trace buffer")?;
         let max_rays = (buffers.rays.size() / std::mem::size_of::<GpuRay>() as u64)
             .min(buffers.results.size() / std::mem::size_of::<GpuHit>() as u64);
-        Ok(MergedTraceBindings { set, max_rays })
+        let hitboxes = (buffers.hitboxes.size()
+            / std::mem::size_of::<lipac_core::layout::HitboxRecord>() as u64)
+            .min(buffers.hitbox_bounds.size() / std::mem::size_of::<crate::HitboxBounds>() as u64);
+        Ok(MergedTraceBindings {
+            set,
+            max_rays,
+            hitboxes,
+        })
     }
 
     /// Records a trace of the first `ray_count` rays (cull mask, GLSL ray
@@ -122,7 +133,34 @@ impl MergedTraceTestPipeline {
         cull_mask: u8,
         ray_flags: u32,
     ) -> Result<()> {
+        let merged = MergedBoxes::new(Some(tree), assembly);
+        self.record_merged(rec, bindings, &merged, ray_count, cull_mask, ray_flags)
+    }
+
+    /// As [`MergedTraceTestPipeline::record`], with the merged boxes' values
+    /// as [`MergedBoxes`] ([`crate::LipacVk::merged_boxes`] of a frame;
+    /// [`MergedBoxes::OFF`]: the leaf-only path).
+    ///
+    /// # Errors
+    ///
+    /// As [`MergedTraceTestPipeline::record`]; [`VkError::InvalidArgument`]
+    /// when the hitbox buffers hold fewer hitboxes than `merged`'s grid.
+    pub fn record_merged(
+        &self,
+        rec: &mut Recorder<'_>,
+        bindings: &MergedTraceBindings,
+        merged: &MergedBoxes,
+        ray_count: u32,
+        cull_mask: u8,
+        ray_flags: u32,
+    ) -> Result<()> {
         self.pipeline.check_recorder(rec, &bindings.set)?;
+        if merged.hitboxes_read() > bindings.hitboxes {
+            return Err(VkError::InvalidArgument(format!(
+                "merged boxes over a {} x {} grid but the hitbox records and bounds hold {}",
+                merged.grid_nx, merged.grid_nz, bindings.hitboxes
+            )));
+        }
         if u64::from(ray_count) > bindings.max_rays {
             return Err(VkError::InvalidArgument(format!(
                 "{ray_count} rays but the buffers hold {}",
@@ -139,7 +177,7 @@ impl MergedTraceTestPipeline {
             ray_count,
             cull_mask: u32::from(cull_mask),
             ray_flags,
-            merged: MergedBoxes::new(Some(tree), assembly),
+            merged: *merged,
         };
         self.pipeline.dispatch(
             rec,

@@ -13,6 +13,7 @@ use crate::counting::CountingBoxConfig;
 use crate::error::{Result, VkError};
 use crate::memory::Buffer;
 use crate::tlas::GpuTlas;
+use crate::tracing_paths::TracingPath;
 use ash::vk;
 
 /// Set layout (binding 0: the TLAS, 1..: storage buffers), pipeline layout
@@ -28,14 +29,17 @@ pub(crate) struct RayQueryPipeline {
 
 impl RayQueryPipeline {
     /// Creates the pipeline of `spv` (entry `main`, specialization constants
-    /// 0..3 = omitted-box SBT offset, hitbox-box SBT offset, counting mask).
+    /// 0..3 = omitted-box SBT offset, hitbox-box SBT offset, counting mask)
+    /// for `component`; [`VkError::MissingFeature`] without ray queries.
     pub(crate) fn new(
         ctx: &DeviceContext,
+        component: &'static str,
         spv: &[u8],
         config: &CountingBoxConfig,
         storage_bindings: u32,
         push_size: u32,
     ) -> Result<Self> {
+        ctx.require_tracing(TracingPath::RayQuery, component)?;
         config.validate()?;
         let mut kinds = vec![vk::DescriptorType::ACCELERATION_STRUCTURE_KHR];
         kinds.resize(
@@ -102,7 +106,13 @@ impl RayQueryPipeline {
                 return Err(VkError::MissingUsage(missing_usage));
             }
         }
-        let (pool, set) = bind_ray_query_set(&self.ctx, self, tlas, storage)?;
+        let (pool, set) = bind_tlas_set(
+            &self.ctx,
+            self.set_layout,
+            self.storage_bindings,
+            tlas,
+            storage,
+        )?;
         Ok(StorageSet::new(&self.ctx, pool, set))
     }
 
@@ -128,21 +138,22 @@ impl RayQueryPipeline {
     }
 }
 
-/// A descriptor set (with its own pool) for `pipeline`: `tlas` at binding 0,
-/// `storage[i]` at binding `i + 1` (whole buffers). The caller checked the
-/// buffers' context and usage.
-fn bind_ray_query_set(
+/// A descriptor set (with its own pool) of `set_layout`: `tlas` at binding
+/// 0, `storage[i]` at binding `i + 1` (whole buffers, `storage_bindings` of
+/// them). The caller checked the buffers' context and usage.
+pub(crate) fn bind_tlas_set(
     ctx: &DeviceContext,
-    pipeline: &RayQueryPipeline,
+    set_layout: vk::DescriptorSetLayout,
+    storage_bindings: u32,
     tlas: &GpuTlas,
     storage: &[&Buffer],
 ) -> Result<(vk::DescriptorPool, vk::DescriptorSet)> {
     same_context(ctx, tlas.accel().context())?;
-    if storage.len() != pipeline.storage_bindings as usize {
+    if storage.len() != storage_bindings as usize {
         return Err(VkError::InvalidArgument(format!(
             "{} storage buffers for {} bindings",
             storage.len(),
-            pipeline.storage_bindings
+            storage_bindings
         )));
     }
     let sizes = [
@@ -151,9 +162,9 @@ fn bind_ray_query_set(
             .descriptor_count(1),
         vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(pipeline.storage_bindings),
+            .descriptor_count(storage_bindings),
     ];
-    let (pool, set) = allocate_one_set(ctx, &sizes, pipeline.set_layout)?;
+    let (pool, set) = allocate_one_set(ctx, &sizes, set_layout)?;
     let accels = [tlas.accel().raw()];
     let mut as_write =
         vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&accels);

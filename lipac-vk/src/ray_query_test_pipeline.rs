@@ -115,7 +115,9 @@ impl RayQueryTestPipeline {
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    /// [`VkError::MissingFeature`] without ray queries
+    /// ([`DeviceContext::tracing`]); [`VkError::InvalidArgument`] for an
+    /// invalid config; [`VkError::Vulkan`].
     pub fn new(ctx: &DeviceContext, config: &CountingBoxConfig) -> Result<Self> {
         Self::with_hitbox_counting(ctx, config, HitboxCounting::Counters)
     }
@@ -125,7 +127,9 @@ impl RayQueryTestPipeline {
     ///
     /// # Errors
     ///
-    /// [`VkError::InvalidArgument`] for an invalid config; [`VkError::Vulkan`].
+    /// [`VkError::MissingFeature`] without ray queries
+    /// ([`DeviceContext::tracing`]); [`VkError::InvalidArgument`] for an
+    /// invalid config; [`VkError::Vulkan`].
     pub fn with_hitbox_counting(
         ctx: &DeviceContext,
         config: &CountingBoxConfig,
@@ -137,7 +141,14 @@ impl RayQueryTestPipeline {
         };
         Ok(Self {
             hitbox_counting: counting,
-            pipeline: RayQueryPipeline::new(ctx, spv, config, BINDINGS - 1, 12)?,
+            pipeline: RayQueryPipeline::new(
+                ctx,
+                "RayQueryTestPipeline",
+                spv,
+                config,
+                BINDINGS - 1,
+                12,
+            )?,
         })
     }
 

@@ -50,9 +50,32 @@ pub const CAMERA_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/camera_trace.
 /// lipac's counting (GPU ray generation, shadow and bounce rays).
 pub const CAMERA_TRACE_GLSL: &str = include_str!("../shaders/camera_trace.comp");
 
-/// Every embedded SPIR-V module with the name of its `.comp` source (without
-/// extension), for tooling and the freshness test.
-pub const ALL_SPV: [(&str, &[u8]); 13] = [
+/// SPIR-V of `pipeline_trace.rgen`: ray generation of
+/// [`crate::PipelineTestTracer`] (rays from a buffer, `trace_merged.comp`
+/// with a ray-tracing pipeline).
+pub const PIPELINE_TRACE_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_trace.rgen.spv");
+/// SPIR-V of `pipeline_camera.rgen`: ray generation of
+/// [`crate::PipelineCameraTracer`] (`camera_trace.comp` with a ray-tracing
+/// pipeline).
+pub const PIPELINE_CAMERA_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_camera.rgen.spv");
+/// SPIR-V of `pipeline_hit.rchit`: closest-hit of real geometry in lipac's
+/// pipeline tracers.
+pub const PIPELINE_HIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_hit.rchit.spv");
+/// SPIR-V of `pipeline_hit.rahit`: any-hit of real geometry in lipac's
+/// pipeline tracers (skips real instances in the boxes-alone trace).
+pub const PIPELINE_HIT_AHIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_hit.rahit.spv");
+/// SPIR-V of `pipeline_box.rahit`: any-hit of counting boxes.
+pub const PIPELINE_BOX_AHIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_box.rahit.spv");
+/// SPIR-V of `pipeline_box.rchit`: closest-hit of counting boxes.
+pub const PIPELINE_BOX_CHIT_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_box.rchit.spv");
+/// SPIR-V of `pipeline_miss.rmiss`: miss shader of lipac's pipeline tracers.
+pub const PIPELINE_MISS_SPV: &[u8] = include_bytes!("../shaders/spv/pipeline_miss.rmiss.spv");
+
+/// Every embedded SPIR-V module with the name of its source: a compute
+/// shader's without extension (`trace_test` for `trace_test.comp`), a
+/// ray-tracing stage's with it (`pipeline_hit.rchit`); the file is
+/// `shaders/spv/{name}.spv`. For tooling and the freshness test.
+pub const ALL_SPV: [(&str, &[u8]); 20] = [
     ("camera_trace", CAMERA_TRACE_SPV),
     ("trace_test", TRACE_TEST_SPV),
     ("trace_counting", TRACE_COUNTING_SPV),
@@ -66,6 +89,13 @@ pub const ALL_SPV: [(&str, &[u8]); 13] = [
     ("feedback_hitboxes", FEEDBACK_HITBOXES_SPV),
     ("feedback_instances", FEEDBACK_INSTANCES_SPV),
     ("escape_sums", ESCAPE_SUMS_SPV),
+    ("pipeline_trace.rgen", PIPELINE_TRACE_SPV),
+    ("pipeline_camera.rgen", PIPELINE_CAMERA_SPV),
+    ("pipeline_hit.rchit", PIPELINE_HIT_SPV),
+    ("pipeline_hit.rahit", PIPELINE_HIT_AHIT_SPV),
+    ("pipeline_box.rahit", PIPELINE_BOX_AHIT_SPV),
+    ("pipeline_box.rchit", PIPELINE_BOX_CHIT_SPV),
+    ("pipeline_miss.rmiss", PIPELINE_MISS_SPV),
 ];
 
 /// `lipac_layout.glsl`: lipac's records (`LipacInstanceRecord`,
@@ -88,6 +118,65 @@ pub const TRACE_COUNTING_GLSL: &str = include_str!("../shaders/trace_counting.co
 /// `lipacCountBox`, `lipacMaskOutCountingBoxes`). Write it next to your
 /// shaders and `#include` it; its header lists the macros to define.
 pub const LIPAC_COUNTING_GLSL: &str = include_str!("../shaders/lipac_counting.glsl");
+
+/// `lipac_counting_common.glsl`: what the ray-query and the pipeline
+/// includes share (macro checks, box helpers, merged-box resolution,
+/// `LipacHit`); both include it.
+pub const LIPAC_COUNTING_COMMON_GLSL: &str = include_str!("../shaders/lipac_counting_common.glsl");
+
+/// `lipac_payload.glsl`: `LipacPayload`, the payload part of the pipeline
+/// include (include it before declaring the payload).
+pub const LIPAC_PAYLOAD_GLSL: &str = include_str!("../shaders/lipac_payload.glsl");
+
+/// `lipac_counting_pipeline.glsl`: counting boxes for engines that trace
+/// with ray-tracing pipelines (`lipacTraceCountingPipeline` in ray
+/// generation; `lipacBoxAnyHit`, `lipacBoxClosestHit`, `lipacClosestHit`,
+/// `lipacMiss` in the hit and miss shaders). Its header lists the macros.
+pub const LIPAC_COUNTING_PIPELINE_GLSL: &str =
+    include_str!("../shaders/lipac_counting_pipeline.glsl");
+
+/// GLSL source of `pipeline_camera.rgen`: an engine-style ray generation
+/// shader with lipac's pipeline counting (its hit shaders:
+/// `pipeline_hit.rchit`, `pipeline_box.rahit`/`.rchit`, `pipeline_miss.rmiss`).
+pub const PIPELINE_CAMERA_GLSL: &str = include_str!("../shaders/pipeline_camera.rgen");
+
+/// The GLSL includes an engine's shaders need, by file name: the ray-query
+/// include, the pipeline include and what they include.
+pub const INCLUDES: [(&str, &str); 5] = [
+    ("lipac_layout.glsl", LIPAC_LAYOUT_GLSL),
+    ("lipac_counting_common.glsl", LIPAC_COUNTING_COMMON_GLSL),
+    ("lipac_counting.glsl", LIPAC_COUNTING_GLSL),
+    ("lipac_payload.glsl", LIPAC_PAYLOAD_GLSL),
+    ("lipac_counting_pipeline.glsl", LIPAC_COUNTING_PIPELINE_GLSL),
+];
+
+/// Writes [`INCLUDES`] into the directory `dir` (created if missing), for
+/// an engine's shader build: compile with
+/// `glslangValidator --target-env vulkan1.2 -I<dir> shader.comp` (a
+/// ray-tracing stage: `shader.rgen`, `.rchit`, `.rahit`, `.rmiss`; SPIR-V 1.4
+/// or later, which `vulkan1.2` gives). Overwrites only these five files and
+/// returns their paths.
+///
+/// ```no_run
+/// let written = lipac_vk::shaders::write_includes(std::path::Path::new("shaders/lipac"))?;
+/// assert_eq!(written.len(), 5);
+/// # Ok::<(), std::io::Error>(())
+/// ```
+///
+/// # Errors
+///
+/// The I/O error of creating the directory or writing a file.
+pub fn write_includes(dir: &std::path::Path) -> std::io::Result<Vec<std::path::PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    INCLUDES
+        .iter()
+        .map(|(name, text)| {
+            let path = dir.join(name);
+            std::fs::write(&path, text)?;
+            Ok(path)
+        })
+        .collect()
+}
 
 /// Converts SPIR-V bytes to words (checks length and magic number).
 ///
