@@ -70,6 +70,7 @@ fn shard(index: u32, count: u32, scenes: usize, variants: usize) -> SweepShard {
             scenes: (0..scenes).map(|i| i.to_string()).collect(),
             variants: (0..variants).map(|i| i.to_string()).collect(),
             skipped: Vec::new(),
+            device_profile: Default::default(),
         },
         scenes: Vec::new(),
         points: Vec::new(),
