@@ -128,7 +128,7 @@ impl Loop {
             l.m.attach_recorder(TraceRecorder::new(std::io::sink(), options))
                 .expect("attach");
         }
-        l.m.reserve(n as usize);
+        l.m.reserve(n as usize).expect("reserve");
         for _ in 0..n {
             let d = l.desc();
             let h = l.m.register(d).expect("register");

@@ -34,7 +34,7 @@ fn build(n: u32, reserve: bool) -> (Culling, f64) {
     let mut culling = Culling::new(grid, CullingConfig::new(0xC0BE)).expect("config");
     let start = std::time::Instant::now();
     if reserve {
-        culling.reserve(n as usize);
+        culling.reserve(n as usize).expect("reserve");
     }
     let mut rng = 0x9E37_79B9_7F4A_7C15u64;
     let mut unit = || {

@@ -122,7 +122,7 @@ impl<H: HitboxIndex> Loop<H> {
             last: AssemblyStats::default(),
         };
         let start = Instant::now();
-        l.m.reserve(n as usize);
+        l.m.reserve(n as usize).expect("reserve");
         for _ in 0..n {
             let d = l.desc();
             let h = l.m.register(d).expect("register");

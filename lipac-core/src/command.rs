@@ -207,13 +207,28 @@ pub struct CommandBuffer {
 }
 
 impl CommandBuffer {
-    /// An empty buffer holding at most `capacity` commands.
+    /// An empty buffer holding at most `capacity` commands, its words
+    /// allocated up front where the memory can be had (else as commands
+    /// come; [`CommandBuffer::try_new`] refuses instead).
     pub fn new(capacity: u32) -> Self {
-        Self {
-            words: Vec::with_capacity(capacity as usize),
+        Self::try_new(capacity).unwrap_or(Self {
+            words: Vec::new(),
             capacity,
             requested: 0,
-        }
+        })
+    }
+
+    /// [`CommandBuffer::new`], an error
+    /// ([`CoreError::OutOfMemory`](crate::error::CoreError::OutOfMemory))
+    /// when the words for `capacity` commands cannot be had.
+    pub fn try_new(capacity: u32) -> Result<Self, crate::error::CoreError> {
+        let mut words = Vec::new();
+        crate::memory::try_reserve_exact(&mut words, capacity as usize, "command words")?;
+        Ok(Self {
+            words,
+            capacity,
+            requested: 0,
+        })
     }
 
     /// Heap bytes held (the word buffer's capacity).

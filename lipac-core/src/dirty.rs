@@ -33,11 +33,14 @@ impl DirtySet {
 
     /// Reserves room for indices below `len` and for `additional` more
     /// dirty indices before the next take.
-    pub fn reserve(&mut self, len: usize, additional: usize) {
-        let words = len.div_ceil(64);
-        self.bits
-            .reserve_exact(words.saturating_sub(self.bits.len()));
-        self.list.reserve(additional);
+    pub fn reserve(
+        &mut self,
+        len: usize,
+        additional: usize,
+    ) -> Result<(), crate::error::CoreError> {
+        let words = len.div_ceil(64).saturating_sub(self.bits.len());
+        crate::memory::try_reserve_exact(&mut self.bits, words, "dirty-slot bits")?;
+        crate::memory::try_reserve(&mut self.list, additional, "dirty slots")
     }
 
     /// Whether index `i` is dirty.

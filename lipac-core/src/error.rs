@@ -100,6 +100,15 @@ pub enum CoreError {
         /// What was out of order.
         what: String,
     },
+    /// Room a caller asked for (a reservation, a capacity) cannot be had:
+    /// the allocator refused it, or it is beyond what the address space
+    /// holds. Nothing was changed.
+    OutOfMemory {
+        /// What the room was for, e.g. `"instance slots"`.
+        what: &'static str,
+        /// How many more elements were asked for.
+        additional: usize,
+    },
     /// Algorithm 1 rejected its inputs.
     Assembly(crate::assembly::AssemblyError),
     /// Algorithm 2 rejected its inputs.
@@ -127,6 +136,10 @@ impl fmt::Display for CoreError {
             Self::InvalidAabb { min, max, reason } => {
                 write!(f, "invalid AABB (min {min}, max {max}): {reason}")
             }
+            Self::OutOfMemory { what, additional } => write!(
+                f,
+                "cannot reserve room for {additional} more {what}: the memory cannot be had"
+            ),
             Self::OutsideWorld { center } => write!(
                 f,
                 "position {center} lies outside the region covered by the hitbox index"

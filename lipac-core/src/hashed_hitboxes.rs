@@ -87,7 +87,7 @@ pub struct HashedConfig {
     /// 24-bit TLAS custom index of a counting box).
     pub max_cells: u32,
     /// Frames an empty cell is kept before it is evicted (0: at the next
-    /// frame start).
+    /// frame start; `u32::MAX`: never, and nothing is queued for it).
     pub evict_after_frames: u32,
     /// Buckets of the table at first (a power of two, at least 2); it
     /// doubles whenever it would be more than half full.
@@ -209,10 +209,17 @@ impl HashedHitboxes {
                 "hashed grid fingerprint_bits = {fingerprint_bits} must be in 1..=32"
             ));
         }
+        let mut table = Vec::new();
+        crate::memory::try_reserve_exact(
+            &mut table,
+            initial_buckets as usize,
+            "hash table buckets",
+        )?;
+        table.resize(initial_buckets as usize, Bucket::default());
         Ok(Self {
             config,
             inv_cell: cell_size.recip(),
-            table: vec![Bucket::default(); initial_buckets as usize],
+            table,
             live: 0,
             cells: Vec::new(),
             free: BinaryHeap::new(),
@@ -411,6 +418,54 @@ impl HashedHitboxes {
         self.table[b] = Bucket::default();
     }
 
+    /// [`HitboxIndex::occupy`] of cell `key` (found by the caller; `aabb`
+    /// only names the instance in an error).
+    pub(crate) fn occupy_key(&mut self, key: [i32; 2], aabb: &Aabb) -> Result<u32, CoreError> {
+        let bucket = match self.find(key) {
+            Ok(b) => {
+                let cell = &mut self.cells[self.table[b].hitbox as usize];
+                cell.occupants += 1;
+                return Ok(self.table[b].hitbox);
+            }
+            Err(b) => b,
+        };
+        if self.live >= self.config.max_cells {
+            return Err(CoreError::TooManyHitboxes {
+                limit: self.config.max_cells,
+                center: aabb.center(),
+            });
+        }
+        let bucket = if (self.live as usize + 1) * 2 > self.table.len() {
+            self.grow();
+            // Absent before, so `Err`: its empty bucket in the new table.
+            let (Ok(b) | Err(b)) = self.find(key);
+            b
+        } else {
+            bucket
+        };
+        let index = match self.free.pop() {
+            Some(Reverse(i)) => i,
+            None => {
+                self.cells.push(Cell::default());
+                self.cells.len() as u32 - 1
+            }
+        };
+        self.cells[index as usize] = Cell {
+            key,
+            occupants: 1,
+            live: true,
+            empty_since: 0,
+        };
+        self.table[bucket] = Bucket {
+            fingerprint: self.fingerprint(hash(key)),
+            hitbox: index,
+            key,
+        };
+        self.live += 1;
+        self.log_change(index);
+        Ok(index)
+    }
+
     /// Evicts hitbox `index` (its cell must be live and empty).
     fn evict(&mut self, index: u32) {
         let key = self.cells[index as usize].key;
@@ -462,50 +517,7 @@ impl HitboxIndex for HashedHitboxes {
             .ok_or(CoreError::OutsideWorld {
                 center: aabb.center(),
             })?;
-        let key = [cx, cz];
-        let bucket = match self.find(key) {
-            Ok(b) => {
-                let cell = &mut self.cells[self.table[b].hitbox as usize];
-                cell.occupants += 1;
-                return Ok(self.table[b].hitbox);
-            }
-            Err(b) => b,
-        };
-        if self.live >= self.config.max_cells {
-            return Err(CoreError::TooManyHitboxes {
-                limit: self.config.max_cells,
-                center: aabb.center(),
-            });
-        }
-        let bucket = if (self.live as usize + 1) * 2 > self.table.len() {
-            self.grow();
-            // Absent before, so `Err`: its empty bucket in the new table.
-            let (Ok(b) | Err(b)) = self.find(key);
-            b
-        } else {
-            bucket
-        };
-        let index = match self.free.pop() {
-            Some(Reverse(i)) => i,
-            None => {
-                self.cells.push(Cell::default());
-                self.cells.len() as u32 - 1
-            }
-        };
-        self.cells[index as usize] = Cell {
-            key,
-            occupants: 1,
-            live: true,
-            empty_since: 0,
-        };
-        self.table[bucket] = Bucket {
-            fingerprint: self.fingerprint(hash(key)),
-            hitbox: index,
-            key,
-        };
-        self.live += 1;
-        self.log_change(index);
-        Ok(index)
+        self.occupy_key([cx, cz], aabb)
     }
 
     /// One instance left hitbox `hitbox`; when it is the last, the cell's
@@ -520,7 +532,7 @@ impl HitboxIndex for HashedHitboxes {
             return;
         }
         cell.occupants -= 1;
-        if cell.occupants == 0 {
+        if cell.occupants == 0 && self.config.evict_after_frames != u32::MAX {
             cell.empty_since = frame;
             self.empty.push_back((frame, hitbox));
         }
@@ -558,7 +570,10 @@ impl HitboxIndex for HashedHitboxes {
 }
 
 /// The hitbox structure a trace's world asks for: the dense
-/// [`HitboxGrid`](crate::grid::HitboxGrid) for a bounded world, the sparse
+/// [`HitboxGrid`](crate::grid::HitboxGrid) for a bounded world of at most
+/// [`WorldHitboxes::DENSE_MAX_CELLS`] cells, the
+/// [`SparseGrid`](crate::sparse_grid::SparseGrid) of its cells for a larger
+/// one (memory by the cells used, not declared), the sparse
 /// [`HashedHitboxes`] for an unbounded one
 /// ([`crate::trace::WorldInfo::unbounded`]). One type, so that a replay
 /// holds one `Manager<WorldHitboxes>` whatever the trace.
@@ -566,24 +581,62 @@ impl HitboxIndex for HashedHitboxes {
 pub enum WorldHitboxes {
     /// A bounded world's grid.
     Grid(crate::grid::HitboxGrid),
+    /// A large bounded world's grid, its occupied cells only.
+    SparseGrid(crate::sparse_grid::SparseGrid),
     /// An unbounded world's hashed grid.
     Hashed(HashedHitboxes),
 }
 
 impl WorldHitboxes {
-    /// The structure for `world`: its grid if it is bounded (at most
+    /// The largest bounded world [`WorldHitboxes::for_world`] holds as a
+    /// dense grid: 2^16 cells (a 256 x 256 grid, a few MB of per-cell
+    /// state in a replay); a larger one is a
+    /// [`SparseGrid`](crate::sparse_grid::SparseGrid).
+    pub const DENSE_MAX_CELLS: u64 = 1 << 16;
+
+    /// The structure for `world`: for a bounded world (at most
     /// `max_grid_cells` cells, see
-    /// [`HitboxGrid::with_max_cells`](crate::grid::HitboxGrid::with_max_cells)),
-    /// else a hashed grid of its cells ([`crate::trace::WorldInfo::hashed_config`]).
+    /// [`HitboxGrid::with_max_cells`](crate::grid::HitboxGrid::with_max_cells))
+    /// its grid, dense up to [`WorldHitboxes::DENSE_MAX_CELLS`] cells,
+    /// sparse above; else a hashed grid of its cells
+    /// ([`crate::trace::WorldInfo::hashed_config`]).
     pub fn for_world(
         world: &crate::trace::WorldInfo,
         max_grid_cells: u64,
     ) -> Result<Self, CoreError> {
+        Self::for_world_dense_up_to(world, max_grid_cells, Self::DENSE_MAX_CELLS)
+    }
+
+    /// [`WorldHitboxes::for_world`] with its own largest dense grid
+    /// (`dense_max_cells`; 0: every bounded world sparse).
+    pub fn for_world_dense_up_to(
+        world: &crate::trace::WorldInfo,
+        max_grid_cells: u64,
+        dense_max_cells: u64,
+    ) -> Result<Self, CoreError> {
         if world.is_bounded() {
-            crate::grid::HitboxGrid::with_max_cells(world.grid_config(), max_grid_cells)
-                .map(Self::Grid)
+            let grid =
+                crate::grid::HitboxGrid::with_max_cells(world.grid_config(), max_grid_cells)?;
+            if u64::from(grid.len()) <= dense_max_cells {
+                Ok(Self::Grid(grid))
+            } else {
+                crate::sparse_grid::SparseGrid::new(grid).map(Self::SparseGrid)
+            }
         } else {
             HashedHitboxes::new(world.hashed_config()).map(Self::Hashed)
+        }
+    }
+
+    /// Hitboxes of the structure the world describes, as a GPU backend of
+    /// the paper's design holds them: every cell of a bounded world's grid
+    /// (also when held sparse here), the indices handed out for an
+    /// unbounded one. For memory models, so that they do not depend on how
+    /// the cells are held.
+    pub fn modelled_hitboxes(&self) -> u64 {
+        match self {
+            Self::Grid(g) => u64::from(g.len()),
+            Self::SparseGrid(s) => u64::from(s.grid().len()),
+            Self::Hashed(h) => u64::from(h.len()),
         }
     }
 }
@@ -593,6 +646,7 @@ macro_rules! both {
     ($self:ident, $i:ident => $e:expr) => {
         match $self {
             WorldHitboxes::Grid($i) => $e,
+            WorldHitboxes::SparseGrid($i) => $e,
             WorldHitboxes::Hashed($i) => $e,
         }
     };

@@ -267,12 +267,14 @@ impl ExtentTracker {
     }
 
     /// Reserves room for `slots` slots in all.
-    pub(crate) fn reserve_slots(&mut self, slots: usize) {
+    pub(crate) fn reserve_slots(&mut self, slots: usize) -> Result<(), crate::error::CoreError> {
+        use crate::memory::try_reserve_exact;
         for v in [&mut self.linked, &mut self.next, &mut self.prev] {
-            v.reserve_exact(slots.saturating_sub(v.len()));
+            let n = slots.saturating_sub(v.len());
+            try_reserve_exact(v, n, "hitbox extent links")?;
         }
-        self.keys
-            .reserve_exact(slots.saturating_sub(self.keys.len()));
+        let n = slots.saturating_sub(self.keys.len());
+        try_reserve_exact(&mut self.keys, n, "hitbox extent keys")
     }
 
     /// Notes that the refresh changes `hitbox` (its words before, once).

@@ -68,6 +68,7 @@ pub mod math;
 pub mod memory;
 pub mod registry;
 mod slot_table;
+pub mod sparse_grid;
 pub mod state;
 pub mod thresholds;
 pub mod trace;

@@ -14,6 +14,31 @@
 use std::collections::{BTreeSet, HashMap};
 use std::mem::size_of;
 
+use crate::error::CoreError;
+
+/// `v.try_reserve_exact(additional)`, a refusal as
+/// [`CoreError::OutOfMemory`]: room a caller asks for is an error when it
+/// cannot be had, never an abort.
+pub(crate) fn try_reserve_exact<T>(
+    v: &mut Vec<T>,
+    additional: usize,
+    what: &'static str,
+) -> Result<(), CoreError> {
+    v.try_reserve_exact(additional)
+        .map_err(|_| CoreError::OutOfMemory { what, additional })
+}
+
+/// `v.try_reserve(additional)` (amortised growth), a refusal as
+/// [`CoreError::OutOfMemory`].
+pub(crate) fn try_reserve<T>(
+    v: &mut Vec<T>,
+    additional: usize,
+    what: &'static str,
+) -> Result<(), CoreError> {
+    v.try_reserve(additional)
+        .map_err(|_| CoreError::OutOfMemory { what, additional })
+}
+
 /// CPU bytes of the loop's containers; see the [module docs](self).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MemoryUsage {

@@ -410,29 +410,34 @@ impl<H: HitboxIndex> InstanceRegistry<H> {
     /// use lipac_core::registry::{InstanceRegistry, RegistryConfig};
     /// let grid = HitboxGrid::new(GridConfig::default())?;
     /// let mut reg = InstanceRegistry::new(grid, RegistryConfig::default())?;
-    /// reg.reserve(1000);
+    /// reg.reserve(1000)?;
     /// assert!(reg.capacity() >= 1000);
     /// # Ok::<(), lipac_core::error::CoreError>(())
     /// ```
-    pub fn reserve(&mut self, additional: usize) {
-        self.reserve_slots(additional);
+    pub fn reserve(&mut self, additional: usize) -> Result<(), CoreError> {
+        self.reserve_slots(additional).map(|_| ())
     }
 
     /// [`InstanceRegistry::reserve`]; returns the number of slots the
     /// reservation covers (for per-slot buffers elsewhere).
-    pub(crate) fn reserve_slots(&mut self, additional: usize) -> usize {
+    pub(crate) fn reserve_slots(&mut self, additional: usize) -> Result<usize, CoreError> {
         let max = self.config.max_slots as usize;
         let additional = additional.min(max.saturating_sub(self.instances.len()));
         let new_slots = additional
             .saturating_sub(self.free.len())
             .min(max.saturating_sub(self.records.len()));
         let slots = self.records.len() + new_slots;
-        self.instances.reserve(additional);
-        self.records.reserve_exact(new_slots);
-        self.table.reserve_exact(new_slots);
-        self.dirty.reserve(slots, additional);
-        self.touched.reserve(slots, additional);
-        slots
+        self.instances
+            .try_reserve(additional)
+            .map_err(|_| CoreError::OutOfMemory {
+                what: "instance handles",
+                additional,
+            })?;
+        self.records.reserve_exact(new_slots)?;
+        self.table.reserve_exact(new_slots)?;
+        self.dirty.reserve(slots, additional)?;
+        self.touched.reserve(slots, additional)?;
+        Ok(slots)
     }
 
     /// Live instances the registry can hold now without reallocating its

@@ -65,8 +65,16 @@ impl SlotTable {
     }
 
     /// Room for `additional` more slots.
-    pub(crate) fn reserve_exact(&mut self, additional: usize) {
-        self.rows.reserve_exact(additional);
+    pub(crate) fn reserve_exact(
+        &mut self,
+        additional: usize,
+    ) -> Result<(), crate::error::CoreError> {
+        self.rows
+            .try_reserve_exact(additional)
+            .map_err(|_| crate::error::CoreError::OutOfMemory {
+                what: "slot table rows",
+                additional,
+            })
     }
 
     /// Slots the table holds without reallocating.

@@ -8,6 +8,7 @@
 use glam::{Affine3A, Vec3};
 use lipac_core::hashed_hitboxes::{HashedConfig, HashedHitboxes};
 use lipac_core::layout::TlasInstance;
+use lipac_core::sparse_grid::SparseGrid;
 use lipac_core::{
     Aabb, Ack, BuildEstimate, FrameBudgets, GridConfig, HitboxGrid, HitboxIndex, InstanceDesc,
     InstanceHandle, Manager, ManagerConfig, MeshCatalog, MeshId, MeshLod, ReadbackRing,
@@ -187,20 +188,37 @@ fn pos(rng: &mut SplitMix64) -> (f32, f32) {
     (u(rng), u(rng))
 }
 
-/// Drives both managers through the same scene; returns the hashed one.
-fn run_both(
-    evict_after_frames: u32,
-    frames: u64,
-    mut compare: impl FnMut(u64, bool),
-) -> Rig<HashedHitboxes> {
-    let grid = HitboxGrid::new(GridConfig {
+fn world_grid() -> HitboxGrid {
+    HitboxGrid::new(GridConfig {
         min: [0.0, 0.0],
         max: [f64::from(WORLD), f64::from(WORLD)],
         cell_size: CELL,
     })
-    .unwrap();
-    let mut g = Rig::new(grid, grid_cell);
-    let mut h = Rig::new(hashed(evict_after_frames), hashed_cell);
+    .unwrap()
+}
+
+/// Drives both managers through the same scene; returns the hashed one.
+fn run_both(
+    evict_after_frames: u32,
+    frames: u64,
+    compare: impl FnMut(u64, bool),
+) -> Rig<HashedHitboxes> {
+    let h = Rig::new(hashed(evict_after_frames), hashed_cell);
+    run_pair(h, evict_after_frames == u32::MAX, false, frames, compare)
+}
+
+/// Drives a grid manager and `h` through the same scene (with `border`,
+/// some instances move onto the world's far border, which the grid
+/// closes); with `exact`, asserts the same decisions every frame. Returns
+/// `h`.
+fn run_pair<H: HitboxIndex>(
+    mut h: Rig<H>,
+    exact: bool,
+    border: bool,
+    frames: u64,
+    mut compare: impl FnMut(u64, bool),
+) -> Rig<H> {
+    let mut g = Rig::new(world_grid(), grid_cell);
     let mut rng = SplitMix64::new(15);
     // Half of the cells hold instances at first (the left half of the world).
     let mut live: Vec<(InstanceHandle, InstanceHandle)> = Vec::new();
@@ -212,8 +230,12 @@ fn run_both(
     for frame in 0..frames {
         // Per frame: a few moves (anywhere), removals and registrations.
         let mut ops = Vec::new();
-        for _ in 0..3 {
-            let (x, z) = pos(&mut rng);
+        for i in 0..3 {
+            let (mut x, mut z) = pos(&mut rng);
+            if border && i == 0 && frame % 3 == 0 {
+                // Onto the far border (the last cell of the grid).
+                (x, z) = (WORLD, if frame % 2 == 0 { WORLD } else { z });
+            }
             let k = (rng.next_u64() % live.len() as u64) as usize;
             ops.push((rng.next_u64() % 3, k, x, z, (rng.next_u64() % 4) as u32));
         }
@@ -259,7 +281,7 @@ fn run_both(
         live.extend(new_g.into_iter().zip(new_h));
         let same = a == b;
         compare(frame, same);
-        if evict_after_frames == u32::MAX {
+        if exact {
             assert_eq!(a.0, b.0, "TLAS records differ at frame {frame}");
             assert_eq!(a.1, b.1, "instance states differ at frame {frame}");
             assert_eq!(
@@ -288,6 +310,30 @@ fn hashed_manager_decides_as_the_grid_manager_on_a_bounded_world() {
         h.m.stats().instances.active > 0,
         "the hot band activated instances"
     );
+}
+
+/// The sparse grid (a bounded world's occupied cells only) decides as the
+/// dense grid, far border included: the structure a replay holds for a
+/// large declared world (`WorldHitboxes::for_world`).
+#[test]
+fn sparse_grid_manager_decides_as_the_grid_manager() {
+    fn sparse_cell(s: &SparseGrid, i: u32) -> Option<(i32, i32)> {
+        s.cell(i).map(|(x, z)| (x as i32, z as i32))
+    }
+    let mut same_frames = 0;
+    let s = run_pair(
+        Rig::new(SparseGrid::new(world_grid()).unwrap(), sparse_cell),
+        true,
+        true,
+        40,
+        |_, same| same_frames += usize::from(same),
+    );
+    assert_eq!(same_frames, 40);
+    let index = s.m.registry().hitbox_index();
+    assert!(index.len() > 32 && index.len() <= 64, "{}", index.len());
+    // The far border's cell was used.
+    assert!((0..index.len()).any(|i| index.cell(i).is_some_and(|(x, _)| x == 7)));
+    assert!(s.m.stats().instances.active > 0);
 }
 
 #[test]

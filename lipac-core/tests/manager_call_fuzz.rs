@@ -667,7 +667,7 @@ impl Case {
                 if self.rng.chance_percent(50) {
                     self.m.trim_blas_cache();
                 } else {
-                    self.m.reserve(self.rng.below(40) as usize);
+                    self.m.reserve(self.rng.below(40) as usize).unwrap();
                 }
                 (Ok(()), false)
             }

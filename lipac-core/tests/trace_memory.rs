@@ -33,9 +33,14 @@ fn within<T>(budget: usize, f: impl FnOnce() -> T) -> T {
 
 const RECORD: u32 = 4 << 20;
 
+/// The first bytes of a JSON line the reader holds before it parses the
+/// rest as it reads it (`TraceLimits::max_buffered_line_bytes`).
+const BUFFERED: usize = 64 << 10;
+
 fn limits() -> TraceLimits {
     TraceLimits {
         max_frame_bytes: RECORD,
+        max_buffered_line_bytes: BUFFERED as u32,
         ..TraceLimits::default()
     }
 }
@@ -82,9 +87,9 @@ fn binary_removes() -> Vec<u8> {
     bytes
 }
 
-/// A JSON-lines trace whose second frame line (just under [`RECORD`] bytes)
-/// holds ten times more events than `max_events` allows.
-fn jsonl_many_events(max_events: u32) -> Vec<u8> {
+/// A JSON-lines trace whose second frame line (just under `bytes` bytes)
+/// holds more events than `max_events` allows (at least five times).
+fn jsonl_many_events(max_events: u32, bytes: usize) -> Vec<u8> {
     let (h, _) = tiny_trace();
     let mut w = JsonlWriter::new(Vec::new(), &h).unwrap();
     w.write_frame(&Frame {
@@ -100,9 +105,9 @@ fn jsonl_many_events(max_events: u32) -> Vec<u8> {
     let frame1 = lines[1].replace(r#""frame":0"#, r#""frame":1"#);
     let (head, tail) = frame1.split_once(r#""events":[]"#).unwrap();
     let ev = r#"{"remove":{"id":7}},"#;
-    let n = (max_events as usize * 10).min((RECORD as usize - head.len() - 64) / ev.len());
+    let n = (bytes - head.len() - 64) / ev.len();
     assert!(n > max_events as usize * 5, "{n} events fit");
-    let mut out = String::with_capacity(RECORD as usize + 4096);
+    let mut out = String::with_capacity(bytes + 4096);
     out.push_str(lines[0]);
     out.push('\n');
     out.push_str(lines[1]);
@@ -143,15 +148,20 @@ fn run_case(case: &str) {
             assert_eq!((e.frame_index, e.event), (Some(1), Some(0)), "{e}");
         }
         "jsonl" => {
-            // A line of 10x the allowed events; the limit fires while the
-            // line is parsed, not after every event was built.
+            // A 4 MiB line of 20 times the allowed events; the limit fires
+            // while the line is parsed, not after every event was built.
             let max_events = 10_000;
-            let text = jsonl_many_events(max_events);
+            let text = jsonl_many_events(max_events, RECORD as usize);
             let limits = TraceLimits {
                 max_events_per_frame: max_events,
                 ..limits()
             };
-            let e = within(3 * RECORD as usize, || {
+            // The events allowed, as built (a `Vec` grows by doubling), the
+            // first BUFFERED bytes of the line, and a little more: not the
+            // 4 MiB line, which is parsed as it is read after those (the
+            // reader held it whole before).
+            let events = 2 * max_events as usize * std::mem::size_of::<InstanceEvent>();
+            let e = within(BUFFERED + events + (256 << 10), || {
                 let mut r = JsonlReader::with_limits(text.as_slice(), limits).unwrap();
                 r.next_frame().unwrap();
                 r.next_frame().unwrap_err()
@@ -169,6 +179,69 @@ fn run_case(case: &str) {
             );
             assert_eq!(e.location, TraceLocation::Line(3), "{e}");
         }
+        "jsonl-string" => {
+            // A frame line of one 4 MiB string: refused once the string
+            // passes the longest a frame line holds, before anything
+            // copies it (it cost three times its size: the line, serde's
+            // copy, and the error quoting it whole).
+            let (h, _) = tiny_trace();
+            let head =
+                String::from_utf8(JsonlWriter::new(Vec::new(), &h).unwrap().finish().unwrap())
+                    .unwrap();
+            let mut text = head.lines().next().unwrap().as_bytes().to_vec();
+            text.extend_from_slice(b"\n{\"frame\":\"");
+            text.resize(text.len() + (4 << 20), b'a');
+            text.extend_from_slice(b"\"}\n");
+            let e = within(BUFFERED + (256 << 10), || {
+                let mut r = JsonlReader::with_limits(
+                    text.as_slice(),
+                    TraceLimits {
+                        max_frame_bytes: 128 << 20,
+                        ..limits()
+                    },
+                )
+                .unwrap();
+                r.next_frame().unwrap_err()
+            });
+            assert!(e.to_string().contains("longer than"), "{e}");
+            assert!(e.to_string().len() < 1000, "{e}");
+        }
+        "jsonl-long-line" => {
+            // A 4 MiB line of whitespace against a 1 MiB limit: refused
+            // at the limit, having held only its first BUFFERED bytes.
+            let (h, _) = tiny_trace();
+            let head =
+                String::from_utf8(JsonlWriter::new(Vec::new(), &h).unwrap().finish().unwrap())
+                    .unwrap();
+            let mut text = head.lines().next().unwrap().as_bytes().to_vec();
+            text.push(b'\n');
+            text.push(b'{');
+            text.resize(text.len() + (4 << 20), b' ');
+            text.extend_from_slice(b"}\n");
+            let limit = 1 << 20;
+            let e = within(BUFFERED + (256 << 10), || {
+                let mut r = JsonlReader::with_limits(
+                    text.as_slice(),
+                    TraceLimits {
+                        max_frame_bytes: limit,
+                        ..limits()
+                    },
+                )
+                .unwrap();
+                r.next_frame().unwrap_err()
+            });
+            assert!(
+                matches!(
+                    e.kind,
+                    TraceErrorKind::LimitExceeded {
+                        what: "frame line bytes",
+                        limit,
+                        ..
+                    } if limit == 1 << 20
+                ),
+                "{e}"
+            );
+        }
         other => panic!("unknown case {other}"),
     }
     println!("{case}: ok");
@@ -185,7 +258,7 @@ fn rejected_records_cost_a_small_multiple_of_their_size() {
         run_case(&case);
         return;
     }
-    for case in ["binary", "jsonl"] {
+    for case in ["binary", "jsonl", "jsonl-string", "jsonl-long-line"] {
         let mut child = std::process::Command::new(std::env::current_exe().unwrap())
             .args([
                 "--exact",

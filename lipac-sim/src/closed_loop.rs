@@ -153,10 +153,13 @@ pub fn with_target(base: LipacConfig, target: ControlTarget) -> LipacConfig {
     }
 }
 
+/// The largest memory budget, bytes (2^63: 8 EiB).
+pub const MAX_BUDGET_BYTES: u64 = 1 << 63;
+
 /// The Manager's budget for a report memory budget of `mib` MiB: the unit
 /// cube's BLAS (the report counts it, the Manager does not hold it) left
-/// out. NaN, infinite, zero, negative or budgets below the unit cube are
-/// errors.
+/// out. NaN, infinite, zero, negative, budgets below the unit cube and
+/// budgets above [`MAX_BUDGET_BYTES`] are errors.
 pub fn manager_budget(mib: f64) -> Result<ControlTarget, SimError> {
     manager_budget_with(mib, &MemoryModel::default())
 }
@@ -168,6 +171,14 @@ pub fn manager_budget_with(mib: f64, memory: &MemoryModel) -> Result<ControlTarg
     if !bytes.is_finite() || bytes < (cube + 1) as f64 {
         return Err(SimError::BadValue(format!(
             "--memory-budget {mib} MiB must be a positive number above the unit cube's {cube} B"
+        )));
+    }
+    // Refused, not silently capped: a budget beyond what any bytes count
+    // holds is no budget a user means.
+    if bytes > MAX_BUDGET_BYTES as f64 {
+        return Err(SimError::BadValue(format!(
+            "--memory-budget {mib} MiB is above the largest budget, {} MiB (8 EiB)",
+            MAX_BUDGET_BYTES / (1 << 20)
         )));
     }
     Ok(ControlTarget::MemoryBudget {
@@ -242,12 +253,13 @@ pub struct BudgetFigures {
     pub budget_bytes: u64,
     /// Frames from [`SETTLE_FRAMES`] on.
     pub frames: usize,
-    /// Mean memory over those, bytes.
-    pub mean_bytes: f64,
+    /// Mean memory over those, bytes (`None` without such frames, as the
+    /// two figures after it).
+    pub mean_bytes: Option<f64>,
     /// Largest `|memory / budget − 1|` over those.
-    pub max_deviation: f64,
+    pub max_deviation: Option<f64>,
     /// Largest `memory / budget − 1` (an overrun; negative: always under).
-    pub max_overrun: f64,
+    pub max_overrun: Option<f64>,
     /// Frames more than 5 % off the budget.
     pub frames_outside: usize,
     /// Frames more than 5 % over the budget: the budget not held.
@@ -266,6 +278,43 @@ pub struct BudgetFigures {
     pub final_scale: f64,
 }
 
+impl BudgetFigures {
+    /// One line for the terminal: budget, the settled frames' figures (or
+    /// that the run has none from [`SETTLE_FRAMES`] on), the jump, the
+    /// final scale. Never `inf` or `NaN`.
+    pub fn summary_line(&self) -> String {
+        let mib = |b: f64| b / MIB;
+        let settled = match (self.mean_bytes, self.max_deviation, self.max_overrun) {
+            (Some(mean), Some(dev), Some(over)) => format!(
+                "mean {:.2} MiB, max deviation {:.1} %, max overrun {:+.1} %, \
+                 {} of {} frames > 5 % off ({} over, {} under at scale > 1)",
+                mib(mean),
+                100.0 * dev,
+                100.0 * over,
+                self.frames_outside,
+                self.frames,
+                self.frames_over,
+                self.frames_spare,
+            ),
+            _ => "no frames to measure (the run ends before; give more --frames)".into(),
+        };
+        format!(
+            "{}: budget {:.2} MiB, frames {SETTLE_FRAMES}+: {settled}, after the jump {}, \
+             final scale {:.3}{}",
+            self.name,
+            mib(self.budget_bytes as f64),
+            self.jump_max_deviation
+                .map_or("-".into(), |d| format!("{:.1} %", 100.0 * d)),
+            self.final_scale,
+            if self.unreachable_frames > 0 {
+                format!(", budget unreachable in {} frames", self.unreachable_frames)
+            } else {
+                String::new()
+            }
+        )
+    }
+}
+
 /// [`BudgetFigures`] of every run with a memory budget; `cuts`: the frames
 /// the camera jumps at.
 pub fn budget_figures(r: &CompareReport, cuts: &[u32]) -> Vec<BudgetFigures> {
@@ -279,7 +328,7 @@ pub fn budget_figures(r: &CompareReport, cuts: &[u32]) -> Vec<BudgetFigures> {
         if target < 1.0 {
             continue;
         }
-        let budget = target as u64 + cube;
+        let budget = (target as u64).saturating_add(cube);
         let settled: Vec<_> = st
             .frames
             .iter()
@@ -304,13 +353,15 @@ pub fn budget_figures(r: &CompareReport, cuts: &[u32]) -> Vec<BudgetFigures> {
             name: st.name.clone(),
             budget_bytes: budget,
             frames: settled.len(),
-            mean_bytes: settled.iter().map(|m| m.total_bytes() as f64).sum::<f64>()
-                / settled.len().max(1) as f64,
-            max_deviation: max_dev(&mut settled.iter().map(|m| m.total_bytes())),
+            mean_bytes: (!settled.is_empty()).then(|| {
+                settled.iter().map(|m| m.total_bytes() as f64).sum::<f64>() / settled.len() as f64
+            }),
+            max_deviation: (!settled.is_empty())
+                .then(|| max_dev(&mut settled.iter().map(|m| m.total_bytes()))),
             max_overrun: settled
                 .iter()
                 .map(|m| dev(m.total_bytes()))
-                .fold(f64::NEG_INFINITY, f64::max),
+                .reduce(f64::max),
             frames_outside: settled
                 .iter()
                 .filter(|m| dev(m.total_bytes()).abs() > 0.05)
@@ -474,12 +525,15 @@ pub fn markdown(r: &CompareReport, cuts: &[u32]) -> Option<String> {
         for b in &budgets {
             let _ = writeln!(
                 s,
-                "| {} | {:.2} | {:.2} | {:.1} % | {:+.1} % | {} of {} | {} | {} | {} | {} | {:.3} |",
+                "| {} | {:.2} | {} | {} | {} | {} of {} | {} | {} | {} | {} | {:.3} |",
                 b.name,
                 b.budget_bytes as f64 / MIB,
-                b.mean_bytes / MIB,
-                100.0 * b.max_deviation,
-                100.0 * b.max_overrun,
+                b.mean_bytes
+                    .map_or("–".into(), |m| format!("{:.2}", m / MIB)),
+                b.max_deviation
+                    .map_or("–".into(), |d| format!("{:.1} %", 100.0 * d)),
+                b.max_overrun
+                    .map_or("–".into(), |d| format!("{:+.1} %", 100.0 * d)),
                 b.frames_outside,
                 b.frames,
                 b.frames_over,

@@ -230,9 +230,10 @@ impl<H: HitboxIndex> CpuBackend<H> {
 
     // ---- instances ------------------------------------------------------
 
-    /// Reserves room for `additional` more instances.
-    pub fn reserve(&mut self, additional: usize) {
-        self.manager.reserve(additional);
+    /// Reserves room for `additional` more instances (an error when the
+    /// memory cannot be had).
+    pub fn reserve(&mut self, additional: usize) -> Result<(), SimError> {
+        self.manager.reserve(additional).map_err(core)
     }
     /// Registers an instance ([`Manager::register`]).
     pub fn register(&mut self, desc: InstanceDesc) -> Result<InstanceHandle, SimError> {

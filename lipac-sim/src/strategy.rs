@@ -422,7 +422,7 @@ impl SetStrategy {
         let mut backend =
             CpuBackend::engine_selected(scene_grid(scene, BASELINE_CELL_SIZE)?, catalog)?;
         let n = scene.instances().len();
-        backend.reserve(n);
+        backend.reserve(n)?;
         let mut handles = Vec::with_capacity(n);
         for (slot, inst) in scene.instances().iter().enumerate() {
             let mut flags = inst.instance_flags();

@@ -194,7 +194,8 @@ fn hierarchy_instancing_lods_and_flags_are_imported() {
     assert_eq!((s.vegetation, s.animated, s.pinned), (1, 3, 1));
     // The pinned node's instance (the ground, mesh 1) and only it carries
     // lipac-core's PINNED flag.
-    let adds: Vec<_> = im.frames[0]
+    let frame0 = im.frames().next().unwrap();
+    let adds: Vec<_> = frame0
         .events
         .iter()
         .filter_map(|e| match e {
@@ -221,7 +222,7 @@ fn hierarchy_instancing_lods_and_flags_are_imported() {
     assert_eq!(im.header.meshes[1].lods[0].triangles, 128);
     assert!(im.header.meshes[1].lods[1].triangles < 128);
     // Frame 0 adds everything at its world transform.
-    let f0 = &im.frames[0].events;
+    let f0 = &im.frames().next().unwrap().events;
     assert_eq!(f0.len(), 6);
     assert_eq!(translation(&f0[0]), [10.0, 0.0, -5.0]); // city * house
     assert_eq!(translation(&f0[1]), [13.0, 0.0, -8.0]); // city * tree
@@ -238,7 +239,10 @@ fn hierarchy_instancing_lods_and_flags_are_imported() {
     assert_eq!(flags(&f0[0]), InstanceFlags::STATIC);
     assert_eq!(flags(&f0[2]), InstanceFlags::empty());
     // The animated crowd moves every later frame.
-    let moved = im.frames[1]
+    let moved = im
+        .frames()
+        .nth(1)
+        .unwrap()
         .events
         .iter()
         .filter(|e| matches!(e, InstanceEvent::Update(u) if u.pose.is_some()))
@@ -252,8 +256,11 @@ fn glb_and_embedded_gltf_import_alike_and_file_cameras_are_used() {
     let b = import(&glb_file(true), 3);
     assert_eq!(a, b);
     assert!(a.summary.file_cameras);
-    assert_eq!(a.frames[0].camera.position.to_array(), [10.0, 8.0, 20.0]);
-    assert_eq!(a.frames[0].camera.vertical_fov, 1.0);
+    assert_eq!(
+        a.frames().next().unwrap().camera.position.to_array(),
+        [10.0, 8.0, 20.0]
+    );
+    assert_eq!(a.frames().next().unwrap().camera.vertical_fov, 1.0);
     let orbit = import_gltf(
         &gltf_file(true),
         None,
@@ -265,7 +272,10 @@ fn glb_and_embedded_gltf_import_alike_and_file_cameras_are_used() {
         },
     )
     .unwrap();
-    assert_ne!(orbit.frames[0].camera.position, a.frames[0].camera.position);
+    assert_ne!(
+        orbit.frames().next().unwrap().camera.position,
+        a.frames().next().unwrap().camera.position
+    );
     // An external buffer without a base folder is a clear error.
     let (_, parts) = buffer();
     let ext = json(&parts, r#"[{"byteLength":4,"uri":"scene.bin"}]"#, false);
@@ -325,7 +335,7 @@ fn msft_lod_levels_are_the_files_not_generated() {
     // box (tree, crowd), box with its file LOD (house), terrain.
     assert_eq!(im.summary.meshes, 3);
     assert_eq!(im.summary.instances, 6);
-    let house_mesh = match &im.frames[0].events[0] {
+    let house_mesh = match &im.frames().next().unwrap().events[0] {
         InstanceEvent::Add(a) => a.mesh,
         e => panic!("{e:?}"),
     };
@@ -477,4 +487,86 @@ fn cli_imports_a_glb_and_replays_it_with_the_error() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("nope.glb"));
     assert!(!missing.exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A one-triangle glTF (embedded 44-byte buffer) whose index accessor is
+/// `indices` (JSON) over a view of `view_bytes` bytes.
+fn one_triangle(indices: &str, view_bytes: usize) -> Vec<u8> {
+    let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    bin.extend([0u16, 1, 2, 0].iter().flat_map(|v| v.to_le_bytes()));
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,0,1]}},{indices}],
+"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":{view_bytes}}}],
+"buffers":[{{"byteLength":44,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+        base64(&bin)
+    )
+    .into_bytes()
+}
+
+/// An accessor is checked against its view before it is read: the gltf
+/// crate reads as many elements as fit and stops without a word (2^40
+/// indices in a 6-byte view imported as one triangle), or panics.
+#[test]
+fn accessors_that_overrun_their_view_are_errors() {
+    let config = ImportConfig {
+        frames: 1,
+        ..ImportConfig::default()
+    };
+    let good = r#"{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}"#;
+    let im = import_gltf(&one_triangle(good, 6), None, "t", &config).unwrap();
+    assert_eq!(im.summary.triangles[0], 1);
+    for (indices, view, expect) in [
+        (
+            r#"{"bufferView":1,"componentType":5123,"count":1099511627776,"type":"SCALAR"}"#,
+            6,
+            "overrun",
+        ),
+        (
+            r#"{"bufferView":1,"componentType":5123,"count":4,"type":"SCALAR"}"#,
+            6,
+            "overrun",
+        ),
+        (
+            r#"{"bufferView":1,"byteOffset":2,"componentType":5123,"count":3,"type":"SCALAR"}"#,
+            6,
+            "overrun",
+        ),
+        // A view beyond its buffer.
+        (good, 4000, "overruns buffer"),
+        // Float indices (the crate's reader would panic).
+        (
+            r#"{"bufferView":1,"componentType":5126,"count":1,"type":"SCALAR"}"#,
+            6,
+            "unsigned SCALAR",
+        ),
+        // Sparse without a base view: a billion zeros not from the file.
+        (
+            r#"{"componentType":5123,"count":1000000000,"type":"SCALAR","sparse":{"count":1,"indices":{"bufferView":1,"componentType":5123},"values":{"bufferView":1}}}"#,
+            6,
+            "no buffer view",
+        ),
+    ] {
+        let e = import_gltf(&one_triangle(indices, view), None, "t", &config).unwrap_err();
+        assert!(e.to_string().contains(expect), "{indices}: {e}");
+    }
+}
+
+/// Frames are made one at a time: a trace of many frames costs the scene's
+/// memory, not the frames'.
+#[test]
+fn frames_are_generated_as_they_are_written() {
+    let config = ImportConfig {
+        frames: u32::MAX,
+        ..ImportConfig::default()
+    };
+    let good = r#"{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}"#;
+    let im = import_gltf(&one_triangle(good, 6), None, "t", &config).unwrap();
+    let mut frames = im.frames();
+    assert_eq!(frames.len(), u32::MAX as usize);
+    assert_eq!(frames.nth(1_000).unwrap().number, 1_000);
 }

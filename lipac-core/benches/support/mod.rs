@@ -317,7 +317,7 @@ pub const BLOCK_RECORDS: u32 = 1 << 18;
 impl Lipac {
     pub fn new(capacity: u32) -> Self {
         let mut a = TlsfAllocator::new(u64::from(capacity));
-        a.reserve_blocks(BLOCK_RECORDS as usize);
+        a.reserve_blocks(BLOCK_RECORDS as usize).unwrap();
         Lipac(a)
     }
 }

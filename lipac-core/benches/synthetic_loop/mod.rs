@@ -67,7 +67,7 @@ pub fn build(n: u32, scene: &Scene) -> Loop {
     let mut rng = XorShift64::new(0x9E37_79B9_7F4A_7C15 ^ u64::from(n));
     let mut unit = || rng.unit_f32();
     if scene.reserve {
-        culling.reserve(n as usize);
+        culling.reserve(n as usize).unwrap();
     }
     for i in 0..n {
         let c = Vec3::new(unit() * side as f32, 0.0, unit() * side as f32);

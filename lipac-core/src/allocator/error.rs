@@ -30,7 +30,9 @@ pub enum AllocError {
         required_capacity: u64,
     },
     /// The request cannot be satisfied by any capacity representable in a
-    /// `u64` (size plus alignment padding overflows).
+    /// `u64` (size plus alignment padding overflows), or the allocator's own
+    /// records for it cannot be had
+    /// ([`TlsfAllocator::reserve_blocks`](crate::allocator::TlsfAllocator::reserve_blocks)).
     CapacityOverflow,
     /// The handle's allocation was already freed (double free) or the handle
     /// is otherwise out of date.

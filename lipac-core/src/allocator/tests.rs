@@ -314,7 +314,7 @@ fn node_storage_grows_without_a_cap() {
 #[test]
 fn reserved_block_storage_is_used_without_reallocating() {
     let mut a = TlsfAllocator::new(1 << 20);
-    a.reserve_blocks(1000);
+    a.reserve_blocks(1000).unwrap();
     let storage = a.nodes.as_ptr();
     // The free tail's record and 1000 reserved ones, created up front.
     assert_eq!(a.nodes.len(), 1001);
@@ -323,7 +323,7 @@ fn reserved_block_storage_is_used_without_reallocating() {
     assert_eq!(a.nodes.len(), 1001);
     assert_eq!(a.nodes.as_ptr(), storage);
     // Reserving what is already there adds nothing.
-    a.reserve_blocks(0);
+    a.reserve_blocks(0).unwrap();
     assert_eq!(a.nodes.len(), 1001);
     for h in &hs {
         a.free(h.handle).unwrap();
@@ -347,10 +347,10 @@ fn reserving_counts_vacant_records_and_keeps_invariants() {
     a.check_invariants();
     let (records, vacant) = (a.nodes.len(), a.nodes.len() - 1);
     // Enough vacant records already: nothing added.
-    a.reserve_blocks(vacant);
+    a.reserve_blocks(vacant).unwrap();
     assert_eq!(a.nodes.len(), records);
     // Only the missing ones are added.
-    a.reserve_blocks(vacant + 5);
+    a.reserve_blocks(vacant + 5).unwrap();
     assert_eq!(a.nodes.len(), records + 5);
     a.check_invariants();
     let hs: Vec<_> = (0..vacant + 5).map(|_| a.allocate(8).unwrap()).collect();

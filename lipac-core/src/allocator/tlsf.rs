@@ -307,12 +307,16 @@ impl TlsfAllocator {
     /// later. The records are created and written now, so the first
     /// allocations that use them do not take page faults either (what a
     /// frame loop wants). Optional: storage grows on demand without it.
-    pub fn reserve_blocks(&mut self, additional: usize) {
+    /// [`AllocError::CapacityOverflow`] (nothing changed) when the memory
+    /// for the records cannot be had.
+    pub fn reserve_blocks(&mut self, additional: usize) -> Result<(), AllocError> {
         let missing = additional
             .saturating_sub(self.vacant_count)
             .min(MAX_NODES - self.nodes.len());
         let start = self.nodes.len();
-        self.nodes.reserve_exact(missing);
+        self.nodes
+            .try_reserve_exact(missing)
+            .map_err(|_| AllocError::CapacityOverflow)?;
         let blank = Node {
             offset: 0,
             size: 0,
@@ -326,6 +330,7 @@ impl TlsfAllocator {
         for i in (start..start + missing).rev() {
             self.release_node(i as u32);
         }
+        Ok(())
     }
 
     /// Managed bytes.

@@ -440,18 +440,26 @@ impl<H: HitboxIndex> Culling<H> {
             ..HitboxRecord::default()
         };
         // A GPU backend learns the active hitboxes from the first upload.
-        let hitbox_overrides = if engine_selected {
-            (0..hitbox_count as u32).map(|i| (i, true)).collect()
-        } else {
-            HashMap::new()
-        };
+        let mut hitbox_overrides = HashMap::new();
+        if engine_selected {
+            hitbox_overrides
+                .try_reserve(hitbox_count)
+                .map_err(|_| CoreError::OutOfMemory {
+                    what: "hitbox overrides",
+                    additional: hitbox_count,
+                })?;
+            hitbox_overrides.extend((0..hitbox_count as u32).map(|i| (i, true)));
+        }
+        let mut hitboxes = Vec::new();
+        crate::memory::try_reserve_exact(&mut hitboxes, hitbox_count, "hitbox records")?;
+        hitboxes.resize(hitbox_count, hitbox);
         let tree = HitboxTree::for_index(&index, config.adaptive_hitboxes)?;
         Ok(Self {
             registry: InstanceRegistry::new(index, config.registry)?,
-            hitboxes: vec![hitbox; hitbox_count],
+            hitboxes,
             instance_hits: Vec::new(),
             instance_rates: Vec::new(),
-            commands: CommandBuffer::new(config.command_capacity),
+            commands: CommandBuffer::try_new(config.command_capacity)?,
             untaken: false,
             fed_back: false,
             queue: CommandQueue::new(MAX_SLOTS),
@@ -627,7 +635,7 @@ impl<H: HitboxIndex> Culling<H> {
     ///
     /// let grid = HitboxGrid::new(GridConfig::default())?;
     /// let mut culling = Culling::new(grid, CullingConfig::new(1))?;
-    /// culling.reserve(100);
+    /// culling.reserve(100)?;
     /// let reserved = culling.memory_usage();
     /// let aabb = Aabb::new(Vec3::ZERO, Vec3::ONE);
     /// for i in 0..100 {
@@ -636,21 +644,22 @@ impl<H: HitboxIndex> Culling<H> {
     /// assert_eq!(culling.memory_usage(), reserved); // nothing grew
     /// # Ok::<(), lipac_core::error::CoreError>(())
     /// ```
-    pub fn reserve(&mut self, additional: usize) {
-        self.reserve_slots(additional);
+    pub fn reserve(&mut self, additional: usize) -> Result<(), CoreError> {
+        self.reserve_slots(additional).map(|_| ())
     }
 
     /// [`Culling::reserve`]; returns the number of slots it covers.
-    pub(crate) fn reserve_slots(&mut self, additional: usize) -> usize {
-        let slots = self.registry.reserve_slots(additional);
-        self.instance_hits
-            .reserve_exact(slots.saturating_sub(self.instance_hits.len()));
-        self.instance_rates
-            .reserve_exact(slots.saturating_sub(self.instance_rates.len()));
+    pub(crate) fn reserve_slots(&mut self, additional: usize) -> Result<usize, CoreError> {
+        use crate::memory::try_reserve_exact;
+        let slots = self.registry.reserve_slots(additional)?;
+        let n = slots.saturating_sub(self.instance_hits.len());
+        try_reserve_exact(&mut self.instance_hits, n, "instance hit counters")?;
+        let n = slots.saturating_sub(self.instance_rates.len());
+        try_reserve_exact(&mut self.instance_rates, n, "instance hit rates")?;
         // Each registration writes a state override (until the next take).
-        self.state_overrides.reserve(additional.min(slots));
-        self.extents.reserve_slots(slots);
-        slots
+        self.state_overrides.reserve(additional.min(slots))?;
+        self.extents.reserve_slots(slots)?;
+        Ok(slots)
     }
 
     /// Registers an instance ([`InstanceRegistry::register`]): inactive, no

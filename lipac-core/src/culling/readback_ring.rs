@@ -47,10 +47,14 @@ impl ReadbackRing {
                 what: "read-back ring latency 0: it must be at least 1 frame".into(),
             });
         }
-        Ok(Self {
-            latency,
-            slots: VecDeque::with_capacity(latency as usize),
-        })
+        let mut slots = VecDeque::new();
+        slots
+            .try_reserve_exact(latency as usize)
+            .map_err(|_| CoreError::OutOfMemory {
+                what: "read-back ring slots",
+                additional: latency as usize,
+            })?;
+        Ok(Self { latency, slots })
     }
 
     /// The latency in frames.

@@ -49,8 +49,8 @@ impl StateOverrides {
     }
 
     /// Room for `additional` more writes.
-    pub(super) fn reserve(&mut self, additional: usize) {
-        self.slots.reserve(additional);
+    pub(super) fn reserve(&mut self, additional: usize) -> Result<(), crate::error::CoreError> {
+        crate::memory::try_reserve(&mut self.slots, additional, "state overrides")
     }
 
     /// The writes since the last take, by ascending slot; clears them

@@ -124,7 +124,9 @@ impl InstanceArrays {
     /// ([`instance_bits::HAS_BLAS`] derived from each BLAS address).
     pub fn from_records(records: &[InstanceRecord]) -> Self {
         let mut a = Self::new();
-        a.reserve_exact(records.len());
+        // The records are in memory already: room for as many again (if
+        // refused, the arrays grow as they are pushed).
+        let _ = a.reserve_exact(records.len());
         for r in records {
             a.push(r);
         }
@@ -267,11 +269,14 @@ impl InstanceArrays {
         self.iter().collect()
     }
 
-    /// Reserves room for `additional` more slots in each array.
-    pub fn reserve_exact(&mut self, additional: usize) {
-        self.hot.reserve_exact(additional);
-        self.tlas.reserve_exact(additional);
-        self.bounds.reserve_exact(additional);
+    /// Reserves room for `additional` more slots in each array; an error
+    /// (nothing reserved beyond what could be had) when the memory cannot
+    /// be had.
+    pub fn reserve_exact(&mut self, additional: usize) -> Result<(), crate::error::CoreError> {
+        use crate::memory::try_reserve_exact;
+        try_reserve_exact(&mut self.hot, additional, "instance records")?;
+        try_reserve_exact(&mut self.tlas, additional, "instance records")?;
+        try_reserve_exact(&mut self.bounds, additional, "instance records")
     }
 
     /// Slots the arrays hold without reallocating.

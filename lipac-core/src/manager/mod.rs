@@ -556,9 +556,17 @@ impl<H: HitboxIndex> Manager<H> {
     /// command loop ([`Culling::reserve`], the slot table with it) and in
     /// the manager's list of changed data ranges, so that registering a
     /// scene of known size allocates each container once.
-    pub fn reserve(&mut self, additional: usize) {
-        let slots = self.culling.reserve_slots(additional);
-        self.data_dirty.reserve(additional.min(slots));
+    ///
+    /// An error ([`CoreError::OutOfMemory`](crate::error::CoreError::OutOfMemory))
+    /// when the memory cannot be had: at most [`MAX_SLOTS`](crate::layout::MAX_SLOTS)
+    /// slots are reserved, about 220 bytes each (`reserve(usize::MAX)` asks
+    /// for 2^24 slots, 3.7 GB). What was reserved before the refusal stays
+    /// reserved; nothing else changes.
+    pub fn reserve(&mut self, additional: usize) -> Result<(), ManagerError> {
+        let slots = self.culling.reserve_slots(additional)?;
+        let n = additional.min(slots);
+        crate::memory::try_reserve(&mut self.data_dirty, n, "changed data ranges")?;
+        Ok(())
     }
 
     /// Registers an instance: inactive, no BLAS, a geometry-data range for

@@ -397,7 +397,7 @@ fn an_instance_turning_inactive_releases_its_blas_through_the_scheduler() {
 fn reserve_covers_a_scene_of_known_size() {
     let mut rig = Rig::new(DataConfig::default());
     let m = &mut rig.m;
-    m.reserve(64);
+    m.reserve(64).unwrap();
     let loop_bytes = m.memory_usage();
     let caps = (m.culling().table().capacity(), m.data_dirty.capacity());
     assert!(caps.0 >= 64 && caps.1 >= 64);

@@ -418,6 +418,9 @@ struct LineSeed<'a> {
     limits: &'a TraceLimits,
     events: &'a mut Vec<InstanceEvent>,
     stop: &'a mut Option<FrameFault>,
+    /// The `"frame"` number once parsed (for the error of a line stopped
+    /// later).
+    number: &'a mut Option<u64>,
 }
 
 impl<'de> serde::de::DeserializeSeed<'de> for LineSeed<'_> {
@@ -450,6 +453,7 @@ impl<'de> serde::de::Visitor<'de> for LineSeed<'_> {
                 LineKey::Frame => {
                     once(&mut seen_frame, "frame")?;
                     parts.frame = m.next_value()?;
+                    *self.number = parts.frame;
                 }
                 LineKey::Camera => {
                     once(&mut seen_camera, "camera")?;
@@ -933,6 +937,156 @@ fn read_line<R: BufRead>(
     Ok(Some(Ok(())))
 }
 
+/// The longest JSON string a frame line may hold, bytes as written (field
+/// names and flag names are a few bytes): a longer one is refused as it is
+/// read, before a JSON parser copies it (and quotes it whole in its error).
+pub(crate) const MAX_FRAME_LINE_STRING: u64 = 256;
+
+/// Reads up to `limit` bytes of a line (its newline included, if within
+/// them) into `buf` (cleared first), growing `buf` by doubling but never
+/// beyond `limit` bytes; returns the bytes read (0 at end of input).
+fn read_line_into<R: BufRead>(r: &mut R, buf: &mut Vec<u8>, limit: u64) -> io::Result<usize> {
+    buf.clear();
+    let limit = usize::try_from(limit).unwrap_or(usize::MAX);
+    while buf.len() < limit {
+        let chunk = r.fill_buf()?.len().min(limit - buf.len());
+        if chunk == 0 {
+            break;
+        }
+        // Room for the chunk first, so that `read_until` (memchr) never
+        // grows `buf` past `limit`.
+        if buf.capacity() - buf.len() < chunk {
+            let want = (buf.len() + chunk).max(buf.capacity() * 2).min(limit);
+            buf.reserve_exact(want - buf.len());
+        }
+        r.by_ref().take(chunk as u64).read_until(b'\n', buf)?;
+        if buf.last() == Some(&b'\n') {
+            break;
+        }
+    }
+    Ok(buf.len())
+}
+
+/// The rest of a line as a [`Read`]: first `prefix` (the bytes of the line
+/// read already), then the [`BufRead`]'s bytes up to (not including) the
+/// newline, which it consumes; at most `left` bytes from the `BufRead`, and
+/// no JSON string longer than [`MAX_FRAME_LINE_STRING`] (a tiny lexer
+/// follows the strings over all the bytes). Past either limit it returns an
+/// error and leaves the fault in [`LineReader::fault`].
+struct LineReader<'a, R> {
+    prefix: &'a [u8],
+    r: &'a mut R,
+    /// Bytes of the line still allowed from `r`.
+    left: u64,
+    /// The line's limit (for the error).
+    max: u64,
+    /// The newline (or the end of input) was reached.
+    done: bool,
+    in_string: bool,
+    escaped: bool,
+    /// Bytes of the string being read.
+    string_len: u64,
+    fault: Option<TraceErrorKind>,
+}
+
+impl<'a, R: BufRead> LineReader<'a, R> {
+    fn new(prefix: &'a [u8], r: &'a mut R, left: u64) -> Self {
+        Self {
+            prefix,
+            r,
+            left,
+            max: left + prefix.len() as u64,
+            done: false,
+            in_string: false,
+            escaped: false,
+            string_len: 0,
+            fault: None,
+        }
+    }
+
+    /// Reads to the end of the line (after a successful parse only
+    /// whitespace is left; `end` has read it).
+    fn finish(&mut self) -> io::Result<()> {
+        let mut sink = [0u8; 64];
+        while self.read(&mut sink)? > 0 {}
+        Ok(())
+    }
+
+    fn fail(&mut self, kind: TraceErrorKind) -> io::Error {
+        let e = io::Error::new(io::ErrorKind::InvalidData, kind.to_string());
+        self.fault = Some(kind);
+        e
+    }
+
+    /// Follows the JSON strings over `bytes`.
+    fn lex(&mut self, bytes: &[u8]) -> io::Result<()> {
+        for &b in bytes {
+            if self.in_string {
+                if self.escaped {
+                    self.escaped = false;
+                } else if b == b'\\' {
+                    self.escaped = true;
+                } else if b == b'"' {
+                    self.in_string = false;
+                }
+                self.string_len += 1;
+            } else if b == b'"' {
+                self.in_string = true;
+                self.string_len = 0;
+            }
+        }
+        if self.in_string && self.string_len > MAX_FRAME_LINE_STRING {
+            return Err(self.fail(TraceErrorKind::InvalidValue {
+                what: "JSON string".into(),
+                reason: format!(
+                    "longer than {MAX_FRAME_LINE_STRING} bytes (a frame line holds only short \
+                     names)"
+                ),
+            }));
+        }
+        Ok(())
+    }
+}
+
+impl<R: BufRead> Read for LineReader<'_, R> {
+    fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
+        if !self.prefix.is_empty() {
+            let n = self.prefix.len().min(out.len());
+            out[..n].copy_from_slice(&self.prefix[..n]);
+            self.prefix = &self.prefix[n..];
+            self.lex(&out[..n])?;
+            return Ok(n);
+        }
+        if self.done || out.is_empty() {
+            return Ok(0);
+        }
+        let avail = self.r.fill_buf()?;
+        if avail.is_empty() {
+            self.done = true;
+            return Ok(0);
+        }
+        // At most one byte past the limit: reading it tells the line is
+        // longer.
+        let allowed = usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX);
+        let n = avail.len().min(out.len()).min(allowed);
+        let taken = avail[..n].iter().position(|&b| b == b'\n').unwrap_or(n);
+        let newline = taken < n;
+        out[..taken].copy_from_slice(&avail[..taken]);
+        self.r.consume(taken + usize::from(newline));
+        self.done = newline;
+        if taken as u64 > self.left {
+            return Err(self.fail(TraceErrorKind::LimitExceeded {
+                what: "frame line bytes",
+                value: self.max + 1,
+                limit: self.max,
+            }));
+        }
+        self.left -= taken as u64;
+        self.lex(&out[..taken])?;
+        Ok(taken)
+    }
+}
+
 #[derive(Debug)]
 enum ReadState {
     Frames,
@@ -952,6 +1106,8 @@ pub struct JsonlReader<R: Read> {
     header: TraceHeader,
     validator: TraceValidator,
     line: u64,
+    /// The line being parsed (up to
+    /// [`TraceLimits::max_buffered_line_bytes`] of it).
     buf: Vec<u8>,
     state: ReadState,
 }
@@ -1089,30 +1245,28 @@ impl<R: Read> JsonlReader<R> {
             kind,
         };
         let max = u64::from(self.limits.max_frame_bytes);
-        match read_line(&mut self.r, &mut self.buf, max)
-            .map_err(|e| err(None, None, TraceErrorKind::io(&e)))?
-        {
-            None => {
-                return Err(err(
-                    None,
-                    None,
-                    TraceErrorKind::MissingEnd { frames: index },
-                ))
-            }
-            Some(Err(len)) => {
-                return Err(err(
-                    None,
-                    None,
-                    TraceErrorKind::LimitExceeded {
-                        what: "frame line bytes",
-                        value: len,
-                        limit: max,
-                    },
-                ))
-            }
-            Some(Ok(())) => {}
+        let io_err = |e: io::Error| err(None, None, TraceErrorKind::io(&e));
+        // A line of up to max_buffered_line_bytes is read whole and parsed
+        // from memory (fast); a longer one is parsed as it is read after
+        // those bytes, so a line refused at byte k has cost at most
+        // max_buffered_line_bytes and what was parsed of its first k bytes.
+        let held = max.min(u64::from(self.limits.max_buffered_line_bytes));
+        let n = read_line_into(&mut self.r, &mut self.buf, held + 1).map_err(io_err)?;
+        if n == 0 {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::MissingEnd { frames: index },
+            ));
         }
         self.line = line;
+        let whole = self.buf.last() == Some(&b'\n') || (n as u64) <= held;
+        if self.buf.last() == Some(&b'\n') {
+            self.buf.pop();
+            if self.buf.last() == Some(&b'\r') {
+                self.buf.pop();
+            }
+        }
         if self.buf.is_empty() {
             return Err(err(
                 None,
@@ -1123,27 +1277,53 @@ impl<R: Read> JsonlReader<R> {
                 },
             ));
         }
+        if !whole && n as u64 > max {
+            return Err(err(
+                None,
+                None,
+                TraceErrorKind::LimitExceeded {
+                    what: "frame line bytes",
+                    value: n as u64,
+                    limit: max,
+                },
+            ));
+        }
         let mut events = Vec::new();
         let mut stop = None;
-        let parsed = {
+        let mut number = None;
+        let seed = LineSeed {
+            limits: &self.limits,
+            events: &mut events,
+            stop: &mut stop,
+            number: &mut number,
+        };
+        let parsed = if whole {
             let mut de = serde_json::Deserializer::from_slice(&self.buf);
-            serde::de::DeserializeSeed::deserialize(
-                LineSeed {
-                    limits: &self.limits,
-                    events: &mut events,
-                    stop: &mut stop,
-                },
-                &mut de,
-            )
-            .and_then(|parts| de.end().map(|()| parts))
+            serde::de::DeserializeSeed::deserialize(seed, &mut de)
+                .and_then(|parts| de.end().map(|()| parts))
+        } else {
+            let mut reader = LineReader::new(&self.buf, &mut self.r, max - n as u64);
+            let parsed = {
+                let mut de = serde_json::Deserializer::from_reader(&mut reader);
+                serde::de::DeserializeSeed::deserialize(seed, &mut de)
+                    .and_then(|parts| de.end().map(|()| parts))
+            };
+            if let Some(fault) = reader.fault.take() {
+                return Err(err(number, None, fault));
+            }
+            if parsed.is_ok() {
+                // The rest of the line (serde stops at the end of the value;
+                // `end` read the whitespace after it up to the newline).
+                reader.finish().map_err(io_err)?;
+            }
+            parsed
         };
         let parts = match (parsed, stop) {
             (Ok(parts), _) => parts,
             (Err(_), Some(FrameFault { event, kind })) => {
-                let number = peek_frame_number(&self.buf);
                 return Err(err(number, event, kind));
             }
-            (Err(e), None) => return Err(err(None, None, json_err(&e))),
+            (Err(e), None) => return Err(err(number, None, json_err(&e))),
         };
         let shape_err = |number, reason: &str| {
             err(
@@ -1171,10 +1351,12 @@ impl<R: Read> JsonlReader<R> {
                         read: index,
                     }));
                 }
-                self.buf.clear();
-                let more = read_line(&mut self.r, &mut self.buf, 0)
-                    .map_err(|x| e(TraceErrorKind::io(&x)))?;
-                if more.is_some() {
+                let more = !self
+                    .r
+                    .fill_buf()
+                    .map_err(|x| e(TraceErrorKind::io(&x)))?
+                    .is_empty();
+                if more {
                     return Err(TraceError::at(
                         TraceLocation::Line(line + 1),
                         TraceErrorKind::TrailingData,
@@ -1229,18 +1411,6 @@ impl<R: Read> JsonlReader<R> {
             )),
         }
     }
-}
-
-/// The `"frame"` number of a line whose parsing was stopped, for the error
-/// (found by a second, skipping parse that keeps nothing but the number).
-fn peek_frame_number(line: &[u8]) -> Option<u64> {
-    #[derive(Deserialize)]
-    struct Number {
-        frame: Option<u64>,
-    }
-    // Every other field is skipped by serde (`IgnoredAny`), allocating
-    // nothing per event.
-    serde_json::from_slice::<Number>(line).ok()?.frame
 }
 
 #[cfg(test)]

@@ -21,6 +21,12 @@ pub struct TraceLimits {
     /// Largest frame record in bytes (binary) or frame line (JSON).
     /// Default 256 MiB.
     pub max_frame_bytes: u32,
+    /// JSON lines: a frame line of up to this many bytes is read whole and
+    /// parsed from memory; a longer one is parsed as it is read after its
+    /// first this many bytes (several times slower per byte, but a line
+    /// never costs more than this plus what was parsed of it). Default
+    /// 16 MiB.
+    pub max_buffered_line_bytes: u32,
     /// Largest scene name in bytes. Default 4096.
     pub max_scene_name_bytes: u32,
     /// Most meshes in the header. Default 2^20.
@@ -53,6 +59,7 @@ impl Default for TraceLimits {
         Self {
             max_header_bytes: 1 << 30,
             max_frame_bytes: 256 << 20,
+            max_buffered_line_bytes: 16 << 20,
             max_scene_name_bytes: 4096,
             max_meshes: 1 << 20,
             max_lods: 32,

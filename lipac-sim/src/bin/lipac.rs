@@ -361,7 +361,7 @@ fn pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str, what: &str) -> Resu
 }
 
 fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
-    output::check_not_input(out, &[from])?;
+    output::check_out_dir(out, &[from])?;
     let json = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
     let mut report: sweep::SweepReport =
         serde_json::from_str(&json).map_err(|e| format!("{}: {e}", from.display()))?;
@@ -374,10 +374,11 @@ fn replot(from: &std::path::Path, out: &std::path::Path) -> Result<(), String> {
 }
 
 fn merge(dirs: &[PathBuf], out: &std::path::Path) -> Result<(), String> {
+    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
+    output::check_out_dir(out, &inputs)?;
     let shards = sweep::shard::read_shards(dirs).map_err(|e| e.to_string())?;
     let report = sweep::shard::merge(&shards).map_err(|e| e.to_string())?;
     print!("{}", sweep::sweep_markdown(&report));
-    let inputs: Vec<&std::path::Path> = dirs.iter().map(PathBuf::as_path).collect();
     output::publish_dir(out, &inputs, |dir| {
         sweep::write_sweep(&report, dir).map_err(|e| format!("writing the report: {e}"))
     })?;
@@ -484,7 +485,7 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         .chain(a.device_profile.iter())
         .map(PathBuf::as_path)
         .collect();
-    if let Err(e) = output::check_not_input(&a.out, &inputs) {
+    if let Err(e) = output::check_out_dir(&a.out, &inputs) {
         eprintln!("lipac sweep: {e}");
         return ExitCode::FAILURE;
     }
@@ -540,7 +541,12 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    run(Cli::parse())
+}
+
+/// The command line's work (`main` less the parsing; the file-safety
+/// table in `lipac/tests.rs` runs it in child processes).
+fn run(cli: Cli) -> ExitCode {
     let (common, strategies, closed_loop) = match cli.command {
         Command::Compare {
             common,
@@ -565,6 +571,11 @@ fn main() -> ExitCode {
     }
     if common.frames == Some(0) {
         eprintln!("lipac: --frames 0: nothing to render (give at least 1)");
+        return ExitCode::FAILURE;
+    }
+    let profile_inputs: Vec<&Path> = common.device_profile.iter().map(PathBuf::as_path).collect();
+    if let Err(e) = output::check_out_dir(&common.out, &profile_inputs) {
+        eprintln!("lipac: {e}");
         return ExitCode::FAILURE;
     }
     let lipac_start = match common.warm_start.as_deref().map(LipacStart::parse) {
@@ -638,29 +649,7 @@ fn main() -> ExitCode {
     }
     if closed_loop.is_some() {
         for b in closed_loop::budget_figures(&report, &report.camera_cuts) {
-            println!(
-                "{}: budget {:.2} MiB, frames {}+: mean {:.2} MiB, max deviation {:.1} %, \
-                 max overrun {:+.1} %, {} of {} frames > 5 % off ({} over, {} under at scale > 1), \
-                 after the jump {}, final scale {:.3}{}",
-                b.name,
-                b.budget_bytes as f64 / (1024.0 * 1024.0),
-                closed_loop::SETTLE_FRAMES,
-                b.mean_bytes / (1024.0 * 1024.0),
-                100.0 * b.max_deviation,
-                100.0 * b.max_overrun,
-                b.frames_outside,
-                b.frames,
-                b.frames_over,
-                b.frames_spare,
-                b.jump_max_deviation
-                    .map_or("-".into(), |d| format!("{:.1} %", 100.0 * d)),
-                b.final_scale,
-                if b.unreachable_frames > 0 {
-                    format!(", budget unreachable in {} frames", b.unreachable_frames)
-                } else {
-                    String::new()
-                }
-            );
+            println!("{}", b.summary_line());
         }
     }
     if let Some(c) = closed_loop::escape_error_correlation(&report) {
@@ -690,3 +679,9 @@ fn main() -> ExitCode {
         }
     }
 }
+
+// The file-safety table of every subcommand (the CLI's own unit test, in
+// src/cli/ with the command modules).
+#[cfg(test)]
+#[path = "../cli/tests.rs"]
+mod tests;

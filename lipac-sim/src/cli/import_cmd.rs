@@ -1,15 +1,17 @@
 //! `lipac import`: a glTF scene as a trace with geometry (logic in
 //! `lipac_sim::import`).
 
-use std::io::{BufWriter, Write};
-use std::path::PathBuf;
+use std::io::Read;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
 use lipac_core::trace::TraceFormat;
 use lipac_sim::import::camera_path::CameraSource;
-use lipac_sim::import::{import_gltf, write_trace, FlagRules, ImportConfig};
+use lipac_sim::import::{import_gltf, write_trace, FlagRules, ImportConfig, ImportSummary};
 use lipac_sim::SimError;
+
+use crate::output::{check_not_input, io_err, open_input, OutputFile};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum ImportCameraArg {
@@ -53,43 +55,7 @@ pub struct ImportArgs {
 }
 
 pub fn run_import(a: ImportArgs) -> ExitCode {
-    let mut rules = FlagRules::default();
-    if let Some(v) = a.vegetation {
-        rules.vegetation = v;
-    }
-    if let Some(v) = a.animated {
-        rules.animated = v;
-    }
-    let config = ImportConfig {
-        frames: a.frames,
-        camera: match a.camera {
-            ImportCameraArg::Auto => CameraSource::Auto,
-            ImportCameraArg::File => CameraSource::File,
-            ImportCameraArg::Orbit => CameraSource::Orbit,
-            ImportCameraArg::Flythrough => CameraSource::Flythrough,
-        },
-        aspect: a.width as f32 / a.height.max(1) as f32,
-        rules,
-    };
-    let format = if a.out.extension().is_some_and(|e| e == "jsonl") {
-        TraceFormat::Jsonl
-    } else {
-        TraceFormat::Binary
-    };
-    let io = |e: std::io::Error, p: &PathBuf| SimError::Io(format!("{}: {e}", p.display()));
-    let result = (|| -> Result<_, SimError> {
-        let bytes = std::fs::read(&a.input).map_err(|e| io(e, &a.input))?;
-        let name = format!(
-            "gltf:{}",
-            a.input.file_name().unwrap_or_default().to_string_lossy()
-        );
-        let imported = import_gltf(&bytes, a.input.parent(), &name, &config)?;
-        let file = std::fs::File::create(&a.out).map_err(|e| io(e, &a.out))?;
-        let mut w = write_trace(&imported, format, BufWriter::new(file))?;
-        w.flush().map_err(|e| io(e, &a.out))?;
-        Ok(imported.summary)
-    })();
-    match result {
+    match import_main(&a) {
         Ok(s) => {
             println!(
                 "{} meshes ({} with the file's LODs; triangles per LOD {} / {} / {}), \
@@ -122,9 +88,65 @@ pub fn run_import(a: ImportArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            let _ = std::fs::remove_file(&a.out);
-            eprintln!("lipac: {}: {e}", a.input.display());
+            eprintln!("lipac: {e}");
             ExitCode::FAILURE
         }
     }
+}
+
+/// The import, by the rule of every command (`output.rs`): arguments
+/// first, the output never one of the files read (the glTF and its buffer
+/// files), written beside and renamed into place only when complete.
+fn import_main(a: &ImportArgs) -> Result<ImportSummary, String> {
+    if a.frames == 0 {
+        return Err("--frames 0: nothing to import (give at least 1)".into());
+    }
+    if a.width == 0 || a.height == 0 {
+        return Err(format!(
+            "--width {} --height {}: the cameras' aspect needs both above 0",
+            a.width, a.height
+        ));
+    }
+    let mut rules = FlagRules::default();
+    if let Some(v) = &a.vegetation {
+        rules.vegetation.clone_from(v);
+    }
+    if let Some(v) = &a.animated {
+        rules.animated.clone_from(v);
+    }
+    let config = ImportConfig {
+        frames: a.frames,
+        camera: match a.camera {
+            ImportCameraArg::Auto => CameraSource::Auto,
+            ImportCameraArg::File => CameraSource::File,
+            ImportCameraArg::Orbit => CameraSource::Orbit,
+            ImportCameraArg::Flythrough => CameraSource::Flythrough,
+        },
+        aspect: a.width as f32 / a.height as f32,
+        rules,
+    };
+    let format = if a.out.extension().is_some_and(|e| e == "jsonl") {
+        TraceFormat::Jsonl
+    } else {
+        TraceFormat::Binary
+    };
+    check_not_input(&a.out, &[&a.input])?;
+    let at_input = |e: SimError| format!("{}: {e}", a.input.display());
+    let mut bytes = Vec::new();
+    open_input(&a.input)?
+        .read_to_end(&mut bytes)
+        .map_err(|e| io_err(&a.input, e))?;
+    let name = format!(
+        "gltf:{}",
+        a.input.file_name().unwrap_or_default().to_string_lossy()
+    );
+    let imported = import_gltf(&bytes, a.input.parent(), &name, &config).map_err(at_input)?;
+    drop(bytes);
+    // The buffer files the glTF named were read too.
+    let mut inputs: Vec<&Path> = vec![&a.input];
+    inputs.extend(imported.files_read.iter().map(PathBuf::as_path));
+    let mut out = OutputFile::create(&a.out, &inputs)?;
+    write_trace(&imported, format, out.writer()).map_err(|e| io_err(&a.out, e))?;
+    out.commit()?;
+    Ok(imported.summary)
 }

@@ -73,6 +73,17 @@ pub fn check_not_input(output: &Path, inputs: &[&Path]) -> Result<(), String> {
     Ok(())
 }
 
+/// Refuses a report folder that is one of `inputs` or exists and is not a
+/// folder: checked before the work ([`publish_dir`] checks again when it
+/// writes).
+pub fn check_out_dir(dir: &Path, inputs: &[&Path]) -> Result<(), String> {
+    check_not_input(dir, inputs)?;
+    if dir.exists() && !dir.is_dir() {
+        return Err(io_err(dir, "exists and is not a folder"));
+    }
+    Ok(())
+}
+
 /// Where writing `target` actually lands: the file a symbolic link points
 /// to (so the link is kept), else `target`.
 fn resolve_target(target: &Path) -> PathBuf {

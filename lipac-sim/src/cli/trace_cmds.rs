@@ -2,7 +2,7 @@
 //! traces on the command line (logic in `lipac_sim::record` and
 //! `lipac_sim::replay`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
@@ -14,7 +14,7 @@ use lipac_sim::report::{headline, table, write_report_with_snapshots};
 use lipac_sim::trace_scene::{replay_path, replay_stream, TraceSceneOptions};
 use lipac_sim::SimError;
 
-use crate::output::{check_not_input, io_err, open_input, publish_dir, OutputFile};
+use crate::output::{check_not_input, check_out_dir, io_err, open_input, publish_dir, OutputFile};
 use crate::{SceneArg, StrategyArg};
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -212,10 +212,9 @@ fn replay_main(a: &ReplayArgs) -> Result<(), String> {
     check_image_size(a.width, a.height).map_err(|e| e.to_string())?;
     // The report folder must not be (or hold) the trace: checked before
     // the (possibly long) replay.
-    check_not_input(&a.out, &[&a.file])?;
-    if let Some(p) = a.device_profile.as_deref() {
-        check_not_input(&a.out, &[p])?;
-    }
+    let mut inputs: Vec<&Path> = vec![&a.file];
+    inputs.extend(a.device_profile.as_deref());
+    check_out_dir(&a.out, &inputs)?;
     let config = ReplayConfig {
         strategies: a.strategies.iter().map(|&s| s.into()).collect(),
         width: a.width,

@@ -107,8 +107,8 @@ fn budget_figures_measure_the_settled_frames_and_the_jump() {
     let b = &b[0];
     assert_eq!(b.budget_bytes, budget);
     assert_eq!(b.frames, n - SETTLE_FRAMES as usize);
-    assert!((b.max_deviation - 0.10).abs() < 1e-9, "{b:?}");
-    assert!((b.max_overrun - 0.02).abs() < 1e-9, "{b:?}");
+    assert!((b.max_deviation.unwrap() - 0.10).abs() < 1e-9, "{b:?}");
+    assert!((b.max_overrun.unwrap() - 0.02).abs() < 1e-9, "{b:?}");
     assert_eq!(b.frames_outside, 20);
     // 2 % over is held; 10 % under at a scale above 1 is spare budget.
     assert_eq!((b.frames_over, b.frames_spare), (0, 20));
@@ -297,4 +297,32 @@ fn a_budget_on_the_small_scene_holds_through_a_camera_jump() {
         .collect();
     assert!(max(&scales[30..at + 10]) > 2.0, "{scales:?}");
     assert_eq!(scales[frames as usize - 1], 1.0);
+}
+
+/// With fewer frames than [`SETTLE_FRAMES`], the budget's figures say there
+/// is nothing to measure: no `-inf` (the maximum of nothing) or `NaN` in
+/// the line or the report.
+#[test]
+fn a_run_shorter_than_the_settling_prints_no_inf_or_nan() {
+    let budget = 1_000_000u64;
+    let bytes = vec![budget; 10];
+    let target = (budget - blas_bytes(12)) as f64;
+    let r = report(vec![run_of(
+        "lipac-budget",
+        &bytes,
+        Some(target),
+        &[0.1; 10],
+        &[0.01; 10],
+    )]);
+    let b = budget_figures(&r, &r.camera_cuts);
+    assert_eq!(b.len(), 1);
+    assert_eq!(b[0].frames, 0);
+    assert_eq!((b[0].mean_bytes, b[0].max_overrun), (None, None));
+    let line = b[0].summary_line();
+    assert!(line.contains("no frames to measure"), "{line}");
+    let md = markdown(&r, &r.camera_cuts).unwrap_or_default();
+    for text in [&line, &md] {
+        let lower = text.to_lowercase();
+        assert!(!lower.contains("inf") && !lower.contains("nan"), "{text}");
+    }
 }

@@ -11,11 +11,12 @@
 //! fans) are skipped and counted.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use ::gltf::accessor::Iter as AccessorIter;
 use ::gltf::buffer::Source;
-use ::gltf::mesh::Mode;
+use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::{Document, Gltf, Node};
 use glam::{Affine3A, Mat4, Quat, Vec3};
 
@@ -51,13 +52,51 @@ pub struct ImportedInstance {
     pub mesh: usize,
     /// Object-to-world transform.
     pub transform: Affine3A,
-    /// Names of the node and its ancestors, innermost first, then the
-    /// mesh's name (for name patterns).
-    pub names: Vec<String>,
-    /// The node's `extras` (raw JSON) and its ancestors', innermost first.
-    pub extras: Vec<String>,
+    /// The placing node and its ancestors, shared by the node's instances
+    /// (names and extras for the flag mapping).
+    pub node: Arc<NodePath>,
+    /// The mesh's name (empty if none).
+    pub mesh_name: Arc<str>,
     /// Placed through `EXT_mesh_gpu_instancing`.
     pub gpu_instanced: bool,
+}
+
+impl ImportedInstance {
+    /// Names of the node and its ancestors, innermost first, then the
+    /// mesh's name (for name patterns).
+    pub fn names(&self) -> impl Iterator<Item = &str> + Clone {
+        self.node
+            .nodes()
+            .map(|n| n.name.as_ref())
+            .chain(std::iter::once(self.mesh_name.as_ref()))
+    }
+
+    /// The `extras` (raw JSON) of the node and its ancestors that have
+    /// them, innermost first.
+    pub fn extras(&self) -> impl Iterator<Item = &str> {
+        self.node.nodes().filter_map(|n| n.extras.as_deref())
+    }
+}
+
+/// A node of the glTF hierarchy with its parent's path: each node holds
+/// its own name and extras once (a node's instances and children share
+/// it), so names and extras cost what the file holds whatever the depth or
+/// the number of instances.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodePath {
+    /// The node's name (empty if none).
+    pub name: Arc<str>,
+    /// The node's `extras`, raw JSON.
+    pub extras: Option<Arc<str>>,
+    /// The parent's path (`None` for a root).
+    pub parent: Option<Arc<NodePath>>,
+}
+
+impl NodePath {
+    /// This node, then its ancestors.
+    pub fn nodes(&self) -> impl Iterator<Item = &NodePath> + Clone {
+        std::iter::successors(Some(self), |n| n.parent.as_deref())
+    }
 }
 
 /// A camera node.
@@ -87,11 +126,13 @@ pub struct ImportedScene {
     pub cameras: Vec<ImportedCamera>,
     /// Primitives skipped (not triangle lists, or without positions).
     pub skipped_primitives: usize,
+    /// The external buffer files read (beside a `.gltf`).
+    pub files_read: Vec<PathBuf>,
 }
 
 /// A node still to visit: the node, its parent's world transform, its
 /// ancestors' names and extras (innermost first), its depth.
-type Pending<'a> = (Node<'a>, Affine3A, Vec<String>, Vec<String>, u32);
+type Pending<'a> = (Node<'a>, Affine3A, Option<Arc<NodePath>>, u32);
 
 fn err(what: impl std::fmt::Display) -> SimError {
     SimError::Import(what.to_string())
@@ -126,6 +167,7 @@ fn load_buffers(
     doc: &Document,
     blob: Option<&[u8]>,
     base: Option<&Path>,
+    files_read: &mut Vec<PathBuf>,
 ) -> Result<Vec<Vec<u8>>, SimError> {
     let mut out = Vec::new();
     for b in doc.buffers() {
@@ -161,6 +203,7 @@ fn load_buffers(
                     )));
                 }
                 let p = base.join(uri);
+                files_read.push(p.clone());
                 std::fs::read(&p).map_err(|e| err(format!("{}: {e}", p.display())))?
             }
         };
@@ -177,15 +220,185 @@ fn load_buffers(
     Ok(out)
 }
 
+/// The geometry an import may hold: a small multiple of the file's buffer
+/// bytes. Accessors shared by many primitives, or a mesh placed with many
+/// different `MSFT_lod` lists (each a trace mesh of its own, its geometry
+/// copied), would otherwise multiply a small file into any amount of
+/// memory (and of trace).
+struct GeometryBudget {
+    left: u64,
+    limit: u64,
+    buffer_bytes: u64,
+}
+
+impl GeometryBudget {
+    /// Times the buffer bytes, plus [`GeometryBudget::SLACK`].
+    const FACTOR: u64 = 8;
+    const SLACK: u64 = 16 << 20;
+
+    fn new(buffers: &[Vec<u8>]) -> Self {
+        let buffer_bytes: u64 = buffers.iter().map(|b| b.len() as u64).sum();
+        let limit = buffer_bytes
+            .saturating_mul(Self::FACTOR)
+            .saturating_add(Self::SLACK);
+        Self {
+            left: limit,
+            limit,
+            buffer_bytes,
+        }
+    }
+
+    /// Takes room for `vertices` positions and `indices` indices before
+    /// they are copied.
+    fn take(&mut self, vertices: usize, indices: usize) -> Result<(), SimError> {
+        let bytes = (vertices as u64)
+            .saturating_mul(12)
+            .saturating_add((indices as u64).saturating_mul(4));
+        self.left = self.left.checked_sub(bytes).ok_or_else(|| {
+            err(format!(
+                "the meshes as placed take more than {} bytes of geometry, {} x the file's {} \
+                 buffer bytes (accessors shared by many primitives, or meshes placed with many \
+                 different MSFT_lod lists)",
+                self.limit,
+                Self::FACTOR,
+                self.buffer_bytes
+            ))
+        })?;
+        Ok(())
+    }
+}
+
+/// What an accessor must hold to be read as the import reads it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Elements {
+    /// Float `VEC3` (positions, instance translations and scales).
+    Vec3F32,
+    /// Float `VEC4` (instance rotations).
+    Vec4F32,
+    /// Unsigned `SCALAR` of 8, 16 or 32 bits (triangle indices).
+    Indices,
+}
+
+/// Checks accessor `a` before anything is read from it: its element type
+/// is `want`, it has a buffer view (its elements come from the file), and
+/// `count` elements of its stride, from its offset, lie within the view,
+/// the view within its buffer (for a sparse accessor: its index and value
+/// arrays too), in checked arithmetic. The gltf crate would read as many
+/// elements as fit and stop without a word (an index accessor claiming
+/// 2^40 indices in a 6-byte view read as one triangle), or panic on a
+/// stride below the element size. `what` names the accessor's use.
+fn check_accessor(
+    a: &::gltf::Accessor<'_>,
+    buffers: &[Vec<u8>],
+    want: Elements,
+    what: &str,
+) -> Result<(), SimError> {
+    use ::gltf::accessor::{DataType, Dimensions};
+    let bad = |why: String| err(format!("{what} (accessor {}): {why}", a.index()));
+    let ok_type = match want {
+        Elements::Vec3F32 => a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec3,
+        Elements::Vec4F32 => a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec4,
+        Elements::Indices => {
+            matches!(a.data_type(), DataType::U8 | DataType::U16 | DataType::U32)
+                && a.dimensions() == Dimensions::Scalar
+        }
+    };
+    if !ok_type {
+        return Err(bad(format!(
+            "{:?} {:?} elements, expected {}",
+            a.data_type(),
+            a.dimensions(),
+            match want {
+                Elements::Vec3F32 => "float VEC3",
+                Elements::Vec4F32 => "float VEC4",
+                Elements::Indices => "unsigned SCALAR",
+            }
+        )));
+    }
+    let view = a.view().ok_or_else(|| {
+        bad(format!(
+            "no buffer view: its {} elements would not come from the file",
+            a.count()
+        ))
+    })?;
+    check_span(&view, a.offset(), a.count(), a.size(), buffers).map_err(bad)?;
+    if let Some(sparse) = a.sparse() {
+        let n = sparse.count();
+        if n > a.count() {
+            return Err(bad(format!(
+                "{n} sparse elements of an accessor of {}",
+                a.count()
+            )));
+        }
+        let indices = sparse.indices();
+        check_span(
+            &indices.view(),
+            indices.offset(),
+            n,
+            indices.index_type().size(),
+            buffers,
+        )
+        .map_err(|e| bad(format!("sparse indices: {e}")))?;
+        let values = sparse.values();
+        check_span(&values.view(), values.offset(), n, a.size(), buffers)
+            .map_err(|e| bad(format!("sparse values: {e}")))?;
+    }
+    Ok(())
+}
+
+/// `count` elements of `size` bytes at `offset` in `view` (its stride, or
+/// packed) lie within the view, and the view within its loaded buffer.
+fn check_span(
+    view: &::gltf::buffer::View<'_>,
+    offset: usize,
+    count: usize,
+    size: usize,
+    buffers: &[Vec<u8>],
+) -> Result<(), String> {
+    let stride = view.stride().unwrap_or(size);
+    if count == 0 {
+        return Err("count 0 (glTF requires at least 1)".into());
+    }
+    if stride < size {
+        return Err(format!("stride {stride} below the element size {size}"));
+    }
+    let end = (count - 1)
+        .checked_mul(stride)
+        .and_then(|b| b.checked_add(size))
+        .and_then(|b| b.checked_add(offset));
+    let view_len = view.length();
+    match end {
+        Some(end) if end <= view_len => {}
+        _ => {
+            return Err(format!(
+                "{count} elements of {size} bytes (stride {stride}) from offset {offset} \
+                 overrun its buffer view {} of {view_len} bytes",
+                view.index()
+            ))
+        }
+    }
+    let held = buffers.get(view.buffer().index()).map_or(0, Vec::len);
+    match view.offset().checked_add(view_len) {
+        Some(end) if end <= held => Ok(()),
+        _ => Err(format!(
+            "buffer view {} ({view_len} bytes from offset {}) overruns buffer {} of {held} bytes",
+            view.index(),
+            view.offset(),
+            view.buffer().index()
+        )),
+    }
+}
+
 /// Reads a glTF file's bytes (`.gltf` JSON or `.glb`); external buffer
 /// files are looked up in `base` (none: only embedded buffers).
 pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, SimError> {
     let gltf = Gltf::from_slice(bytes).map_err(|e| err(format!("glTF: {e}")))?;
     let doc = &gltf.document;
-    let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
-    let get = |b: ::gltf::Buffer<'_>| buffers.get(b.index()).map(Vec::as_slice);
-
     let mut scene = ImportedScene::default();
+    let buffers = load_buffers(doc, gltf.blob.as_deref(), base, &mut scene.files_read)?;
+    let get = |b: ::gltf::Buffer<'_>| buffers.get(b.index()).map(Vec::as_slice);
+    let mut geometry = GeometryBudget::new(&buffers);
+
     // glTF mesh index -> imported mesh index.
     let mut base_meshes: Vec<Option<ImportedMesh>> = vec![None; doc.meshes().len()];
     for m in doc.meshes() {
@@ -194,18 +407,48 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
             ..ImportedMesh::default()
         };
         for p in m.primitives() {
-            let r = p.reader(get);
-            let positions = match (p.mode(), r.read_positions()) {
-                (Mode::Triangles, Some(pos)) => pos,
+            let at = |what: &str| format!("mesh {} primitive {} {what}", m.index(), p.index());
+            let position_accessor = match (p.mode(), p.get(&Semantic::Positions)) {
+                (Mode::Triangles, Some(a)) => a,
                 _ => {
                     scene.skipped_primitives += 1;
                     continue;
                 }
             };
+            // Every accessor checked against its view before it is read:
+            // the gltf crate reads what fits and stops without a word.
+            check_accessor(
+                &position_accessor,
+                &buffers,
+                Elements::Vec3F32,
+                &at("POSITION"),
+            )?;
+            let index_accessor = p.indices();
+            if let Some(a) = &index_accessor {
+                check_accessor(a, &buffers, Elements::Indices, &at("indices"))?;
+            }
+            let r = p.reader(get);
+            let positions = r
+                .read_positions()
+                .ok_or_else(|| err(format!("{}: cannot be read", at("POSITION"))))?;
             let base = out.positions.len() as u32;
             let start = out.positions.len();
+            let count = u32::try_from(position_accessor.count())
+                .ok()
+                .filter(|&c| u64::from(c) + u64::from(base) <= u64::from(u32::MAX))
+                .ok_or_else(|| err(format!("{}: more than 2^32 vertices", at("POSITION"))))?;
+            let indices = index_accessor
+                .as_ref()
+                .map_or(count as usize, |a| a.count());
+            geometry.take(count as usize, indices)?;
             out.positions.extend(positions);
-            let count = (out.positions.len() - start) as u32;
+            if out.positions.len() - start != count as usize {
+                return Err(err(format!(
+                    "{}: {} of its {count} positions read",
+                    at("POSITION"),
+                    out.positions.len() - start
+                )));
+            }
             match r.read_indices() {
                 Some(ix) => {
                     for i in ix.into_u32() {
@@ -218,6 +461,9 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                         }
                         out.indices.push(base + i);
                     }
+                }
+                None if index_accessor.is_some() => {
+                    return Err(err(format!("{}: cannot be read", at("indices"))))
                 }
                 None => out.indices.extend(base..base + count),
             }
@@ -249,9 +495,9 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
     let mut stack: Vec<Pending<'_>> = roots
         .into_iter()
         .rev()
-        .map(|n| (n, Affine3A::IDENTITY, Vec::new(), Vec::new(), 0))
+        .map(|n| (n, Affine3A::IDENTITY, None, 0))
         .collect();
-    while let Some((node, parent, names, extras, depth)) = stack.pop() {
+    while let Some((node, parent, parent_path, depth)) = stack.pop() {
         if depth > 256 {
             return Err(err("node hierarchy deeper than 256 (a cycle?)"));
         }
@@ -263,15 +509,11 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                 node.index()
             )));
         }
-        let mut names_here = vec![node.name().unwrap_or_default().to_string()];
-        names_here.extend(names.iter().cloned());
-        let mut extras_here: Vec<String> = node
-            .extras()
-            .as_ref()
-            .map(|r| r.get().to_string())
-            .into_iter()
-            .collect();
-        extras_here.extend(extras.iter().cloned());
+        let path = Arc::new(NodePath {
+            name: Arc::from(node.name().unwrap_or_default()),
+            extras: node.extras().as_ref().map(|r| Arc::from(r.get())),
+            parent: parent_path,
+        });
         if let Some(c) = node.camera() {
             let (_, rotation, translation) = world.to_scale_rotation_translation();
             let (fov, aspect) = match c.projection() {
@@ -292,6 +534,11 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                 let mesh = match placed_meshes.get(&key) {
                     Some(&i) => i,
                     None => {
+                        for m in std::iter::once(m.index()).chain(key.1.iter().copied()) {
+                            if let Some(g) = &base_meshes[m] {
+                                geometry.take(g.positions.len(), g.indices.len())?;
+                            }
+                        }
                         let mut out = base.clone();
                         out.lods = key
                             .1
@@ -307,29 +554,22 @@ pub fn read_gltf(bytes: &[u8], base: Option<&Path>) -> Result<ImportedScene, Sim
                         scene.meshes.len() - 1
                     }
                 };
-                let mut inst_names = names_here.clone();
-                inst_names.push(m.name().unwrap_or_default().to_string());
-                let placements = gpu_instances(doc, &node, &get)?;
+                let mesh_name: Arc<str> = Arc::from(m.name().unwrap_or_default());
+                let placements = gpu_instances(doc, &node, &get, &buffers)?;
                 let gpu = placements.is_some();
                 for t in placements.unwrap_or_else(|| vec![Affine3A::IDENTITY]) {
                     scene.instances.push(ImportedInstance {
                         mesh,
                         transform: world * t,
-                        names: inst_names.clone(),
-                        extras: extras_here.clone(),
+                        node: Arc::clone(&path),
+                        mesh_name: Arc::clone(&mesh_name),
                         gpu_instanced: gpu,
                     });
                 }
             }
         }
         for child in node.children().collect::<Vec<_>>().into_iter().rev() {
-            stack.push((
-                child,
-                world,
-                names_here.clone(),
-                extras_here.clone(),
-                depth + 1,
-            ));
+            stack.push((child, world, Some(Arc::clone(&path)), depth + 1));
         }
     }
     Ok(scene)
@@ -375,6 +615,7 @@ fn gpu_instances<'a, 's, F>(
     doc: &'a Document,
     node: &Node<'a>,
     get: &F,
+    buffers: &[Vec<u8>],
 ) -> Result<Option<Vec<Affine3A>>, SimError>
 where
     F: Clone + Fn(::gltf::Buffer<'a>) -> Option<&'s [u8]>,
@@ -425,6 +666,12 @@ where
             return Ok(None);
         };
         f32_only(&a, name)?;
+        check_accessor(
+            &a,
+            buffers,
+            Elements::Vec3F32,
+            &format!("node {} instancing {name}", node.index()),
+        )?;
         AccessorIter::<[f32; 3]>::new(a, get.clone())
             .map(|it| Some(it.collect()))
             .ok_or_else(|| {
@@ -440,6 +687,12 @@ where
         None => None,
         Some(a) => {
             f32_only(&a, "ROTATION")?;
+            check_accessor(
+                &a,
+                buffers,
+                Elements::Vec4F32,
+                &format!("node {} instancing ROTATION", node.index()),
+            )?;
             Some(
                 AccessorIter::<[f32; 4]>::new(a, get.clone())
                     .map(|it| it.collect::<Vec<_>>())

@@ -30,7 +30,7 @@ pub mod gltf;
 pub mod lod;
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::{Affine3A, Quat, Vec3};
 use lipac_core::instance::{InstanceFlags, MeshId};
@@ -41,7 +41,7 @@ use lipac_core::trace::{
 };
 
 use self::camera_path::CameraSource;
-use self::gltf::{read_gltf, ImportedScene};
+use self::gltf::{read_gltf, ImportedCamera, ImportedInstance, ImportedScene};
 use crate::error::SimError;
 
 /// Name patterns of the flag mapping (case-insensitive substrings).
@@ -80,11 +80,15 @@ pub struct MappedFlags {
 }
 
 impl FlagRules {
-    /// The flags of an instance with `names` and `extras` (innermost
-    /// first).
-    pub fn map(&self, names: &[String], extras: &[String]) -> MappedFlags {
+    /// The flags of an instance with `names` and `extras` (raw JSON),
+    /// innermost first.
+    pub fn map<'a>(
+        &self,
+        names: impl IntoIterator<Item = &'a str> + Clone,
+        extras: impl IntoIterator<Item = &'a str>,
+    ) -> MappedFlags {
         let has = |pats: &[String]| {
-            names.iter().any(|n| {
+            names.clone().into_iter().any(|n| {
                 let n = n.to_lowercase();
                 pats.iter()
                     .any(|p| !p.is_empty() && n.contains(&p.to_lowercase()))
@@ -175,16 +179,143 @@ pub struct ImportSummary {
     pub frames: u32,
 }
 
-/// An imported scene as a trace.
+/// An imported scene as a trace: the header, and the frames generated one
+/// at a time ([`Imported::frames`]), so that memory follows the scene, not
+/// the number of frames asked for.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Imported {
     /// The header (meshes with geometry, world).
     pub header: TraceHeader,
-    /// The frames.
-    pub frames: Vec<Frame>,
     /// What it holds.
     pub summary: ImportSummary,
+    /// The external buffer files the glTF named and the import read (a
+    /// command writing the trace must not write over one of them).
+    pub files_read: Vec<PathBuf>,
+    placed: Vec<Placed>,
+    bounds_of: Vec<Aabb>,
+    bounds: Aabb,
+    cameras: CameraPlan,
+    frames: u32,
+    aspect: f32,
 }
+
+/// One placed instance of the scene.
+#[derive(Clone, Debug, PartialEq)]
+struct Placed {
+    base: Affine3A,
+    mesh: usize,
+    flags: MappedFlags,
+    aabb: Aabb,
+}
+
+/// Where the frames' cameras come from.
+#[derive(Clone, Debug, PartialEq)]
+enum CameraPlan {
+    File(Vec<ImportedCamera>),
+    Flythrough,
+    Orbit,
+}
+
+impl Imported {
+    /// The frames, in order, each made when it is reached.
+    pub fn frames(&self) -> ImportFrames<'_> {
+        ImportFrames {
+            imported: self,
+            next: 0,
+            lods: vec![0; self.placed.len()],
+        }
+    }
+}
+
+/// The frames of an [`Imported`] scene ([`Imported::frames`]).
+#[derive(Clone, Debug)]
+pub struct ImportFrames<'a> {
+    imported: &'a Imported,
+    next: u32,
+    /// Every instance's LOD in the frame before.
+    lods: Vec<u32>,
+}
+
+impl Iterator for ImportFrames<'_> {
+    type Item = Frame;
+
+    fn next(&mut self) -> Option<Frame> {
+        let im = self.imported;
+        let (f, n) = (self.next, im.frames);
+        if f >= n {
+            return None;
+        }
+        self.next += 1;
+        let camera = match &im.cameras {
+            CameraPlan::File(cams) => camera_path::file_camera(cams, f, n, im.aspect),
+            CameraPlan::Flythrough => camera_path::flythrough(&im.bounds, f, n, im.aspect),
+            CameraPlan::Orbit => camera_path::orbit(&im.bounds, f, n, im.aspect),
+        };
+        let eye = camera.position;
+        let mut events = Vec::new();
+        for (id, (p, last_lod)) in im.placed.iter().zip(&mut self.lods).enumerate() {
+            let t = if p.flags.animated {
+                p.base * Affine3A::from_quat(Quat::from_rotation_y(0.05 * f as f32))
+            } else {
+                p.base
+            };
+            let aabb = if p.flags.animated {
+                world_aabb(&t, &im.bounds_of[p.mesh])
+            } else {
+                p.aabb
+            };
+            let lod = lod_by_distance(eye, &aabb);
+            let pose = Pose {
+                transform: affine_to_rows(&t),
+                aabb,
+            };
+            if f == 0 {
+                let mut fl = InstanceFlags::empty();
+                if p.flags.vegetation {
+                    fl |= InstanceFlags::VEGETATION;
+                }
+                if !p.flags.animated {
+                    fl |= InstanceFlags::STATIC;
+                }
+                if p.flags.pinned {
+                    fl |= InstanceFlags::PINNED;
+                }
+                events.push(InstanceEvent::Add(AddInstance {
+                    id: id as u64,
+                    mesh: MeshId(p.mesh as u32),
+                    lod,
+                    flags: fl,
+                    mask: None,
+                    pose,
+                    slot: None,
+                }));
+            } else if p.flags.animated || lod != *last_lod {
+                events.push(InstanceEvent::Update(UpdateInstance {
+                    id: id as u64,
+                    pose: p.flags.animated.then_some(pose),
+                    lod: (lod != *last_lod).then_some(lod),
+                    flags: None,
+                    mask: None,
+                }));
+            }
+            *last_lod = lod;
+        }
+        Some(Frame {
+            number: u64::from(f),
+            camera,
+            events,
+            hits: None,
+            slot_hits: None,
+        })
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let left = (self.imported.frames - self.next) as usize;
+        (left, Some(left))
+    }
+}
+
+impl ExactSizeIterator for ImportFrames<'_> {}
 
 fn world_aabb(t: &Affine3A, b: &Aabb) -> Aabb {
     let mut lo = Vec3::splat(f32::INFINITY);
@@ -228,7 +359,9 @@ pub fn import_gltf(
         return Err(SimError::Import("the aspect must be positive".into()));
     }
     let scene = read_gltf(bytes, base)?;
-    to_trace(&scene, name, config)
+    let mut imported = to_trace(&scene, name, config)?;
+    imported.files_read = scene.files_read;
+    Ok(imported)
 }
 
 /// Turns a read glTF scene into a trace (see the module docs).
@@ -300,18 +433,23 @@ pub fn to_trace(
         });
     }
 
-    struct Placed {
-        base: Affine3A,
-        mesh: usize,
-        flags: MappedFlags,
-        aabb: Aabb,
-        lod: u32,
-    }
     let mut placed = Vec::with_capacity(scene.instances.len());
     let mut world_lo = Vec3::splat(f32::INFINITY);
     let mut world_hi = Vec3::splat(f32::NEG_INFINITY);
+    // The instances of one node (GPU instancing) share its flags: mapped
+    // once, not once per instance.
+    let mut last: Option<(&ImportedInstance, MappedFlags)> = None;
     for inst in &scene.instances {
-        let flags = config.rules.map(&inst.names, &inst.extras);
+        let flags = match last {
+            Some((prev, f))
+                if std::sync::Arc::ptr_eq(&prev.node, &inst.node)
+                    && std::sync::Arc::ptr_eq(&prev.mesh_name, &inst.mesh_name) =>
+            {
+                f
+            }
+            _ => config.rules.map(inst.names(), inst.extras()),
+        };
+        last = Some((inst, flags));
         summary.vegetation += usize::from(flags.vegetation);
         summary.animated += usize::from(flags.animated);
         summary.pinned += usize::from(flags.pinned);
@@ -342,7 +480,6 @@ pub fn to_trace(
             mesh: inst.mesh,
             flags,
             aabb,
-            lod: 0,
         });
     }
     let bounds = Aabb::new(world_lo, world_hi);
@@ -359,88 +496,28 @@ pub fn to_trace(
         meshes,
     };
 
-    let use_file = match config.camera {
-        CameraSource::Auto => !scene.cameras.is_empty(),
+    let cameras = match config.camera {
+        CameraSource::Auto if !scene.cameras.is_empty() => CameraPlan::File(scene.cameras.clone()),
         CameraSource::File => {
             if scene.cameras.is_empty() {
                 return Err(SimError::Import("the file has no camera".into()));
             }
-            true
+            CameraPlan::File(scene.cameras.clone())
         }
-        CameraSource::Orbit | CameraSource::Flythrough => false,
+        CameraSource::Flythrough => CameraPlan::Flythrough,
+        CameraSource::Auto | CameraSource::Orbit => CameraPlan::Orbit,
     };
-    summary.file_cameras = use_file;
-    let n = config.frames;
-    let mut frames = Vec::with_capacity(n as usize);
-    for f in 0..n {
-        let camera = if use_file {
-            camera_path::file_camera(&scene.cameras, f, n, config.aspect)
-        } else if config.camera == CameraSource::Flythrough {
-            camera_path::flythrough(&bounds, f, n, config.aspect)
-        } else {
-            camera_path::orbit(&bounds, f, n, config.aspect)
-        };
-        let eye = camera.position;
-        let mut events = Vec::new();
-        for (id, p) in placed.iter_mut().enumerate() {
-            let t = if p.flags.animated {
-                p.base * Affine3A::from_quat(Quat::from_rotation_y(0.05 * f as f32))
-            } else {
-                p.base
-            };
-            let aabb = if p.flags.animated {
-                world_aabb(&t, &bounds_of[p.mesh])
-            } else {
-                p.aabb
-            };
-            let lod = lod_by_distance(eye, &aabb);
-            let pose = Pose {
-                transform: affine_to_rows(&t),
-                aabb,
-            };
-            if f == 0 {
-                let mut fl = InstanceFlags::empty();
-                if p.flags.vegetation {
-                    fl |= InstanceFlags::VEGETATION;
-                }
-                if !p.flags.animated {
-                    fl |= InstanceFlags::STATIC;
-                }
-                if p.flags.pinned {
-                    fl |= InstanceFlags::PINNED;
-                }
-                events.push(InstanceEvent::Add(AddInstance {
-                    id: id as u64,
-                    mesh: MeshId(p.mesh as u32),
-                    lod,
-                    flags: fl,
-                    mask: None,
-                    pose,
-                    slot: None,
-                }));
-            } else if p.flags.animated || lod != p.lod {
-                events.push(InstanceEvent::Update(UpdateInstance {
-                    id: id as u64,
-                    pose: p.flags.animated.then_some(pose),
-                    lod: (lod != p.lod).then_some(lod),
-                    flags: None,
-                    mask: None,
-                }));
-            }
-            p.lod = lod;
-        }
-        frames.push(Frame {
-            number: u64::from(f),
-            camera,
-            events,
-            hits: None,
-            slot_hits: None,
-        });
-    }
+    summary.file_cameras = matches!(cameras, CameraPlan::File(_));
     Ok(Imported {
         header,
-        frames,
         summary,
+        files_read: Vec::new(),
+        placed,
+        bounds_of,
+        bounds,
+        cameras,
+        frames: config.frames,
+        aspect: config.aspect,
     })
 }
 
@@ -454,15 +531,15 @@ pub fn write_trace<W: Write>(
     Ok(match format {
         TraceFormat::Binary => {
             let mut t = TraceWriter::new(w, &imported.header)?;
-            for f in &imported.frames {
-                t.write_frame(f)?;
+            for f in imported.frames() {
+                t.write_frame(&f)?;
             }
             t.finish()?
         }
         TraceFormat::Jsonl => {
             let mut t = JsonlWriter::new(w, &imported.header)?;
-            for f in &imported.frames {
-                t.write_frame(f)?;
+            for f in imported.frames() {
+                t.write_frame(&f)?;
             }
             t.finish()?
         }

@@ -289,8 +289,9 @@ pub fn replay_hits_with<R: Read>(
         .with_adaptive_hitboxes(0)
         .with_memory(memory.clone());
     config.lipac_start.apply(&mut lipac_config);
-    // A bounded world's grid, or the hashed grid of an unbounded one (the
-    // readers checked the grid's size).
+    // A bounded world's grid (its occupied cells only if it is large: memory
+    // follows the cells the trace uses, not those it declares), or the
+    // hashed grid of an unbounded one (the readers checked the grid's size).
     let grid = WorldHitboxes::for_world(&header.world, u64::MAX).map_err(core)?;
     let mut world = World::new(&header);
     let mut runs = Vec::with_capacity(kinds.len());
@@ -762,7 +763,15 @@ impl LipacReplay {
         fill_work(m, &f.work);
         m.tlas_instances = self.records.len() as u64;
         m.counting_boxes = self.records.len() as u64 - slots.len() as u64;
-        let hitboxes = self.backend.hitboxes().len() as u64;
+        // The hitbox records of the world's structure as the paper's GPU
+        // backend holds them (every cell of a bounded world's grid, also
+        // when the replay holds only the cells used).
+        let hitboxes = self
+            .backend
+            .manager()
+            .registry()
+            .hitbox_index()
+            .modelled_hitboxes();
         if self.baseline {
             m.blas_bytes = self.backend.blas_bytes();
         } else {

@@ -302,7 +302,7 @@ impl Lipac {
         let catalog = InstanceCatalog::with_memory(scene, &config.memory)?.mesh_catalog()?;
         let mut backend = CpuBackend::new(grid, &config, catalog)?;
         let n = scene.instances().len();
-        backend.reserve(n);
+        backend.reserve(n)?;
         let mut handles = Vec::with_capacity(n);
         let mut units = Vec::new();
         for (slot, inst) in scene.instances().iter().enumerate() {

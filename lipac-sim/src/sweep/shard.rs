@@ -490,6 +490,36 @@ pub fn merge(shards: &[SweepShard]) -> Result<SweepReport, SimError> {
         .ok_or_else(|| shard_err("no shards to merge".into()))?;
     let n = first.shard.count;
     let plan = &first.plan;
+    // Counts read from the files are checked against what the files hold
+    // before anything is allocated by them: a sweep of N parts needs N
+    // shard files (and, below, its plan's (scene, variant) pairs are the
+    // points the shards carry).
+    if u64::from(n) > shards.len() as u64 {
+        let given: std::collections::BTreeSet<u32> = shards
+            .iter()
+            .filter(|s| s.shard.count == n && s.shard.valid())
+            .map(|s| s.shard.index)
+            .collect();
+        let missing: Vec<String> = (1..=n)
+            .filter(|k| !given.contains(k))
+            .take(8)
+            .map(|k| format!("{k}/{n}"))
+            .collect();
+        let more = u64::from(n)
+            .saturating_sub(given.len() as u64)
+            .saturating_sub(missing.len() as u64);
+        return Err(shard_err(format!(
+            "missing shards {}{}: shard {} is one of {n} parts, {} shard file(s) given",
+            missing.join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            },
+            first.shard,
+            shards.len()
+        )));
+    }
     let mut by_index: Vec<Option<&SweepShard>> = vec![None; n as usize];
     for s in shards {
         if s.format != SHARD_FORMAT {
@@ -519,6 +549,16 @@ pub fn merge(shards: &[SweepShard]) -> Result<SweepReport, SimError> {
         .collect();
     if !missing.is_empty() {
         return Err(shard_err(format!("missing shards {}", missing.join(", "))));
+    }
+    // The plan's pairs are listed only when the shards carry them all.
+    let carried: usize = shards.iter().map(|s| s.points.len()).sum();
+    if plan.scenes.len().checked_mul(plan.variants.len()) != Some(carried) {
+        return Err(shard_err(format!(
+            "the plan of shard {} has {} scenes x {} configurations, the shards hold {carried} results",
+            first.shard,
+            plan.scenes.len(),
+            plan.variants.len()
+        )));
     }
     let units: Vec<(usize, usize)> = plan.units().collect();
     let mut points = Vec::with_capacity(units.len());
